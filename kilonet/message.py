@@ -1,0 +1,212 @@
+"""Kilobot messages and the helper that packs protocol fields into them.
+
+A kilolib v2 message carries ``data[9]`` payload bytes and one ``type`` byte (the CRC is the
+medium's business). The thesis's older library carried only 23 payload bits. Both limits are
+:class:`PayloadLimit` values; the medium checks every offered message against its limit, so a
+protocol that tries to send more fails loudly instead of silently getting a bigger radio.
+
+Protocols never hand-roll bytes: they declare a :class:`Layout` of named, typed fields (struct
+codes, optionally fixed-point scaled) and call :meth:`Layout.pack` / :meth:`Layout.unpack`.
+
+Examples
+--------
+>>> POSITION = Layout("position", type=3, fields=[("seed", "B"), ("x_mm", "h"), ("y_mm", "h")])
+>>> msg = POSITION.pack(seed=7, x_mm=-120, y_mm=45)
+>>> msg.type, len(msg.data)
+(3, 5)
+>>> POSITION.unpack(msg)
+Position(seed=7, x_mm=-120, y_mm=45)
+"""
+
+from __future__ import annotations
+
+import struct
+from collections import namedtuple
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = [
+    "KILOLIB",
+    "THESIS",
+    "Layout",
+    "Message",
+    "PayloadError",
+    "PayloadLimit",
+]
+
+
+class PayloadError(ValueError):
+    """A message does not fit the payload limit, or a field value does not fit its field."""
+
+
+@dataclass(frozen=True, slots=True)
+class Message:
+    """One infrared message as a program offers and receives it.
+
+    Parameters
+    ----------
+    data : bytes
+        Payload bytes (at most 9 under kilolib v2).
+    type : int
+        Message type byte, 0–255 (kilolib's ``msg.type``).
+    """
+
+    data: bytes = b""
+    type: int = 0
+
+    @property
+    def size_bytes(self) -> int:
+        """Bytes on the air: payload, type byte and a 2-byte CRC."""
+        return len(self.data) + 3
+
+
+@dataclass(frozen=True, slots=True)
+class PayloadLimit:
+    """What one message may carry.
+
+    Parameters
+    ----------
+    name : str
+        ``"kilolib"`` or ``"thesis"``.
+    data_bits : int
+        Payload bits available for ``data`` (72 under kilolib v2, 23 in the thesis's library).
+    has_type : bool
+        Whether the ``type`` byte exists (the thesis's library had none: type must be 0).
+    air_bytes : int
+        Bytes on the air including type and CRC; sets the airtime.
+    """
+
+    name: str
+    data_bits: int
+    has_type: bool
+    air_bytes: int
+
+    def check(self, message: Message) -> None:
+        """Raise :class:`PayloadError` if ``message`` does not fit this limit."""
+        data = message.data
+        if not isinstance(data, bytes | bytearray):
+            raise PayloadError(f"message data must be bytes, got {type(data).__name__}")
+        if not 0 <= message.type <= 255:
+            raise PayloadError(f"message type {message.type} is not a byte (0-255)")
+        if not self.has_type and message.type != 0:
+            raise PayloadError(
+                f"the {self.name} message format has no type byte; got type={message.type}"
+            )
+        used = int.from_bytes(data, "big").bit_length()
+        if len(data) > -(-self.data_bits // 8) or used > self.data_bits:
+            raise PayloadError(
+                f"message payload of {len(data)} bytes ({used} significant bits) exceeds "
+                f"the {self.name} limit of {self.data_bits} bits; pack fields more tightly"
+            )
+
+
+#: kilolib v2: ``data[9]`` + type + 16-bit CRC = 12 bytes on the air.
+KILOLIB = PayloadLimit("kilolib", data_bits=72, has_type=True, air_bytes=12)
+#: The thesis's library: 2 bytes and 7 bits of payload plus a checksum, "almost 4 bytes".
+THESIS = PayloadLimit("thesis", data_bits=23, has_type=False, air_bytes=4)
+
+
+class Layout:
+    """A named message format: fields packed little-endian with :mod:`struct` codes.
+
+    Parameters
+    ----------
+    name : str
+        Name of the format; the unpacked record type is its CamelCase form.
+    type : int
+        The message type byte every message of this layout carries.
+    fields : list of (name, code) or (name, code, scale)
+        ``code`` is a struct code (``B`` uint8, ``b`` int8, ``H`` uint16, ``h`` int16, ``I``,
+        ``i``, ``?``). With ``scale``, the stored integer is ``round(value / scale)`` and
+        :meth:`unpack` returns ``stored * scale`` (e.g. ``("x_mm", "h", 0.1)`` stores tenths of
+        a millimetre).
+    max_bytes : int
+        Payload size the layout must fit (9, kilolib v2).
+
+    Raises
+    ------
+    PayloadError
+        If the fields take more than ``max_bytes``.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        type: int,
+        fields: list[tuple[str, str] | tuple[str, str, float]],
+        max_bytes: int = 9,
+    ) -> None:
+        self.name = name
+        self.type = type
+        self._names = [f[0] for f in fields]
+        self._codes = [f[1] for f in fields]
+        self._scales = [f[2] if len(f) > 2 else None for f in fields]
+        self._struct = struct.Struct("<" + "".join(self._codes))
+        if self._struct.size > max_bytes:
+            raise PayloadError(
+                f"layout {name!r} needs {self._struct.size} bytes, more than the {max_bytes}-byte "
+                "payload"
+            )
+        record_name = "".join(part.capitalize() for part in name.split("_"))
+        self.record = namedtuple(record_name, self._names)
+
+    @property
+    def size_bytes(self) -> int:
+        """Payload bytes this layout uses."""
+        return self._struct.size
+
+    def pack(self, **values: Any) -> Message:
+        """Build a :class:`Message` from field values.
+
+        Raises
+        ------
+        PayloadError
+            If a field is missing, unknown, or its value does not fit the field's type.
+        """
+        unknown = set(values) - set(self._names)
+        missing = [n for n in self._names if n not in values]
+        if unknown or missing:
+            raise PayloadError(
+                f"layout {self.name!r}: missing fields {missing}, unknown fields {sorted(unknown)}"
+            )
+        raw = []
+        for name, scale in zip(self._names, self._scales, strict=True):
+            value = values[name]
+            raw.append(round(value / scale) if scale is not None else value)
+        try:
+            return Message(self._struct.pack(*raw), self.type)
+        except struct.error as exc:
+            for name, code, value in zip(self._names, self._codes, raw, strict=True):
+                try:
+                    struct.pack("<" + code, value)
+                except struct.error:
+                    raise PayloadError(
+                        f"layout {self.name!r}: field {name}={values[name]!r} does not fit "
+                        f"struct code {code!r}"
+                    ) from exc
+            raise PayloadError(f"layout {self.name!r}: {exc}") from exc
+
+    def unpack(self, message: Message) -> Any:
+        """Read the fields of ``message`` back as a named tuple.
+
+        Raises
+        ------
+        PayloadError
+            If the message's type is not this layout's, or the payload is too short.
+        """
+        if message.type != self.type:
+            raise PayloadError(
+                f"layout {self.name!r} has type {self.type}, the message has {message.type}"
+            )
+        try:
+            raw = self._struct.unpack_from(message.data)
+        except struct.error as exc:
+            raise PayloadError(f"layout {self.name!r}: {exc}") from exc
+        return self.record(
+            *(v * s if s is not None else v for v, s in zip(raw, self._scales, strict=True))
+        )
+
+    def matches(self, message: Message) -> bool:
+        """Whether ``message`` carries this layout's type byte."""
+        return message.type == self.type

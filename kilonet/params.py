@@ -1,0 +1,326 @@
+"""Every model parameter in one typed, validated structure.
+
+Parameters live in sections (``medium``, ``ranging``, ``robot``, ``battery``, ``motion``,
+``faults``, plus one section per scenario) and are addressed by dotted keys such as
+``medium.loss_prob``. Each field carries its unit in its name and its valid range in its
+metadata, so a wrong key or an out-of-range value is an error that names the key.
+
+Examples
+--------
+>>> p = Params()
+>>> p = p.with_overrides({"medium.loss_prob": "0.2", "robot.rx_mode": "polled"})
+>>> p.medium.loss_prob, p.robot.rx_mode
+(0.2, 'polled')
+>>> p.with_overrides({"medium.los": "1"})
+Traceback (most recent call last):
+...
+kilonet.params.ParamError: unknown parameter 'medium.los'; medium has: airtime_s, ...
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import typing
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Literal
+
+__all__ = [
+    "BatteryParams",
+    "FaultParams",
+    "MediumParams",
+    "MotionParams",
+    "ParamError",
+    "Params",
+    "RangingParams",
+    "RobotParams",
+    "param",
+]
+
+
+class ParamError(ValueError):
+    """A parameter key is unknown or its value is invalid; the message names the key."""
+
+
+def param(default: Any, *, lo: float | None = None, hi: float | None = None, doc: str = "") -> Any:
+    """Declare a dataclass field with an inclusive valid range and a one-line description."""
+    return field(default=default, metadata={"lo": lo, "hi": hi, "doc": doc})
+
+
+@dataclass(frozen=True)
+class MediumParams:
+    """The infrared channel."""
+
+    range_mm: float = param(85.0, lo=33.0, hi=1000.0, doc="reception range, centre to centre")
+    line_of_sight: bool = param(True, doc="a robot's disc on the segment blocks a reception")
+    loss_prob: float = param(0.0, lo=0.0, hi=1.0, doc="independent loss per reception")
+    message_format: Literal["kilolib", "thesis"] = param(
+        "kilolib", doc="payload limit: kilolib v2 9 bytes, or the thesis's 23 bits"
+    )
+    bitrate_bps: float = param(30_000.0, lo=100.0, hi=1e7, doc="on-air bit rate")
+    airtime_s: float = param(
+        0.0, lo=0.0, hi=1.0, doc="airtime of one message; 0 derives it from bitrate and format"
+    )
+    csma: bool = param(True, doc="sense the carrier and back off while the channel is busy")
+    backoff_max_s: float = param(0.01, lo=0.0, hi=10.0, doc="random back-off is U(0, this)")
+
+
+@dataclass(frozen=True)
+class RangingParams:
+    """Distance estimates that come with every reception."""
+
+    sigma_mm: float = param(1.0, lo=0.0, hi=100.0, doc="Gaussian noise per reception")
+    bias_sigma_mm: float = param(0.0, lo=0.0, hi=100.0, doc="per-robot bias ~ N(0, this)")
+    min_mm: int = param(0, lo=0, hi=255, doc="estimates are clipped to [min_mm, max_mm]")
+    max_mm: int = param(255, lo=1, hi=255, doc="uint8 ceiling of kilolib's estimate")
+
+
+@dataclass(frozen=True)
+class RobotParams:
+    """The robot runtime (kilolib)."""
+
+    tx_period_s: float = param(0.2, lo=0.001, hi=60.0, doc="one message offer per period")
+    tx_jitter_s: float = param(0.02, lo=0.0, hi=60.0, doc="offer period is period ± U(jitter)")
+    loop_period_s: float = param(1 / 32, lo=0.001, hi=60.0, doc="loop() call period")
+    ticks_per_s: float = param(32.0, lo=1.0, hi=1000.0, doc="kilo_ticks rate")
+    rx_mode: Literal["callback", "polled"] = param(
+        "callback", doc="kilolib v2 message_rx on arrival, or the thesis's polled buffer"
+    )
+    rx_buffer: int = param(3, lo=1, hi=1000, doc="polled mode: messages kept, oldest dropped")
+    hardware_uids: bool = param(True, doc="kilo_uid available (False: the thesis's premise)")
+
+
+@dataclass(frozen=True)
+class BatteryParams:
+    """Battery voltage and how a low battery degrades the robot."""
+
+    enabled: bool = param(True, doc="model the battery at all")
+    initial_v: float = param(4.2, lo=0.0, hi=5.0, doc="voltage at start")
+    degrade_v: float = param(3.6, lo=0.0, hi=5.0, doc="below this the robot degrades")
+    cutoff_v: float = param(3.2, lo=0.0, hi=5.0, doc="at this the robot stops")
+    idle_drain_v_per_h: float = param(0.1, lo=0.0, hi=100.0, doc="drain with motors off")
+    motor_drain_v_per_h: float = param(0.35, lo=0.0, hi=100.0, doc="extra drain per motor on")
+    loss_at_cutoff: float = param(0.5, lo=0.0, hi=1.0, doc="extra reception loss at cut-off")
+    range_factor_at_cutoff: float = param(0.6, lo=0.0, hi=1.0, doc="range multiplier at cut-off")
+    motor_factor_at_cutoff: float = param(0.5, lo=0.0, hi=1.0, doc="speed multiplier at cut-off")
+    led_factor_at_cutoff: float = param(0.3, lo=0.0, hi=1.0, doc="LED brightness at cut-off")
+    update_s: float = param(1.0, lo=0.01, hi=3600.0, doc="how often degradation is re-evaluated")
+
+
+@dataclass(frozen=True)
+class MotionParams:
+    """Vibration-motor motion."""
+
+    speed_mm_s: float = param(10.0, lo=0.0, hi=1000.0, doc="forward speed, both motors on")
+    turn_deg_s: float = param(45.0, lo=0.0, hi=3600.0, doc="pivot rate, one motor on")
+    speed_error: float = param(0.1, lo=0.0, hi=0.9, doc="per-robot relative speed error (sd)")
+    turn_error: float = param(0.1, lo=0.0, hi=0.9, doc="per-robot relative turn-rate error (sd)")
+    step_s: float = param(0.05, lo=0.001, hi=10.0, doc="integration step while moving")
+
+
+@dataclass(frozen=True)
+class FaultParams:
+    """Faults injected by probability; times are simulated seconds."""
+
+    crash_fraction: float = param(0.0, lo=0.0, hi=1.0, doc="share of robots that crash")
+    crash_from_s: float = param(0.0, lo=0.0, doc="crash time drawn from U(from, to)")
+    crash_to_s: float = param(0.0, lo=0.0, doc="see crash_from_s")
+    remove_fraction: float = param(0.0, lo=0.0, hi=1.0, doc="share of robots removed")
+    remove_from_s: float = param(0.0, lo=0.0, doc="removal time drawn from U(from, to)")
+    remove_to_s: float = param(0.0, lo=0.0, doc="see remove_from_s")
+    faulty_rx_fraction: float = param(0.0, lo=0.0, hi=1.0, doc="share with a faulty receiver")
+    faulty_rx_drop_prob: float = param(0.3, lo=0.0, hi=1.0, doc="faulty receiver drop share")
+    faulty_rx_delay_prob: float = param(0.3, lo=0.0, hi=1.0, doc="share of the rest delayed")
+    faulty_rx_delay_s: float = param(0.5, lo=0.0, hi=60.0, doc="delay is U(0, this)")
+
+
+@dataclass(frozen=True)
+class Params:
+    """All parameters of one run.
+
+    ``scenario`` holds the scenario's own section (a frozen dataclass) or ``None``.
+    """
+
+    seed: int = param(1, lo=0, doc="master seed of the run")
+    duration_s: float = param(60.0, lo=0.0, doc="simulated time to run")
+    medium: MediumParams = field(default_factory=MediumParams)
+    ranging: RangingParams = field(default_factory=RangingParams)
+    robot: RobotParams = field(default_factory=RobotParams)
+    battery: BatteryParams = field(default_factory=BatteryParams)
+    motion: MotionParams = field(default_factory=MotionParams)
+    faults: FaultParams = field(default_factory=FaultParams)
+    scenario: Any = None
+
+    def __post_init__(self) -> None:
+        for section in (self, *self._sections().values()):
+            _check_ranges(section, self._prefix_of(section))
+        b = self.battery
+        if not b.cutoff_v < b.degrade_v:
+            raise ParamError(
+                f"battery.cutoff_v ({b.cutoff_v}) must be below battery.degrade_v ({b.degrade_v})"
+            )
+        if self.ranging.min_mm > self.ranging.max_mm:
+            raise ParamError("ranging.min_mm must not exceed ranging.max_mm")
+
+    def _sections(self) -> dict[str, Any]:
+        out = {f.name: getattr(self, f.name) for f in fields(self) if _is_section(f.type)}
+        if self.scenario is not None:
+            out[_scenario_name(self.scenario)] = self.scenario
+        return out
+
+    def _prefix_of(self, section: Any) -> str:
+        if section is self:
+            return ""
+        for name, value in self._sections().items():
+            if value is section:
+                return name + "."
+        return ""
+
+    def with_overrides(self, overrides: dict[str, Any]) -> Params:
+        """Return a copy with dotted keys set; string values are parsed to the field's type.
+
+        Raises
+        ------
+        ParamError
+            For an unknown key, a value of the wrong type, or a value out of range.
+        """
+        top: dict[str, Any] = {}
+        per_section: dict[str, dict[str, Any]] = {}
+        sections = self._sections()
+        for key, raw in overrides.items():
+            head, _, rest = key.partition(".")
+            if not rest:
+                target, name, prefix = self, head, ""
+            elif head in sections:
+                target, name, prefix = sections[head], rest, head + "."
+            else:
+                raise ParamError(
+                    f"unknown parameter {key!r}; sections are: {', '.join(sorted(sections))}"
+                )
+            known = {f.name: f for f in fields(target) if not _is_section(f.type)}
+            known.pop("scenario", None)
+            if name not in known:
+                raise ParamError(
+                    f"unknown parameter {key!r}; {prefix.rstrip('.') or 'the top level'} has: "
+                    f"{', '.join(sorted(known))}"
+                )
+            value = _coerce(key, raw, _field_type(type(target), name))
+            if target is self:
+                top[name] = value
+            else:
+                per_section.setdefault(head, {})[name] = value
+        changes = dict(top)
+        for head, values in per_section.items():
+            if head in {f.name for f in fields(self)}:
+                changes[head] = replace(sections[head], **values)
+            else:
+                changes["scenario"] = replace(self.scenario, **values)
+        return replace(self, **changes)
+
+    def to_flat_dict(self) -> dict[str, Any]:
+        """All parameters as ``{dotted key: value}``, for run records and summaries."""
+        out = {f.name: getattr(self, f.name) for f in fields(self) if not _is_section(f.type)}
+        out.pop("scenario", None)
+        for name, section in self._sections().items():
+            for f in fields(section):
+                out[f"{name}.{f.name}"] = getattr(section, f.name)
+        return out
+
+    @staticmethod
+    def read_toml(path: str | Path) -> tuple[str | None, dict[str, Any]]:
+        """Read a run file: an optional ``scenario = "name"`` and sections of parameters.
+
+        Returns the scenario name and the parameters as dotted-key overrides.
+
+        Raises
+        ------
+        ParamError
+            If the file is missing or not valid TOML.
+        """
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except FileNotFoundError:
+            raise ParamError(f"{path}: no such file") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ParamError(f"{path}: not valid TOML ({exc})") from None
+        scenario = data.pop("scenario", None)
+        flat: dict[str, Any] = {}
+        for key, value in data.items():
+            if isinstance(value, dict):
+                for sub, v in value.items():
+                    flat[f"{key}.{sub}"] = v
+            else:
+                flat[key] = value
+        return scenario, flat
+
+
+def _scenario_name(section: Any) -> str:
+    return getattr(section, "section_name", type(section).__name__.lower())
+
+
+def _is_section(tp: Any) -> bool:
+    return isinstance(tp, str) and tp.endswith("Params") and tp != "Params"
+
+
+def _field_type(cls: type, name: str) -> Any:
+    return typing.get_type_hints(cls)[name]
+
+
+def _check_ranges(section: Any, prefix: str) -> None:
+    for f in fields(section):
+        lo, hi = f.metadata.get("lo"), f.metadata.get("hi")
+        value = getattr(section, f.name)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            continue
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ParamError(f"{prefix}{f.name} = {value} is not a finite number")
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            raise ParamError(
+                f"{prefix}{f.name} = {value} is out of range [{lo if lo is not None else '-inf'}, "
+                f"{hi if hi is not None else 'inf'}]"
+            )
+
+
+def _coerce(key: str, raw: Any, tp: Any) -> Any:
+    """Parse ``raw`` (a string from the command line, or a TOML value) as type ``tp``."""
+    if typing.get_origin(tp) is Literal:
+        choices = typing.get_args(tp)
+        if raw not in choices:
+            raise ParamError(f"{key} = {raw!r} is not one of: {', '.join(map(str, choices))}")
+        return raw
+    if tp is bool:
+        if isinstance(raw, bool):
+            return raw
+        text = str(raw).strip().lower()
+        if text in {"1", "true", "yes", "on"}:
+            return True
+        if text in {"0", "false", "no", "off"}:
+            return False
+        raise ParamError(f"{key} = {raw!r} is not a boolean (true/false)")
+    if tp in (int, float):
+        if isinstance(raw, bool):
+            raise ParamError(f"{key} = {raw!r} is not a number")
+        try:
+            value = tp(raw) if tp is float or isinstance(raw, int) else int(str(raw), 0)
+        except (TypeError, ValueError):
+            raise ParamError(
+                f"{key} = {raw!r} is not {'an integer' if tp is int else 'a number'}"
+            ) from None
+        return value
+    if tp is str:
+        return str(raw)
+    raise ParamError(f"{key}: parameters of type {tp} cannot be set from text")
+
+
+def describe(params: Params) -> list[tuple[str, Any, str]]:
+    """``(dotted key, value, description)`` for every parameter, for ``--help`` style listings."""
+    rows = []
+    for key, value in params.to_flat_dict().items():
+        head, _, name = key.rpartition(".")
+        section = params._sections()[head] if head else params
+        meta = {f.name: f.metadata for f in dataclasses.fields(section)}.get(name, {})
+        rows.append((key, value, meta.get("doc", "")))
+    return rows

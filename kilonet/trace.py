@@ -1,0 +1,65 @@
+"""What a run records: LED changes, protocol events, poses of moving robots, robot stops.
+
+Everything is stored as events (not per frame), so a long run stays small; the tables come
+out as tidy pandas DataFrames with times in simulated seconds.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import pandas as pd
+
+__all__ = ["Trace"]
+
+
+class Trace:
+    """Append-only event log of one simulation."""
+
+    def __init__(self) -> None:
+        self._led: list[tuple[float, int, int, int, int]] = []
+        self._events: list[tuple[float, int, str, str]] = []
+        self._poses: list[tuple[float, int, float, float, float]] = []
+        self._stops: list[tuple[float, int, str]] = []
+
+    def led(self, t_s: float, robot: int, color: tuple[int, int, int]) -> None:
+        """Record that ``robot`` set its LED to ``color`` (kilolib 0–3 per channel)."""
+        self._led.append((t_s, robot, *color))
+
+    def event(self, t_s: float, robot: int, name: str, fields: dict[str, Any]) -> None:
+        """Record a protocol event; ``fields`` must be JSON-serialisable."""
+        self._events.append((t_s, robot, name, json.dumps(fields, sort_keys=True)))
+
+    def pose(self, t_s: float, robot: int, x_mm: float, y_mm: float, heading_rad: float) -> None:
+        """Record the pose of a moving robot."""
+        self._poses.append((t_s, robot, float(x_mm), float(y_mm), float(heading_rad)))
+
+    def stop(self, t_s: float, robot: int, cause: str) -> None:
+        """Record that ``robot`` stopped (crash, removal, battery)."""
+        self._stops.append((t_s, robot, cause))
+
+    def led_frame(self) -> pd.DataFrame:
+        """LED changes: ``t_s, robot, r, g, b``."""
+        return pd.DataFrame(self._led, columns=["t_s", "robot", "r", "g", "b"])
+
+    def events_frame(self) -> pd.DataFrame:
+        """Protocol events: ``t_s, robot, event, data`` (data as a JSON object string)."""
+        return pd.DataFrame(self._events, columns=["t_s", "robot", "event", "data"])
+
+    def poses_frame(self) -> pd.DataFrame:
+        """Poses of moving robots: ``t_s, robot, x_mm, y_mm, heading_rad``."""
+        return pd.DataFrame(self._poses, columns=["t_s", "robot", "x_mm", "y_mm", "heading_rad"])
+
+    def stops_frame(self) -> pd.DataFrame:
+        """Robot stops: ``t_s, robot, cause``."""
+        return pd.DataFrame(self._stops, columns=["t_s", "robot", "cause"])
+
+    def frames(self) -> dict[str, pd.DataFrame]:
+        """All tables by name."""
+        return {
+            "led": self.led_frame(),
+            "events": self.events_frame(),
+            "poses": self.poses_frame(),
+            "stops": self.stops_frame(),
+        }
