@@ -23,19 +23,27 @@ Model (all parameters in :class:`kilonet.params.MediumParams` and ``RobotParams`
   joins a buffer of ``rx_buffer`` messages that drops the oldest on overflow.
 
 Why it is fast: two SimPy events per transmission (the offer and the end of airtime, both
-callbacks on pre-bound methods, no processes), precomputed receiver lists, and random numbers
-drawn from NumPy in blocks, so the per-delivery work is a few list look-ups and one call.
+callbacks on pre-bound functions, no processes); receiver and handler lists precomputed per
+sender; and the random part of every reception (distance estimate, loss and its cause) drawn by
+NumPy in blocks of rows per sender ahead of time. Delivering a clean transmission is then one
+C-level ``map`` over the sender's handlers; per-receiver delivery counts of such transmissions are
+folded in from a per-sender count whenever the receiver lists change.
 """
 
 from __future__ import annotations
 
+import operator
+from collections import deque
 from collections.abc import Callable
+from heapq import heappush
+from itertools import repeat
 from typing import TYPE_CHECKING
 
 import numpy as np
-from simpy.events import Timeout
+from simpy.events import NORMAL
 
 from kilonet.message import KILOLIB, THESIS, Message, PayloadLimit
+from kilonet.robot import Kilobot
 from kilonet.visibility import visible_pairs
 
 if TYPE_CHECKING:
@@ -64,15 +72,6 @@ class RandomBlock:
         self._values: list[float] = []
         self._pos = 0
 
-    def take(self, k: int) -> list[float]:
-        """The next ``k`` draws as a list (``k`` at most the block size)."""
-        if self._pos + k > len(self._values):
-            self._values = self._values[self._pos :] + self._draw(_BLOCK).tolist()
-            self._pos = 0
-        out = self._values[self._pos : self._pos + k]
-        self._pos += k
-        return out
-
     def next(self) -> float:
         """The next draw."""
         if self._pos >= len(self._values):
@@ -84,16 +83,57 @@ class RandomBlock:
 
 
 class _Transmission:
-    """One message on the air: who sent it, who hears it, and which receptions collided."""
+    """One message on the air and the fate of each of its receptions.
 
-    __slots__ = ("corrupted", "dists", "message", "receivers", "sender")
+    ``estimates`` holds the distance estimate (mm) per receiver, ``losses`` a loss code per
+    receiver (see :data:`_LOSS_CODES`) or ``None`` when nothing is lost; ``epoch`` tells whether
+    receiver lists changed while the message was on the air. The object is also its own
+    end-of-airtime event on the SimPy queue (``callbacks``, ``_ok``, ``_value``: see
+    :mod:`kilonet.clock`), which saves an allocation per message.
+    """
 
-    def __init__(self, sender: int, message: Message, receivers: list, dists: list) -> None:
+    __slots__ = (
+        "_ok",
+        "_value",
+        "callbacks",
+        "corrupted",
+        "epoch",
+        "estimates",
+        "handlers",
+        "losses",
+        "message",
+        "receivers",
+        "sender",
+    )
+
+    def __init__(
+        self,
+        sender: int,
+        message: Message,
+        receivers: list[int],
+        handlers: list[Callable[[Message, int], None]],
+        estimates: bytes,
+        losses: bytes | None,
+        epoch: int,
+        callbacks: list,
+    ) -> None:
         self.sender = sender
         self.message = message
         self.receivers = receivers
-        self.dists = dists
+        self.handlers = handlers
+        self.estimates = estimates
+        self.losses = losses
+        self.epoch = epoch
         self.corrupted: set[int] | None = None
+        self.callbacks = callbacks
+        self._ok = True
+        self._value = None  # step() reads it only for failed events; no self-reference cycle
+
+
+#: Loss codes in an outcome row, by cause (0: delivered).
+_RANDOM, _BATTERY, _FAULT = 1, 2, 3
+_LOSS_CODES = {_RANDOM: "random", _BATTERY: "battery", _FAULT: "fault"}
+_MAX_ROWS_PER_REFILL = 256
 
 
 class InfraredMedium:
@@ -102,8 +142,8 @@ class InfraredMedium:
     Parameters
     ----------
     sim : Simulation
-        The simulation; the medium reads its environment, world, parameters, robots, trace and
-        the ``medium`` and ``ranging`` random streams.
+        The simulation; the medium reads its environment, world, parameters, robots and the
+        ``medium`` and ``ranging`` random streams.
     """
 
     def __init__(self, sim: Simulation) -> None:
@@ -118,30 +158,44 @@ class InfraredMedium:
         self._jitter = rp.tx_jitter_s
         self._csma = p.csma
         self._backoff_max = p.backoff_max_s
-        rg = sim.params.ranging
-        self._min_mm, self._max_mm = rg.min_mm, rg.max_mm
+        self._ranging = sim.params.ranging
         n = sim.n_robots
         self.n = n
 
-        self._uniform = RandomBlock(sim.stream("medium").random)
-        ranging = sim.stream("ranging")
-        sigma = rg.sigma_mm
-        self._noise = RandomBlock(lambda k: sigma * ranging.standard_normal(k) + 0.5)
-        self.bias_mm = ranging.normal(0.0, rg.bias_sigma_mm, n) if rg.bias_sigma_mm else np.zeros(n)
+        self._medium_rng = sim.stream("medium")
+        self._uniform = RandomBlock(self._medium_rng.random)
+        self._ranging_rng = sim.stream("ranging")
+        bias_sigma = self._ranging.bias_sigma_mm
+        self.bias_mm = self._ranging_rng.normal(0.0, bias_sigma, n) if bias_sigma else np.zeros(n)
 
-        # Per-robot state as Python lists: scalar access is what the hot path does.
-        self._busy_until = [0.0] * n
+        # Receiver-side loss shares (battery, fault), per robot.
+        self._loss_battery = np.zeros(n)
+        self._loss_fault = np.zeros(n)
+        # Per-robot channel state as Python lists: scalar access is what the hot path does.
+        # Channel state per robot: when the latest reception to begin there ends (all messages
+        # share one airtime, so it ends last), and that reception, to mark it on a collision.
+        self._busy_until = [-np.inf] * n
+        self._last_rx: list[_Transmission | None] = [None] * n
+        self._own_end = [-np.inf] * n  # when each robot's own latest transmission ends
+        self._any_extra_loss = False  # some receiver has a battery or fault loss share
+        self._running = [True] * n
+        robots = sim.robots
+        self._message_tx = [r.message_tx for r in robots]
+        # An empty message_tx_success() has no effect; not calling it saves a call per message.
+        self._tx_success = [
+            None
+            if type(r).message_tx_success is Kilobot.message_tx_success
+            else r.message_tx_success
+            for r in robots
+        ]
         self._range_factor = [1.0] * n
-        self._loss_battery = [0.0] * n
-        self._loss_fault = [0.0] * n
-        self._loss_total = [p.loss_prob] * n
-        self._any_loss = p.loss_prob > 0
         self._handlers: list[Callable[[Message, int], None]] = [_drop] * n
         self._last_checked: list[Message | None] = [None] * n
-        self._active: dict[int, _Transmission] = {}
-        self._last_rx: list[_Transmission | None] = [None] * n  # latest reception at each robot
+        self._epoch = 0  # bumped whenever receiver lists change; in-flight messages then
+        # take the careful delivery path
+        self._sink: deque = deque(maxlen=0)
 
-        self.counters = {
+        self._counters = {
             name: [0] * n
             for name in (
                 "offered",
@@ -152,11 +206,35 @@ class InfraredMedium:
                 *(f"lost_{c}" for c in LOSS_CAUSES),
             )
         }
-        self._full_r: list[list[int]] = [[] for _ in range(n)]
-        self._full_d: list[list[float]] = [[] for _ in range(n)]
+        self._lost_by_code = {
+            code: self._counters[f"lost_{cause}"] for code, cause in _LOSS_CODES.items()
+        }
+        self._clean_tx = [0] * n  # fully delivered transmissions not yet folded into "received"
+        self._offered = self._counters["offered"]
+        self._sent = self._counters["sent"]
+        self._bytes_sent = self._counters["bytes_sent"]
+        self._backoffs = self._counters["backoffs"]
+        self._message_bytes = [0] * n
+        # One reusable queue entry per robot for its next transmit opportunity (a robot has at
+        # most one pending), and one shared callback list for ends of airtime.
+        self._offer_callbacks = [self._offer]
+        self._offer_tokens = [_Token(i) for i in range(n)]
+        self._end_callbacks = [self._end_of_airtime]
+
+        # Per-sender links at full range, and the derived lists the hot path reads.
+        self._link_r: list[np.ndarray] = []
+        self._link_d: list[np.ndarray] = []
         self._rx_r: list[list[int]] = [[] for _ in range(n)]
-        self._rx_d: list[list[float]] = [[] for _ in range(n)]
-        self._tx_timer = [self._make_tx_callback(i) for i in range(n)]
+        self._rx_idx: list[np.ndarray] = [np.empty(0, dtype=np.intp)] * n
+        self._rx_d: list[np.ndarray] = [np.empty(0)] * n
+        self._rx_h: list[list[Callable[[Message, int], None]]] = [[] for _ in range(n)]
+        # Outcomes drawn ahead per sender: row k of the block is its k-th next transmission.
+        self._estimates: list[bytes] = [b""] * n  # distance estimate per receiver, mm
+        self._losses: list[bytes] = [b""] * n  # loss code per receiver
+        self._lossy_rows: list[list[bool] | None] = [None] * n  # None: no row has a loss
+        self._row_next = [0] * n
+        self._row_count = [0] * n
+        self._refill_rows = [4] * n
         self.rebuild_topology()
 
     # -- topology ----------------------------------------------------------------------------
@@ -170,35 +248,38 @@ class InfraredMedium:
             line_of_sight=self.params.line_of_sight,
             present=world.present,
         )
-        running = world.running
-        full_r: list[list[int]] = [[] for _ in range(self.n)]
-        full_d: list[list[float]] = [[] for _ in range(self.n)]
-        bias = self.bias_mm
-        for a, b, dist in zip(i.tolist(), j.tolist(), d.tolist(), strict=True):
-            if running[b]:
-                full_r[a].append(b)
-                full_d[a].append(dist + bias[b])
-            if running[a]:
-                full_r[b].append(a)
-                full_d[b].append(dist + bias[a])
-        self._full_r, self._full_d = full_r, full_d
-        self._true_d = {}
-        for a, b, dist in zip(i.tolist(), j.tolist(), d.tolist(), strict=True):
-            self._true_d[a, b] = self._true_d[b, a] = dist
+        sender = np.concatenate([i, j])
+        receiver = np.concatenate([j, i])
+        dist = np.concatenate([d, d])
+        keep = world.running[receiver]
+        sender, receiver, dist = sender[keep], receiver[keep], dist[keep]
+        order = np.lexsort((receiver, sender))
+        sender, receiver, dist = sender[order], receiver[order], dist[order]
+        bounds = np.searchsorted(sender, np.arange(self.n + 1))
+        self._link_r = np.split(receiver, bounds[1:-1])
+        self._link_d = np.split(dist, bounds[1:-1])
+        self._fold_received()
         for s in range(self.n):
-            self._apply_range(s)
+            self._derive(s)
 
-    def _apply_range(self, s: int) -> None:
+    def _derive(self, s: int) -> None:
+        """Rebuild sender ``s``'s receiver, distance and handler lists; drop its drawn rows."""
+        self._fold_received(s)
+        self._epoch += 1
+        r, d = self._link_r[s], self._link_d[s]
         factor = self._range_factor[s]
-        if factor >= 1.0:
-            self._rx_r[s], self._rx_d[s] = self._full_r[s], self._full_d[s]
-            return
-        limit = self.params.range_mm * factor
-        keep = [
-            k for k, r in enumerate(self._full_r[s]) if self._true_d[s, r] <= limit
-        ]
-        self._rx_r[s] = [self._full_r[s][k] for k in keep]
-        self._rx_d[s] = [self._full_d[s][k] for k in keep]
+        if factor < 1.0:
+            near = d <= self.params.range_mm * factor
+            r, d = r[near], d[near]
+        self._rx_idx[s] = r
+        self._rx_d[s] = d + self.bias_mm[r]
+        self._rx_r[s] = r.tolist()
+        self._rx_h[s] = [self._handlers[k] for k in self._rx_r[s]]
+        self._row_count[s] = self._row_next[s] = 0  # rows drawn for the old lists are void
+
+    def _senders_reaching(self, robot: int) -> list[int]:
+        """Senders whose receiver lists may contain ``robot`` (links are symmetric)."""
+        return self._link_r[robot].tolist()
 
     def receivers_of(self, sender: int) -> list[int]:
         """Robots that currently hear ``sender`` (range, line of sight, battery range)."""
@@ -209,7 +290,7 @@ class InfraredMedium:
         """Scale the transmit range of ``robot`` (battery); ``1`` is the full range."""
         if factor != self._range_factor[robot]:
             self._range_factor[robot] = factor
-            self._apply_range(robot)
+            self._derive(robot)
 
     def set_extra_loss(
         self, robot: int, *, battery: float | None = None, fault: float | None = None
@@ -219,136 +300,201 @@ class InfraredMedium:
             self._loss_battery[robot] = battery
         if fault is not None:
             self._loss_fault[robot] = fault
-        total = self.params.loss_prob + self._loss_battery[robot] + self._loss_fault[robot]
-        self._loss_total[robot] = total
-        if total > 0:
-            self._any_loss = True
+        self._any_extra_loss = bool(self._loss_battery.any() or self._loss_fault.any())
+        for s in self._senders_reaching(robot):
+            self._row_count[s] = self._row_next[s] = 0  # redraw with the new loss shares
+
+    def set_handlers(self, handlers: list[Callable[[Message, int], None]]) -> None:
+        """Route deliveries to every robot at once (``handlers[robot](message, distance_mm)``)."""
+        self._handlers = list(handlers)
+        for s in range(self.n):
+            self._derive(s)
 
     def set_handler(self, robot: int, handler: Callable[[Message, int], None]) -> None:
         """Route deliveries to ``robot`` through ``handler(message, distance_mm)``."""
         self._handlers[robot] = handler
+        for s in self._senders_reaching(robot):
+            self._derive(s)
 
     def start(self, robot: int) -> None:
         """Schedule the first transmit opportunity of ``robot`` at ``U(0, tx_period_s)``."""
-        Timeout(self.env, self._uniform.next() * self._period).callbacks.append(
-            self._tx_timer[robot]
-        )
+        self._schedule_offer(robot, self._uniform.next() * self._period)
+
+    def _schedule_offer(self, robot: int, delay_s: float) -> None:
+        token = self._offer_tokens[robot]
+        token.callbacks = self._offer_callbacks  # step() sets it to None after each run
+        env = self.env
+        heappush(env._queue, (env._now + delay_s, NORMAL, next(env._eid), token))
+
+    # -- reception outcomes, drawn ahead in blocks ---------------------------------------------
+    def _refill(self, s: int) -> None:
+        """Draw the outcomes of the next transmissions of ``s``.
+
+        Row k is the k-th next transmission: the distance estimate (whole mm, one byte) for
+        every receiver, and a loss-code byte per receiver. Bytes rather than lists: slicing a
+        row is cheap and the garbage collector never has to walk them.
+        """
+        receivers = self._rx_idx[s]
+        # Draw few rows for a sender's first messages and more as it keeps sending, so short
+        # runs do not draw what they never use.
+        n_rows = self._refill_rows[s] = min(2 * self._refill_rows[s], _MAX_ROWS_PER_REFILL)
+        shape = (n_rows, len(receivers))
+        rg = self._ranging
+        est = self._ranging_rng.standard_normal(shape)
+        est *= rg.sigma_mm
+        est += self._rx_d[s] + 0.5  # + 0.5, then truncation: rounding to whole mm
+        np.clip(est, rg.min_mm, rg.max_mm + 0.5, out=est)
+        self._estimates[s] = est.astype(np.uint8).tobytes()
+        random_p = self.params.loss_prob
+        if random_p > 0 or self._any_extra_loss:
+            u = self._medium_rng.random(shape)
+            to_battery = random_p + self._loss_battery[receivers]
+            to_fault = to_battery + self._loss_fault[receivers]
+            codes = np.zeros(shape, dtype=np.uint8)
+            codes[u < to_fault] = _FAULT
+            codes[u < to_battery] = _BATTERY
+            codes[u < random_p] = _RANDOM
+            self._lossy_rows[s] = codes.any(axis=1).tolist()
+            self._losses[s] = codes.tobytes()
+        else:
+            self._lossy_rows[s] = None
+        self._row_next[s] = 0
+        self._row_count[s] = n_rows
+
+    def _fold_received(self, sender: int | None = None) -> None:
+        """Add the fully delivered transmissions of ``sender`` (all if None) to its receivers."""
+        received = self._counters["received"]
+        clean = self._clean_tx
+        for s in range(self.n) if sender is None else (sender,):
+            if clean[s]:
+                for r in self._rx_r[s]:
+                    received[r] += clean[s]
+                clean[s] = 0
+
+    @property
+    def counters(self) -> dict[str, list[int]]:
+        """Per-robot counters (lists indexed by robot): offered, sent, backoffs, bytes_sent,
+        received, and lost_<cause> as a receiver for each cause in :data:`LOSS_CAUSES`."""
+        self._fold_received()
+        return self._counters
 
     # -- the hot path ------------------------------------------------------------------------
-    def _make_tx_callback(self, i: int) -> Callable[[object], None]:
-        return lambda _event: self._offer(i)
-
-    def _offer(self, s: int) -> None:
-        sim = self.sim
-        if not sim.world.running[s]:
+    def _offer(self, token: _Token) -> None:
+        s = token._value
+        if not self._running[s]:
             return
-        env = self.env
-        now = env.now
-        message = sim.robots[s].message_tx()
-        counters = self.counters
+        now = self.env._now
+        message = self._message_tx[s]()
         if message is None:
             delay = self._period + (2 * self._uniform.next() - 1) * self._jitter
         else:
             if message is not self._last_checked[s]:
                 self.limit.check(message)
                 self._last_checked[s] = message
-            counters["offered"][s] += 1
-            if self._csma and self._busy_until[s] > now:
-                counters["backoffs"][s] += 1
+                self._message_bytes[s] = message.size_bytes
+            self._offered[s] += 1
+            if self._csma and (self._busy_until[s] > now or self._own_end[s] > now):
+                self._backoffs[s] += 1
                 delay = self._uniform.next() * self._backoff_max
             else:
                 self._transmit(s, message, now)
                 delay = self._period + (2 * self._uniform.next() - 1) * self._jitter
-        Timeout(env, delay).callbacks.append(self._tx_timer[s])
+        self._schedule_offer(s, delay)
 
     def _transmit(self, s: int, message: Message, now: float) -> None:
+        k = self._row_next[s]
+        if k == self._row_count[s]:
+            self._refill(s)
+            k = 0
+        self._row_next[s] = k + 1
+        receivers = self._rx_r[s]
+        n = len(receivers)
+        lossy = self._lossy_rows[s]
+        tx = _Transmission(
+            s,
+            message,
+            receivers,
+            self._rx_h[s],
+            self._estimates[s][k * n : k * n + n],
+            self._losses[s][k * n : k * n + n] if lossy is not None and lossy[k] else None,
+            self._epoch,
+            self._end_callbacks,
+        )
         busy = self._busy_until
         last = self._last_rx
-        receivers = self._rx_r[s]
-        tx = _Transmission(s, message, receivers, self._rx_d[s])
-        end = now + self.airtime_s
         if busy[s] > now:  # half duplex: the sender's own reception in progress is ruined
             _corrupt(last[s], s)
-        busy[s] = end
+        end = now + self.airtime_s
+        clashes = None
         for r in receivers:
             if busy[r] > now:
-                # Overlap at r. Earlier overlapping receptions at r were already marked when
-                # the second of them began, so only the latest one needs marking now.
+                # Overlap at r: both receptions fail there. Earlier overlapping receptions at r
+                # were marked when the second of them began, so only the latest needs marking.
                 _corrupt(last[r], r)
-                _corrupt(tx, r)
+                if clashes is None:
+                    clashes = {r}
+                else:
+                    clashes.add(r)
             busy[r] = end
             last[r] = tx
-        self._active[id(tx)] = tx
-        counters = self.counters
-        counters["sent"][s] += 1
-        counters["bytes_sent"][s] += message.size_bytes
-        Timeout(self.env, self.airtime_s, tx).callbacks.append(self._end_of_airtime)
-        self.sim.robots[s].message_tx_success()
+        tx.corrupted = clashes
+        self._own_end[s] = end
+        self._sent[s] += 1
+        self._bytes_sent[s] += self._message_bytes[s]
+        env = self.env
+        heappush(env._queue, (end, NORMAL, next(env._eid), tx))
+        success = self._tx_success[s]
+        if success is not None:
+            success()
 
-    def _end_of_airtime(self, event: Timeout) -> None:
-        tx: _Transmission = event._value
-        del self._active[id(tx)]
+    def _end_of_airtime(self, tx: _Transmission) -> None:
+        # Called by Environment.step with the event, which is the transmission itself.
         message = tx.message
-        receivers = tx.receivers
-        # Distance noise for every receiver, already scaled by sigma and shifted by 0.5 so
-        # that int() rounds to whole millimetres as kilolib reports them.
-        noise = self._noise.take(len(receivers))
-        received = self.counters["received"]
-        handlers = self._handlers
-        lo, hi = self._min_mm, self._max_mm
-        if tx.corrupted is None and not self._any_loss:
-            for r, d, z in zip(receivers, tx.dists, noise, strict=True):
-                est = int(d + z)
-                if est > hi:
-                    est = hi
-                elif est < lo:
-                    est = lo
-                received[r] += 1
-                handlers[r](message, est)
+        if tx.losses is None and tx.corrupted is None and tx.epoch == self._epoch:
+            self._sink.extend(map(operator.call, tx.handlers, repeat(message), tx.estimates))
+            self._clean_tx[tx.sender] += 1
             return
         corrupted = tx.corrupted or ()
-        lost_collision = self.counters["lost_collision"]
-        loss = self._loss_total
-        uniform = self._uniform.next
-        for r, d, z in zip(receivers, tx.dists, noise, strict=True):
+        counters = self._counters
+        received = counters["received"]
+        lost_collision = counters["lost_collision"]
+        lost_by_code = self._lost_by_code
+        stale = tx.epoch != self._epoch
+        running = self._running
+        losses = tx.losses or repeat(0)
+        for r, handler, estimate, loss in zip(
+            tx.receivers, tx.handlers, tx.estimates, losses, strict=False
+        ):
             if r in corrupted:
                 lost_collision[r] += 1
-                continue
-            if loss[r] > 0.0:
-                u = uniform()
-                if u < loss[r]:
-                    self._count_loss(r, u)
-                    continue
-            est = int(d + z)
-            if est > hi:
-                est = hi
-            elif est < lo:
-                est = lo
-            received[r] += 1
-            handlers[r](message, est)
-
-    def _count_loss(self, r: int, u: float) -> None:
-        if u < self.params.loss_prob:
-            cause = "random"
-        elif u < self.params.loss_prob + self._loss_battery[r]:
-            cause = "battery"
-        else:
-            cause = "fault"
-        self.counters[f"lost_{cause}"][r] += 1
+            elif loss:
+                lost_by_code[loss][r] += 1
+            elif stale and not running[r]:
+                continue  # the receiver stopped while the message was on the air
+            else:
+                received[r] += 1
+                handler(message, estimate)
 
     def forget_receiver(self, robot: int) -> None:
-        """Take a stopped robot out of the receptions still on the air and of the topology."""
-        for tx in self._active.values():
-            if robot in tx.receivers:
-                keep = [k for k, r in enumerate(tx.receivers) if r != robot]
-                tx.receivers = [tx.receivers[k] for k in keep]
-                tx.dists = [tx.dists[k] for k in keep]
+        """Take a stopped robot out of the topology (and so of the messages still on the air)."""
         self._handlers[robot] = _drop
+        self._running[robot] = False
         self.rebuild_topology()
 
     def count_overflow(self, robot: int) -> None:
         """Count a message dropped from ``robot``'s full receive buffer."""
-        self.counters["lost_overflow"][robot] += 1
+        self._counters["lost_overflow"][robot] += 1
+
+
+class _Token:
+    """A reusable queue entry: what ``simpy.Environment.step`` reads of an event."""
+
+    __slots__ = ("_ok", "_value", "callbacks")
+
+    def __init__(self, value: int) -> None:
+        self.callbacks: list | None = None  # set on scheduling; step() only iterates it
+        self._ok = True
+        self._value = value
 
 
 def _corrupt(tx: _Transmission | None, receiver: int) -> None:
@@ -362,4 +508,4 @@ def _corrupt(tx: _Transmission | None, receiver: int) -> None:
 
 
 def _drop(message: Message, distance_mm: int) -> None:
-    """Handler of a robot that has not started: the message reaches nobody."""
+    """Handler of a robot that has stopped or not started: the message reaches nobody."""

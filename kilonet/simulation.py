@@ -129,8 +129,9 @@ class Simulation:
         self.wall_time_s = 0.0
         self._started = False
         polled = self.params.robot.rx_mode == "polled"
-        for i, robot in enumerate(self.robots):
-            self.medium.set_handler(i, self._buffer_push(i) if polled else robot.message_rx)
+        self.medium.set_handlers(
+            [self._buffer_push(i) if polled else r.message_rx for i, r in enumerate(self.robots)]
+        )
 
     def stream(self, name: str) -> np.random.Generator:
         """The run's random stream ``name`` (one of :data:`STREAMS`)."""
