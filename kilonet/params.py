@@ -34,6 +34,7 @@ __all__ = [
     "MotionParams",
     "ParamError",
     "Params",
+    "PlacementParams",
     "RangingParams",
     "RobotParams",
     "param",
@@ -137,6 +138,20 @@ class FaultParams:
 
 
 @dataclass(frozen=True)
+class PlacementParams:
+    """Where robots stand when no placement file is given."""
+
+    kind: Literal["scenario", "hex", "random", "line"] = param(
+        "scenario", doc="placement generator; 'scenario' uses the scenario's own"
+    )
+    robots: int = param(0, lo=0, hi=1_000_000, doc="number of robots; 0 = scenario default")
+    spacing_mm: float = param(40.0, lo=33.0, hi=10_000.0, doc="hex/line lattice spacing")
+    jitter_mm: float = param(2.0, lo=0.0, hi=1000.0, doc="hex lattice jitter radius")
+    density_per_m2: float = param(400.0, lo=1.0, hi=1e4, doc="random placement density")
+    area: Literal["rect", "disc"] = param("disc", doc="random placement region shape")
+
+
+@dataclass(frozen=True)
 class Params:
     """All parameters of one run.
 
@@ -151,6 +166,7 @@ class Params:
     battery: BatteryParams = field(default_factory=BatteryParams)
     motion: MotionParams = field(default_factory=MotionParams)
     faults: FaultParams = field(default_factory=FaultParams)
+    placement: PlacementParams = field(default_factory=PlacementParams)
     scenario: Any = None
 
     def __post_init__(self) -> None:

@@ -95,6 +95,11 @@ class Kilobot:
         return int(self._sim.env.now * self._sim.params.robot.ticks_per_s)
 
     @property
+    def ticks_per_s(self) -> float:
+        """kilolib's ``TICKS_PER_SEC`` for this robot (32 by default)."""
+        return self._sim.params.robot.ticks_per_s
+
+    @property
     def kilo_uid(self) -> int:
         """The hardware UID.
 

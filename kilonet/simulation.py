@@ -36,10 +36,23 @@ from kilonet.placement import ROBOT_DIAMETER_MM, validate_positions
 from kilonet.robot import Kilobot
 from kilonet.trace import Trace
 
-__all__ = ["STREAMS", "Simulation", "World"]
+__all__ = ["STREAMS", "Simulation", "World", "stream_for"]
 
 #: Independent random streams of a run, spawned from its seed in this order.
 STREAMS = ("medium", "ranging", "battery", "faults", "motion", "placement")
+
+
+def stream_for(seed: int, name: str) -> np.random.Generator:
+    """The random stream ``name`` that a simulation with ``seed`` uses (e.g. to draw its
+    placement before the simulation exists).
+
+    Examples
+    --------
+    >>> float(stream_for(7, "placement").random()) == float(stream_for(7, "placement").random())
+    True
+    """
+    model_seq, _ = np.random.SeedSequence(seed).spawn(2)
+    return np.random.Generator(np.random.PCG64(model_seq.spawn(len(STREAMS))[STREAMS.index(name)]))
 
 
 @dataclass
@@ -99,8 +112,7 @@ class Simulation:
         n = len(positions)
         self.n_robots = n
         self.env = simpy.Environment()
-        seq = np.random.SeedSequence(self.params.seed)
-        model_seq, robot_seq = seq.spawn(2)
+        model_seq, robot_seq = np.random.SeedSequence(self.params.seed).spawn(2)
         self._streams = {
             name: np.random.Generator(np.random.PCG64(s))
             for name, s in zip(STREAMS, model_seq.spawn(len(STREAMS)), strict=True)

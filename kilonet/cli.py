@@ -1,0 +1,147 @@
+"""The ``kilonet`` command line.
+
+    kilonet run [SCENARIO|FILE.toml] [--placement F.csv] [--robots N] [--seed S]
+                [--duration S] [--set key=value ...] [--out DIR] [--format csv|parquet] [--json]
+    kilonet scenarios
+    kilonet params [SCENARIO]
+
+User errors (unknown scenario or parameter, bad placement file, bad value) print one line on
+stderr and exit with status 2, leaving no partial output behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from kilonet.params import ParamError, Params, describe
+from kilonet.placement import PlacementError
+
+__all__ = ["main"]
+
+USER_ERRORS = (ParamError, PlacementError)
+
+
+class UsageError(Exception):
+    """A user error the CLI reports in one line (exit status 2)."""
+
+
+def _parse_set(items: Sequence[str]) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise UsageError(f"--set expects key=value, got {item!r}")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def _resolve(target: str | None) -> tuple[Any, dict[str, Any]]:
+    """Scenario and file overrides for ``kilonet run TARGET``."""
+    import scenarios
+
+    if target is None:
+        return scenarios.get(scenarios.DEFAULT), {}
+    if target.endswith(".toml"):
+        name, overrides = Params.read_toml(target)
+        return scenarios.get(name or scenarios.DEFAULT), overrides
+    return scenarios.get(target), {}
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    import scenarios
+
+    scenario, overrides = _resolve(args.target)
+    overrides.update(_parse_set(args.set))
+    if args.robots is not None:
+        overrides["placement.robots"] = args.robots
+    if args.duration is not None:
+        overrides["duration_s"] = args.duration
+    if args.placement is not None and not Path(args.placement).exists():
+        raise UsageError(f"{args.placement}: no such placement file")
+    result = scenarios.run(
+        scenario, overrides, seed=args.seed, placement=args.placement, progress=not args.json
+    )
+    if args.out is not None:
+        written = scenarios.write_outputs(result, args.out, fmt=args.format)
+        if not args.json:
+            print(f"wrote {len(written)} files to {args.out}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(result.summary, indent=2))
+    else:
+        _print_summary(result.summary)
+    return 0
+
+
+def _print_summary(summary: dict[str, Any]) -> None:
+    width = max(len(k) for k in summary)
+    for key, value in summary.items():
+        shown = f"{value:.4g}" if isinstance(value, float) else value
+        print(f"{key:<{width}}  {shown}")
+
+
+def _cmd_scenarios(_args: argparse.Namespace) -> int:
+    import scenarios
+
+    for name, scenario in sorted(scenarios.SCENARIOS.items()):
+        marker = " (default)" if name == scenarios.DEFAULT else ""
+        print(f"{name:<12} {scenario.summary}{marker}")
+    return 0
+
+
+def _cmd_params(args: argparse.Namespace) -> int:
+    import scenarios
+    from scenarios.base import build_params
+
+    scenario = scenarios.get(args.scenario or scenarios.DEFAULT)
+    for key, value, doc in describe(build_params(scenario)):
+        print(f"{key:<32} {value!s:<12} {doc}")
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="kilonet", description="Discrete-event simulator for Kilobot swarms."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="run a scenario and print its summary")
+    run.add_argument("target", nargs="?", help="scenario name or run file (.toml)")
+    run.add_argument("--placement", help="CSV of start positions with columns x_mm,y_mm")
+    run.add_argument("--robots", type=int, help="number of robots (placement.robots)")
+    run.add_argument("--seed", type=int, help="master seed")
+    run.add_argument("--duration", type=float, help="simulated seconds (duration_s)")
+    run.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="set a parameter"
+    )
+    run.add_argument("--out", help="directory for tables, summary.json and figures")
+    run.add_argument("--format", default="csv", choices=["csv", "parquet"], help="table format")
+    run.add_argument("--json", action="store_true", help="print only the summary JSON on stdout")
+    run.set_defaults(func=_cmd_run)
+    sub.add_parser("scenarios", help="list the named scenarios").set_defaults(func=_cmd_scenarios)
+    params = sub.add_parser("params", help="list every parameter with its default")
+    params.add_argument("scenario", nargs="?")
+    params.set_defaults(func=_cmd_params)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``kilonet`` console script; returns the exit status."""
+    from scenarios.base import ScenarioError
+
+    args = _parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (*USER_ERRORS, ScenarioError, UsageError) as exc:
+        print(f"kilonet: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("kilonet: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

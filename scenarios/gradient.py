@@ -1,0 +1,113 @@
+"""``gradient``: the hop-count gradient from one source robot across a swarm.
+
+Metrics against ground truth: the share of robots whose gradient equals their hop distance
+from the source in the line-of-sight communication graph, when the last robot settled, and the
+largest gradient.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import networkx as nx
+import numpy as np
+
+from kilonet.params import param
+from kilonet.simulation import Simulation
+from kilonet.visibility import communication_graph
+from protocols.gradient import UNKNOWN, Gradient
+from scenarios.base import RunResult, Scenario
+
+__all__ = ["SCENARIO", "GradientParams", "hop_distances"]
+
+
+@dataclass(frozen=True)
+class GradientParams:
+    """Parameters of the gradient scenario."""
+
+    section_name = "gradient"
+    source: int = param(0, lo=0, doc="index of the source robot (0: the lattice centre)")
+    refresh_s: float = param(0.0, lo=0.0, hi=3600.0, doc="self-healing window; 0 = monotone")
+
+
+def hop_distances(sim: Simulation, source: int) -> dict[int, int]:
+    """Hops from ``source`` in the line-of-sight communication graph of the present robots."""
+    p = sim.params.medium
+    graph = communication_graph(
+        sim.world.positions_mm,
+        p.range_mm,
+        radius_mm=sim.world.radius_mm,
+        line_of_sight=p.line_of_sight,
+    )
+    graph.remove_nodes_from(np.flatnonzero(~sim.world.running).tolist())
+    if source not in graph:
+        return {}
+    return nx.single_source_shortest_path_length(graph, source)
+
+
+def _program(params: Any, positions: np.ndarray):
+    g = params.scenario
+    if g.source >= len(positions):
+        from kilonet.params import ParamError
+
+        raise ParamError(f"gradient.source = {g.source} but there are only {len(positions)} robots")
+    return lambda i: Gradient(is_source=i == g.source, refresh_s=g.refresh_s)
+
+
+def _metrics(sim: Simulation) -> dict[str, Any]:
+    source = sim.params.scenario.source
+    hops = hop_distances(sim, source)
+    values = [r.gradient for r in sim.robots]
+    running = sim.world.running
+    correct = [values[i] == hops.get(i, UNKNOWN) for i in range(sim.n_robots) if running[i]]
+    events = sim.trace.events_frame()
+    settled = float(events["t_s"].max()) if len(events) else 0.0
+    known = [v for v in values if v != UNKNOWN]
+    return {
+        "gradient_correct_fraction": float(np.mean(correct)) if correct else 0.0,
+        "gradient_max": max(known) if known else None,
+        "reachable_robots": len(hops),
+        "last_change_s": settled,
+    }
+
+
+def _figure(result: RunResult, out_dir: Path) -> None:
+    sim = result.sim
+    pos = sim.world.positions_mm
+    values = np.array([r.gradient for r in sim.robots], dtype=float)
+    values[values == UNKNOWN] = np.nan
+    fig, ax = plt.subplots(figsize=(6, 6))
+    sc = ax.scatter(pos[:, 0], pos[:, 1], c=values, cmap="viridis", s=60, edgecolors="k")
+    src = sim.params.scenario.source
+    ax.scatter(*pos[src], marker="*", s=250, c="red", label="source")
+    fig.colorbar(sc, ax=ax, label="gradient (hops)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    s = result.summary
+    ax.set_title(
+        f"gradient: {s['gradient_correct_fraction']:.0%} equal to hop distance "
+        f"(t = {s['sim_time_s']:.0f} s)"
+    )
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    fig.savefig(out_dir / "gradient.png", dpi=100)
+    plt.close(fig)
+
+
+SCENARIO = Scenario(
+    name="gradient",
+    summary="hop-count gradient from one source robot (Kilobot self-assembly building block)",
+    program=_program,
+    section=GradientParams,
+    robots=100,
+    defaults={"duration_s": 30.0},
+    metrics=_metrics,
+    outputs=_figure,
+)
