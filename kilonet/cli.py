@@ -12,6 +12,7 @@ stderr and exit with status 2, leaving no partial output behind.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
 from collections.abc import Sequence
@@ -24,6 +25,11 @@ from kilonet.placement import PlacementError
 __all__ = ["main"]
 
 USER_ERRORS = (ParamError, PlacementError)
+
+#: Modules that add sub-commands: each has ``register(subparsers)``, which adds its parsers
+#: with ``set_defaults(func=handler)``; a handler returns the exit status and raises
+#: :class:`UsageError` (or another user error) for bad input.
+_PLUGINS: list[str] = []
 
 
 class UsageError(Exception):
@@ -125,6 +131,8 @@ def _parser() -> argparse.ArgumentParser:
     params = sub.add_parser("params", help="list every parameter with its default")
     params.add_argument("scenario", nargs="?")
     params.set_defaults(func=_cmd_params)
+    for module in _PLUGINS:
+        importlib.import_module(module).register(sub)
     return parser
 
 
