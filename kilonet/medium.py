@@ -178,6 +178,7 @@ class InfraredMedium:
         self._last_rx: list[_Transmission | None] = [None] * n
         self._own_end = [-np.inf] * n  # when each robot's own latest transmission ends
         self._any_extra_loss = False  # some receiver has a battery or fault loss share
+        self._trace_messages = sim.params.trace.messages
         self._running = [True] * n
         robots = sim.robots
         self._message_tx = [r.message_tx for r in robots]
@@ -453,6 +454,9 @@ class InfraredMedium:
         if tx.losses is None and tx.corrupted is None and tx.epoch == self._epoch:
             self._sink.extend(map(operator.call, tx.handlers, repeat(message), tx.estimates))
             self._clean_tx[tx.sender] += 1
+            if self._trace_messages:
+                n = len(tx.receivers)
+                self.sim.trace.message(self.env._now, tx.sender, n, n)
             return
         corrupted = tx.corrupted or ()
         counters = self._counters
@@ -462,6 +466,7 @@ class InfraredMedium:
         stale = tx.epoch != self._epoch
         running = self._running
         losses = tx.losses or repeat(0)
+        delivered = 0
         for r, handler, estimate, loss in zip(
             tx.receivers, tx.handlers, tx.estimates, losses, strict=False
         ):
@@ -473,7 +478,10 @@ class InfraredMedium:
                 continue  # the receiver stopped while the message was on the air
             else:
                 received[r] += 1
+                delivered += 1
                 handler(message, estimate)
+        if self._trace_messages:
+            self.sim.trace.message(self.env._now, tx.sender, len(tx.receivers), delivered)
 
     def forget_receiver(self, robot: int) -> None:
         """Take a stopped robot out of the topology (and so of the messages still on the air)."""

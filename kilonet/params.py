@@ -37,6 +37,7 @@ __all__ = [
     "PlacementParams",
     "RangingParams",
     "RobotParams",
+    "TraceParams",
     "param",
 ]
 
@@ -138,6 +139,13 @@ class FaultParams:
 
 
 @dataclass(frozen=True)
+class TraceParams:
+    """What a run records beyond LED changes, protocol events, poses and stops."""
+
+    messages: bool = param(False, doc="record every transmission (t_s, sender, receptions)")
+
+
+@dataclass(frozen=True)
 class PlacementParams:
     """Where robots stand when no placement file is given."""
 
@@ -167,6 +175,7 @@ class Params:
     motion: MotionParams = field(default_factory=MotionParams)
     faults: FaultParams = field(default_factory=FaultParams)
     placement: PlacementParams = field(default_factory=PlacementParams)
+    trace: TraceParams = field(default_factory=TraceParams)
     scenario: Any = None
 
     def __post_init__(self) -> None:

@@ -22,6 +22,7 @@ class Trace:
         self._events: list[tuple[float, int, str, str]] = []
         self._poses: list[tuple[float, int, float, float, float]] = []
         self._stops: list[tuple[float, int, str]] = []
+        self._messages: list[tuple[float, int, int, int]] = []
 
     def led(self, t_s: float, robot: int, color: tuple[int, int, int]) -> None:
         """Record that ``robot`` set its LED to ``color`` (kilolib 0–3 per channel)."""
@@ -39,6 +40,10 @@ class Trace:
         """Record that ``robot`` stopped (crash, removal, battery)."""
         self._stops.append((t_s, robot, cause))
 
+    def message(self, t_s: float, sender: int, receivers: int, delivered: int) -> None:
+        """Record a transmission that ended at ``t_s``: receivers in range, and deliveries."""
+        self._messages.append((t_s, sender, receivers, delivered))
+
     def led_frame(self) -> pd.DataFrame:
         """LED changes: ``t_s, robot, r, g, b``."""
         return pd.DataFrame(self._led, columns=["t_s", "robot", "r", "g", "b"])
@@ -55,6 +60,11 @@ class Trace:
         """Robot stops: ``t_s, robot, cause``."""
         return pd.DataFrame(self._stops, columns=["t_s", "robot", "cause"])
 
+    def messages_frame(self) -> pd.DataFrame:
+        """Transmissions (only with ``trace.messages``): ``t_s, sender, receivers, delivered``,
+        where ``t_s`` is the end of airtime."""
+        return pd.DataFrame(self._messages, columns=["t_s", "sender", "receivers", "delivered"])
+
     def frames(self) -> dict[str, pd.DataFrame]:
         """All tables by name."""
         return {
@@ -62,4 +72,5 @@ class Trace:
             "events": self.events_frame(),
             "poses": self.poses_frame(),
             "stops": self.stops_frame(),
+            "messages": self.messages_frame(),
         }
