@@ -47,7 +47,7 @@ def frame_of_three(d12_mm: float, d13_mm: float, d23_mm: float) -> tuple[float, 
         raise GeometryError(
             f"distances d12={d12_mm}, d13={d13_mm}, d23={d23_mm} mm form no triangle"
         )
-    return x3, math.sqrt(max(0.0, y3_sq))
+    return float(x3), math.sqrt(max(0.0, y3_sq))
 
 
 def trilaterate_in_frame(
@@ -77,7 +77,7 @@ def trilaterate_in_frame(
         raise GeometryError("robots 1, 2 and 3 are collinear (y3 = 0): no frame")
     x4 = (d1_mm**2 - d2_mm**2 + d12_mm**2) / (2 * d12_mm)
     y4 = (d1_mm**2 - d3_mm**2 + x3_mm**2 + y3_mm**2) / (2 * y3_mm) - x3_mm * x4 / y3_mm
-    return x4, y4
+    return float(x4), float(y4)
 
 
 def trilaterate_linear(anchors_mm: np.ndarray, ranges_mm: np.ndarray) -> tuple[float, float]:
