@@ -95,6 +95,12 @@ class Kilobot:
         return int(self._sim.env.now * self._sim.params.robot.ticks_per_s)
 
     @property
+    def polled(self) -> bool:
+        """Whether receptions wait in the polled buffer (the thesis's library) rather than
+        arriving through ``message_rx``; fixed for a run, like a kilolib build option."""
+        return self._sim.params.robot.rx_mode == "polled"
+
+    @property
     def ticks_per_s(self) -> float:
         """kilolib's ``TICKS_PER_SEC`` for this robot (32 by default)."""
         return self._sim.params.robot.ticks_per_s

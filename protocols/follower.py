@@ -1,0 +1,931 @@
+"""Trilateration with Kilobots: three robots build a frame, a fourth walks to its centroid.
+
+Roles are flashed per robot, as in the seed (no other identity is needed):
+
+====  ==============================  ========  ===============================
+ID    function                        Tx LED    Rx LED
+====  ==============================  ========  ===============================
+1     coordinate frame origin         white     –
+2     x-axis robot                    blue      yellow (from 1)
+3     third robot of the frame        green     yellow (from 1) / purple (from 2)
+4     follower                        –         –
+====  ==============================  ========  ===============================
+
+Message (the seed's table; type 8, one byte per field, :data:`FRAME_BYTE`)::
+
+    data[0]  sender ID (1, 2, 3)                                uint8
+    data[1]  coordinates known (0/1)                            uint8
+    data[2]  X of the sender, mm (whole mm, -128..127)          int8
+    data[3]  Y of the sender, mm (whole mm, 0..255; y >= 0)     uint8
+    data[4]  d12, origin to x-axis robot, mm (whole mm)         uint8  (filled by 2, 3)
+    data[5]  d13, origin to third robot, mm (whole mm)          uint8  (filled by 3)
+    data[6]  d23, x-axis to third robot, mm (whole mm)          uint8  (filled by 3)
+    data[7], data[8]  not used (not sent)
+
+Whole millimetres are what kilolib's distance estimate gives (a uint8), so a byte per distance
+loses only the sub-millimetre part that averaging several readings recovers (≤ 0.5 mm of
+rounding). X is signed (robot 3 may lie behind the origin) and fits a byte at 1 mm only for
+frames whose sides are at most 127 mm, which the hardware range (about 85 mm) guarantees.
+X is rounded to whole millimetres (≤ 0.5 mm). The 16-bit variant (type 9, :data:`FRAME_WIDE`)
+keeps ``data[0..1]`` and stores X and Y as int16 and d12 as uint16 in tenths of a millimetre
+(``data[2..7]``, ±3276.7 mm); it drops d13 and d23, which follow from X, Y and d12
+(``d13 = |(x3, y3)|``, ``d23 = |(x3 − d12, y3)|``), so it loses nothing and fits 9 bytes.
+
+The frame robots average ``samples`` distance readings before they flag their coordinates:
+robot 2 sets ``(d12, 0)``; robot 3, once it has a flagged d12 from robot 2 and readings from
+both, sets ``x3 = (d13² − d23² + d12²)/(2 d12)``, ``y3 = √(d13² − x3²)``
+(:func:`kilonet.geometry.frame_of_three`). y3 is taken positive, so when robot 3 stands on the
+right of the 1→2 axis the frame is a mirror image of the floor.
+
+The follower (:class:`Follower`) transmits nothing. It listens until it has fresh readings
+(received after its motors stopped) from all three robots and robot 3's flagged frame, then
+trilaterates with the seed's formulas (:func:`kilonet.geometry.trilaterate_in_frame`), takes the
+goal to be the centroid of robots 1–3 and steps: a small first move gives its heading u; then
+it turns by α = atan2(u₁v₂ − u₂v₁, u₁v₁ + u₂v₂) toward the goal direction v for ``t = f(α)``
+from its linear turn calibration, takes a short step, and re-trilaterates, until it is within
+``tolerance_mm`` of the goal. What the seed leaves open is handled as follows:
+
+* **Mirror frames.** In a mirrored frame a physical left turn shows up as a right turn. The
+  follower starts assuming a floor-handed frame and checks every large turn: it compares the
+  rotation between its step vectors before and after the turn with the turn it commanded. The
+  first turn of a run is a probe (at least ``probe_deg``, with a short step) so that the
+  question is settled early; the verdict is a majority over all conclusive turns.
+* **Goal behind the robot** (|α| near 180°): turning either way is right; the probe rule
+  turns 90° first, and a long turn is followed by a short step, so calibration error in a
+  long turn costs little.
+* **Outside the triangle.** The robot knows where robots 1–3 stand (their coordinates) and
+  that bodies are 33 mm discs; it aims along the straight line to the goal when that line is
+  clear of their bodies and otherwise detours around them on a consistent side. A goal too
+  close to a robot to be reached is moved out to contact distance.
+* **Message loss and silence.** Readings taken while moving or before the current listening
+  window are never used. A robot unheard for ``listen_timeout_s`` is left out: two distances
+  and the dead-reckoned previous position pick one of the two circle intersections. A distance
+  at the sensor's ceiling (``saturation_mm``, kilolib's 255) is "at least that far": it only
+  rules out candidates. With no position at all but at least one distance, the follower walks
+  to reduce its nearest distance (measuring the bearing from how the distance changes) until
+  all three are in reach. After ``give_up_s`` of silence or ``max_steps`` steps it gives up.
+* **Calibration error.** The follower learns its real speed from its step lengths and, with
+  ``adapt_turns``, its real turn rate from conclusive turns.
+
+Events logged (``self.log``): ``frame`` (robots 2 and 3), ``fix`` (every position estimate, in
+the follower's frame), ``move``, ``handedness``, ``reached``, ``gave_up``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from statistics import median
+from typing import NamedTuple
+
+from kilonet.geometry import GeometryError, frame_of_three, trilaterate_in_frame
+from kilonet.message import Layout, Message
+from kilonet.robot import Kilobot
+from protocols.turn_calibration import TurnCalibration
+
+__all__ = [
+    "FOLLOWER",
+    "FRAME_BYTE",
+    "FRAME_WIDE",
+    "ORIGIN",
+    "THIRD",
+    "X_AXIS",
+    "Follower",
+    "FollowerConfig",
+    "FrameReport",
+    "Origin",
+    "ThirdRobot",
+    "XAxisRobot",
+    "circle_intersections",
+    "decode",
+    "encode",
+    "frame_direction",
+    "plan_direction",
+    "reachable_goal",
+    "rotate",
+    "turn_angle",
+    "wrap_angle",
+]
+
+ORIGIN, X_AXIS, THIRD, FOLLOWER = 1, 2, 3, 4
+
+FRAME_BYTE = Layout(
+    "trilateration",
+    type=8,
+    fields=[
+        ("sender", "B"),
+        ("known", "B"),
+        ("x_mm", "b"),
+        ("y_mm", "B"),
+        ("d12_mm", "B"),
+        ("d13_mm", "B"),
+        ("d23_mm", "B"),
+    ],
+)
+FRAME_WIDE = Layout(
+    "trilateration_wide",
+    type=9,
+    fields=[
+        ("sender", "B"),
+        ("known", "B"),
+        ("x_mm", "h", 0.1),
+        ("y_mm", "h", 0.1),
+        ("d12_mm", "H", 0.1),
+    ],
+)
+
+Point = tuple[float, float]
+
+
+# ------------------------------------------------------------------------------ the message
+
+
+class FrameReport(NamedTuple):
+    """What a frame robot says about itself (mm); zeros where it has nothing to say."""
+
+    sender: int
+    known: bool
+    x_mm: float = 0.0
+    y_mm: float = 0.0
+    d12_mm: float = 0.0
+    d13_mm: float = 0.0
+    d23_mm: float = 0.0
+
+
+def encode(report: FrameReport, *, wide: bool = False) -> Message:
+    """Pack a report into the byte layout (the seed's table) or the 16-bit variant.
+
+    Raises
+    ------
+    kilonet.message.PayloadError
+        If a value does not fit its field (e.g. ``x_mm`` beyond −128..127 in the byte layout).
+
+    Examples
+    --------
+    >>> msg = encode(FrameReport(3, True, -12.4, 55.6, 70.0, 56.9, 80.2))
+    >>> list(msg.data), msg.type
+    ([3, 1, 244, 56, 70, 57, 80], 8)
+    >>> decode(msg)
+    FrameReport(sender=3, known=True, x_mm=-12, y_mm=56, d12_mm=70, d13_mm=57, d23_mm=80)
+    """
+    if wide:
+        return FRAME_WIDE.pack(
+            sender=report.sender,
+            known=int(report.known),
+            x_mm=report.x_mm,
+            y_mm=report.y_mm,
+            d12_mm=report.d12_mm,
+        )
+    return FRAME_BYTE.pack(
+        sender=report.sender,
+        known=int(report.known),
+        x_mm=round(report.x_mm),
+        y_mm=round(report.y_mm),
+        d12_mm=round(report.d12_mm),
+        d13_mm=round(report.d13_mm),
+        d23_mm=round(report.d23_mm),
+    )
+
+
+def decode(message: Message) -> FrameReport | None:
+    """Read a frame robot's report from either layout; ``None`` for other messages.
+
+    The 16-bit variant carries no d13 and d23; for robot 3 they are recomputed from X, Y and
+    d12 (exact up to the 0.1 mm storage).
+
+    Examples
+    --------
+    >>> r = decode(encode(FrameReport(3, True, -12.34, 55.61, 70.02), wide=True))
+    >>> [round(v, 2) for v in r[2:5]]
+    [-12.3, 55.6, 70.0]
+    >>> round(r.d13_mm, 2), round(r.d23_mm, 2)
+    (56.94, 99.32)
+    >>> decode(Message(b"\\x01", 1)) is None
+    True
+    """
+    if FRAME_BYTE.matches(message):
+        m = FRAME_BYTE.unpack(message)
+        return FrameReport(m.sender, bool(m.known), m.x_mm, m.y_mm, m.d12_mm, m.d13_mm, m.d23_mm)
+    if FRAME_WIDE.matches(message):
+        m = FRAME_WIDE.unpack(message)
+        d13 = d23 = 0.0
+        if m.sender == THIRD:
+            d13 = math.hypot(m.x_mm, m.y_mm)
+            d23 = math.hypot(m.x_mm - m.d12_mm, m.y_mm)
+        return FrameReport(m.sender, bool(m.known), m.x_mm, m.y_mm, m.d12_mm, d13, d23)
+    return None
+
+
+# ------------------------------------------------------------------------- plane geometry
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """The angle in [−π, π).
+
+    >>> round(wrap_angle(3 * math.pi / 2), 9)
+    -1.570796327
+    """
+    return (angle_rad + math.pi) % (2 * math.pi) - math.pi
+
+
+def turn_angle(u: Point, v: Point) -> float:
+    """The seed's α = atan2(u₁v₂ − u₂v₁, u₁v₁ + u₂v₂): the signed angle from u to v, radians.
+
+    Positive when v lies counter-clockwise of u in the frame's own axes.
+
+    Examples
+    --------
+    >>> round(math.degrees(turn_angle((1.0, 0.0), (0.0, 2.0))), 9)
+    90.0
+    >>> round(math.degrees(turn_angle((1.0, 1.0), (1.0, 0.0))), 9)
+    -45.0
+    >>> round(math.degrees(turn_angle((1.0, 0.0), (-1.0, 0.0))), 9)
+    180.0
+    """
+    (u1, u2), (v1, v2) = u, v
+    return math.atan2(u1 * v2 - u2 * v1, u1 * v1 + u2 * v2)
+
+
+def frame_direction(alpha_rad: float, mirrored: bool) -> int:
+    """Which way to pivot for a turn of ``alpha_rad`` in the frame: +1 counter-clockwise (left,
+    right motor only), −1 clockwise (right, left motor only), 0 for no turn.
+
+    In a frame that is a mirror image of the floor, counter-clockwise in the frame is clockwise
+    on the floor.
+
+    >>> frame_direction(0.5, False), frame_direction(0.5, True), frame_direction(-0.5, True)
+    (1, -1, 1)
+    """
+    if alpha_rad == 0:
+        return 0
+    side = 1 if alpha_rad > 0 else -1
+    return -side if mirrored else side
+
+
+def rotate(u: Point, angle_rad: float) -> Point:
+    """``u`` rotated counter-clockwise by ``angle_rad``.
+
+    >>> [round(c, 9) for c in rotate((1.0, 0.0), math.pi / 2)]
+    [0.0, 1.0]
+    """
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    return (c * u[0] - s * u[1], s * u[0] + c * u[1])
+
+
+def circle_intersections(c1: Point, r1: float, c2: Point, r2: float) -> list[Point]:
+    """The points at distance ``r1`` from ``c1`` and ``r2`` from ``c2`` (mm).
+
+    Measured ranges need not meet exactly: circles that miss each other (noise) give their
+    single closest point on the line of centres. Concentric circles give no point.
+
+    Examples
+    --------
+    >>> sorted((round(x, 9), round(y, 9)) for x, y in circle_intersections((0, 0), 5, (8, 0), 5))
+    [(4.0, -3.0), (4.0, 3.0)]
+    >>> circle_intersections((0, 0), 2, (10, 0), 3)
+    [(4.5, 0.0)]
+    """
+    dx, dy = c2[0] - c1[0], c2[1] - c1[1]
+    d = math.hypot(dx, dy)
+    if d == 0:
+        return []
+    ex, ey = dx / d, dy / d
+    a = (r1 * r1 - r2 * r2 + d * d) / (2 * d)
+    h_sq = r1 * r1 - a * a
+    if h_sq <= 0:
+        # Tangent or missing circles: the point on the line of centres between the two rims.
+        if d > r1 + r2:
+            a = r1 + (d - r1 - r2) / 2
+        elif d < abs(r1 - r2):
+            a = (r1 + d + r2) / 2 if r1 > r2 else (d - r1 - r2) / 2
+        return [(c1[0] + a * ex, c1[1] + a * ey)]
+    h = math.sqrt(h_sq)
+    mx, my = c1[0] + a * ex, c1[1] + a * ey
+    return [(mx - h * ey, my + h * ex), (mx + h * ey, my - h * ex)]
+
+
+def _segment_blocked(
+    p: Point, direction: Point, length_mm: float, centre: Point, radius_mm: float
+) -> bool:
+    """Whether moving ``length_mm`` from ``p`` along unit ``direction`` enters the disc.
+
+    A start already inside the disc (an estimate off by noise) only blocks moves that go
+    noticeably deeper, so a robot at contact can always slide along or back out.
+    """
+    wx, wy = centre[0] - p[0], centre[1] - p[1]
+    along = max(0.0, min(length_mm, wx * direction[0] + wy * direction[1]))
+    closest = math.hypot(p[0] + along * direction[0] - centre[0], p[1] + along * direction[1] - centre[1])
+    start = math.hypot(wx, wy)
+    if start < radius_mm:
+        return closest < start - 0.5
+    return closest < radius_mm
+
+
+def reachable_goal(goal: Point, obstacles: list[Point], radius_mm: float) -> Point:
+    """The goal moved out of any obstacle disc it lies in (to the disc's rim), mm.
+
+    >>> reachable_goal((10.0, 0.0), [(0.0, 0.0)], 34.0)
+    (34.0, 0.0)
+    >>> reachable_goal((50.0, 0.0), [(0.0, 0.0)], 34.0)
+    (50.0, 0.0)
+    """
+    x, y = goal
+    for _ in range(4):  # pushing out of one disc can (rarely) push into another
+        moved = False
+        for cx, cy in obstacles:
+            d = math.hypot(x - cx, y - cy)
+            if d < radius_mm - 1e-9:
+                if d == 0:
+                    x, y = cx + radius_mm, cy
+                else:
+                    x, y = cx + (x - cx) * radius_mm / d, cy + (y - cy) * radius_mm / d
+                moved = True
+        if not moved:
+            break
+    return (x, y)
+
+
+def plan_direction(
+    position: Point,
+    target: Point,
+    obstacles: list[Point],
+    radius_mm: float,
+    step_mm: float,
+    side: int = 0,
+) -> tuple[Point, int]:
+    """Direction of the next step toward ``target`` around disc obstacles.
+
+    The straight line is taken when it is clear all the way. Otherwise the goal direction is
+    rotated in 10° steps until a step of ``step_mm`` is clear, turning to ``side`` (+1
+    counter-clockwise, −1 clockwise) if one was chosen before, so that a detour keeps going
+    round the obstacles instead of dithering; 0 lets the first clear rotation choose.
+
+    Returns the unit direction and the side used (0 when the line was clear).
+
+    Examples
+    --------
+    >>> plan_direction((0.0, 0.0), (100.0, 0.0), [], 34.0, 20.0)
+    ((1.0, 0.0), 0)
+    >>> (dx, dy), side = plan_direction((0.0, 0.0), (100.0, 0.0), [(50.0, 0.0)], 34.0, 20.0)
+    >>> side != 0 and abs(math.degrees(math.atan2(dy, dx))) >= 10
+    True
+    """
+    px, py = position
+    gx, gy = target[0] - px, target[1] - py
+    dist = math.hypot(gx, gy)
+    if dist == 0:
+        return (1.0, 0.0), 0
+    goal_dir = (gx / dist, gy / dist)
+    if not any(_segment_blocked(position, goal_dir, dist, c, radius_mm) for c in obstacles):
+        return goal_dir, 0
+    look = min(dist, step_mm)
+    sides = (side, -side) if side else (1, -1)
+    best: tuple[float, Point, int] | None = None
+    for k in range(1, 19):
+        for s in sides:
+            d = rotate(goal_dir, s * math.radians(10 * k))
+            if any(_segment_blocked(position, d, look, c, radius_mm) for c in obstacles):
+                continue
+            end_dist = math.hypot(px + look * d[0] - target[0], py + look * d[1] - target[1])
+            if best is None or end_dist < best[0]:
+                best = (end_dist, d, s)
+        if best is not None and (side == 0 or best[2] == side or k == 18):
+            return best[1], best[2]
+    return goal_dir, side  # boxed in: go straight and let contact stop the move
+
+
+# ------------------------------------------------------------------------- frame robots
+
+
+class _FrameMember(Kilobot):
+    """Common part of robots 1–3: broadcast the report, blink the seed's colours.
+
+    Parameters
+    ----------
+    samples : int
+        Distance readings averaged before a robot flags its coordinates.
+    wide : bool
+        Send the 16-bit variant of the message instead of the byte layout.
+    blink_s : float
+        How long the LED stays on after a send or a reception, s.
+    """
+
+    role = 0
+    tx_color = (0, 0, 0)
+
+    def __init__(self, *, samples: int = 8, wide: bool = False, blink_s: float = 0.1) -> None:
+        self.samples = samples
+        self.wide = wide
+        self.blink_s = blink_s
+
+    def setup(self) -> None:
+        self.known = False
+        self.x_mm = self.y_mm = 0.0
+        self.d12_mm = self.d13_mm = self.d23_mm = 0.0
+        self._message: Message | None = None
+        self._led_off_tick = 0
+
+    def report(self) -> FrameReport:
+        """What this robot currently broadcasts."""
+        return FrameReport(
+            self.role, self.known, self.x_mm, self.y_mm, self.d12_mm, self.d13_mm, self.d23_mm
+        )
+
+    def message_tx(self) -> Message | None:
+        if self._message is None:
+            self._message = encode(self.report(), wide=self.wide)
+        return self._message
+
+    def message_tx_success(self) -> None:
+        self._blink(self.tx_color)
+
+    def _blink(self, color: tuple[int, int, int]) -> None:
+        self.set_color(*color)
+        self._led_off_tick = self.kilo_ticks + max(1, round(self.blink_s * self.ticks_per_s))
+
+    def loop(self) -> None:
+        if self.color != (0, 0, 0) and self.kilo_ticks >= self._led_off_tick:
+            self.set_color(0, 0, 0)
+
+    def _set_known(self) -> None:
+        self.known = True
+        self._message = None
+        self.log("frame", x_mm=self.x_mm, y_mm=self.y_mm, d12_mm=self.d12_mm)
+
+
+class Origin(_FrameMember):
+    """Robot 1, the frame's origin: coordinates (0, 0) from the start; white on send."""
+
+    role = ORIGIN
+    tx_color = (3, 3, 3)
+
+    def setup(self) -> None:
+        super().setup()
+        self.known = True
+
+
+class XAxisRobot(_FrameMember):
+    """Robot 2, on the frame's +x axis: (d12, 0) once it has averaged ``samples`` readings of
+    robot 1. Blue on send, yellow on handling a message from the origin."""
+
+    role = X_AXIS
+    tx_color = (0, 0, 3)
+
+    def setup(self) -> None:
+        super().setup()
+        self._from_origin: list[int] = []
+
+    def message_rx(self, message: Message, distance_mm: int) -> None:
+        report = decode(message)
+        if report is None or report.sender != ORIGIN:
+            return
+        self._blink((3, 3, 0))
+        if self.known:
+            return
+        self._from_origin.append(distance_mm)
+        if len(self._from_origin) >= self.samples:
+            self.d12_mm = sum(self._from_origin) / len(self._from_origin)
+            self.x_mm = self.d12_mm
+            self._set_known()
+
+
+class ThirdRobot(_FrameMember):
+    """Robot 3: ``(x3, y3)`` from d12 (robot 2's flagged report) and its own averaged readings
+    of robots 1 and 2 (the seed's triangle equations). Green on send, yellow on a message from
+    robot 1, purple on one from robot 2."""
+
+    role = THIRD
+    tx_color = (0, 3, 0)
+
+    def setup(self) -> None:
+        super().setup()
+        self._from: dict[int, list[int]] = {ORIGIN: [], X_AXIS: []}
+
+    def message_rx(self, message: Message, distance_mm: int) -> None:
+        report = decode(message)
+        if report is None or report.sender not in self._from:
+            return
+        self._blink((3, 3, 0) if report.sender == ORIGIN else (3, 0, 3))
+        if self.known:
+            return
+        readings = self._from[report.sender]
+        if len(readings) < self.samples:
+            readings.append(distance_mm)
+        if report.sender == X_AXIS and report.known:
+            self.d12_mm = report.d12_mm
+        if self.d12_mm > 0 and all(len(r) >= self.samples for r in self._from.values()):
+            d13 = sum(self._from[ORIGIN]) / self.samples
+            d23 = sum(self._from[X_AXIS]) / self.samples
+            try:
+                self.x_mm, self.y_mm = frame_of_three(self.d12_mm, d13, d23)
+            except GeometryError as exc:
+                # Readings that form no triangle: start over with fresh ones.
+                self.log("frame_rejected", reason=str(exc))
+                self._from = {ORIGIN: [], X_AXIS: []}
+                return
+            self.d13_mm, self.d23_mm = d13, d23
+            self._set_known()
+
+
+# ------------------------------------------------------------------------------ follower
+
+
+@dataclass(frozen=True)
+class FollowerConfig:
+    """Knobs of the follower program (all lengths mm, times s, angles degrees).
+
+    Parameters
+    ----------
+    listen_samples : int
+        Fresh readings per frame robot averaged into one position fix.
+    listen_timeout_s : float
+        After this long in one listening window, robots not heard are left out of the fix.
+    give_up_s : float
+        Listening this long without being able to locate itself ends the walk.
+    guard_s : float
+        Wait after the motors stop before readings count (a message on the air while the
+        robot moved carries an old distance).
+    first_step_mm, step_mm : float
+        Length of the first (and every probe) step, and of the longest ordinary step.
+    tolerance_mm : float
+        The robot stops when its estimate is this close to the goal.
+    clearance_mm : float
+        Extra distance kept from the frame robots' bodies when planning.
+    body_mm : float
+        Kilobot body diameter.
+    speed_mm_s : float
+        Nominal forward speed (the data sheet's); the real one is learned from steps.
+    max_steps : int
+        Steps after which the robot gives up.
+    saturation_mm : int
+        The distance sensor's ceiling: a reading this large means "at least this far".
+    min_turn_deg : float
+        Smaller turns are skipped.
+    probe_deg : float
+        Smallest turn that tests the frame's handedness.
+    adapt_turns : bool
+        Learn the real turn rate from conclusive turns.
+    """
+
+    listen_samples: int = 4
+    listen_timeout_s: float = 3.0
+    give_up_s: float = 60.0
+    guard_s: float = 0.1
+    first_step_mm: float = 10.0
+    step_mm: float = 20.0
+    tolerance_mm: float = 3.0
+    clearance_mm: float = 1.5
+    body_mm: float = 33.0
+    speed_mm_s: float = 10.0
+    max_steps: int = 100
+    saturation_mm: int = 255
+    min_turn_deg: float = 2.0
+    probe_deg: float = 60.0
+    adapt_turns: bool = True
+
+
+class Follower(Kilobot):
+    """Robot 4: trilaterates itself in the frame of robots 1–3 and walks to their centroid.
+
+    Parameters
+    ----------
+    config : FollowerConfig
+        Listening, stepping and tolerance settings.
+    calibration : TurnCalibration
+        The linear ``t = f(angle)`` this robot turns by (made on some robot, not exactly this
+        one).
+
+    Attributes (read by the scenario layer after a run)
+    ---------------------------------------------------
+    outcome : str or None
+        ``"reached"`` or ``"gave_up"`` once the walk ended.
+    steps : int
+        Forward steps taken.
+    mirrored : bool
+        Whether the robot concluded that its frame is a mirror image of the floor.
+    """
+
+    def __init__(self, config: FollowerConfig, calibration: TurnCalibration) -> None:
+        self.config = config
+        self.calibration = calibration
+
+    # -- state ---------------------------------------------------------------------------
+    def setup(self) -> None:
+        c = self.config
+        self.outcome: str | None = None
+        self.steps = 0
+        self.mirrored = False
+        self.frame: tuple[float, float, float] | None = None  # d12, x3, y3
+        self.phase = "listen"
+        self.phase_end_tick = 0
+        self._readings: dict[int, list[int]] = {ORIGIN: [], X_AXIS: [], THIRD: []}
+        self._listen_from_tick = 0
+        self._listen_started_tick = 0
+        self._silent_since_tick = 0
+        # Where the robot believes it is, its heading in the frame and how it got there.
+        self.position: Point | None = None
+        self._previous: Point | None = None  # fix before the last step (None: no heading yet)
+        self._heading: Point | None = None
+        self._heading_measured = False
+        self._last_turn_rad = 0.0  # physical, counter-clockwise positive, as intended
+        self._last_step_mm = 0.0
+        self._last_step_ticks = 0
+        self._last_mode = ""
+        self._votes = {False: 0, True: 0}
+        self._side = 0  # detour side memory of the planner
+        self._speed_samples: list[tuple[float, float]] = []  # (mm moved, s) of clean steps
+        self.speed_mm_s = c.speed_mm_s
+        self._rate_samples: list[float] = []
+        self.turn_gain = 1.0  # real turn rate / calibrated rate, as learned
+        # Walking toward the nearest robot when no fix is possible yet.
+        self._approach: dict[str, float] | None = None
+        self._pending: tuple[int, int, int] | None = None  # turn dir, turn ticks, step ticks
+
+    # -- kilolib callbacks -------------------------------------------------------------------
+    def message_rx(self, message: Message, distance_mm: int) -> None:
+        report = decode(message)
+        if report is None or report.sender not in self._readings:
+            return
+        if report.sender == THIRD and report.known and report.y_mm > 0:
+            self.frame = (report.d12_mm, report.x_mm, report.y_mm)
+        if self.phase == "listen" and self.kilo_ticks >= self._listen_from_tick:
+            self._readings[report.sender].append(distance_mm)
+
+    def loop(self) -> None:
+        if self.outcome is not None:
+            return
+        now = self.kilo_ticks
+        if self.phase == "turn" and now >= self.phase_end_tick:
+            self._start_step(now)
+        elif self.phase == "step" and now >= self.phase_end_tick:
+            self.set_motors(0, 0)
+            self._start_listening(now)
+        elif self.phase == "listen" and now >= self._listen_from_tick:
+            self._listen(now)
+
+    # -- listening and locating --------------------------------------------------------------
+    def _start_listening(self, now: int) -> None:
+        self.phase = "listen"
+        self._listen_from_tick = now + max(1, round(self.config.guard_s * self.ticks_per_s))
+        self._listen_started_tick = self._listen_from_tick
+        self._silent_since_tick = self._listen_from_tick
+        for readings in self._readings.values():
+            readings.clear()
+
+    def _listen(self, now: int) -> None:
+        c = self.config
+        tps = self.ticks_per_s
+        if (now - self._silent_since_tick) / tps > c.give_up_s:
+            self._finish("gave_up", reason="silence")
+            return
+        full = all(len(r) >= c.listen_samples for r in self._readings.values())
+        timed_out = (now - self._listen_started_tick) / tps >= c.listen_timeout_s
+        if self.frame is None or not (full or timed_out):
+            return
+        distances = {k: self._average(r) for k, r in self._readings.items()}
+        if self._act(distances):
+            return
+        # Nothing to act on yet: a fresh window, but keep counting the silence.
+        self._listen_started_tick = now
+        for readings in self._readings.values():
+            readings.clear()
+
+    def _average(self, readings: list[int]) -> float | None:
+        """Mean reading in mm; ``None`` if unheard, ``inf`` if at the sensor's ceiling."""
+        if not readings:
+            return None
+        if max(readings) >= self.config.saturation_mm:
+            return math.inf
+        return sum(readings) / len(readings)
+
+    def _anchors(self) -> dict[int, Point]:
+        d12, x3, y3 = self.frame
+        return {ORIGIN: (0.0, 0.0), X_AXIS: (d12, 0.0), THIRD: (x3, y3)}
+
+    def _locate(self, distances: dict[int, float | None]) -> tuple[Point, str] | None:
+        """A position fix in the frame from this window's readings, or ``None``."""
+        d12, x3, y3 = self.frame
+        usable = {k: d for k, d in distances.items() if d is not None and math.isfinite(d)}
+        if len(usable) == 3:
+            try:
+                return trilaterate_in_frame(
+                    usable[ORIGIN], usable[X_AXIS], usable[THIRD], d12, x3, y3
+                ), "three"
+            except GeometryError:
+                return None
+        if len(usable) != 2:
+            return None
+        anchors = self._anchors()
+        (i, di), (j, dj) = usable.items()
+        candidates = circle_intersections(anchors[i], di, anchors[j], dj)
+        (k,) = set(anchors) - {i, j}
+        if distances[k] is not None:  # saturated: at least the ceiling away from robot k
+            floor_mm = self.config.saturation_mm - 3
+            candidates = [p for p in candidates if _dist(p, anchors[k]) >= floor_mm]
+        if not candidates:
+            return None
+        prior = self._predicted_position()
+        if prior is not None:
+            return min(candidates, key=lambda p: _dist(p, prior)), "two"
+        if len(candidates) == 1:
+            return candidates[0], "two"
+        return None
+
+    def _predicted_position(self) -> Point | None:
+        """Where dead reckoning puts the robot after its last move (frame mm), if it knows."""
+        if self.position is None or self._last_mode in ("", "approach"):
+            return None
+        heading = self._heading_after_turn()
+        if heading is None:
+            return self.position
+        step = self._last_step_ticks / self.ticks_per_s * self.speed_mm_s
+        return (self.position[0] + step * heading[0], self.position[1] + step * heading[1])
+
+    def _heading_after_turn(self) -> Point | None:
+        """The heading before the last turn rotated by that turn, as the frame sees it."""
+        if self._heading is None:
+            return None
+        turned = self._last_turn_rad
+        return rotate(self._heading, -turned if self.mirrored else turned)
+
+    # -- deciding the next move --------------------------------------------------------------
+    def _act(self, distances: dict[int, float | None]) -> bool:
+        """Locate and plan the next move; False if there is nothing to act on yet."""
+        fix = self._locate(distances)
+        if fix is None:
+            usable = {k: d for k, d in distances.items() if d is not None and math.isfinite(d)}
+            if not usable or self.position is not None:
+                return False  # wait for fresh readings (never act on stale ones)
+            self._approach_step(usable)
+            return True
+        position, kind = fix
+        self._learn_from_step(position)
+        self.position = position
+        goal = self._goal()
+        obstacles = list(self._anchors().values())
+        radius = self.config.body_mm + self.config.clearance_mm
+        target = reachable_goal(goal, obstacles, radius)
+        to_goal = _dist(position, goal)
+        to_target = _dist(position, target)
+        self.log(
+            "fix",
+            x_mm=position[0],
+            y_mm=position[1],
+            kind=kind,
+            goal_x_mm=goal[0],
+            goal_y_mm=goal[1],
+            to_goal_mm=to_goal,
+            heard=sorted(k for k, d in distances.items() if d is not None),
+        )
+        if min(to_goal, to_target) <= self.config.tolerance_mm:
+            self._finish("reached", to_goal_mm=to_goal)
+            return True
+        if self.steps >= self.config.max_steps:
+            self._finish("gave_up", reason="steps")
+            return True
+        heading = self._heading
+        if heading is None:
+            self._plan(0.0, self.config.first_step_mm, "first")
+            return True
+        direction, self._side = plan_direction(
+            position, target, obstacles, radius, self.config.step_mm, self._side
+        )
+        alpha = turn_angle(heading, direction)
+        step = min(self.config.step_mm, to_target)
+        mode = "goal"
+        if self._votes[False] == self._votes[True]:
+            # Handedness not settled: make this turn big enough to tell, and the step short.
+            probe = math.radians(self.config.probe_deg)
+            if abs(alpha) < probe:
+                alpha += math.copysign(probe, alpha or 1.0)
+            elif abs(alpha) > math.pi - probe / 2:
+                alpha = math.copysign(math.pi / 2, alpha)
+            step = min(step, self.config.first_step_mm)
+            mode = "probe"
+        elif abs(alpha) > math.pi / 2:
+            step = min(step, self.config.first_step_mm)  # a long turn is the least accurate
+        if abs(alpha) < math.radians(self.config.min_turn_deg):
+            alpha = 0.0
+        # α is in the frame; the pivot is physical, and flips in a mirrored frame.
+        physical = abs(alpha) * frame_direction(alpha, self.mirrored)
+        self._plan(physical, step, mode)
+        return True
+
+    def _learn_from_step(self, position: Point) -> None:
+        """Update heading, handedness, speed and turn rate from the step just completed."""
+        if self._last_mode == "approach" or self.position is None:
+            self._heading, self._heading_measured = None, False
+            return
+        dx, dy = position[0] - self.position[0], position[1] - self.position[1]
+        moved = math.hypot(dx, dy)
+        step_s = self._last_step_ticks / self.ticks_per_s
+        expected = self._last_step_mm
+        if moved >= max(3.0, 0.4 * expected):
+            measured = (dx / moved, dy / moved)
+            if self._heading is not None and self._heading_measured and self._last_turn_rad:
+                self._vote(turn_angle(self._heading, measured))
+            if moved >= 0.7 * expected and step_s > 0:
+                self._speed_samples.append((moved, step_s))
+                total_mm = sum(m for m, _ in self._speed_samples)
+                total_s = sum(s for _, s in self._speed_samples)
+                self.speed_mm_s = total_mm / total_s
+            self._heading, self._heading_measured = measured, True
+        else:
+            # Blocked (contact) or too short to tell: keep the dead-reckoned heading.
+            self._heading = self._heading_after_turn()
+            self._heading_measured = False
+
+    def _vote(self, observed_rad: float) -> None:
+        """Compare the rotation seen in the frame with the physical turn commanded."""
+        commanded = self._last_turn_rad
+        if abs(commanded) < math.radians(25) or abs(observed_rad) > math.radians(165):
+            return
+        floor_err = abs(wrap_angle(observed_rad - commanded))
+        mirror_err = abs(wrap_angle(observed_rad + commanded))
+        if abs(floor_err - mirror_err) < math.radians(20):
+            return
+        verdict = mirror_err < floor_err
+        self._votes[verdict] += 1
+        mirrored = self._votes[True] > self._votes[False]
+        if mirrored != self.mirrored or sum(self._votes.values()) == 1:
+            self.mirrored = mirrored
+            self.log(
+                "handedness", mirrored=mirrored, floor=self._votes[False], mirror=self._votes[True]
+            )
+        if self.config.adapt_turns and math.radians(40) <= abs(commanded) <= math.radians(150):
+            # The turn was timed for commanded / gain, so the real rate is ratio × gain.
+            ratio = abs(observed_rad) / abs(commanded) * self.turn_gain
+            self._rate_samples.append(min(2.0, max(0.5, ratio)))
+            self.turn_gain = median(self._rate_samples)
+
+    def _approach_step(self, usable: dict[int, float]) -> None:
+        """No fix yet: walk to reduce the distance to the nearest robot heard."""
+        k, d = min(usable.items(), key=lambda kv: kv[1])
+        state = self._approach
+        turn = 0.0
+        if state is not None and state["robot"] == k and self._last_mode == "approach":
+            step_mm = self._last_step_ticks / self.ticks_per_s * self.speed_mm_s
+            cos_theta = max(-1.0, min(1.0, (state["distance"] - d) / step_mm))
+            theta = math.acos(cos_theta)
+            side = state["side"]
+            if theta > math.radians(30):
+                if state["turned"] and theta > 0.7 * state["theta"]:
+                    side = -side  # turning that way made it worse: the robot is on the other side
+                turn = side * theta
+            state.update(distance=d, theta=theta, side=side, turned=float(turn != 0.0))
+        else:
+            state = {"robot": k, "distance": d, "theta": 0.0, "side": 1.0, "turned": 0.0}
+        self._approach = state
+        self._plan(turn, self.config.step_mm, "approach")
+
+    def _plan(self, physical_turn_rad: float, step_mm: float, mode: str) -> None:
+        """Start the move: a physical pivot (counter-clockwise positive), then a step."""
+        tps = self.ticks_per_s
+        turn_s = self.calibration.turn_time_s(physical_turn_rad / self.turn_gain)
+        turn_ticks = round(turn_s * tps) if physical_turn_rad else 0
+        step_ticks = max(1, round(step_mm / self.speed_mm_s * tps))
+        self._last_turn_rad = physical_turn_rad if turn_ticks else 0.0
+        self._last_step_mm = step_mm
+        self._last_step_ticks = step_ticks
+        self._last_mode = mode
+        self.log(
+            "move",
+            mode=mode,
+            turn_rad=self._last_turn_rad,
+            turn_s=turn_ticks / tps,
+            step_mm=step_mm,
+            step_s=step_ticks / tps,
+        )
+        now = self.kilo_ticks
+        self._pending = (1 if physical_turn_rad > 0 else -1, turn_ticks, step_ticks)
+        if turn_ticks:
+            self.phase = "turn"
+            self.phase_end_tick = now + turn_ticks
+            if physical_turn_rad > 0:
+                self.set_motors(0, self.kilo_turn_right)  # right motor only: left turn
+            else:
+                self.set_motors(self.kilo_turn_left, 0)  # left motor only: right turn
+        else:
+            self._start_step(now)
+
+    def _start_step(self, now: int) -> None:
+        _, _, step_ticks = self._pending
+        self.phase = "step"
+        self.phase_end_tick = now + step_ticks
+        self.steps += 1
+        self.set_motors(self.kilo_straight_left, self.kilo_straight_right)
+
+    def _goal(self) -> Point:
+        """The centroid of robots 1–3 in the frame (the seed's goal)."""
+        d12, x3, y3 = self.frame
+        return ((d12 + x3) / 3, y3 / 3)
+
+    def _finish(self, outcome: str, **fields: float | str) -> None:
+        self.set_motors(0, 0)
+        self.outcome = outcome
+        self.phase = "done"
+        self.log(outcome, steps=self.steps, mirrored=self.mirrored, **fields)
+
+
+def _dist(a: Point, b: Point) -> float:
+    return math.hypot(a[0] - b[0], a[1] - b[1])

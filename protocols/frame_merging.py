@@ -1,0 +1,338 @@
+"""Phase 6: merging the local frames into one (thesis §4.6, §5.3.2 "Phase 6"; finished here).
+
+Every seed S keeps its frame's transform: a 3-D rotation R_S and a shift v_S with
+``global = R_S · (x, y, 0) + v_S`` (3-D so that a frame that is the mirror image of another can
+be turned into it: a 180° turn about an in-plane axis). Initially R_S = I, v_S = 0. Seeds
+broadcast their transform (TF_ROT, TF_SHIFT) with an 8-bit version.
+
+A round of seed I:
+
+1. I picks at random a partner frame K and a robot X that registered a merging group (X, Y, Z)
+   for (I, K), and sends ``QUERY(I → X, K, version)``, repeating it until answered or until
+   ``gcs.merge_round_s`` passes (then it tries another member).
+2. X, once it holds I's transform of that version and K's latest transform, maps the three
+   members' local positions into both "global" frames, finds the rigid map M from I's to K's
+   (Kabsch, ``scipy.spatial.transform.Rotation.align_vectors``), and takes **half** of it:
+   R_H = Slerp(I, R_M)(½) and the shift that moves the members' centroid half way,
+   t_H = (c_I + c_K)/2 − R_H c_I. It answers with R_H (a quaternion, ANS_ROT), t_H (ANS_SHIFT)
+   and the members' largest disagreement between the two frames (ANS_ERROR).
+3. I applies the half step: R_I ← R_H R_I, v_I ← R_H v_I + t_H, bumps its version and
+   broadcasts the new transform. Its partner seeds do the same towards it, so frames meet
+   instead of oscillating.
+
+Termination, decided by each seed alone: when ``gcs.merge_stable_rounds`` answers in a row
+report a disagreement within ``gcs.merge_tolerance_mm`` the seed is done (bit 7 of its version),
+stops asking, and keeps broadcasting its transform. A seed with no registered group is isolated
+and done at once; a seed still disagreeing after ``gcs.merge_max_rounds`` gives up.
+
+A robot's global position g is the mean, over the frames it is located in whose transform it
+holds, of ``R_S (x, y, 0) + v_S``, expressed in 2-D as the first two coordinates of ``R_S*ᵀ g``
+for the lowest-ID such seed S* (converged seeds share one rotation, so any seed's gives the same
+2-D coordinates up to the tolerance).
+
+Messages (quaternion x, y, z as int16 / 32767 with w ≥ 0 implied; shifts int16 in 0.25 mm)::
+
+    type 60 TF_ROT     sender:uint16  version:uint8  qx qy qz:int16          9 bytes
+    type 61 TF_SHIFT   sender:uint16  version:uint8  vx vy vz:int16          9 bytes
+    type 62 QUERY      sender:uint16  member:uint16  partner:uint16  salt:uint8
+                       version:uint8                                         8 bytes
+
+Frames (partners, transforms) are named by frame keys: seed ID and salt
+(:meth:`protocols.gcs.GcsRobot.frame_key`).
+    type 63 ANS_ROT    sender:uint16  version:uint8  qx qy qz:int16          9 bytes
+    type 64 ANS_SHIFT  sender:uint16  version:uint8  tx ty tz:int16          9 bytes
+    type 65 ANS_ERROR  sender:uint16  version:uint8  error:uint16 (0.1 mm)   5 bytes
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from kilonet.message import Layout, Message
+from protocols.gcs_base import Phase
+
+__all__ = ["FrameMerging", "half_map", "quaternion_fields", "rotation_from_fields"]
+
+_Q = [("qx", "h", 1 / 32767), ("qy", "h", 1 / 32767), ("qz", "h", 1 / 32767)]
+_V = [("vx_mm", "h", 0.25), ("vy_mm", "h", 0.25), ("vz_mm", "h", 0.25)]
+TF_ROT = Layout("tf_rot", type=60, fields=[("sender", "H"), ("version", "B"), *_Q])
+TF_SHIFT = Layout("tf_shift", type=61, fields=[("sender", "H"), ("version", "B"), *_V])
+QUERY = Layout(
+    "query",
+    type=62,
+    fields=[
+        ("sender", "H"),
+        ("member", "H"),
+        ("partner", "H"),
+        ("partner_salt", "B"),
+        ("version", "B"),
+    ],
+)
+ANS_ROT = Layout("ans_rot", type=63, fields=[("sender", "H"), ("version", "B"), *_Q])
+ANS_SHIFT = Layout("ans_shift", type=64, fields=[("sender", "H"), ("version", "B"), *_V])
+ANS_ERROR = Layout(
+    "ans_error", type=65, fields=[("sender", "H"), ("version", "B"), ("error_mm", "H", 0.1)]
+)
+_DONE = 0x80
+_IDENTITY = Rotation.identity()
+
+
+def quaternion_fields(rotation: Rotation) -> dict[str, float]:
+    """The message fields of a rotation: its unit quaternion's x, y, z with w ≥ 0."""
+    x, y, z, w = rotation.as_quat()
+    sign = -1.0 if w < 0 else 1.0
+    return {"qx": sign * x, "qy": sign * y, "qz": sign * z}
+
+
+def rotation_from_fields(qx: float, qy: float, qz: float) -> Rotation:
+    """The rotation whose quaternion has these x, y, z and w = √(1 − x² − y² − z²) ≥ 0.
+
+    Examples
+    --------
+    >>> r = Rotation.from_euler("z", 30, degrees=True)
+    >>> f = quaternion_fields(r)
+    >>> float(np.degrees(rotation_from_fields(**f).magnitude()).round(6))
+    30.0
+    """
+    w = np.sqrt(max(0.0, 1.0 - qx * qx - qy * qy - qz * qz))
+    return Rotation.from_quat([qx, qy, qz, w])
+
+
+def half_map(
+    points_i: np.ndarray, points_k: np.ndarray
+) -> tuple[Rotation, np.ndarray, float]:
+    """Half of the rigid map taking points in frame I onto the same robots in frame K.
+
+    Parameters
+    ----------
+    points_i, points_k : (n, 3) arrays
+        The same robots' "global" positions through I's and K's transforms, mm.
+
+    Returns
+    -------
+    rotation, shift, disagreement_mm
+        ``R_H`` (half of the rotation, SLERP from the identity), ``t_H`` moving the centroid
+        half way, and the largest distance between a robot's two positions.
+
+    Examples
+    --------
+    A frame K that is I turned by 90° about z and shifted by 10 mm along x:
+
+    >>> p_i = np.array([[0.0, 0, 0], [40, 0, 0], [0, 40, 0]])
+    >>> turn = Rotation.from_euler("z", 90, degrees=True)
+    >>> p_k = turn.apply(p_i) + [10.0, 0, 0]
+    >>> r_h, t_h, err = half_map(p_i, p_k)
+    >>> round(float(np.degrees(r_h.magnitude())), 6), round(err, 3)
+    (45.0, 56.569)
+    """
+    c_i, c_k = points_i.mean(axis=0), points_k.mean(axis=0)
+    full, _ = Rotation.align_vectors(points_k - c_k, points_i - c_i)
+    half = Slerp([0.0, 1.0], Rotation.concatenate([_IDENTITY, full]))(0.5)
+    shift = (c_i + c_k) / 2 - half.apply(c_i)
+    disagreement = float(np.max(np.linalg.norm(points_k - points_i, axis=1)))
+    return half, shift, disagreement
+
+
+class FrameMerging(Phase):
+    """Phase 6 on one robot: seeds run rounds; members answer; everyone tracks transforms."""
+
+    name = "merge"
+
+    def start(self) -> None:
+        r = self.robot
+        tps = r.ticks_per_s
+        self.round_ticks = round(self.params.merge_round_s * tps)
+        # Transforms heard, by seed: (rotation, shift, version, done); parts by version.
+        r.transforms = {}
+        self.parts: dict[int, dict[int, dict[str, object]]] = {}
+        self.outbox: list[Message] = []
+        self.answers: dict[tuple[int, int], list[Message]] = {}
+        self.turn = 0
+        if r.is_seed:
+            self.rotation = _IDENTITY
+            self.shift = np.zeros(3)
+            self.version = 0
+            self.rounds = 0
+            self.stable = 0
+            self.done = False
+            self.asking: tuple[int, int] | None = None
+            self.received: dict[str, object] = {}
+            self.round_start = r.kilo_ticks
+            self.key = r.frame_key(r.uid)
+            r.transforms[self.key] = (self.rotation, self.shift, 0, False)
+            if not r.partners:
+                self._finish("isolated")
+
+    # -- seed side ---------------------------------------------------------------------------
+    def _finish(self, how: str) -> None:
+        self.done = True
+        r = self.robot
+        r.merge_done = True
+        r.log("merge_done", how=how, rounds=self.rounds)
+        self._publish()
+
+    def _publish(self) -> None:
+        r = self.robot
+        r.transforms[self.key] = (self.rotation, self.shift, self.version, self.done)
+
+    def _version_byte(self) -> int:
+        return (self.version & 0x7F) | (_DONE if self.done else 0)
+
+    def _new_round(self) -> None:
+        r = self.robot
+        partner = sorted(r.partners)[int(r.rand.integers(len(r.partners)))]
+        members = sorted(r.partners[partner])
+        member = members[int(r.rand.integers(len(members)))]
+        self.asking = (member, partner)
+        self.received = {}
+        self.round_start = r.kilo_ticks
+        if member == r.uid:  # the seed is a member itself: no message needed
+            answer = self._compute_answer(self.key, partner, self._version_byte())
+            if answer is not None:
+                self._apply(*answer)
+
+    def _apply(self, rotation: Rotation, shift: np.ndarray, error_mm: float) -> None:
+        r = self.robot
+        self.rotation = rotation * self.rotation
+        self.shift = rotation.apply(self.shift) + shift
+        self.version += 1
+        self.rounds += 1
+        self.stable = self.stable + 1 if error_mm <= self.params.merge_tolerance_mm else 0
+        r.log("merge_round", round=self.rounds, error_mm=round(error_mm, 3))
+        self._publish()
+        self.asking = None
+        if self.stable >= self.params.merge_stable_rounds:
+            self._finish("agreed")
+        elif self.rounds >= self.params.merge_max_rounds:
+            self._finish("gave_up")
+
+    def _seed_message(self) -> Message | None:
+        r = self.robot
+        if not self.done and r.partners:
+            if self.asking is None or r.kilo_ticks - self.round_start > self.round_ticks:
+                self._new_round()
+        self.turn += 1
+        version = self._version_byte()
+        if self.asking is not None and not self.done and self.turn % 3 == 0:
+            member, partner = self.asking
+            return QUERY.pack(
+                sender=r.uid,
+                member=member,
+                partner=partner >> 8,
+                partner_salt=partner & 0xFF,
+                version=version,
+            )
+        if self.turn % 2 == 0:
+            return TF_ROT.pack(sender=r.uid, version=version, **quaternion_fields(self.rotation))
+        vx, vy, vz = self.shift
+        return TF_SHIFT.pack(sender=r.uid, version=version, vx_mm=vx, vy_mm=vy, vz_mm=vz)
+
+    def _seed_receive(self, message: Message) -> None:
+        if self.done or self.asking is None:
+            return
+        member, _ = self.asking
+        for layout, key in ((ANS_ROT, "rot"), (ANS_SHIFT, "shift"), (ANS_ERROR, "error")):
+            if layout.matches(message):
+                m = layout.unpack(message)
+                if m.sender == member and m.version & 0x7F == self.version & 0x7F:
+                    self.received[key] = m
+        if len(self.received) == 3:
+            rot, shift, error = (self.received[k] for k in ("rot", "shift", "error"))
+            self._apply(
+                rotation_from_fields(rot.qx, rot.qy, rot.qz),
+                np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm]),
+                error.error_mm,
+            )
+
+    # -- member side -------------------------------------------------------------------------
+    def _local_points(self, frame: int, members: tuple[int, ...]) -> np.ndarray | None:
+        r = self.robot
+        points = []
+        for uid in members:
+            xy = r.frames.get(frame) if uid == r.uid else r.announced.get(frame, {}).get(uid)
+            if xy is None:
+                return None
+            points.append((xy[0], xy[1], 0.0))
+        return np.array(points)
+
+    def _compute_answer(
+        self, seed: int, partner: int, version: int
+    ) -> tuple[Rotation, np.ndarray, float] | None:
+        r = self.robot
+        key = (min(seed, partner), max(seed, partner))
+        group = r.groups.get(key)
+        tf_i, tf_k = r.transforms.get(seed), r.transforms.get(partner)
+        if group is None or tf_i is None or tf_k is None or tf_i[2] & 0x7F != version & 0x7F:
+            return None
+        members = (r.uid, *group)
+        local_i, local_k = self._local_points(seed, members), self._local_points(partner, members)
+        if local_i is None or local_k is None:
+            return None
+        global_i = tf_i[0].apply(local_i) + tf_i[1]
+        global_k = tf_k[0].apply(local_k) + tf_k[1]
+        return half_map(global_i, global_k)
+
+    def _answer(self, seed: int, partner: int, version: int) -> None:
+        answer = self._compute_answer(seed, partner, version)
+        if answer is None:
+            return
+        rotation, shift, error = answer
+        r = self.robot
+        tx, ty, tz = shift
+        self.answers[(seed, version & 0x7F)] = [
+            ANS_ROT.pack(sender=r.uid, version=version, **quaternion_fields(rotation)),
+            ANS_SHIFT.pack(sender=r.uid, version=version, vx_mm=tx, vy_mm=ty, vz_mm=tz),
+            ANS_ERROR.pack(sender=r.uid, version=version, error_mm=min(error, 6500.0)),
+        ]
+        self.outbox.extend(self.answers[(seed, version & 0x7F)])
+
+    def _track_transform(self, message: Message) -> None:
+        r = self.robot
+        for layout, key in ((TF_ROT, "rot"), (TF_SHIFT, "shift")):
+            if not layout.matches(message):
+                continue
+            m = layout.unpack(message)
+            if m.sender == r.uid:
+                return
+            key = r.frame_key(m.sender)
+            parts = self.parts.setdefault(key, {}).setdefault(m.version & 0x7F, {})
+            parts[key] = m
+            if len(parts) == 2:
+                rot, shift = parts["rot"], parts["shift"]
+                r.transforms[key] = (
+                    rotation_from_fields(rot.qx, rot.qy, rot.qz),
+                    np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm]),
+                    m.version,
+                    bool(m.version & _DONE),
+                )
+                self.parts[key] = {}
+
+    # -- phase interface ---------------------------------------------------------------------
+    def message_tx(self) -> Message | None:
+        if self.outbox:
+            return self.outbox.pop(0)
+        if self.robot.is_seed:
+            return self._seed_message()
+        return None
+
+    def message_rx(self, message: Message, distance_mm: int) -> None:
+        r = self.robot
+        self._track_transform(message)
+        if QUERY.matches(message):
+            m = QUERY.unpack(message)
+            if m.member == r.uid and not self.outbox:
+                seed = r.frame_key(m.sender)
+                cached = self.answers.get((seed, m.version & 0x7F))
+                if cached is not None:
+                    self.outbox.extend(cached)
+                else:
+                    self._answer(seed, (m.partner << 8) | m.partner_salt, m.version)
+        if r.is_seed:
+            self._seed_receive(message)
+
+    def loop(self) -> None:
+        r = self.robot
+        if r.is_seed and not self.done and r.partners and self.asking is not None:
+            if r.kilo_ticks - self.round_start > self.round_ticks:
+                self._new_round()

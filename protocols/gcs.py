@@ -1,0 +1,178 @@
+"""Rubenstein's global coordinate system, as one Kilobot program running six phases.
+
+The phases (one module each) run in windows on the robot's own clock, in order:
+
+1. :mod:`protocols.unique_ids` — locally unique IDs;
+2. :mod:`protocols.seed_election` — top and bottom seed elections and the seed check;
+3. :mod:`protocols.local_frames` — each seed's frame from two references;
+4. :mod:`protocols.localization` — trilateration into the frames of seeds in view;
+5. :mod:`protocols.merging_groups` — groups of three robots located in the same two frames;
+6. :mod:`protocols.frame_merging` — rounds of half-way transforms until partners agree.
+
+``gcs.until`` stops the program after a phase. The robot's state that phases share lives on
+:class:`GcsRobot` (its ID, neighbour table, seeds in view, local positions, transforms); phases
+hold their own working state. LED: phase 1 white, 2 blue (seeds red), 3 references yellow,
+located robots green, merged robots cyan.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kilonet.message import Message
+from kilonet.robot import Kilobot
+from protocols.frame_merging import FrameMerging
+from protocols.gcs_base import PHASES, GcsParams, Phase
+from protocols.local_frames import LocalFrames
+from protocols.localization import Localization
+from protocols.merging_groups import MergingGroups
+from protocols.neighbours import NeighbourTable
+from protocols.seed_election import SeedElection
+from protocols.unique_ids import UniqueIds
+
+__all__ = ["GcsRobot", "phase_windows_s"]
+
+_PHASE_CLASSES: tuple[type[Phase], ...] = (
+    UniqueIds,
+    SeedElection,
+    LocalFrames,
+    Localization,
+    MergingGroups,
+    FrameMerging,
+)
+
+
+def phase_windows_s(p: GcsParams) -> list[tuple[str, float, float]]:
+    """``(phase, start_s, end_s)`` of each phase up to ``p.until``; merging has no end
+    (``inf``): it ends when the seeds agree.
+
+    Examples
+    --------
+    >>> [name for name, _, _ in phase_windows_s(GcsParams(until="frames"))]
+    ['ids', 'seeds', 'frames']
+    """
+    lengths = {
+        "ids": p.ids_s,
+        "seeds": SeedElection.duration_s(p),
+        "frames": p.frames_s,
+        "localization": p.localization_s,
+        "groups": p.groups_s,
+        "merge": float("inf"),
+    }
+    out, t = [], 0.0
+    for name in PHASES[: PHASES.index(p.until) + 1]:
+        out.append((name, t, t + lengths[name]))
+        t += lengths[name]
+    return out
+
+
+class GcsRobot(Kilobot):
+    """The global-coordinate-system program of one robot.
+
+    Parameters
+    ----------
+    params : GcsParams
+        The protocol's parameters (time-outs, rules, tolerances).
+    """
+
+    def __init__(self, params: GcsParams) -> None:
+        self.params = params
+
+    def setup(self) -> None:
+        self.table = NeighbourTable()
+        self.uid = -1
+        self.salt = 0
+        self.salts: dict[int, int] = {}  # neighbours' salts from phase 1
+        self.seeds: set[int] = set()
+        self.is_seed = False
+        self.role = "robot"
+        # Local positions of this robot, by frame key (see frame_key), mm.
+        self.frames: dict[int, tuple[float, float]] = {}
+        # A seed's references: (ID, x, y) in its frame, announced in turn.
+        self.references: list[tuple[int, float, float]] = []
+        self.ref_turn = 0
+        self.pos_turn = 0
+        # Phase 5: this robot's groups {(I, K): (Y, Z)}; a seed's partners {K: {members}}.
+        self.groups: dict[tuple[int, int], tuple[int, int]] = {}
+        self.partners: dict[int, set[int]] = {}
+        # Phase 6: transforms heard, by seed: (rotation, shift (3,), version byte, done).
+        self.transforms: dict = {}
+        self.merge_done = False
+        # Positions neighbours announced, by frame key then neighbour ID, mm.
+        self.announced: dict[int, dict[int, tuple[float, float]]] = {}
+        tps = self.ticks_per_s
+        self._windows = [
+            (cls, round(start * tps), end * tps)
+            for cls, (_, start, end) in zip(_PHASE_CLASSES, phase_windows_s(self.params))
+        ]
+        self._index = -1
+        self.phase: Phase | None = None
+        self._advance()
+
+    def _advance(self) -> None:
+        ticks = self.kilo_ticks
+        while self._index + 1 < len(self._windows) and ticks >= self._windows[self._index + 1][1]:
+            if self.phase is not None:
+                self.phase.finish()
+            self._index += 1
+            cls = self._windows[self._index][0]
+            self.phase = cls(self)
+            self.log("phase", name=cls.name)
+            self.phase.start()
+        if self.phase is not None and ticks >= self._windows[self._index][2]:
+            self.phase.finish()
+            self.phase = None  # past the last phase asked for: the robot falls silent
+
+    @property
+    def phase_name(self) -> str:
+        """Name of the running phase ('' once done)."""
+        return self.phase.name if self.phase is not None else ""
+
+    def loop(self) -> None:
+        self._advance()
+        if self.polled:
+            while (received := self.get_message()) is not None:
+                self._receive(*received)
+        if self.phase is not None:
+            self.phase.loop()
+
+    def frame_key(self, seed_uid: int) -> int:
+        """The key of the frame of seed ``seed_uid``, a neighbour or this robot: its ID and its
+        phase-1 salt. IDs are unique only among a robot's neighbours, so two seeds three hops
+        apart may share one; with the salt, two frames are confused only if both match."""
+        salt = self.salt if seed_uid == self.uid else self.salts.get(seed_uid, 0)
+        return (seed_uid << 8) | salt
+
+    def global_position(self) -> tuple[float, float] | None:
+        """This robot's estimate in the merged frame, mm (None before it has one).
+
+        The mean over its frames with a known transform of ``R_S (x, y, 0) + v_S``, in 2-D
+        through the axes of the lowest-ID such seed (see :mod:`protocols.frame_merging`).
+        """
+        known = [s for s in sorted(self.frames) if s in self.transforms]
+        if not known:
+            return None
+        points = []
+        for seed in known:
+            rotation, shift, _, _ = self.transforms[seed]
+            x, y = self.frames[seed]
+            points.append(rotation.apply([x, y, 0.0]) + shift)
+        # Converged seeds share one rotation (their shifts differ): its inverse lays the common
+        # plane flat, so the first two coordinates agree across the swarm.
+        planar = self.transforms[known[0]][0].inv().apply(np.mean(points, axis=0))
+        return float(planar[0]), float(planar[1])
+
+    def message_tx(self) -> Message | None:
+        self._advance()
+        return self.phase.message_tx() if self.phase is not None else None
+
+    def message_rx(self, message: Message, distance_mm: int) -> None:
+        self._receive(message, distance_mm)
+
+    def _receive(self, message: Message, distance_mm: int) -> None:
+        if self.phase is None:
+            return
+        self.phase.message_rx(message, distance_mm)
+        sender = int.from_bytes(message.data[:2], "little")
+        if sender != self.uid:
+            self.table.heard(sender, distance_mm, tick=self.kilo_ticks)

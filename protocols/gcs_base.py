@@ -1,0 +1,86 @@
+"""Shared parts of the global-coordinate-system program: its parameters, its robot state, and
+the phase interface each phase module implements.
+
+Phases follow one another on every robot's clock (``kilo_ticks``), as the thesis's counters do:
+the overhead controller starts all robots together, so fixed windows keep the swarm in step
+without any message. Inside its window each phase runs its own message protocol, and a robot
+that has nothing to say stays silent (which keeps the channel free for those that do).
+
+Every message starts with the sender's 16-bit ID field (values drawn from ``id_bits`` bits), so
+each reception also refines the distance table (:mod:`protocols.neighbours`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+from kilonet.message import Message
+from kilonet.params import param
+
+if TYPE_CHECKING:
+    from protocols.gcs import GcsRobot
+
+__all__ = ["PHASES", "GcsParams", "Phase"]
+
+#: Phase names in order; ``gcs.until`` names the last one to run.
+PHASES = ("ids", "seeds", "frames", "localization", "groups", "merge")
+
+
+@dataclass(frozen=True)
+class GcsParams:
+    """Parameters of the global-coordinate-system protocol (section ``gcs``)."""
+
+    section_name = "gcs"
+    until: Literal["ids", "seeds", "frames", "localization", "groups", "merge"] = param(
+        "merge", doc="last phase to run"
+    )
+    id_bits: int = param(8, lo=2, hi=15, doc="random IDs are drawn from this many bits")
+    ids_s: float = param(8.0, lo=0.5, hi=600.0, doc="phase 1 window")
+    duplicate_distance_mm: float = param(
+        12.0, lo=1.0, hi=200.0, doc="one ID heard at distances this far apart is two robots"
+    )
+    elect_s: float = param(3.0, lo=0.5, hi=600.0, doc="top and each bottom election window")
+    check_s: float = param(2.0, lo=0.5, hi=600.0, doc="seed check window after each election")
+    reelections: int = param(3, lo=0, hi=50, doc="bottom re-elections at most")
+    frames_s: float = param(45.0, lo=1.0, hi=3600.0, doc="phase 3 window")
+    ask_timeout_s: float = param(2.0, lo=0.2, hi=60.0, doc="seed skips a silent neighbour")
+    busy_reset_s: float = param(3.0, lo=0.2, hi=60.0, doc="a busy neighbour resets itself")
+    ask_attempts: int = param(2, lo=1, hi=20, doc="times a seed tries each neighbour")
+    reference_rule: Literal["max_angle", "best_conditioned"] = param(
+        "max_angle", doc="how a seed picks its two references"
+    )
+    localization_s: float = param(20.0, lo=1.0, hi=3600.0, doc="phase 4 window")
+    max_rmse_mm: float = param(4.0, lo=0.1, hi=100.0, doc="reject fixes with larger residuals")
+    groups_s: float = param(6.0, lo=0.5, hi=3600.0, doc="phase 5 window")
+    merge_round_s: float = param(4.0, lo=0.5, hi=600.0, doc="time-out of one merging round")
+    merge_max_rounds: int = param(400, lo=1, hi=100_000, doc="rounds a seed runs at most")
+    merge_tolerance_mm: float = param(2.0, lo=0.01, hi=100.0, doc="partners agree within this")
+    merge_tolerance_deg: float = param(1.0, lo=0.01, hi=90.0, doc="and within this angle")
+    merge_stable_rounds: int = param(4, lo=1, hi=1000, doc="agreeing rounds before done")
+
+
+class Phase:
+    """One phase of the protocol on one robot. Subclasses override what they use."""
+
+    name = ""
+
+    def __init__(self, robot: GcsRobot) -> None:
+        self.robot = robot
+        self.params: GcsParams = robot.params
+
+    def start(self) -> None:
+        """Called when the phase's window opens on this robot."""
+
+    def finish(self) -> None:
+        """Called when the window closes (before the next phase starts)."""
+
+    def message_tx(self) -> Message | None:
+        """The message to offer now, or ``None``."""
+        return None
+
+    def message_rx(self, message: Message, distance_mm: int) -> None:
+        """A reception of this phase's message types (the sender's distance is recorded)."""
+
+    def loop(self) -> None:
+        """Called every loop period while the phase runs."""

@@ -1,0 +1,237 @@
+"""Phase 3: each seed builds its local frame from two references (thesis §4.3, §5.3.2).
+
+A seed A must learn the distances between pairs of its neighbours. It asks them one at a time
+with a synchronous request/answer protocol:
+
+1. A sends ``ASK(A → B, chunk k)``; B, if free (or already serving A), becomes busy with A and
+   answers with its neighbour table, two entries a message, starting at chunk ``k``.
+2. A asks again for the first chunk it still misses, until it holds B's whole table; then it
+   sends ``ASK(A → B, DONE)`` and B is free again.
+3. If B stays silent for ``gcs.ask_timeout_s`` (busy with another seed, or gone), A skips it and
+   retries it later, ``gcs.ask_attempts`` times at most. A busy B that hears nothing from its
+   seed for ``gcs.busy_reset_s`` resets itself (the seed broke down).
+
+Tables are broadcast, so a seed also keeps every chunk it overhears from a neighbour answering
+another seed, and does not ask a neighbour whose table it already holds.
+
+When it has asked everyone, A chooses references B, C that see each other by the rule
+``gcs.reference_rule`` (``max_angle``: the thesis's rule, maximise ∠BAC; ``best_conditioned``:
+see :func:`kilonet.geometry.choose_references_best_conditioned`), places B = (|AB|, 0) and
+C = (|AC| cos α, |AC| sin α) and announces both until the phase ends.
+
+Messages (16-bit IDs; distances whole mm; coordinates int16 in 0.1 mm)::
+
+    type 30 ASK    sender:uint16  target:uint16  chunk:uint8 (255: done)             5 bytes
+    type 31 TABLE  sender:uint16  chunk:uint8 (bit 7: last)  2 × (id:uint16 d:uint8)  9 bytes
+    type 32 REF    sender:uint16  reference:uint16  x:int16  y:int16                  8 bytes
+"""
+
+from __future__ import annotations
+
+from kilonet.geometry import (
+    GeometryError,
+    choose_references_best_conditioned,
+    choose_references_max_angle,
+    place_references,
+)
+from kilonet.message import Layout, Message
+from protocols.gcs_base import Phase
+
+__all__ = ["ASK", "REF", "TABLE", "LocalFrames", "announce_reference", "receive_reference"]
+
+ASK = Layout("ask", type=30, fields=[("sender", "H"), ("target", "H"), ("chunk", "B")])
+TABLE = Layout(
+    "table",
+    type=31,
+    fields=[("sender", "H"), ("chunk", "B"), ("id1", "H"), ("d1", "B"), ("id2", "H"), ("d2", "B")],
+)
+REF = Layout(
+    "ref",
+    type=32,
+    fields=[("sender", "H"), ("reference", "H"), ("x_mm", "h", 0.1), ("y_mm", "h", 0.1)],
+)
+DONE = 255
+_LAST = 0x80
+_NONE = 0xFFFF
+
+
+class LocalFrames(Phase):
+    """Phase 3 on one robot: every robot answers seeds; seeds also ask and build a frame."""
+
+    name = "frames"
+
+    def start(self) -> None:
+        r = self.robot
+        tps = r.ticks_per_s
+        self.ask_timeout = round(self.params.ask_timeout_s * tps)
+        self.busy_reset = round(self.params.busy_reset_s * tps)
+        # Answering side.
+        entries = [(uid, round(r.table.distance(uid))) for uid in r.table.ids()]
+        self.my_chunks = [entries[i : i + 2] for i in range(0, len(entries), 2)] or [[]]
+        self.serving: int | None = None
+        self.serving_since = 0
+        self.next_chunk = 0
+        # Asking side (seeds): tables heard, by neighbour: chunk -> entries, and last chunk.
+        self.tables: dict[int, dict[int, list[tuple[int, int]]]] = {}
+        self.last_chunk: dict[int, int] = {}
+        self.queue = [uid for uid in r.table.ids()] if r.is_seed else []
+        self.attempts = dict.fromkeys(self.queue, 0)
+        self.asking: int | None = None
+        self.asked_at = 0
+        self.references: list[tuple[int, float, float]] = []
+        self.tried = False  # the seed has chosen (or failed to choose) its references
+        self.skipped = 0
+
+    # -- answering ---------------------------------------------------------------------------
+    def _answer(self) -> Message | None:
+        r = self.robot
+        if self.serving is None:
+            return None
+        if r.kilo_ticks - self.serving_since > self.busy_reset:
+            r.log("busy_reset", seed=self.serving)
+            self.serving = None
+            return None
+        k = self.next_chunk
+        if k >= len(self.my_chunks):
+            return None
+        chunk = self.my_chunks[k] + [(_NONE, 0)] * (2 - len(self.my_chunks[k]))
+        self.next_chunk = k + 1
+        flag = _LAST if k == len(self.my_chunks) - 1 else 0
+        (id1, d1), (id2, d2) = chunk
+        return TABLE.pack(
+            sender=r.uid, chunk=k | flag, id1=id1, d1=min(d1, 255), id2=id2, d2=min(d2, 255)
+        )
+
+    # -- asking (seeds) ----------------------------------------------------------------------
+    def _complete(self, uid: int) -> bool:
+        last = self.last_chunk.get(uid)
+        return last is not None and all(k in self.tables[uid] for k in range(last + 1))
+
+    def _first_missing(self, uid: int) -> int:
+        chunks = self.tables.get(uid, {})
+        k = 0
+        while k in chunks:
+            k += 1
+        return k
+
+    def _ask(self) -> Message | None:
+        r = self.robot
+        now = r.kilo_ticks
+        if self.asking is not None:
+            uid = self.asking
+            if self._complete(uid):
+                self.asking = None
+                return ASK.pack(sender=r.uid, target=uid, chunk=DONE)
+            if now - self.asked_at > self.ask_timeout:
+                self.skipped += 1
+                self.asking = None
+                if self.attempts[uid] < self.params.ask_attempts:
+                    self.queue.append(uid)
+            else:
+                return ASK.pack(sender=r.uid, target=uid, chunk=self._first_missing(uid))
+        while self.queue:
+            uid = self.queue.pop(0)
+            if self._complete(uid):
+                continue
+            self.attempts[uid] += 1
+            self.asking, self.asked_at = uid, now
+            return ASK.pack(sender=r.uid, target=uid, chunk=self._first_missing(uid))
+        if not self.tried:
+            self._choose_references()
+        return self._announce()
+
+    def _choose_references(self) -> None:
+        r = self.robot
+        candidates = {}
+        ids = [uid for uid in r.table.ids() if self._complete(uid)]
+        for i, b in enumerate(ids):
+            b_table = dict(e for chunk in self.tables[b].values() for e in chunk)
+            for c in ids[i + 1 :]:
+                if c in b_table:
+                    candidates[(b, c)] = (r.table.distance(b), r.table.distance(c), b_table[c])
+        self.tried = True
+        if not candidates:
+            r.log("frame_failed", neighbours=len(r.table), complete=len(ids))
+            return
+        rule = (
+            choose_references_max_angle
+            if self.params.reference_rule == "max_angle"
+            else choose_references_best_conditioned
+        )
+        (b, c), score = rule(candidates)
+        d_ab, d_ac, d_bc = candidates[(b, c)]
+        try:
+            (xb, yb), (xc, yc) = place_references(d_ab, d_ac, d_bc)
+        except GeometryError as exc:
+            r.log("frame_failed", reason=str(exc))
+            return
+        self.references = [(b, xb, yb), (c, xc, yc)]
+        r.references = self.references
+        r.frames[r.frame_key(r.uid)] = (0.0, 0.0)
+        r.log("frame", b=b, c=c, score=float(score), asked=len(ids), skipped=self.skipped)
+
+    def _announce(self) -> Message | None:
+        return announce_reference(self.robot)
+
+    # -- phase interface ---------------------------------------------------------------------
+    def message_tx(self) -> Message | None:
+        # Answering a seed comes first: that seed is waiting on this robot.
+        answer = self._answer()
+        if answer is not None:
+            return answer
+        return self._ask() if self.robot.is_seed else None
+
+    def message_rx(self, message: Message, distance_mm: int) -> None:
+        r = self.robot
+        if ASK.matches(message):
+            m = ASK.unpack(message)
+            if m.target != r.uid:
+                return
+            if m.chunk == DONE:
+                if self.serving == m.sender:
+                    self.serving = None
+            elif self.serving in (None, m.sender):
+                if self.serving is None:
+                    self.serving_since = r.kilo_ticks
+                self.serving = m.sender
+                self.next_chunk = m.chunk
+                self.serving_since = r.kilo_ticks
+        elif TABLE.matches(message) and r.is_seed:
+            m = TABLE.unpack(message)
+            k = m.chunk & ~_LAST
+            entries = [(uid, d) for uid, d in ((m.id1, m.d1), (m.id2, m.d2)) if uid != _NONE]
+            self.tables.setdefault(m.sender, {})[k] = entries
+            if m.chunk & _LAST:
+                self.last_chunk[m.sender] = k
+            if m.sender == self.asking:
+                self.asked_at = r.kilo_ticks  # it answers: keep waiting for the rest
+        else:
+            receive_reference(r, message)
+
+    def finish(self) -> None:
+        r = self.robot
+        if r.is_seed and not self.tried:
+            self._choose_references()
+
+
+def announce_reference(robot) -> Message | None:  # noqa: ANN001 - a GcsRobot
+    """A seed's next REF message (its references in turn), or ``None`` without references."""
+    refs = robot.references
+    if not refs:
+        return None
+    robot.ref_turn = (robot.ref_turn + 1) % len(refs)
+    uid, x, y = refs[robot.ref_turn]
+    return REF.pack(sender=robot.uid, reference=uid, x_mm=x, y_mm=y)
+
+
+def receive_reference(robot, message: Message) -> None:  # noqa: ANN001 - a GcsRobot
+    """A REF naming this robot locates it in the seed's frame."""
+    if not REF.matches(message):
+        return
+    m = REF.unpack(message)
+    key = robot.frame_key(m.sender)
+    if m.reference == robot.uid and key not in robot.frames:
+        robot.frames[key] = (m.x_mm, m.y_mm)
+        if not robot.is_seed:
+            robot.role = "reference"
+        robot.log("reference", seed=m.sender, x_mm=m.x_mm, y_mm=m.y_mm)

@@ -1,0 +1,67 @@
+"""What a robot knows about its neighbours: their IDs and distances, as heard.
+
+Every message of the global-coordinate-system protocol starts with the sender's ID, so each
+reception refines the running mean of the distance to that neighbour (averaging the ranging
+noise down) and refreshes when it was last heard. Only the robot's own receptions feed it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["Neighbour", "NeighbourTable"]
+
+
+@dataclass
+class Neighbour:
+    """One neighbour as heard: mean measured distance (mm), samples, last tick heard."""
+
+    distance_mm: float
+    samples: int
+    last_tick: int
+
+
+class NeighbourTable:
+    """Neighbours by ID with their mean measured distances.
+
+    Examples
+    --------
+    >>> t = NeighbourTable()
+    >>> t.heard(7, 40, tick=1); t.heard(7, 42, tick=5)
+    >>> t.distance(7), t[7].samples, 7 in t, 8 in t
+    (41.0, 2, True, False)
+    """
+
+    def __init__(self) -> None:
+        self._by_id: dict[int, Neighbour] = {}
+
+    def heard(self, uid: int, distance_mm: float, *, tick: int) -> None:
+        """Record a reception from ``uid`` at ``distance_mm``."""
+        n = self._by_id.get(uid)
+        if n is None:
+            self._by_id[uid] = Neighbour(float(distance_mm), 1, tick)
+        else:
+            n.samples += 1
+            n.distance_mm += (distance_mm - n.distance_mm) / n.samples
+            n.last_tick = tick
+
+    def forget(self, uid: int) -> None:
+        """Drop ``uid`` (it announced a new ID)."""
+        self._by_id.pop(uid, None)
+
+    def distance(self, uid: int) -> float:
+        """Mean measured distance to ``uid``, mm."""
+        return self._by_id[uid].distance_mm
+
+    def ids(self) -> list[int]:
+        """IDs of all neighbours heard, sorted."""
+        return sorted(self._by_id)
+
+    def __contains__(self, uid: object) -> bool:
+        return uid in self._by_id
+
+    def __getitem__(self, uid: int) -> Neighbour:
+        return self._by_id[uid]
+
+    def __len__(self) -> int:
+        return len(self._by_id)

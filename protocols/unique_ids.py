@@ -1,0 +1,117 @@
+"""Phase 1: locally unique IDs (thesis §4.1, §5.3.2 "Phase 1").
+
+Each robot draws a random ID of ``id_bits`` bits and a random 8-bit salt and broadcasts both.
+A neighbour that hears
+
+* its own ID from another robot,
+* one ID with two different salts, or
+* one ID at two distances more than ``duplicate_distance_mm`` apart (the thesis's rule)
+
+knows two robots share that ID and broadcasts a CONFLICT for it; the holders draw again,
+avoiding IDs they know are taken, and announce the new ID with the old one so neighbours drop the
+stale entry. The salt goes beyond the thesis: two holders at the same distance from every
+observer are otherwise never told apart.
+
+Messages (kilolib v2 payload, 16-bit ID fields)::
+
+    type 10 ID        sender:uint16  salt:uint8  previous:uint16 (= sender if none)   5 bytes
+    type 11 CONFLICT  sender:uint16  duplicate:uint16                                4 bytes
+
+Time-out: the phase lasts ``gcs.ids_s`` seconds; a CONFLICT, and the old ID after a redraw,
+are repeated at three transmit opportunities.
+"""
+
+from __future__ import annotations
+
+from kilonet.message import Layout, Message
+from protocols.gcs_base import Phase
+
+__all__ = ["CONFLICT", "ID", "UniqueIds"]
+
+ID = Layout("id", type=10, fields=[("sender", "H"), ("salt", "B"), ("previous", "H")])
+CONFLICT = Layout("conflict", type=11, fields=[("sender", "H"), ("duplicate", "H")])
+_REPEATS = 3
+
+
+class UniqueIds(Phase):
+    """Phase 1 on one robot."""
+
+    name = "ids"
+
+    def start(self) -> None:
+        r = self.robot
+        self.salts: dict[int, int] = {}  # ID -> salt heard with it
+        self.pending_conflicts: list[int] = []
+        self.previous: int | None = None
+        self.announce = 0
+        r.uid = self._draw()
+        r.salt = int(r.rand.integers(256))
+        self.redraws = 0
+
+    def _draw(self) -> int:
+        r = self.robot
+        taken = set(r.table.ids()) | {getattr(r, "uid", -1)}
+        space = 1 << self.params.id_bits
+        free = space - len(taken)
+        for _ in range(64):
+            uid = int(r.rand.integers(space))
+            if uid not in taken or free <= 0:
+                return uid
+        return uid
+
+    def _redraw(self) -> None:
+        r = self.robot
+        self.previous = r.uid
+        self.announce = _REPEATS
+        r.uid = self._draw()
+        r.salt = int(r.rand.integers(256))
+        self.redraws += 1
+        r.log("id", uid=r.uid, previous=self.previous)
+
+    def message_tx(self) -> Message | None:
+        r = self.robot
+        if self.pending_conflicts:
+            return CONFLICT.pack(sender=r.uid, duplicate=self.pending_conflicts.pop(0))
+        previous = r.uid
+        if self.previous is not None and self.announce > 0:
+            self.announce -= 1
+            previous = self.previous
+        return ID.pack(sender=r.uid, salt=r.salt, previous=previous)
+
+    def message_rx(self, message: Message, distance_mm: int) -> None:
+        r = self.robot
+        if ID.matches(message):
+            m = ID.unpack(message)
+            if m.previous != m.sender:
+                r.table.forget(m.previous)
+                self.salts.pop(m.previous, None)
+            if m.sender == r.uid:
+                self._redraw()
+                return
+            salt = self.salts.setdefault(m.sender, m.salt)
+            known = r.table[m.sender] if m.sender in r.table else None
+            far_apart = (
+                known is not None
+                and known.samples >= 2
+                and abs(distance_mm - known.distance_mm) > self.params.duplicate_distance_mm
+            )
+            if salt != m.salt or far_apart:
+                self._report(m.sender)
+        elif CONFLICT.matches(message):
+            m = CONFLICT.unpack(message)
+            if m.duplicate == r.uid:
+                self._redraw()
+            else:
+                r.table.forget(m.duplicate)
+                self.salts.pop(m.duplicate, None)
+
+    def finish(self) -> None:
+        r = self.robot
+        r.salts = {uid: salt for uid, salt in self.salts.items() if uid in r.table}
+
+    def _report(self, uid: int) -> None:
+        r = self.robot
+        r.table.forget(uid)
+        self.salts.pop(uid, None)
+        r.log("duplicate", uid=uid)
+        self.pending_conflicts.extend([uid] * _REPEATS)
