@@ -136,6 +136,10 @@ FRAME_WIDE = Layout(
 
 Point = tuple[float, float]
 
+#: Physical turns (counter-clockwise positive, rad) of successive escapes from a body the
+#: robot is stuck against: round first, then sideways.
+_ESCAPE_TURNS = (math.pi, math.pi / 2, -math.pi / 2, 3 * math.pi / 4)
+
 
 # ------------------------------------------------------------------------------ the message
 
@@ -314,7 +318,9 @@ def _segment_blocked(
     """
     wx, wy = centre[0] - p[0], centre[1] - p[1]
     along = max(0.0, min(length_mm, wx * direction[0] + wy * direction[1]))
-    closest = math.hypot(p[0] + along * direction[0] - centre[0], p[1] + along * direction[1] - centre[1])
+    closest = math.hypot(
+        p[0] + along * direction[0] - centre[0], p[1] + along * direction[1] - centre[1]
+    )
     start = math.hypot(wx, wy)
     if start < radius_mm:
         return closest < start - 0.5
@@ -379,18 +385,26 @@ def plan_direction(
     if not any(_segment_blocked(position, goal_dir, dist, c, radius_mm) for c in obstacles):
         return goal_dir, 0
     look = min(dist, step_mm)
-    sides = (side, -side) if side else (1, -1)
-    best: tuple[float, Point, int] | None = None
-    for k in range(1, 19):
-        for s in sides:
-            d = rotate(goal_dir, s * math.radians(10 * k))
-            if any(_segment_blocked(position, d, look, c, radius_mm) for c in obstacles):
-                continue
-            end_dist = math.hypot(px + look * d[0] - target[0], py + look * d[1] - target[1])
-            if best is None or end_dist < best[0]:
-                best = (end_dist, d, s)
-        if best is not None and (side == 0 or best[2] == side or k == 18):
-            return best[1], best[2]
+
+    def clear(s: int, k: int) -> Point | None:
+        d = rotate(goal_dir, s * math.radians(10 * k))
+        blocked = any(_segment_blocked(position, d, look, c, radius_mm) for c in obstacles)
+        return None if blocked else d
+
+    def closeness(d: Point) -> float:
+        return math.hypot(px + look * d[0] - target[0], py + look * d[1] - target[1])
+
+    if side == 0:
+        for k in range(1, 19):
+            found = [(closeness(d), s, d) for s in (1, -1) if (d := clear(s, k)) is not None]
+            if found:
+                _, s, d = min(found)
+                return d, s
+    else:
+        for s in (side, -side):  # keep going round the same way while that is possible
+            for k in range(1, 19):
+                if (d := clear(s, k)) is not None:
+                    return d, s
     return goal_dir, side  # boxed in: go straight and let contact stop the move
 
 
@@ -633,6 +647,7 @@ class Follower(Kilobot):
         self._last_mode = ""
         self._votes = {False: 0, True: 0}
         self._side = 0  # detour side memory of the planner
+        self._blocked_steps = 0  # consecutive steps that did not move the robot
         self._speed_samples: list[tuple[float, float]] = []  # (mm moved, s) of clean steps
         self.speed_mm_s = c.speed_mm_s
         self._rate_samples: list[float] = []
@@ -735,6 +750,8 @@ class Follower(Kilobot):
         """Where dead reckoning puts the robot after its last move (frame mm), if it knows."""
         if self.position is None or self._last_mode in ("", "approach"):
             return None
+        if self._last_mode == "retreat":
+            return self.position  # back where the last fix was taken
         heading = self._heading_after_turn()
         if heading is None:
             return self.position
@@ -754,10 +771,16 @@ class Follower(Kilobot):
         fix = self._locate(distances)
         if fix is None:
             usable = {k: d for k, d in distances.items() if d is not None and math.isfinite(d)}
-            if not usable or self.position is not None:
-                return False  # wait for fresh readings (never act on stale ones)
-            self._approach_step(usable)
-            return True
+            if self.position is None and usable:
+                self._approach_step(usable)
+                return True
+            if self.position is not None and self._last_mode not in ("", "retreat"):
+                # The last step took the robot where it hears at most one robot (out of range
+                # or in a body's shadow): go back the way it came and detour the other way.
+                self._side = -self._side
+                self._plan(math.pi, self._last_step_mm, "retreat")
+                return True
+            return False  # wait for fresh readings (never act on stale ones)
         position, kind = fix
         self._learn_from_step(position)
         self.position = position
@@ -785,7 +808,12 @@ class Follower(Kilobot):
             return True
         heading = self._heading
         if heading is None:
-            self._plan(0.0, self.config.first_step_mm, "first")
+            if self._blocked_steps:
+                # Against a body with no trusted heading: turn (round, first) and step away.
+                turn = _ESCAPE_TURNS[(self._blocked_steps - 1) % len(_ESCAPE_TURNS)]
+                self._plan(turn, self.config.first_step_mm, "escape")
+            else:
+                self._plan(0.0, self.config.first_step_mm, "first")
             return True
         direction, self._side = plan_direction(
             position, target, obstacles, radius, self.config.step_mm, self._side
@@ -795,12 +823,8 @@ class Follower(Kilobot):
         mode = "goal"
         if self._votes[False] == self._votes[True]:
             # Handedness not settled: make this turn big enough to tell, and the step short.
-            probe = math.radians(self.config.probe_deg)
-            if abs(alpha) < probe:
-                alpha += math.copysign(probe, alpha or 1.0)
-            elif abs(alpha) > math.pi - probe / 2:
-                alpha = math.copysign(math.pi / 2, alpha)
             step = min(step, self.config.first_step_mm)
+            alpha = self._probe_turn(position, heading, alpha, step, obstacles, radius)
             mode = "probe"
         elif abs(alpha) > math.pi / 2:
             step = min(step, self.config.first_step_mm)  # a long turn is the least accurate
@@ -811,9 +835,38 @@ class Follower(Kilobot):
         self._plan(physical, step, mode)
         return True
 
+    def _probe_turn(
+        self,
+        position: Point,
+        heading: Point,
+        alpha: float,
+        step_mm: float,
+        obstacles: list[Point],
+        radius_mm: float,
+    ) -> float:
+        """A frame turn that tells the handedness: between ``probe_deg`` and 150°, as close
+        to ``alpha`` as possible, whose step is clear of the robots whichever handedness the
+        frame has (the robot ends up heading ``±turn`` from ``heading``)."""
+        probe, limit = math.radians(self.config.probe_deg), math.radians(150)
+        s = 1.0 if alpha >= 0 else -1.0
+        candidates = [
+            wrap_angle(a)
+            for a in (alpha, alpha + s * probe, alpha - s * probe, s * math.pi / 2)
+            + (-s * math.pi / 2, s * probe, -s * probe, s * limit, -s * limit)
+        ]
+        valid = [a for a in candidates if probe - 1e-9 <= abs(a) <= limit]
+        for a in valid:
+            if not any(
+                _segment_blocked(position, rotate(heading, sign * a), step_mm, c, radius_mm)
+                for sign in (1, -1)
+                for c in obstacles
+            ):
+                return a
+        return valid[0]
+
     def _learn_from_step(self, position: Point) -> None:
         """Update heading, handedness, speed and turn rate from the step just completed."""
-        if self._last_mode == "approach" or self.position is None:
+        if self._last_mode in ("approach", "retreat") or self.position is None:
             self._heading, self._heading_measured = None, False
             return
         dx, dy = position[0] - self.position[0], position[1] - self.position[1]
@@ -830,9 +883,14 @@ class Follower(Kilobot):
                 total_s = sum(s for _, s in self._speed_samples)
                 self.speed_mm_s = total_mm / total_s
             self._heading, self._heading_measured = measured, True
+            self._blocked_steps = 0
         else:
-            # Blocked (contact) or too short to tell: keep the dead-reckoned heading.
-            self._heading = self._heading_after_turn()
+            # Blocked (contact) or too short to tell. Dead reckoning is only trusted once the
+            # handedness is known and the robot is not stuck; otherwise it escapes.
+            self._blocked_steps += 1
+            settled = self._votes[False] != self._votes[True]
+            trusted = settled and self._blocked_steps < 2
+            self._heading = self._heading_after_turn() if trusted else None
             self._heading_measured = False
 
     def _vote(self, observed_rad: float) -> None:

@@ -16,14 +16,23 @@ A round of seed I:
    R_H = Slerp(I, R_M)(½) and the shift that moves the members' centroid half way,
    t_H = (c_I + c_K)/2 − R_H c_I. It answers with R_H (a quaternion, ANS_ROT), t_H (ANS_SHIFT)
    and the members' largest disagreement between the two frames (ANS_ERROR).
-3. I applies the half step: R_I ← R_H R_I, v_I ← R_H v_I + t_H, bumps its version and
+3. I applies the step: R_I ← R_H R_I, v_I ← R_H v_I + t_H, bumps its version and
    broadcasts the new transform. Its partner seeds do the same towards it, so frames meet
    instead of oscillating.
 
+Beyond the thesis — roots. Half steps alone are a diffusion: on a chain of L frames agreement
+takes on the order of L² rounds, far too slow for a thousand robots. So every seed also carries
+a *root*, the smallest seed ID its frame has been aligned to (initially its own), broadcast in
+TF_ROOT. A member answering for (I, K) takes the **whole** step (fraction 1) when K's root is
+smaller than I's, and I adopts that root; between frames of the same root it takes the half
+step, which averages out the measurement noise. The smallest root spreads like a flood, so the
+frames lock together in a number of rounds that grows with the diameter, not its square.
+
 Termination, decided by each seed alone: when ``gcs.merge_stable_rounds`` answers in a row
-report a disagreement within ``gcs.merge_tolerance_mm`` the seed is done (bit 7 of its version),
-stops asking, and keeps broadcasting its transform. A seed with no registered group is isolated
-and done at once; a seed still disagreeing after ``gcs.merge_max_rounds`` gives up.
+report a disagreement within ``gcs.merge_tolerance_mm`` from partners of the same root, the seed
+is done (bit 7 of its version). It keeps running rounds, so a smaller root arriving later, or a
+partner that disagrees again, revokes "done" until it agrees anew. A seed with no registered
+group is isolated and done at once; a seed after ``gcs.merge_max_rounds`` rounds gives up.
 
 A robot's global position g is the mean, over the frames it is located in whose transform it
 holds, of ``R_S (x, y, 0) + v_S``, expressed in 2-D as the first two coordinates of ``R_S*ᵀ g``
@@ -41,7 +50,9 @@ Frames (partners, transforms) are named by frame keys: seed ID and salt
 (:meth:`protocols.gcs.GcsRobot.frame_key`).
     type 63 ANS_ROT    sender:uint16  version:uint8  qx qy qz:int16          9 bytes
     type 64 ANS_SHIFT  sender:uint16  version:uint8  tx ty tz:int16          9 bytes
-    type 65 ANS_ERROR  sender:uint16  version:uint8  error:uint16 (0.1 mm)   5 bytes
+    type 65 ANS_ERROR  sender:uint16  version:uint8  error:uint16 (0.1 mm)
+                       partner_root:uint16                                   7 bytes
+    type 66 TF_ROOT    sender:uint16  root:uint16                            4 bytes
 """
 
 from __future__ import annotations
@@ -72,8 +83,11 @@ QUERY = Layout(
 ANS_ROT = Layout("ans_rot", type=63, fields=[("sender", "H"), ("version", "B"), *_Q])
 ANS_SHIFT = Layout("ans_shift", type=64, fields=[("sender", "H"), ("version", "B"), *_V])
 ANS_ERROR = Layout(
-    "ans_error", type=65, fields=[("sender", "H"), ("version", "B"), ("error_mm", "H", 0.1)]
+    "ans_error",
+    type=65,
+    fields=[("sender", "H"), ("version", "B"), ("error_mm", "H", 0.1), ("partner_root", "H")],
 )
+TF_ROOT = Layout("tf_root", type=66, fields=[("sender", "H"), ("root", "H")])
 _DONE = 0x80
 _IDENTITY = Rotation.identity()
 
@@ -100,20 +114,24 @@ def rotation_from_fields(qx: float, qy: float, qz: float) -> Rotation:
 
 
 def half_map(
-    points_i: np.ndarray, points_k: np.ndarray
+    points_i: np.ndarray, points_k: np.ndarray, fraction: float = 0.5
 ) -> tuple[Rotation, np.ndarray, float]:
-    """Half of the rigid map taking points in frame I onto the same robots in frame K.
+    """A fraction (default half) of the rigid map taking points in frame I onto the same
+    robots in frame K.
 
     Parameters
     ----------
     points_i, points_k : (n, 3) arrays
         The same robots' "global" positions through I's and K's transforms, mm.
+    fraction : float
+        0 stays, 0.5 goes half way (the thesis), 1 goes all the way.
 
     Returns
     -------
     rotation, shift, disagreement_mm
-        ``R_H`` (half of the rotation, SLERP from the identity), ``t_H`` moving the centroid
-        half way, and the largest distance between a robot's two positions.
+        ``R_H`` (the fraction of the rotation, SLERP from the identity), ``t_H`` moving the
+        centroid by the same fraction, and the largest distance between a robot's two
+        positions.
 
     Examples
     --------
@@ -128,8 +146,8 @@ def half_map(
     """
     c_i, c_k = points_i.mean(axis=0), points_k.mean(axis=0)
     full, _ = Rotation.align_vectors(points_k - c_k, points_i - c_i)
-    half = Slerp([0.0, 1.0], Rotation.concatenate([_IDENTITY, full]))(0.5)
-    shift = (c_i + c_k) / 2 - half.apply(c_i)
+    half = Slerp([0.0, 1.0], Rotation.concatenate([_IDENTITY, full]))(fraction)
+    shift = (1 - fraction) * c_i + fraction * c_k - half.apply(c_i)
     disagreement = float(np.max(np.linalg.norm(points_k - points_i, axis=1)))
     return half, shift, disagreement
 
@@ -149,24 +167,29 @@ class FrameMerging(Phase):
         self.outbox: list[Message] = []
         self.answers: dict[tuple[int, int], list[Message]] = {}
         self.turn = 0
+        self.roots: dict[int, int] = {}  # root of each seed heard, by frame key
         if r.is_seed:
             self.rotation = _IDENTITY
             self.shift = np.zeros(3)
             self.version = 0
+            self.done = False
+            self.final = False
             self.rounds = 0
             self.stable = 0
             self.done = False
             self.asking: tuple[int, int] | None = None
             self.received: dict[str, object] = {}
             self.round_start = r.kilo_ticks
+            self.root = r.uid
             self.key = r.frame_key(r.uid)
-            r.transforms[self.key] = (self.rotation, self.shift, 0, False)
+            self._publish()
             if not r.partners:
                 self._finish("isolated")
 
     # -- seed side ---------------------------------------------------------------------------
     def _finish(self, how: str) -> None:
         self.done = True
+        self.final = how != "agreed"  # isolated or gave up: no more rounds
         r = self.robot
         r.merge_done = True
         r.log("merge_done", how=how, rounds=self.rounds)
@@ -175,6 +198,7 @@ class FrameMerging(Phase):
     def _publish(self) -> None:
         r = self.robot
         r.transforms[self.key] = (self.rotation, self.shift, self.version, self.done)
+        self.roots[self.key] = self.root
 
     def _version_byte(self) -> int:
         return (self.version & 0x7F) | (_DONE if self.done else 0)
@@ -192,29 +216,39 @@ class FrameMerging(Phase):
             if answer is not None:
                 self._apply(*answer)
 
-    def _apply(self, rotation: Rotation, shift: np.ndarray, error_mm: float) -> None:
+    def _apply(
+        self, rotation: Rotation, shift: np.ndarray, error_mm: float, partner_root: int
+    ) -> None:
         r = self.robot
+        agreed = error_mm <= self.params.merge_tolerance_mm and partner_root == self.root
+        if partner_root < self.root:
+            self.root = partner_root  # the whole step was taken: this frame now follows it
         self.rotation = rotation * self.rotation
         self.shift = rotation.apply(self.shift) + shift
         self.version += 1
         self.rounds += 1
-        self.stable = self.stable + 1 if error_mm <= self.params.merge_tolerance_mm else 0
-        r.log("merge_round", round=self.rounds, error_mm=round(error_mm, 3))
-        self._publish()
+        self.stable = self.stable + 1 if agreed else 0
+        r.log("merge_round", round=self.rounds, error_mm=round(error_mm, 3), root=self.root)
         self.asking = None
-        if self.stable >= self.params.merge_stable_rounds:
+        if self.done and not agreed:
+            self.done = r.merge_done = False  # a partner disagrees again: keep merging
+            r.log("merge_resumed", rounds=self.rounds)
+        if not self.done and self.stable >= self.params.merge_stable_rounds:
             self._finish("agreed")
         elif self.rounds >= self.params.merge_max_rounds:
             self._finish("gave_up")
+        self._publish()
 
     def _seed_message(self) -> Message | None:
         r = self.robot
-        if not self.done and r.partners:
+        if not self.final and r.partners:
             if self.asking is None or r.kilo_ticks - self.round_start > self.round_ticks:
                 self._new_round()
         self.turn += 1
         version = self._version_byte()
-        if self.asking is not None and not self.done and self.turn % 3 == 0:
+        if self.turn % 5 == 1:
+            return TF_ROOT.pack(sender=r.uid, root=self.root)
+        if self.asking is not None and not self.final and self.turn % 3 == 0:
             member, partner = self.asking
             return QUERY.pack(
                 sender=r.uid,
@@ -229,20 +263,21 @@ class FrameMerging(Phase):
         return TF_SHIFT.pack(sender=r.uid, version=version, vx_mm=vx, vy_mm=vy, vz_mm=vz)
 
     def _seed_receive(self, message: Message) -> None:
-        if self.done or self.asking is None:
+        if self.final or self.asking is None:
             return
         member, _ = self.asking
-        for layout, key in ((ANS_ROT, "rot"), (ANS_SHIFT, "shift"), (ANS_ERROR, "error")):
+        for layout, part in ((ANS_ROT, "rot"), (ANS_SHIFT, "shift"), (ANS_ERROR, "error")):
             if layout.matches(message):
                 m = layout.unpack(message)
                 if m.sender == member and m.version & 0x7F == self.version & 0x7F:
-                    self.received[key] = m
+                    self.received[part] = m
         if len(self.received) == 3:
             rot, shift, error = (self.received[k] for k in ("rot", "shift", "error"))
             self._apply(
                 rotation_from_fields(rot.qx, rot.qy, rot.qz),
                 np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm]),
                 error.error_mm,
+                error.partner_root,
             )
 
     # -- member side -------------------------------------------------------------------------
@@ -258,8 +293,9 @@ class FrameMerging(Phase):
 
     def _compute_answer(
         self, seed: int, partner: int, version: int
-    ) -> tuple[Rotation, np.ndarray, float] | None:
+    ) -> tuple[Rotation, np.ndarray, float, int] | None:
         r = self.robot
+        root_i, root_k = self.roots.get(seed), self.roots.get(partner)
         key = (min(seed, partner), max(seed, partner))
         group = r.groups.get(key)
         tf_i, tf_k = r.transforms.get(seed), r.transforms.get(partner)
@@ -269,27 +305,36 @@ class FrameMerging(Phase):
         local_i, local_k = self._local_points(seed, members), self._local_points(partner, members)
         if local_i is None or local_k is None:
             return None
+        if root_i is None or root_k is None:
+            return None
         global_i = tf_i[0].apply(local_i) + tf_i[1]
         global_k = tf_k[0].apply(local_k) + tf_k[1]
-        return half_map(global_i, global_k)
+        fraction = 1.0 if root_k < root_i else 0.5 if root_k == root_i else 0.0
+        return (*half_map(global_i, global_k, fraction), root_k)
 
     def _answer(self, seed: int, partner: int, version: int) -> None:
         answer = self._compute_answer(seed, partner, version)
         if answer is None:
             return
-        rotation, shift, error = answer
+        rotation, shift, error, root_k = answer
         r = self.robot
         tx, ty, tz = shift
         self.answers[(seed, version & 0x7F)] = [
             ANS_ROT.pack(sender=r.uid, version=version, **quaternion_fields(rotation)),
             ANS_SHIFT.pack(sender=r.uid, version=version, vx_mm=tx, vy_mm=ty, vz_mm=tz),
-            ANS_ERROR.pack(sender=r.uid, version=version, error_mm=min(error, 6500.0)),
+            ANS_ERROR.pack(
+                sender=r.uid, version=version, error_mm=min(error, 6500.0), partner_root=root_k
+            ),
         ]
         self.outbox.extend(self.answers[(seed, version & 0x7F)])
 
     def _track_transform(self, message: Message) -> None:
         r = self.robot
-        for layout, key in ((TF_ROT, "rot"), (TF_SHIFT, "shift")):
+        if TF_ROOT.matches(message):
+            m = TF_ROOT.unpack(message)
+            self.roots[r.frame_key(m.sender)] = m.root
+            return
+        for layout, part in ((TF_ROT, "rot"), (TF_SHIFT, "shift")):
             if not layout.matches(message):
                 continue
             m = layout.unpack(message)
@@ -297,7 +342,7 @@ class FrameMerging(Phase):
                 return
             key = r.frame_key(m.sender)
             parts = self.parts.setdefault(key, {}).setdefault(m.version & 0x7F, {})
-            parts[key] = m
+            parts[part] = m
             if len(parts) == 2:
                 rot, shift = parts["rot"], parts["shift"]
                 r.transforms[key] = (
@@ -333,6 +378,6 @@ class FrameMerging(Phase):
 
     def loop(self) -> None:
         r = self.robot
-        if r.is_seed and not self.done and r.partners and self.asking is not None:
+        if r.is_seed and not self.final and r.partners and self.asking is not None:
             if r.kilo_ticks - self.round_start > self.round_ticks:
                 self._new_round()

@@ -105,21 +105,24 @@ class GcsRobot(Kilobot):
             (cls, round(start * tps), end * tps)
             for cls, (_, start, end) in zip(_PHASE_CLASSES, phase_windows_s(self.params))
         ]
-        self._index = -1
+        self._phase_index = -1
         self.phase: Phase | None = None
         self._advance()
 
     def _advance(self) -> None:
         ticks = self.kilo_ticks
-        while self._index + 1 < len(self._windows) and ticks >= self._windows[self._index + 1][1]:
+        while (
+            self._phase_index + 1 < len(self._windows)
+            and ticks >= self._windows[self._phase_index + 1][1]
+        ):
             if self.phase is not None:
                 self.phase.finish()
-            self._index += 1
-            cls = self._windows[self._index][0]
+            self._phase_index += 1
+            cls = self._windows[self._phase_index][0]
             self.phase = cls(self)
             self.log("phase", name=cls.name)
             self.phase.start()
-        if self.phase is not None and ticks >= self._windows[self._index][2]:
+        if self.phase is not None and ticks >= self._windows[self._phase_index][2]:
             self.phase.finish()
             self.phase = None  # past the last phase asked for: the robot falls silent
 

@@ -240,12 +240,14 @@ def predict(
 
 @dataclass(frozen=True)
 class BayesStep:
-    """One filter step: the posterior over cells and the posterior probabilities that the
-    commanded move happened (``p_moved``) or the robot stayed (``p_stayed``)."""
+    """One filter step: the posterior over cells, the posterior probabilities that the
+    commanded move happened (``p_moved``) or the robot stayed (``p_stayed``), and the reading's
+    likelihood ``p(z | s)`` per cell."""
 
     belief: np.ndarray
     p_moved: float
     p_stayed: float
+    likelihood: np.ndarray
 
 
 def bayes_step(
@@ -292,7 +294,10 @@ def bayes_step(
     if total <= 0:
         raise ValueError(f"wall reading {reading} is impossible from every cell under the model")
     return BayesStep(
-        (moved + stayed) / total, float(moved.sum() / total), float(stayed.sum() / total)
+        (moved + stayed) / total,
+        float(moved.sum() / total),
+        float(stayed.sum() / total),
+        likelihood,
     )
 
 
@@ -455,6 +460,7 @@ class MazeRobot(MazeKilobot):
             update = bayes_step(
                 uniform, self.map, None, reading, p_open=prog.p_open, p_wall=prog.p_wall
             )
+        seed_move, seed_stay = self._seed_products(update.likelihood)
         self.belief = update.belief
         self.belief_history.append(self.belief)
         best = int(np.argmax(self.belief))
@@ -475,9 +481,24 @@ class MazeRobot(MazeKilobot):
             belief_max=round(float(self.belief[best]), 6),
             p_moved=round(update.p_moved, 6),
             p_stayed=round(update.p_stayed, 6),
+            seed_move=seed_move,
+            seed_stay=seed_stay,
             grid=self.map.render(self.visited),
         )
         self._plan_and_drive()
+
+    def _seed_products(self, likelihood: np.ndarray) -> tuple[float | None, float | None]:
+        """The seed's printed numbers for the cell the robot believed it was in before the move:
+        move = p_move · p(z | walls of the next cell), stay = (1 − p_move) · p(z | walls of
+        that cell)."""
+        if self._command is None:
+            return None, None
+        here = int(np.argmax(self.belief))
+        there = self.map.neighbour(here, self._command)
+        p_move = self.program.p_move if there != here else 0.0
+        return round(p_move * float(likelihood[there]), 6), round(
+            (1 - p_move) * float(likelihood[here]), 6
+        )
 
     def _where(self, fix: Fix | None, best: int) -> int:
         """The cell the robot navigates by."""

@@ -66,9 +66,7 @@ def find_groups(
     groups = {}
     for i, k in itertools.combinations(sorted(own), 2):
         shared = sorted(
-            uid
-            for uid in neighbours
-            if uid in announced.get(i, {}) and uid in announced.get(k, {})
+            uid for uid in neighbours if uid in announced.get(i, {}) and uid in announced.get(k, {})
         )
         best, best_area = None, 0.0
         for y, z in itertools.combinations(shared, 2):
