@@ -67,6 +67,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         overrides["placement.robots"] = args.robots
     if args.duration is not None:
         overrides["duration_s"] = args.duration
+    if args.until is not None:
+        if scenario.name != "gcs":
+            raise UsageError(f"--until applies to the gcs scenario, not {scenario.name!r}")
+        overrides["gcs.until"] = args.until
     if args.placement is not None and not Path(args.placement).exists():
         raise UsageError(f"{args.placement}: no such placement file")
     result = scenarios.run(
@@ -122,6 +126,11 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--duration", type=float, help="simulated seconds (duration_s)")
     run.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="set a parameter"
+    )
+    run.add_argument(
+        "--until",
+        choices=["ids", "seeds", "frames", "localization", "groups", "merge"],
+        help="gcs scenario: stop after this phase (gcs.until)",
     )
     run.add_argument("--out", help="directory for tables, summary.json and figures")
     run.add_argument("--format", default="csv", choices=["csv", "parquet"], help="table format")

@@ -617,6 +617,8 @@ class Follower(Kilobot):
         Forward steps taken.
     mirrored : bool
         Whether the robot concluded that its frame is a mirror image of the floor.
+    handedness_settled : bool
+        Whether that conclusion rests on a conclusive turn.
     """
 
     def __init__(self, config: FollowerConfig, calibration: TurnCalibration) -> None:
@@ -655,6 +657,12 @@ class Follower(Kilobot):
         # Walking toward the nearest robot when no fix is possible yet.
         self._approach: dict[str, float] | None = None
         self._pending: tuple[int, int, int] | None = None  # turn dir, turn ticks, step ticks
+
+    @property
+    def handedness_settled(self) -> bool:
+        """Whether a conclusive turn has told the frame's handedness (else ``mirrored`` is the
+        starting assumption)."""
+        return self._votes[False] != self._votes[True]
 
     # -- kilolib callbacks -------------------------------------------------------------------
     def message_rx(self, message: Message, distance_mm: int) -> None:
@@ -821,7 +829,7 @@ class Follower(Kilobot):
         alpha = turn_angle(heading, direction)
         step = min(self.config.step_mm, to_target)
         mode = "goal"
-        if self._votes[False] == self._votes[True]:
+        if not self.handedness_settled:
             # Handedness not settled: make this turn big enough to tell, and the step short.
             step = min(step, self.config.first_step_mm)
             alpha = self._probe_turn(position, heading, alpha, step, obstacles, radius)
@@ -888,8 +896,7 @@ class Follower(Kilobot):
             # Blocked (contact) or too short to tell. Dead reckoning is only trusted once the
             # handedness is known and the robot is not stuck; otherwise it escapes.
             self._blocked_steps += 1
-            settled = self._votes[False] != self._votes[True]
-            trusted = settled and self._blocked_steps < 2
+            trusted = self.handedness_settled and self._blocked_steps < 2
             self._heading = self._heading_after_turn() if trusted else None
             self._heading_measured = False
 

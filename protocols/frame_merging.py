@@ -167,7 +167,7 @@ class FrameMerging(Phase):
         self.outbox: list[Message] = []
         self.answers: dict[tuple[int, int], list[Message]] = {}
         self.turn = 0
-        self.roots: dict[int, int] = {}  # root of each seed heard, by frame key
+        self.roots: dict[int, int] = r.roots  # root of each seed heard, by frame key
         if r.is_seed:
             self.rotation = _IDENTITY
             self.shift = np.zeros(3)

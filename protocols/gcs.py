@@ -97,6 +97,7 @@ class GcsRobot(Kilobot):
         self.partners: dict[int, set[int]] = {}
         # Phase 6: transforms heard, by seed: (rotation, shift (3,), version byte, done).
         self.transforms: dict = {}
+        self.roots: dict[int, int] = {}  # root (smallest aligned seed ID) of each seed heard
         self.merge_done = False
         # Positions neighbours announced, by frame key then neighbour ID, mm.
         self.announced: dict[int, dict[int, tuple[float, float]]] = {}
@@ -106,6 +107,7 @@ class GcsRobot(Kilobot):
             for cls, (_, start, end) in zip(_PHASE_CLASSES, phase_windows_s(self.params))
         ]
         self._phase_index = -1
+        self._loops = 0
         self.phase: Phase | None = None
         self._advance()
 
@@ -122,9 +124,28 @@ class GcsRobot(Kilobot):
             self.phase = cls(self)
             self.log("phase", name=cls.name)
             self.phase.start()
+            self._show()
         if self.phase is not None and ticks >= self._windows[self._phase_index][2]:
             self.phase.finish()
             self.phase = None  # past the last phase asked for: the robot falls silent
+
+    def _show(self) -> None:
+        """LED by phase and role, as listed in the module docstring."""
+        name = self.phase_name
+        if self.is_seed:
+            self.set_color(3, 0, 0)
+        elif name in ("", "ids"):
+            self.set_color(1, 1, 1)
+        elif name == "seeds":
+            self.set_color(0, 0, 2)
+        elif self.merge_done or (name == "merge" and self.global_position() is not None):
+            self.set_color(0, 3, 3)
+        elif self.frames:
+            self.set_color(0, 3, 0)
+        elif self.role == "reference":
+            self.set_color(3, 3, 0)
+        else:
+            self.set_color(0, 0, 1)
 
     @property
     def phase_name(self) -> str:
@@ -138,6 +159,9 @@ class GcsRobot(Kilobot):
                 self._receive(*received)
         if self.phase is not None:
             self.phase.loop()
+            self._loops += 1
+            if self._loops % 16 == 0:  # refresh the LED now and then, not every loop
+                self._show()
 
     def frame_key(self, seed_uid: int) -> int:
         """The key of the frame of seed ``seed_uid``, a neighbour or this robot: its ID and its
@@ -149,21 +173,31 @@ class GcsRobot(Kilobot):
     def global_position(self) -> tuple[float, float] | None:
         """This robot's estimate in the merged frame, mm (None before it has one).
 
-        The mean over its frames with a known transform of ``R_S (x, y, 0) + v_S``, in 2-D
-        through the axes of the lowest-ID such seed (see :mod:`protocols.frame_merging`).
+        Among the frames it is located in whose transform it holds, it keeps those of the
+        smallest root (frames of another root have not been merged with them) and averages
+        ``R_S (x, y, 0) + v_S`` over them; 2-D coordinates are the first two of ``R_S*ᵀ g`` for
+        the lowest-key such seed S* (see :mod:`protocols.frame_merging`).
         """
-        known = [s for s in sorted(self.frames) if s in self.transforms]
+        known = [k for k in sorted(self.frames) if k in self.transforms and k in self.roots]
         if not known:
             return None
+        root = min(self.roots[k] for k in known)
+        known = [k for k in known if self.roots[k] == root]
         points = []
-        for seed in known:
-            rotation, shift, _, _ = self.transforms[seed]
-            x, y = self.frames[seed]
+        for key in known:
+            rotation, shift, _, _ = self.transforms[key]
+            x, y = self.frames[key]
             points.append(rotation.apply([x, y, 0.0]) + shift)
         # Converged seeds share one rotation (their shifts differ): its inverse lays the common
         # plane flat, so the first two coordinates agree across the swarm.
         planar = self.transforms[known[0]][0].inv().apply(np.mean(points, axis=0))
         return float(planar[0]), float(planar[1])
+
+    @property
+    def global_root(self) -> int | None:
+        """Root of the merged frame this robot's estimate is in (None without an estimate)."""
+        roots = [self.roots[k] for k in self.frames if k in self.transforms and k in self.roots]
+        return min(roots) if roots else None
 
     def message_tx(self) -> Message | None:
         self._advance()

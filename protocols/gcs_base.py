@@ -42,7 +42,7 @@ class GcsParams:
     )
     elect_s: float = param(3.0, lo=0.5, hi=600.0, doc="top and each bottom election window")
     check_s: float = param(2.0, lo=0.5, hi=600.0, doc="seed check window after each election")
-    reelections: int = param(3, lo=0, hi=50, doc="bottom re-elections at most")
+    reelections: int = param(5, lo=0, hi=50, doc="bottom re-elections at most")
     frames_s: float = param(45.0, lo=1.0, hi=3600.0, doc="phase 3 window")
     ask_timeout_s: float = param(2.0, lo=0.2, hi=60.0, doc="seed skips a silent neighbour")
     busy_reset_s: float = param(3.0, lo=0.2, hi=60.0, doc="a busy neighbour resets itself")

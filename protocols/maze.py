@@ -19,8 +19,9 @@ standing still at a cell centre:
 4. **Senses the walls** on its four sides and updates its belief over cells with the Bayes
    filter (:func:`bayes_step`): motion model move ``p_move`` (0.8) / stay ``1 − p_move`` (0.2),
    sensor model per side ``p(z=0 | s=0) = p_open`` (0.7 in the seed) and
-   ``p(z=1 | s=1) = p_wall``. It logs the probabilities that the last move happened or not
-   (the seed's *move* and *stay* probabilities) every step.
+   ``p(z=1 | s=1) = p_wall`` (0.95 by default: the seed's text gives only the first entry).
+   It logs the probabilities that the last move happened or not (the seed's *move* and *stay*
+   probabilities) every step, and the seed's unnormalised products for its likeliest cell.
 5. **Plans the next move** — the seed's random walk (``planner = "random"``: a random open
    direction of its cell) or the nearest unvisited cell, breadth-first over the maze graph
    (``planner = "bfs"``) — and drives one cell. It navigates by the trilaterated cell
@@ -258,7 +259,7 @@ def bayes_step(
     *,
     p_move: float = 0.8,
     p_open: float = 0.7,
-    p_wall: float = 0.9,
+    p_wall: float = 0.95,
 ) -> BayesStep:
     """Prediction for the commanded ``direction`` (``None``: no move yet), then correction by
     the wall ``reading``.
@@ -280,7 +281,7 @@ def bayes_step(
     ... |       |
     ... +---+---+
     ... ''')
-    >>> step = bayes_step(np.array([0.5, 0.5]), maze, "E", (False, True, True, True))
+    >>> step = bayes_step(np.array([0.5, 0.5]), maze, "E", (False, True, True, True), p_wall=0.9)
     >>> step.belief.round(4).tolist(), round(step.p_moved, 4)
     ([0.0053, 0.9947], 0.4421)
     """
@@ -349,6 +350,9 @@ class MazeProgram:
         Which cell estimate it plans and marks visits with.
     p_move, p_open, p_wall : float
         The filter's motion model and sensor table.
+    mark_belief : float
+        Navigating by belief, a cell is marked visited only when the belief in it is at least
+        this (an unsure robot would otherwise mark cells it never stood in).
     listen_s : float
         Time standing still in each cell before sensing, s (infrared: collecting beacons).
     max_steps : int
@@ -363,7 +367,8 @@ class MazeProgram:
     navigate_by: Literal["landmarks", "belief"] = "landmarks"
     p_move: float = 0.8
     p_open: float = 0.7
-    p_wall: float = 0.9
+    p_wall: float = 0.95
+    mark_belief: float = 0.5
     listen_s: float = 1.0
     max_steps: int = 1000
 
@@ -465,7 +470,8 @@ class MazeRobot(MazeKilobot):
         self.belief_history.append(self.belief)
         best = int(np.argmax(self.belief))
         self.cell = self._where(fix, best)
-        self.visited.add(self.cell)
+        if prog.navigate_by == "landmarks" or self.belief[best] >= prog.mark_belief:
+            self.visited.add(self.cell)
         self.log(
             "step",
             step=self.step,
@@ -523,8 +529,10 @@ class MazeRobot(MazeKilobot):
             self.state = "done"
             self.set_color(3, 0, 0)
             return
-        if prog.planner == "bfs":
-            path = nearest_unvisited(self.graph, self.cell, self.visited)
+        # The current cell counts as visited for planning: if it is not marked yet (an unsure
+        # belief), staying put would teach the robot nothing new.
+        path = nearest_unvisited(self.graph, self.cell, self.visited | {self.cell})
+        if prog.planner == "bfs" and path is not None:
             direction = self.map.direction_to(path[0], path[1])
         else:
             direction = random_walk_direction(self.map, self.cell, self.rand)

@@ -64,8 +64,9 @@ class SeedElection(Phase):
         return p.elect_s * (p.reelections + 2) + p.check_s * (p.reelections + 1)
 
     def loop(self) -> None:
-        r = self.robot
-        elapsed = r.kilo_ticks - self.start_tick
+        self._close_stages(self.robot.kilo_ticks - self.start_tick)
+
+    def _close_stages(self, elapsed: float) -> None:
         schedule = self.schedule
         while self.stage_index < len(schedule) and elapsed >= schedule[self.stage_index][1]:
             stage, _ = schedule[self.stage_index]
@@ -103,6 +104,7 @@ class SeedElection(Phase):
 
     def finish(self) -> None:
         r = self.robot
+        self._close_stages(float("inf"))  # the window closed: settle the last check too
         if r.is_seed:
             r.role = "seed"
         r.log("role", seed=r.is_seed, seeds_seen=len(r.seeds))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from scenarios import gradient
+from scenarios import gcs, gradient
 from scenarios.base import RunResult, Scenario, ScenarioError, run, write_outputs
 
 __all__ = [
@@ -16,7 +16,7 @@ __all__ = [
     "write_outputs",
 ]
 
-SCENARIOS: dict[str, Scenario] = {s.name: s for s in (gradient.SCENARIO,)}
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in (gcs.SCENARIO, gradient.SCENARIO)}
 
 #: What ``kilonet run`` runs when no scenario is named.
 DEFAULT = "gradient"

@@ -68,6 +68,9 @@ class Scenario:
         ``stop_when(sim) -> bool`` ends the run early (checked every simulated second).
     outputs : callable, optional
         ``outputs(result, out_dir)`` writes scenario files (figures, extra tables).
+    robot_columns : callable, optional
+        ``robot_columns(sim) -> DataFrame`` with a ``robot`` column: scenario columns joined
+        to the robots table.
     """
 
     name: str
@@ -80,6 +83,7 @@ class Scenario:
     metrics: Callable[[Simulation], dict[str, Any]] | None = None
     stop_when: Callable[[Simulation], bool] | None = None
     outputs: Callable[[RunResult, Path], None] | None = None
+    robot_columns: Callable[[Simulation], Any] | None = None
 
 
 @dataclass
@@ -185,7 +189,8 @@ def _run_with_progress(
         disable=not progress,
         bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} sim s [{elapsed}<{remaining}]",
     ) as bar:
-        step = max(duration_s / 200, 0.5)
+        # Check the stop condition every simulated second; otherwise update about 200 times.
+        step = 1.0 if stop_when is not None else max(duration_s / 200, 0.5)
         while sim.env.now < duration_s:
             sim.run(min(duration_s, sim.env.now + step))
             bar.update(round(sim.env.now - bar.n, 3))
@@ -214,7 +219,10 @@ def write_outputs(result: RunResult, out_dir: str | Path, *, fmt: str = "csv") -
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
         sim = result.sim
-        tables = {"robots": sim.robots_frame(), **sim.trace.frames()}
+        robots = sim.robots_frame()
+        if result.scenario.robot_columns is not None:
+            robots = robots.merge(result.scenario.robot_columns(sim), on="robot", how="left")
+        tables = {"robots": robots, **sim.trace.frames()}
         for name, frame in tables.items():
             if fmt == "csv":
                 frame.to_csv(tmp / f"{name}.csv", index=False)

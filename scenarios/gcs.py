@@ -1,0 +1,237 @@
+"""``gcs``: Rubenstein's global coordinate system, phases 1–6, on a swarm without UIDs.
+
+Runs :class:`protocols.gcs.GcsRobot` on every robot (``robot.hardware_uids = false``: the
+robots build their own IDs) and measures each phase against ground truth:
+
+* ids — duplicate IDs left among neighbours (in the line-of-sight graph);
+* seeds — seeds elected, robots whose seed condition failed;
+* frames — seeds with a frame; references' coordinates;
+* localization — robots located in at least one local frame, per-frame RMSE after the best
+  rigid alignment (reflection allowed), rejected fixes;
+* groups — merging groups;
+* merge — final global frames (robots grouped by the root their estimate is in), localized
+  share, RMSE of the global estimates after aligning each final frame to the truth, pooled
+  over robots, and the anchor-free Cramér–Rao bound for the same graph and noise.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from kilonet.alignment import procrustes_rmse
+from kilonet.geometry import crlb_rmse_mm
+from kilonet.simulation import Simulation
+from kilonet.visibility import visible_pairs
+from protocols.gcs import GcsRobot, phase_windows_s
+from protocols.gcs_base import GcsParams
+from scenarios.base import RunResult, Scenario
+
+__all__ = ["SCENARIO", "estimates_frame", "local_frames_frame"]
+
+
+def _program(params: Any, positions: np.ndarray):
+    return lambda _i: GcsRobot(params.scenario)
+
+
+def _windows(sim: Simulation) -> list[tuple[str, float, float]]:
+    return phase_windows_s(sim.params.scenario)
+
+
+def _stop_when(sim: Simulation) -> bool:
+    windows = _windows(sim)
+    name, start, end = windows[-1]
+    now = sim.env.now
+    if name != "merge":
+        return now >= end
+    seeds = [r for r in sim.robots if r.is_seed]
+    return now > start and bool(seeds) and all(r.merge_done for r in seeds)
+
+
+def _seed_robot_by_key(sim: Simulation) -> dict[int, int]:
+    """Which robot (index) is the seed of each frame key (ground truth, for tables)."""
+    return {r.frame_key(r.uid): i for i, r in enumerate(sim.robots) if r.is_seed}
+
+
+def local_frames_frame(sim: Simulation) -> pd.DataFrame:
+    """Long table of local positions: ``robot, seed_robot, local_x_mm, local_y_mm``."""
+    seeds = _seed_robot_by_key(sim)
+    rows = [
+        (i, seeds.get(key, -1), x, y)
+        for i, r in enumerate(sim.robots)
+        for key, (x, y) in sorted(r.frames.items())
+    ]
+    return pd.DataFrame(rows, columns=["robot", "seed_robot", "local_x_mm", "local_y_mm"])
+
+
+def estimates_frame(sim: Simulation) -> pd.DataFrame:
+    """Per robot: truth, role, ID, frames held, global estimate, final frame label."""
+    seeds = _seed_robot_by_key(sim)
+    rows = []
+    for i, r in enumerate(sim.robots):
+        est = r.global_position() if hasattr(r, "transforms") else None
+        root = r.global_root if est is not None else None
+        rows.append(
+            {
+                "robot": i,
+                "uid": r.uid,
+                "role": r.role,
+                "frames": len(r.frames),
+                "est_x_mm": est[0] if est else math.nan,
+                "est_y_mm": est[1] if est else math.nan,
+                "frame": "" if root is None else f"root{root}",
+                "localized": est is not None,
+                "seed_of_frame": seeds.get(r.frame_key(r.uid), -1) if r.is_seed else -1,
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def _pooled_rmse(groups: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    squared, count = 0.0, 0
+    for est, true in groups:
+        if len(est) >= 3:
+            rmse, _, _ = procrustes_rmse(est, true)
+            squared += rmse**2 * len(est)
+            count += len(est)
+    return math.sqrt(squared / count) if count else math.nan
+
+
+def _metrics(sim: Simulation) -> dict[str, Any]:
+    p: GcsParams = sim.params.scenario
+    windows = _windows(sim)
+    robots = sim.robots
+    truth = sim.world.positions_mm
+    events = sim.trace.events_frame()
+    counts = events["event"].value_counts().to_dict() if len(events) else {}
+    i, j, _ = visible_pairs(
+        truth, sim.params.medium.range_mm, line_of_sight=sim.params.medium.line_of_sight
+    )
+    uids = np.array([r.uid for r in robots])
+    # Two robots with one ID seen by a common neighbour, or neighbours sharing an ID.
+    duplicates = int(np.sum(uids[i] == uids[j]))
+    for k in range(sim.n_robots):
+        near = np.concatenate([j[i == k], i[j == k]])
+        duplicates += len(near) - len(set(uids[near].tolist()))
+    phase_times = {}
+    now = sim.env.now
+    for name, start, end in windows:
+        if now >= start:
+            phase_times[name] = round(min(now, end) - start, 3)
+    out: dict[str, Any] = {
+        "phases_run": [name for name, _, _ in windows],
+        "phase_times_s": phase_times,
+        "ids_duplicate_neighbours": duplicates,
+        "ids_redraws": int(counts.get("id", 0)),
+    }
+    reached = {name for name, start, _ in windows if now >= start}
+    if "seeds" in reached:
+        out["seeds"] = int(sum(r.is_seed for r in robots))
+        out["seed_check_failed"] = int(counts.get("seed_check_failed", 0))
+    if "frames" in reached:
+        out["seeds_with_frame"] = int(sum(bool(r.references) for r in robots))
+        out["busy_resets"] = int(counts.get("busy_reset", 0))
+    if "localization" in reached:
+        local = local_frames_frame(sim)
+        located = local.robot.nunique()
+        per_frame = [
+            (g[["local_x_mm", "local_y_mm"]].to_numpy(), truth[g.robot.to_numpy()])
+            for _, g in local.groupby("seed_robot")
+        ]
+        out["locally_localized_fraction"] = located / sim.n_robots
+        out["mean_frames_per_robot"] = len(local) / sim.n_robots
+        out["local_rmse_mm"] = _pooled_rmse(per_frame)
+        out["fix_rejections"] = int(counts.get("fix_rejected", 0))
+    if "groups" in reached:
+        out["merging_groups"] = int(sum(len(r.groups) for r in robots))
+    if "merge" in reached:
+        est = estimates_frame(sim)
+        done = est[est.localized]
+        per_frame = [
+            (g[["est_x_mm", "est_y_mm"]].to_numpy(), truth[g.robot.to_numpy()])
+            for _, g in done.groupby("frame")
+        ]
+        sizes = done.groupby("frame").size()
+        edges = np.column_stack([i, j])
+        out.update(
+            {
+                "localized_fraction": len(done) / sim.n_robots,
+                "frames": int(len(sizes)),
+                "largest_frame_fraction": float(sizes.max() / sim.n_robots) if len(sizes) else 0,
+                "rmse_mm": _pooled_rmse(per_frame),
+                "crlb_rmse_mm": crlb_rmse_mm(truth, edges, sim.params.ranging.sigma_mm),
+                "merge_rounds": int(counts.get("merge_round", 0)),
+                "merge_rounds_max_per_seed": int(
+                    max((r.phase.rounds for r in robots if r.is_seed and r.phase), default=0)
+                ),
+                "seeds_done": int(sum(r.merge_done for r in robots if r.is_seed)),
+            }
+        )
+    return out
+
+
+def _outputs(result: RunResult, out_dir: Path) -> None:
+    sim = result.sim
+    local_frames_frame(sim).to_csv(out_dir / "local_frames.csv", index=False)
+    _figure(sim, estimates_frame(sim), out_dir / "gcs.png")
+
+
+def _figure(sim: Simulation, est: pd.DataFrame, path: Path) -> None:
+    truth = sim.world.positions_mm
+    fig, ax = plt.subplots(figsize=(7, 7))
+    ax.scatter(truth[:, 0], truth[:, 1], s=40, facecolors="none", edgecolors="0.6", label="truth")
+    done = est[est.localized]
+    cmap = plt.get_cmap("tab10")
+    for n, (label, g) in enumerate(done.groupby("frame")):
+        idx = g.robot.to_numpy()
+        pts = g[["est_x_mm", "est_y_mm"]].to_numpy()
+        if len(pts) >= 3:
+            _, _, aligned = procrustes_rmse(pts, truth[idx])
+        else:
+            aligned = truth[idx]
+        color = cmap(n % 10)
+        ax.scatter(aligned[:, 0], aligned[:, 1], s=14, color=color, label=f"frame {label}")
+        for (x0, y0), (x1, y1) in zip(truth[idx], aligned, strict=True):
+            ax.plot([x0, x1], [y0, y1], color="red", lw=0.8)
+    seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
+    ax.scatter(truth[seeds, 0], truth[seeds, 1], marker="x", s=30, c="k", label="seeds")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    summary = _metrics(sim)
+    ax.set_title(
+        f"global coordinate system: {summary.get('frames', '?')} frame(s), "
+        f"RMSE {summary.get('rmse_mm', math.nan):.2f} mm"
+    )
+    ax.legend(loc="upper right", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+SCENARIO = Scenario(
+    name="gcs",
+    summary="Rubenstein's global coordinate system, phases 1-6 (IDs, seeds, frames, "
+    "localization, merging groups, merging)",
+    program=_program,
+    section=GcsParams,
+    robots=100,
+    defaults={
+        "duration_s": 3600.0,
+        "robot.hardware_uids": False,
+        "robot.loop_period_s": 0.0625,
+        "placement.jitter_mm": 2.0,
+    },
+    metrics=_metrics,
+    stop_when=_stop_when,
+    outputs=_outputs,
+    robot_columns=estimates_frame,
+)
