@@ -1,9 +1,12 @@
 """Scheduling plain callbacks on the SimPy clock, at a fraction of a Timeout's cost.
 
-The medium schedules two wake-ups per message; a ``simpy.Timeout`` builds a full event for each.
-:func:`call_later` pushes a bare object that carries exactly what ``Environment.step`` reads
-(``callbacks``, ``_ok``, ``_value``) onto the environment's queue with the same key a Timeout
-would get (time, NORMAL priority, insertion counter), so ordering and determinism are SimPy's own.
+The medium schedules two wake-ups per message and every robot one per loop period; a
+``simpy.Timeout`` builds a full event for each. Here the queue entry is a bare object carrying
+exactly what ``Environment.step`` reads (``callbacks``, ``_ok``, ``_value``), pushed onto the
+environment's queue with the key a Timeout would get (time, NORMAL priority, insertion counter),
+so ordering and determinism are SimPy's own. A :class:`Timer` is reusable: an entity with at
+most one pending wake-up (a robot's next loop, its next transmit opportunity) allocates nothing
+per wake-up.
 
 Examples
 --------
@@ -11,10 +14,13 @@ Examples
 >>> env = simpy.Environment()
 >>> log = []
 >>> call_later(env, 2.0, lambda e: log.append(("b", env.now, e._value)), "x")
->>> call_later(env, 1.0, lambda e: log.append(("a", env.now, e._value)))
+>>> timer = Timer(env, lambda t: log.append(("a", env.now, t._value)), 7)
+>>> timer.schedule(1.0)
+>>> env.run()
+>>> timer.schedule(0.5)
 >>> env.run()
 >>> log
-[('a', 1.0, None), ('b', 2.0, 'x')]
+[('a', 1.0, 7), ('b', 2.0, 'x'), ('a', 2.5, 7)]
 """
 
 from __future__ import annotations
@@ -26,18 +32,23 @@ from typing import Any
 import simpy
 from simpy.events import NORMAL
 
-__all__ = ["Wakeup", "call_later"]
+__all__ = ["Timer", "Wakeup", "call_later", "push"]
 
 
 class Wakeup:
-    """A bare event: the minimum ``simpy.Environment.step`` needs to run its callbacks."""
+    """A bare one-shot event: the minimum ``simpy.Environment.step`` needs."""
 
     __slots__ = ("_ok", "_value", "callbacks")
 
-    def __init__(self, callback: Callable[[Wakeup], None], value: Any) -> None:
+    def __init__(self, callback: Callable[[Any], None], value: Any) -> None:
         self.callbacks = [callback]
         self._value = value
         self._ok = True
+
+
+def push(env: simpy.Environment, at_s: float, event: Any) -> None:
+    """Queue ``event`` (anything with ``callbacks``, ``_ok``, ``_value``) at time ``at_s``."""
+    heappush(env._queue, (at_s, NORMAL, next(env._eid), event))
 
 
 def call_later(
@@ -45,4 +56,26 @@ def call_later(
 ) -> None:
     """Call ``callback(wakeup)`` after ``delay_s`` simulated seconds; ``wakeup._value`` is
     ``value``. Ties with other events break by scheduling order, as in SimPy."""
-    heappush(env._queue, (env._now + delay_s, NORMAL, next(env._eid), Wakeup(callback, value)))
+    push(env, env._now + delay_s, Wakeup(callback, value))
+
+
+class Timer:
+    """A reusable wake-up: ``callback(timer)`` runs each time a scheduled delay ends.
+
+    Schedule it again only after it fired (``step()`` clears ``callbacks`` when it runs).
+    """
+
+    __slots__ = ("_callbacks", "_env", "_ok", "_value", "callbacks")
+
+    def __init__(self, env: simpy.Environment, callback: Callable[[Timer], None], value: Any):
+        self._env = env
+        self._callbacks = [callback]  # step() only iterates it, so one list serves every run
+        self.callbacks: list | None = None
+        self._value = value
+        self._ok = True
+
+    def schedule(self, delay_s: float) -> None:
+        """Fire after ``delay_s`` simulated seconds."""
+        self.callbacks = self._callbacks
+        env = self._env
+        heappush(env._queue, (env._now + delay_s, NORMAL, next(env._eid), self))

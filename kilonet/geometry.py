@@ -2,17 +2,36 @@
 
 Pure functions on millimetres. Robots call them on their measured distances; metrics call
 them on ground truth. Degenerate inputs are reported, never silently accepted.
+
+- Frames: :func:`angle_at` (law of cosines), :func:`place_references` (the thesis's phase-3
+  placement of the references B and C), :func:`frame_of_three`.
+- Choosing the references: :func:`choose_references_max_angle` (the thesis's rule) and
+  :func:`choose_references_best_conditioned` (the widest triangle).
+- Positions from ranges: :func:`trilaterate_in_frame`, :func:`trilaterate_linear` (the seeds'
+  closed forms) and :func:`multilaterate` (least squares that says why it rejects a fix).
+- What is achievable: :func:`crlb_rmse_mm`, the anchor-free Cramér–Rao bound of a measurement
+  graph.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Hashable, Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
 __all__ = [
+    "FIX_REASONS",
+    "Fix",
     "GeometryError",
+    "angle_at",
+    "choose_references_best_conditioned",
+    "choose_references_max_angle",
+    "crlb_rmse_mm",
     "frame_of_three",
+    "multilaterate",
+    "place_references",
     "trilaterate_in_frame",
     "trilaterate_linear",
 ]
@@ -110,3 +129,628 @@ def trilaterate_linear(anchors_mm: np.ndarray, ranges_mm: np.ndarray) -> tuple[f
     if abs(det) < 1e-9:
         raise GeometryError("the three anchors are collinear: no unique position")
     return float((c * e - f * b) / det), float((c * d - a * f) / (b * d - a * e))
+
+
+# ----------------------------------------------------------------------------- local frames
+
+
+def angle_at(a_to_b_mm: float, a_to_c_mm: float, b_to_c_mm: float) -> float:
+    """Angle α = ∠BAC at robot A of the triangle ABC, from its three sides (law of cosines).
+
+    ``cos α = (|AB|² + |AC|² − |BC|²) / (2 |AB| |AC|)``, clipped to [−1, 1]: measured
+    distances that break the triangle inequality a little (noise) give 0 or π, not NaN.
+
+    Parameters
+    ----------
+    a_to_b_mm, a_to_c_mm : float
+        Distances from A to B and from A to C, mm; positive.
+    b_to_c_mm : float
+        Distance from B to C, mm; non-negative.
+
+    Returns
+    -------
+    float
+        α in radians, in [0, π].
+
+    Raises
+    ------
+    GeometryError
+        If a distance is not finite, a side from A is not positive (B or C sits on A, so
+        there is no angle) or ``b_to_c_mm`` is negative.
+
+    Examples
+    --------
+    >>> round(math.degrees(angle_at(3.0, 4.0, 5.0)), 9)
+    90.0
+    >>> round(math.degrees(angle_at(40.0, 40.0, 40.0)), 9)
+    60.0
+    >>> angle_at(10.0, 10.0, 25.0) == math.pi  # no such triangle: clipped to a straight angle
+    True
+    """
+    sides = (a_to_b_mm, a_to_c_mm, b_to_c_mm)
+    if not all(math.isfinite(s) for s in sides):
+        raise GeometryError(f"distances {sides} mm: not all finite")
+    if a_to_b_mm <= 0 or a_to_c_mm <= 0 or b_to_c_mm < 0:
+        raise GeometryError(
+            f"distances |AB|={a_to_b_mm}, |AC|={a_to_c_mm}, |BC|={b_to_c_mm} mm: "
+            "|AB| and |AC| must be positive and |BC| non-negative"
+        )
+    cos_a = (a_to_b_mm**2 + a_to_c_mm**2 - b_to_c_mm**2) / (2 * a_to_b_mm * a_to_c_mm)
+    return math.acos(min(1.0, max(-1.0, cos_a)))
+
+
+def place_references(
+    d_ab_mm: float, d_ac_mm: float, d_bc_mm: float, *, min_height_mm: float = 1.0
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Coordinates of the references B and C in seed A's new frame (thesis §4.3).
+
+    A is the origin, ``B = (|AB|, 0)`` and ``C = (|AC| cos α, |AC| sin α)`` with α = ∠BAC
+    from :func:`angle_at`, so C lies above the x axis (the frame may be a mirror image of the
+    floor: y is taken positive).
+
+    Parameters
+    ----------
+    d_ab_mm, d_ac_mm, d_bc_mm : float
+        Measured distances A–B, A–C and B–C, mm.
+    min_height_mm : float
+        Smallest accepted distance of C from the x axis (line AB), mm. Below it the direction
+        of the y axis is set by the distance noise rather than by the robots (with the
+        Kilobot's ±2 mm ranges, 1 mm is already noise).
+
+    Returns
+    -------
+    (x_b, y_b), (x_c, y_c) : tuple of float pairs
+        mm; ``y_b == 0.0`` and ``y_c >= min_height_mm``.
+
+    Raises
+    ------
+    GeometryError
+        If the distances are invalid (see :func:`angle_at`), or the triangle is degenerate:
+        the sides break the triangle inequality, or C lies within ``min_height_mm`` of AB.
+
+    Examples
+    --------
+    >>> place_references(3.0, 4.0, 5.0)
+    ((3.0, 0.0), (0.0, 4.0))
+    >>> (xb, yb), (xc, yc) = place_references(40.0, 40.0, 40.0)
+    >>> xb, yb, round(xc, 9), round(yc, 9)
+    (40.0, 0.0, 20.0, 34.641016151)
+    >>> place_references(40.0, 40.0, 80.0)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    kilonet.geometry.GeometryError: ... degenerate triangle: C is 0 mm from line AB (need >= 1.0 mm)
+    """
+    alpha = angle_at(d_ab_mm, d_ac_mm, d_bc_mm)
+    cos_a, sin_a = math.cos(alpha), math.sin(alpha)
+    x_c, y_c = d_ac_mm * cos_a, d_ac_mm * sin_a
+    if alpha in (0.0, math.pi):
+        # Exact zeros instead of 1e-15 leftovers of cos/sin at the clip limits.
+        x_c, y_c = (d_ac_mm if alpha == 0.0 else -d_ac_mm), 0.0
+    if not y_c >= min_height_mm:
+        raise GeometryError(
+            f"distances |AB|={d_ab_mm}, |AC|={d_ac_mm}, |BC|={d_bc_mm} mm form a degenerate "
+            f"triangle: C is {y_c:.3g} mm from line AB (need >= {min_height_mm} mm)"
+        )
+    if abs(x_c) < 1e-12 * d_ac_mm:
+        x_c = 0.0
+    return (float(d_ab_mm), 0.0), (float(x_c), float(y_c))
+
+
+# ------------------------------------------------------------------ choosing the references
+
+#: Candidate reference pairs of one seed A: ``{(b, c): (d_ab_mm, d_ac_mm, d_bc_mm)}``, listing
+#: only pairs that see each other (the thesis's condition). ``b`` would go on the +x axis.
+ReferenceCandidates = Mapping[tuple[Hashable, Hashable], tuple[float, float, float]]
+
+
+def choose_references_max_angle(
+    candidates: ReferenceCandidates, *, min_height_mm: float = 1.0
+) -> tuple[tuple[Hashable, Hashable], float]:
+    """The thesis's rule: the pair (B, C) that maximises the angle α = ∠BAC at the seed.
+
+    Pairs whose triangle is degenerate for :func:`place_references` (C within
+    ``min_height_mm`` of line AB, or no triangle at all) are skipped: they cannot make a
+    frame. Ties go to the first such pair in the mapping's order.
+
+    The rule favours obtuse triangles: as α grows towards π the angles at B and C shrink,
+    and C's position, fixed by two circles that then cross at a shallow angle, becomes
+    sensitive to distance noise. :func:`choose_references_best_conditioned` avoids that.
+
+    Parameters
+    ----------
+    candidates : mapping ``{(b, c): (d_ab_mm, d_ac_mm, d_bc_mm)}``
+        Measured distances of each pair of the seed's neighbours that see each other, mm.
+    min_height_mm : float
+        As in :func:`place_references`.
+
+    Returns
+    -------
+    pair : tuple
+        The chosen key ``(b, c)``.
+    score : float
+        Its angle α, radians.
+
+    Raises
+    ------
+    GeometryError
+        If no candidate forms a non-degenerate triangle (the seed can build no frame).
+
+    Examples
+    --------
+    >>> candidates = {(1, 2): (40.0, 40.0, 40.0), (1, 3): (40.0, 40.0, 69.0)}
+    >>> pair, alpha = choose_references_max_angle(candidates)
+    >>> pair, round(math.degrees(alpha), 1)
+    ((1, 3), 119.2)
+    """
+    return _choose_references(candidates, min_height_mm, _angle_score)
+
+
+def choose_references_best_conditioned(
+    candidates: ReferenceCandidates, *, min_height_mm: float = 1.0
+) -> tuple[tuple[Hashable, Hashable], float]:
+    """The widest triangle: the pair (B, C) that maximises the smallest altitude of ABC.
+
+    The score is the triangle's width, its smallest altitude ``2 · area / longest side``
+    (mm): the narrowest strip that holds A, B and C. Why this measures how well the frame
+    will serve:
+
+    - every robot of the seed's neighbourhood is first located from A, B and C, and a fix
+      from ranges is worst across the direction in which its anchors are thinnest; a robot
+      at distance r from the triangle inherits an error of about ``σ · r / width`` across
+      it (the frame's axes tilt by σ over a lever arm of the width);
+    - the width is small exactly when some angle of ABC is small, i.e. when a vertex is
+      fixed by circles crossing at a shallow angle (C's error grows as 1/sin ∠ACB), which
+      is the weakness of the thesis's maximal angle at A;
+    - unlike the smallest angle or ``area / longest²``, it is not scale-free: of two
+      similar triangles the larger wins, because the lever arms (the neighbourhood's
+      radius) stay the same.
+
+    Pairs whose triangle is degenerate for :func:`place_references` are skipped; ties go to
+    the first such pair in the mapping's order.
+
+    Parameters
+    ----------
+    candidates : mapping ``{(b, c): (d_ab_mm, d_ac_mm, d_bc_mm)}``
+        Measured distances of each pair of the seed's neighbours that see each other, mm.
+    min_height_mm : float
+        As in :func:`place_references`.
+
+    Returns
+    -------
+    pair : tuple
+        The chosen key ``(b, c)``.
+    score : float
+        Its smallest altitude, mm.
+
+    Raises
+    ------
+    GeometryError
+        If no candidate forms a non-degenerate triangle (the seed can build no frame).
+
+    Examples
+    --------
+    The thesis's rule takes the obtuse 40–40–69 triangle (α ≈ 119°, width 20 mm); this rule
+    takes the equilateral one of side 69 mm (width 59.8 mm):
+
+    >>> candidates = {(1, 2): (40.0, 40.0, 69.0), (3, 4): (69.0, 69.0, 69.0)}
+    >>> pair, width = choose_references_best_conditioned(candidates)
+    >>> pair, round(width, 1)
+    ((3, 4), 59.8)
+    >>> round(choose_references_best_conditioned({(1, 2): (40.0, 40.0, 69.0)})[1], 1)
+    20.2
+    """
+    return _choose_references(candidates, min_height_mm, _width_score)
+
+
+def _angle_score(d_ab: float, d_ac: float, d_bc: float, y_c: float) -> float:
+    return angle_at(d_ab, d_ac, d_bc)
+
+
+def _width_score(d_ab: float, d_ac: float, d_bc: float, y_c: float) -> float:
+    # Area = |AB| · y_C / 2, so the smallest altitude 2·area/longest = |AB| · y_C / longest.
+    return d_ab * y_c / max(d_ab, d_ac, d_bc)
+
+
+def _choose_references(candidates, min_height_mm, score_of):
+    best_pair, best_score = None, -math.inf
+    for pair, (d_ab, d_ac, d_bc) in candidates.items():
+        try:
+            _, (_, y_c) = place_references(d_ab, d_ac, d_bc, min_height_mm=min_height_mm)
+        except GeometryError:
+            continue
+        score = score_of(d_ab, d_ac, d_bc, y_c)
+        if score > best_score:
+            best_pair, best_score = pair, score
+    if best_pair is None:
+        raise GeometryError(
+            f"none of {len(candidates)} candidate reference pairs forms a non-degenerate "
+            f"triangle with the seed (min_height_mm={min_height_mm})"
+        )
+    return best_pair, float(best_score)
+
+
+# --------------------------------------------------------------------------- multilateration
+
+#: Why :func:`multilaterate` rejects a fix (``Fix.reason``), in the order it checks.
+FIX_REASONS = (
+    "too_few_anchors",
+    "collinear_anchors",
+    "large_residual",
+    "poor_geometry",
+    "mirror_ambiguity",
+)
+
+_TINY_MM = 1e-12
+
+
+@dataclass(frozen=True, slots=True)
+class Fix:
+    """A position estimated from ranges, with the evidence for trusting it.
+
+    Attributes
+    ----------
+    x_mm, y_mm : float
+        The estimate in the anchors' frame, mm; NaN when none was computed (too few or
+        collinear anchors).
+    rmse_mm : float
+        Root mean square of the range residuals ``|p − aᵢ| − rᵢ`` at the estimate, mm.
+    gdop : float
+        Geometric dilution of precision at the estimate, ``sqrt(trace((HᵀH)⁻¹))`` with the
+        rows of H the unit vectors from the anchors to the estimate: with independent range
+        noise σ the estimate's RMS error is about ``σ · gdop``. ``inf`` when the anchors see
+        the point along one line only.
+    mirror_rmse_mm : float
+        ``rmse_mm`` of the best estimate on the other side of the anchors' best-fit line when
+        that side holds a distinct local fit, mm; NaN when it holds none.
+    anchors : int
+        Number of anchors used.
+    ok : bool
+        Whether the fix passed every check.
+    reason : str
+        ``""`` when ``ok``, otherwise the first failed check, one of :data:`FIX_REASONS`.
+    """
+
+    x_mm: float
+    y_mm: float
+    rmse_mm: float
+    gdop: float
+    mirror_rmse_mm: float
+    anchors: int
+    ok: bool
+    reason: str
+
+
+def multilaterate(
+    anchors_mm: np.ndarray,
+    ranges_mm: np.ndarray,
+    *,
+    sigma_mm: float = 1.0,
+    max_rmse_mm: float | None = None,
+    max_gdop: float = 5.0,
+    min_anchor_width_mm: float | None = None,
+    mirror_sigmas: float = 3.0,
+) -> Fix:
+    """Least-squares position from ranges to k anchors, rejected with a reason when unreliable.
+
+    The linearised system (each range equation minus their mean: ``2 (aᵢ − ā) · p =
+    |aᵢ|² − mean|a|² − (rᵢ² − mean r²)``) gives the start; Levenberg–Marquardt on the range
+    residuals ``|p − aᵢ| − rᵢ`` refines it. The fix is then checked, in this order:
+
+    1. ``too_few_anchors``: fewer than 3 anchors.
+    2. ``collinear_anchors``: all anchors lie within ``min_anchor_width_mm`` of one line
+       (their total-least-squares line), so the ranges cannot tell the two sides apart.
+    3. ``large_residual``: residual RMSE above ``max_rmse_mm`` (ranges inconsistent with
+       any point: an outlier, or an anchor that is not where it claims to be).
+    4. ``poor_geometry``: GDOP above ``max_gdop`` (anchors seen from nearly one direction).
+    5. ``mirror_ambiguity``: the reflection of the estimate across the anchors' best-fit line
+       starts a second, distinct local fit (more than ``sigma_mm`` away) whose residual sum of
+       squares exceeds the best's by less than ``(mirror_sigmas · sigma_mm)²`` — a likelihood
+       ratio the noise could produce. This is the near-collinear case: with exactly three
+       nearly collinear anchors the mirror image fits almost equally well. Whichever of the
+       two fits better is reported.
+
+    The thesis's localisation ("a robot that sees seed S and ≥ 2 robots located in S's
+    frame"): the seed is an anchor too, at (0, 0) in its own frame, so there are ≥ 3 anchors
+    in total; pass it with the others.
+
+    Parameters
+    ----------
+    anchors_mm : (k, 2) array
+        Anchor positions in one frame, mm.
+    ranges_mm : (k,) array
+        Measured distances to them, mm (non-negative).
+    sigma_mm : float
+        Standard deviation of a range measurement, mm (positive). Sets the defaults below.
+    max_rmse_mm : float, optional
+        Largest accepted residual RMSE, mm; default ``3 · sigma_mm``.
+    max_gdop : float
+        Largest accepted GDOP (dimensionless; about 1.15 inside a well-spread triangle).
+    min_anchor_width_mm : float, optional
+        Anchors within this distance of one line count as collinear, mm; default
+        ``sigma_mm`` (the anchors' own positions are no better than that).
+    mirror_sigmas : float
+        Margin of the mirror test, in units of ``sigma_mm``.
+
+    Returns
+    -------
+    Fix
+        The estimate and its evidence; ``ok`` and ``reason`` say whether to use it.
+
+    Raises
+    ------
+    ValueError
+        If the shapes disagree, a value is not finite, a range is negative or a threshold
+        is not positive (programming errors, not bad geometry).
+
+    Examples
+    --------
+    >>> anchors = np.array([[0.0, 0.0], [60.0, 0.0], [10.0, 50.0]])
+    >>> ranges = np.hypot(*(anchors - [30.0, 20.0]).T)
+    >>> fix = multilaterate(anchors, ranges)
+    >>> round(fix.x_mm, 6), round(fix.y_mm, 6), fix.ok, fix.reason
+    (30.0, 20.0, True, '')
+    >>> line = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.0]])
+    >>> multilaterate(line, np.hypot(*(line - [30.0, 20.0]).T)).reason
+    'collinear_anchors'
+    >>> multilaterate(anchors[:2], ranges[:2]).reason
+    'too_few_anchors'
+    """
+    anchors = np.asarray(anchors_mm, dtype=float)
+    ranges = np.asarray(ranges_mm, dtype=float)
+    if anchors.ndim != 2 or anchors.shape[1] != 2 or ranges.shape != (len(anchors),):
+        raise ValueError(
+            f"anchors_mm must be (k, 2) and ranges_mm (k,); got {anchors.shape} and {ranges.shape}"
+        )
+    if not (np.isfinite(anchors).all() and np.isfinite(ranges).all()):
+        raise ValueError("anchors_mm and ranges_mm must be finite")
+    if (ranges < 0).any():
+        raise ValueError(f"ranges_mm must be non-negative; got {ranges.tolist()}")
+    if not sigma_mm > 0:
+        raise ValueError(f"sigma_mm must be positive; got {sigma_mm}")
+    max_rmse = 3.0 * sigma_mm if max_rmse_mm is None else max_rmse_mm
+    min_width = sigma_mm if min_anchor_width_mm is None else min_anchor_width_mm
+    k = len(anchors)
+
+    def reject(reason, p=(math.nan, math.nan), rmse=math.nan, gdop=math.inf, mirror=math.nan):
+        return Fix(float(p[0]), float(p[1]), rmse, gdop, mirror, k, False, reason)
+
+    if k < 3:
+        return reject("too_few_anchors")
+    centre = anchors.mean(axis=0)
+    _, _, axes = np.linalg.svd(anchors - centre)
+    normal = axes[1]  # unit normal of the anchors' total-least-squares line
+    if np.abs((anchors - centre) @ normal).max() < min_width:
+        return reject("collinear_anchors")
+
+    scale = 1.0 + float(np.abs(anchors).max()) + float(ranges.max())
+    tol = 1e-9 * scale
+    r2 = ranges**2
+    a2 = (anchors**2).sum(axis=1)
+    start, *_ = np.linalg.lstsq(
+        2.0 * (anchors - centre), (a2 - a2.mean()) - (r2 - r2.mean()), rcond=None
+    )
+    best, best_ssr = _refine_position(anchors, ranges, start, tol)
+
+    mirror_ssr = math.nan
+    reflected = best - 2.0 * ((best - centre) @ normal) * normal
+    if np.hypot(*(reflected - best)) > sigma_mm:
+        other, other_ssr = _refine_position(anchors, ranges, reflected, tol)
+        if np.hypot(*(other - best)) > sigma_mm:
+            if other_ssr < best_ssr:
+                best, best_ssr, other_ssr = other, other_ssr, best_ssr
+            mirror_ssr = other_ssr
+
+    rmse = math.sqrt(best_ssr / k)
+    mirror_rmse = math.sqrt(mirror_ssr / k) if math.isfinite(mirror_ssr) else math.nan
+    gdop = _gdop(anchors, best)
+    args = {"p": best, "rmse": rmse, "gdop": gdop, "mirror": mirror_rmse}
+    if rmse > max_rmse:
+        return reject("large_residual", **args)
+    if gdop > max_gdop:
+        return reject("poor_geometry", **args)
+    if math.isfinite(mirror_ssr) and mirror_ssr - best_ssr < (mirror_sigmas * sigma_mm) ** 2:
+        return reject("mirror_ambiguity", **args)
+    return Fix(float(best[0]), float(best[1]), rmse, gdop, mirror_rmse, k, True, "")
+
+
+def _range_residuals(anchors, ranges, x, y):
+    dx, dy = x - anchors[:, 0], y - anchors[:, 1]
+    dist = np.sqrt(dx * dx + dy * dy)
+    res = dist - ranges
+    return dx, dy, dist, res, float(res @ res)
+
+
+def _refine_position(
+    anchors: np.ndarray, ranges: np.ndarray, start: np.ndarray, tol_mm: float
+) -> tuple[np.ndarray, float]:
+    """Levenberg–Marquardt on the range residuals from ``start``; returns (p, SSR in mm²).
+
+    The 2×2 normal equations are solved in closed form: this runs once or twice per fix
+    and per robot, so numpy's per-call overhead would dominate.
+    """
+    x, y = float(start[0]), float(start[1])
+    dx, dy, dist, res, ssr = _range_residuals(anchors, ranges, x, y)
+    damping = 1e-6
+    for _ in range(100):
+        inv = 1.0 / np.maximum(dist, _TINY_MM)
+        jx, jy = dx * inv, dy * inv
+        hxx, hxy, hyy = float(jx @ jx), float(jx @ jy), float(jy @ jy)
+        gx, gy = float(jx @ res), float(jy @ res)
+        level = 0.5 * (hxx + hyy) + _TINY_MM
+        while True:
+            axx, ayy = hxx + damping * level, hyy + damping * level
+            det = axx * ayy - hxy * hxy
+            if det > 0:
+                sx = (-gx * ayy + gy * hxy) / det
+                sy = (-gy * axx + gx * hxy) / det
+                t_dx, t_dy, t_dist, t_res, t_ssr = _range_residuals(anchors, ranges, x + sx, y + sy)
+                if t_ssr <= ssr:
+                    break
+            damping *= 10.0
+            if damping > 1e12:  # no descent direction left: (x, y) is a minimum to rounding
+                return np.array([x, y]), ssr
+        x, y, dx, dy, dist, res, ssr = x + sx, y + sy, t_dx, t_dy, t_dist, t_res, t_ssr
+        damping = max(damping / 10.0, 1e-12)
+        if math.hypot(sx, sy) < tol_mm:
+            break
+    return np.array([x, y]), ssr
+
+
+def _gdop(anchors: np.ndarray, p: np.ndarray) -> float:
+    diff = p - anchors
+    units = diff / np.maximum(np.sqrt((diff * diff).sum(axis=1)), _TINY_MM)[:, None]
+    info = units.T @ units
+    det = float(np.linalg.det(info))
+    trace = float(np.trace(info))
+    if det <= 1e-12 * trace * trace:
+        return math.inf
+    return math.sqrt(trace / det)  # trace of the inverse of a 2×2 matrix
+
+
+# ----------------------------------------------------------------------- Cramér–Rao bound
+
+
+def crlb_rmse_mm(
+    positions_mm: np.ndarray,
+    edges: np.ndarray,
+    sigma_mm: float,
+    *,
+    require_rigid: bool = False,
+) -> float:
+    """Anchor-free Cramér–Rao bound on the RMS position error of a measured distance graph.
+
+    Each edge (i, j) is one distance measurement with independent noise of standard
+    deviation ``sigma_mm``. Its Fisher information on the 2N coordinates is
+    ``u uᵀ / σ²`` on the (i, i) and (j, j) blocks and ``−u uᵀ / σ²`` on (i, j) and (j, i),
+    u the unit vector from j to i. Distances cannot fix where the swarm is or how it is
+    turned, so J is singular: for a rigid connected graph its null space is the 3 gauge
+    freedoms (2 translations, 1 rotation), which the pseudo-inverse removes — the bound then
+    applies to the error after the best rigid alignment to the truth, as the metrics measure
+    it. The bound on the mean squared error per robot is ``trace(pinv(J)) / N``; its square
+    root is returned.
+
+    A disconnected or flexible graph has more null directions; the pseudo-inverse drops them
+    as well (each component is then aligned on its own, flexes are not counted) unless
+    ``require_rigid`` asks for an error.
+
+    Parameters
+    ----------
+    positions_mm : (N, 2) array
+        True positions, mm.
+    edges : (E, 2) int array
+        Measured pairs (row indices of ``positions_mm``); list a pair twice for two
+        independent measurements of it (e.g. both directions).
+    sigma_mm : float
+        Standard deviation of one distance measurement, mm (positive).
+    require_rigid : bool
+        Raise when the null space is larger than the 3 gauge freedoms.
+
+    Returns
+    -------
+    float
+        Lower bound on ``sqrt(E[Σᵢ |p̂ᵢ − pᵢ|²] / N)`` for unbiased estimators, mm.
+
+    Raises
+    ------
+    GeometryError
+        If there are no edges, an edge joins coincident positions, or ``require_rigid`` is
+        set and the graph is not rigid.
+    ValueError
+        If an edge index is out of range or a self-loop, or ``sigma_mm`` is not positive.
+
+    Notes
+    -----
+    O(N³) time and O(N²) memory: J is a dense 2N × 2N matrix. A rigid connected graph is
+    handled by one Cholesky factorisation (about a second for N = 1,000 on one core); other
+    graphs by the eigen-decomposition, several times slower.
+
+    Examples
+    --------
+    An equilateral triangle with its three sides measured: the bound is σ √5 / 3.
+
+    >>> tri = np.array([[0.0, 0.0], [40.0, 0.0], [20.0, 20.0 * np.sqrt(3.0)]])
+    >>> round(crlb_rmse_mm(tri, [(0, 1), (0, 2), (1, 2)], sigma_mm=1.0), 9)
+    0.745355992
+    >>> round(math.sqrt(5.0) / 3.0, 9)
+    0.745355992
+    """
+    from scipy.sparse import coo_matrix
+
+    pos = np.asarray(positions_mm, dtype=float)
+    pairs = np.asarray(edges, dtype=np.intp).reshape(-1, 2)
+    n = len(pos)
+    if not sigma_mm > 0:
+        raise ValueError(f"sigma_mm must be positive; got {sigma_mm}")
+    if len(pairs) == 0:
+        raise GeometryError("no measured pairs: the bound is infinite")
+    if pairs.min() < 0 or pairs.max() >= n:
+        raise ValueError(f"edge index out of range 0..{n - 1}: {pairs.min()}..{pairs.max()}")
+    i, j = pairs[:, 0], pairs[:, 1]
+    if (i == j).any():
+        raise ValueError(f"self-loop in edges at robot {int(i[i == j][0])}")
+    diff = pos[i] - pos[j]
+    dist = np.sqrt((diff * diff).sum(axis=1))
+    if (dist <= 0).any():
+        e = int(np.flatnonzero(dist <= 0)[0])
+        raise GeometryError(f"edge ({int(i[e])}, {int(j[e])}) joins coincident positions")
+    u = diff / dist[:, None]
+    rows = np.repeat(np.arange(len(pairs)), 4)
+    cols = np.stack([2 * i, 2 * i + 1, 2 * j, 2 * j + 1], axis=1).ravel()
+    vals = np.stack([u[:, 0], u[:, 1], -u[:, 0], -u[:, 1]], axis=1).ravel()
+    rigidity = coo_matrix((vals, (rows, cols)), shape=(len(pairs), 2 * n)).tocsr()
+    info = (rigidity.T @ rigidity).toarray() / sigma_mm**2
+    total = _gauge_fixed_trace(info, pos, pairs)
+    if total is None:
+        eig = np.linalg.eigvalsh(info)
+        determined = eig > _NULL_RTOL * eig[-1]
+        null_dims = int((~determined).sum())
+        if require_rigid and null_dims > 3:
+            raise GeometryError(
+                f"the measurement graph is not rigid: {null_dims} undetermined directions "
+                "(3 are the rigid motions)"
+            )
+        total = float((1.0 / eig[determined]).sum())
+    return math.sqrt(total / n)
+
+
+#: Eigenvalues of the Fisher information below this fraction of the largest count as null.
+_NULL_RTOL = 1e-9
+
+
+def _gauge_fixed_trace(info: np.ndarray, pos: np.ndarray, pairs: np.ndarray) -> float | None:
+    """trace(pinv(J)) by Cholesky when J's null space is exactly the 3 rigid motions, else None.
+
+    With G an orthonormal basis of the rigid motions (the null space of a rigid connected
+    graph's J) and c > 0, ``(J + c G Gᵀ)⁻¹ = pinv(J) + G Gᵀ / c``, so the trace follows from
+    one Cholesky factor and a triangular inverse: about four times faster than the full
+    eigen-decomposition. Returns None (use the eigenvalues) when the graph is disconnected,
+    when the factorisation fails (another null direction: a flexible graph) or when the
+    result shows an eigenvalue the eigenvalue path would count as null.
+    """
+    from scipy.linalg import LinAlgError, cholesky, lapack
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(pos)
+    adjacency = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    if connected_components(adjacency, directed=False)[0] != 1:
+        return None
+    centred = pos - pos.mean(axis=0)
+    gauge = np.zeros((2 * n, 3))
+    gauge[0::2, 0] = gauge[1::2, 1] = 1.0 / math.sqrt(n)
+    gauge[0::2, 2], gauge[1::2, 2] = -centred[:, 1], centred[:, 0]
+    gauge[:, 2] /= np.linalg.norm(gauge[:, 2])
+    mean_eig = float(np.trace(info)) / (2 * n)
+    try:
+        factor = cholesky(info + mean_eig * (gauge @ gauge.T), lower=True)
+    except LinAlgError:
+        return None
+    inverse, status = lapack.dtrtri(factor, lower=1)
+    if status != 0:
+        return None
+    total = float((inverse * inverse).sum()) - 3.0 / mean_eig
+    # Gershgorin: every eigenvalue is at most the largest absolute row sum.
+    largest_eig = float(np.abs(info).sum(axis=1).max())
+    if total > 1.0 / (_NULL_RTOL * largest_eig):
+        return None
+    return total

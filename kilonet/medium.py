@@ -35,13 +35,11 @@ from __future__ import annotations
 import operator
 from collections import deque
 from collections.abc import Callable
-from heapq import heappush
 from itertools import repeat
 from typing import TYPE_CHECKING
 
 import numpy as np
-from simpy.events import NORMAL
-
+from kilonet.clock import Timer, push
 from kilonet.message import KILOLIB, THESIS, Message, PayloadLimit
 from kilonet.robot import Kilobot
 from kilonet.visibility import visible_pairs
@@ -176,7 +174,6 @@ class InfraredMedium:
         # share one airtime, so it ends last), and that reception, to mark it on a collision.
         self._busy_until = [-np.inf] * n
         self._last_rx: list[_Transmission | None] = [None] * n
-        self._own_end = [-np.inf] * n  # when each robot's own latest transmission ends
         self._any_extra_loss = False  # some receiver has a battery or fault loss share
         self._trace_messages = sim.params.trace.messages
         self._running = [True] * n
@@ -218,8 +215,7 @@ class InfraredMedium:
         self._message_bytes = [0] * n
         # One reusable queue entry per robot for its next transmit opportunity (a robot has at
         # most one pending), and one shared callback list for ends of airtime.
-        self._offer_callbacks = [self._offer]
-        self._offer_tokens = [_Token(i) for i in range(n)]
+        self._offer_timers = [Timer(sim.env, self._offer, i) for i in range(n)]
         self._end_callbacks = [self._end_of_airtime]
 
         # Per-sender links at full range, and the derived lists the hot path reads.
@@ -322,10 +318,7 @@ class InfraredMedium:
         self._schedule_offer(robot, self._uniform.next() * self._period)
 
     def _schedule_offer(self, robot: int, delay_s: float) -> None:
-        token = self._offer_tokens[robot]
-        token.callbacks = self._offer_callbacks  # step() sets it to None after each run
-        env = self.env
-        heappush(env._queue, (env._now + delay_s, NORMAL, next(env._eid), token))
+        self._offer_timers[robot].schedule(delay_s)
 
     # -- reception outcomes, drawn ahead in blocks ---------------------------------------------
     def _refill(self, s: int) -> None:
@@ -380,8 +373,8 @@ class InfraredMedium:
         return self._counters
 
     # -- the hot path ------------------------------------------------------------------------
-    def _offer(self, token: _Token) -> None:
-        s = token._value
+    def _offer(self, timer: Timer) -> None:
+        s = timer._value
         if not self._running[s]:
             return
         now = self.env._now
@@ -394,7 +387,7 @@ class InfraredMedium:
                 self._last_checked[s] = message
                 self._message_bytes[s] = message.size_bytes
             self._offered[s] += 1
-            if self._csma and (self._busy_until[s] > now or self._own_end[s] > now):
+            if self._csma and self._busy_until[s] > now:
                 self._backoffs[s] += 1
                 delay = self._uniform.next() * self._backoff_max
             else:
@@ -439,11 +432,13 @@ class InfraredMedium:
             busy[r] = end
             last[r] = tx
         tx.corrupted = clashes
-        self._own_end[s] = end
+        # Half duplex the other way round: while s transmits, whatever starts arriving at s
+        # overlaps its channel and is lost there.
+        if end > busy[s]:
+            busy[s] = end
         self._sent[s] += 1
         self._bytes_sent[s] += self._message_bytes[s]
-        env = self.env
-        heappush(env._queue, (end, NORMAL, next(env._eid), tx))
+        push(self.env, end, tx)
         success = self._tx_success[s]
         if success is not None:
             success()
@@ -492,17 +487,6 @@ class InfraredMedium:
     def count_overflow(self, robot: int) -> None:
         """Count a message dropped from ``robot``'s full receive buffer."""
         self._counters["lost_overflow"][robot] += 1
-
-
-class _Token:
-    """A reusable queue entry: what ``simpy.Environment.step`` reads of an event."""
-
-    __slots__ = ("_ok", "_value", "callbacks")
-
-    def __init__(self, value: int) -> None:
-        self.callbacks: list | None = None  # set on scheduling; step() only iterates it
-        self._ok = True
-        self._value = value
 
 
 def _corrupt(tx: _Transmission | None, receiver: int) -> None:

@@ -150,6 +150,8 @@ class Layout:
             )
         record_name = "".join(part.capitalize() for part in name.split("_"))
         self.record = namedtuple(record_name, self._names)
+        self._make = self.record._make
+        self._scaled = any(s is not None for s in self._scales)
 
     @property
     def size_bytes(self) -> int:
@@ -203,9 +205,9 @@ class Layout:
             raw = self._struct.unpack_from(message.data)
         except struct.error as exc:
             raise PayloadError(f"layout {self.name!r}: {exc}") from exc
-        return self.record(
-            *(v * s if s is not None else v for v, s in zip(raw, self._scales, strict=True))
-        )
+        if not self._scaled:
+            return self._make(raw)
+        return self._make([v * s if s else v for v, s in zip(raw, self._scales, strict=True)])
 
     def matches(self, message: Message) -> bool:
         """Whether ``message`` carries this layout's type byte."""

@@ -52,6 +52,9 @@ class Kilobot:
         Hardware UID (the robot's index) if ``robot.hardware_uids`` is on.
     ``rand``
         This robot's own :class:`numpy.random.Generator` (kilolib's ``rand_hard``/``rand_soft``).
+
+    The simulation keeps its handles in attributes named ``_sim``, ``_env``, ``_tps``,
+    ``_index``, ``_rx_buffer`` and ``_color``: a program must not use these names.
     """
 
     # kilolib's motor calibration values; any non-zero value runs a motor.
@@ -84,6 +87,8 @@ class Kilobot:
     # -- the kilolib API a program calls -----------------------------------------------------
     def _attach(self, sim: Simulation, index: int, rng: np.random.Generator) -> None:
         self._sim = sim
+        self._env = sim.env
+        self._tps = sim.params.robot.ticks_per_s
         self._index = index
         self.rand = rng
         self._rx_buffer: deque[tuple[Message, int]] = deque(maxlen=sim.params.robot.rx_buffer)
@@ -92,7 +97,7 @@ class Kilobot:
     @property
     def kilo_ticks(self) -> int:
         """Clock ticks since the robot started."""
-        return int(self._sim.env.now * self._sim.params.robot.ticks_per_s)
+        return int(self._env._now * self._tps)
 
     @property
     def polled(self) -> bool:

@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import simpy
-from simpy.events import Timeout
 
 from kilonet.battery import Battery
+from kilonet.clock import Timer
 from kilonet.faults import FaultInjector
 from kilonet.medium import LOSS_CAUSES, InfraredMedium
 from kilonet.message import Message
@@ -39,7 +39,7 @@ from kilonet.trace import Trace
 __all__ = ["STREAMS", "Simulation", "World", "stream_for"]
 
 #: Independent random streams of a run, spawned from its seed in this order.
-STREAMS = ("medium", "ranging", "battery", "faults", "motion", "placement")
+STREAMS = ("medium", "ranging", "battery", "faults", "motion", "placement", "schedule")
 
 
 def stream_for(seed: int, name: str) -> np.random.Generator:
@@ -158,7 +158,7 @@ class Simulation:
         self.faults.start()
         self.battery.start()
         loop_period = self.params.robot.loop_period_s
-        loop_rng = self.stream("medium")
+        loop_rng = self.stream("schedule")
         for i, robot in enumerate(self.robots):
             robot.setup()
             self.medium.start(i)
@@ -167,17 +167,16 @@ class Simulation:
                 self._schedule_loop(i, float(loop_rng.uniform(0, loop_period)))
 
     def _schedule_loop(self, i: int, delay: float) -> None:
-        robot = self.robots[i]
+        loop = self.robots[i].loop
         running = self.world.running
         period = self.params.robot.loop_period_s
-        env = self.env
 
-        def tick(_event: object) -> None:
+        def tick(timer: Timer) -> None:
             if running[i]:
-                robot.loop()
-                Timeout(env, period).callbacks.append(tick)
+                loop()
+                timer.schedule(period)
 
-        Timeout(env, delay).callbacks.append(tick)
+        Timer(self.env, tick, i).schedule(delay)
 
     def run(
         self, until_s: float | None = None, *, stop_when: Callable[[], bool] | None = None

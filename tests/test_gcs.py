@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 import scenarios
 from kilonet.alignment import procrustes_rmse
 from kilonet.visibility import communication_graph
-from protocols.frame_merging import half_map, quaternion_fields, rotation_from_fields
+from protocols.frame_merging import TF_ROT, half_map, quaternion_fields, rotation_from_fields
 from protocols.gcs_base import GcsParams
 from protocols.gcs import phase_windows_s
 from protocols.unique_ids import ID
@@ -164,10 +164,13 @@ def test_half_map_steps_merge_mirror_image_frames():
     assert np.allclose(gi, gk, atol=1e-6)
 
 
-def test_quaternion_fields_round_trip_within_int16_precision():
-    rotation = Rotation.from_rotvec([0.3, -1.2, 2.0])
-    fields = {k: round(v * 32767) / 32767 for k, v in quaternion_fields(rotation).items()}
-    back = rotation_from_fields(**fields)
+@pytest.mark.parametrize("rotvec", [[0.3, -1.2, 2.0], [np.pi, 0.0, 0.0], [0.0, 2.0, 2.2]])
+def test_transform_messages_carry_rotations_within_a_hundredth_degree(rotvec):
+    rotation = Rotation.from_rotvec(rotvec)
+    message = TF_ROT.pack(sender=1, version=3, **quaternion_fields(rotation))
+    fields = TF_ROT.unpack(message)
+    back = rotation_from_fields(fields.q0, fields.q1, fields.q2)
+    assert len(message.data) == 9
     assert np.degrees((back * rotation.inv()).magnitude()) < 0.01
 
 

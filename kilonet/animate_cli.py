@@ -1,0 +1,74 @@
+"""The ``kilonet animate`` sub-command: render a finished run directory.
+
+    kilonet animate DIR [--out FILE.gif|.mp4|.html] [--fps N] [--speed X]
+                        [--overlay NAME ...] [--start S] [--end S] [--window S] [--size PX]
+
+Listed in ``kilonet.cli._PLUGINS``; the work is done by :func:`kilonet.animation.animate_run`,
+which ``kilonet run --animate`` calls too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from kilonet.animation import OVERLAYS, AnimationError, animate_run
+from kilonet.cli import UsageError
+
+__all__ = ["register"]
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``animate`` sub-command to ``subparsers`` (from ``add_subparsers``)."""
+    p = subparsers.add_parser(
+        "animate",
+        help="render a run directory as a GIF, MP4 or HTML replay",
+        description="Render a run directory (kilonet run --out DIR) as an animated GIF, an MP4 "
+        "(needs ffmpeg) or a self-contained HTML replay.",
+    )
+    p.add_argument("run_dir", metavar="DIR", help="run directory written by kilonet run --out")
+    p.add_argument("--out", help="output file .gif, .mp4 or .html (default: DIR/animation.gif)")
+    p.add_argument("--fps", type=float, default=10.0, help="video frames per second (10)")
+    p.add_argument(
+        "--speed",
+        type=float,
+        help="simulated seconds per video second (default: the run in at most 20 s)",
+    )
+    p.add_argument(
+        "--overlay",
+        action="extend",
+        nargs="+",
+        metavar="NAME",
+        help=f"any of {', '.join(OVERLAYS)}, or none (default: those the run has data for, "
+        "except edges)",
+    )
+    p.add_argument("--start", type=float, default=0.0, help="first simulated second shown")
+    p.add_argument("--end", type=float, help="last simulated second shown (default: run end)")
+    p.add_argument(
+        "--window",
+        type=float,
+        help="messages overlay: senders of the last S seconds (default: one frame, at most "
+        "one transmit period)",
+    )
+    p.add_argument("--size", type=int, default=640, help="frame width in pixels (640)")
+    p.set_defaults(func=_cmd_animate)
+
+
+def _cmd_animate(args: argparse.Namespace) -> int:
+    try:
+        written = animate_run(
+            args.run_dir,
+            args.out,
+            fps=args.fps,
+            speed=args.speed,
+            start_s=args.start,
+            end_s=args.end,
+            overlays=args.overlay,
+            window_s=args.window,
+            width_px=args.size,
+        )
+    except AnimationError as exc:
+        raise UsageError(str(exc)) from None
+    print(f"wrote {written} ({written.stat().st_size / 1024:,.0f} kB)", file=sys.stderr)
+    return 0

@@ -1,0 +1,382 @@
+"""Tests for kilonet.animation and ``kilonet animate``: GIF and HTML of a real gradient run
+(frame count, size, LED colours read back at the robots' centres), state sampled from event
+tables, overlays, and user errors."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from PIL import Image
+
+import kilonet.cli as cli
+import scenarios
+from kilonet.animation import (
+    AnimationError,
+    FrameRenderer,
+    Replay,
+    animate_run,
+    frame_times,
+    load_run,
+)
+
+_PATH_COLOUR = (31, 119, 180)
+
+# ---------------------------------------------------------------------------- fixtures
+
+
+@pytest.fixture(scope="module")
+def gradient_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A real run: the gradient scenario, 20 robots, 5 s, with the message trace."""
+    result = scenarios.run(
+        scenarios.get("gradient"),
+        {"placement.robots": 20, "duration_s": 5.0, "trace.messages": True},
+        seed=3,
+    )
+    out = tmp_path_factory.mktemp("gradient") / "run"
+    scenarios.write_outputs(result, out)
+    return out
+
+
+def _expected_levels(led: pd.DataFrame, robot: int, t_s: float) -> tuple[int, int, int]:
+    """The trace's LED levels of ``robot`` at ``t_s``: the last change at or before it."""
+    rows = led[(led["robot"] == robot) & (led["t_s"] <= t_s)]
+    if rows.empty:
+        return (0, 0, 0)
+    last = rows.iloc[-1]
+    return (int(last["r"]), int(last["g"]), int(last["b"]))
+
+
+def _write_run(
+    path: Path,
+    robots: pd.DataFrame,
+    *,
+    led: list[tuple] = (),
+    poses: list[tuple] = (),
+    stops: list[tuple] = (),
+    events: list[tuple] = (),
+    messages: list[tuple] | None = None,
+    duration_s: float = 4.0,
+) -> Path:
+    """A hand-made run directory with the tables ``scenarios.write_outputs`` writes."""
+    path.mkdir(parents=True)
+    robots.to_csv(path / "robots.csv", index=False)
+    tables = {
+        "led": (led, ["t_s", "robot", "r", "g", "b"]),
+        "poses": (poses, ["t_s", "robot", "x_mm", "y_mm", "heading_rad"]),
+        "stops": (stops, ["t_s", "robot", "cause"]),
+        "events": (events, ["t_s", "robot", "event", "data"]),
+        "messages": (messages or [], ["t_s", "sender", "receivers", "delivered"]),
+    }
+    for name, (rows, columns) in tables.items():
+        pd.DataFrame(list(rows), columns=columns).to_csv(path / f"{name}.csv", index=False)
+    params = {
+        "duration_s": duration_s,
+        "medium.range_mm": 85.0,
+        "medium.line_of_sight": True,
+        "motion.step_s": 0.05,
+        "robot.tx_period_s": 0.2,
+        "trace.messages": messages is not None,
+    }
+    (path / "params.json").write_text(json.dumps(params))
+    (path / "summary.json").write_text(json.dumps({"scenario": "hand", "sim_time_s": duration_s}))
+    return path
+
+
+def _robots(xy: list[tuple[float, float]], **extra: list) -> pd.DataFrame:
+    frame = pd.DataFrame(
+        {
+            "robot": range(len(xy)),
+            "x0_mm": [p[0] for p in xy],
+            "y0_mm": [p[1] for p in xy],
+            "x_mm": [p[0] for p in xy],
+            "y_mm": [p[1] for p in xy],
+        }
+    )
+    for name, values in extra.items():
+        frame[name] = values
+    return frame
+
+
+# ----------------------------------------------------------------- a real run, GIF + HTML
+
+
+def test_gif_of_gradient_run_shows_the_traced_led_colours(gradient_dir: Path, tmp_path: Path):
+    out = animate_run(gradient_dir, tmp_path / "g.gif", fps=10, speed=1.0)
+    assert out == tmp_path / "g.gif"
+    times = frame_times(0.0, 5.0, fps=10, speed=1.0)
+    assert len(times) == 51
+    assert 20_000 < out.stat().st_size < 2_000_000
+    assert [p.name for p in tmp_path.iterdir()] == ["g.gif"]  # no temporary file left behind
+
+    run = load_run(gradient_dir)
+    # Same layout as animate_run: the default overlays of a message-traced run, 640 px wide.
+    renderer = FrameRenderer(Replay(run), {"messages"}, width_px=640)
+    centres = renderer.pixel_xy(run.robots[["x_mm", "y_mm"]].to_numpy())
+    seen = set()
+    with Image.open(out) as gif:
+        assert gif.n_frames == len(times)
+        assert gif.size == renderer.size_px
+        assert gif.info["duration"] == 100
+        for k in (0, 1, 2, 3, 10, 50):
+            gif.seek(k)
+            frame = gif.convert("RGB")
+            for robot in range(run.n_robots):
+                levels = _expected_levels(run.led, robot, times[k])
+                col, row = np.round(centres[robot]).astype(int)
+                assert frame.getpixel((col, row)) == tuple(85 * v for v in levels), (k, robot)
+                seen.add((k, levels))
+    # Not vacuous: the frames show dark robots before the gradient reached them, and colours.
+    assert (0, (0, 0, 0)) in seen
+    assert len({levels for _, levels in seen}) >= 3
+
+
+def test_html_replay_embeds_the_run_and_a_player(gradient_dir: Path, tmp_path: Path):
+    out = animate_run(gradient_dir, tmp_path / "g.html", overlays=["edges", "messages"])
+    page = out.read_text()
+    for control in ('id="play"', 'id="scrub"', 'type="range"', 'id="speed"', "<canvas"):
+        assert control in page
+    assert "http://" not in page and "https://" not in page and "<script src" not in page
+    match = re.search(r'<script id="kilonet-data" type="application/json">(.*?)</script>', page)
+    data = json.loads(match.group(1))
+    run = load_run(gradient_dir)
+    assert len(data["x0"]) == run.n_robots == 20
+    assert data["duration_s"] == 5.0
+    assert data["overlays"] == ["edges", "messages"]
+    assert len(data["led"]["t"]) == len(run.led)
+    assert len(data["messages"]["t"]) == int((run.messages["delivered"] > 0).sum())
+    assert len(data["edges"]["t"]) == 1  # a static swarm: one communication graph
+    # Decoding the embedded LED rows as the player does gives the trace's colour.
+    start, t, codes = data["led"]["start"], data["led"]["t"], data["led"]["c"]
+    for robot in (0, 7, 19):
+        rows = [k for k in range(start[robot], start[robot + 1]) if t[k] <= 2.5]
+        c = codes[rows[-1]]
+        assert ((c >> 4) & 3, (c >> 2) & 3, c & 3) == _expected_levels(run.led, robot, 2.5)
+
+
+# The replay's own player run in node against a stub canvas: prints the fill colour of each
+# robot body it draws at the times given on the command line.
+_PLAYER_PROBE = r"""
+const fs = require("fs");
+const html = fs.readFileSync(process.argv[2], "utf8");
+const data = html.match(/id="kilonet-data" type="application\/json">([\s\S]*?)<\/script>/)[1];
+const code = html.match(/<script>\n([\s\S]*?)<\/script>/)[1];
+let arcs = [], fills = [];
+const ctx = {
+  scale() {}, fillRect() {}, strokeRect() {}, beginPath() {}, moveTo() {}, lineTo() {},
+  stroke() {}, fillText() {}, measureText: () => ({ width: 10 }),
+  arc(x, y, r) { arcs.push([x, y, r]); },
+  fill() { fills.push([...arcs[arcs.length - 1], this.fillStyle]); },
+};
+const elements = {};
+const el = id => (elements[id] ||= {
+  id, style: {}, value: "1", textContent: id === "kilonet-data" ? data : "",
+  addEventListener() {}, appendChild() {}, append() {}, getContext: () => ctx, click() {},
+});
+let made = 0;
+global.document = {
+  getElementById: el, createElement: () => el("made" + made++), addEventListener() {},
+};
+global.window = { devicePixelRatio: 1 };
+global.requestAnimationFrame = () => {};
+eval(code + "\nglobalThis.__draw = draw; globalThis.__scale = scale;");
+const out = {};
+for (const t of process.argv.slice(3)) {
+  fills = [];
+  __draw(Number(t));
+  const R = JSON.parse(data).radius_mm * __scale;
+  out[t] = fills.filter(f => Math.abs(f[2] - R) < 1e-9).map(f => f[3]);
+}
+console.log(JSON.stringify(out));
+"""
+
+
+@pytest.mark.skipif(shutil.which("node") is None, reason="needs node to run the player")
+def test_html_player_draws_the_traced_led_colours(gradient_dir: Path, tmp_path: Path):
+    out = animate_run(gradient_dir, tmp_path / "g.html")
+    probe = tmp_path / "probe.js"
+    probe.write_text(_PLAYER_PROBE)
+    times = ["0", "0.2", "2.5"]
+    drawn = json.loads(
+        subprocess.run(
+            ["node", str(probe), str(out), *times], capture_output=True, text=True, check=True
+        ).stdout
+    )
+    led = load_run(gradient_dir).led
+    for t in times:
+        expected = [
+            "rgb({},{},{})".format(*(85 * v for v in _expected_levels(led, robot, float(t))))
+            for robot in range(20)
+        ]
+        assert drawn[t] == expected, t
+    assert drawn["0"] != drawn["2.5"]
+
+
+# ------------------------------------------------------------------ state over time
+
+
+def test_replay_leds_take_the_last_change_and_can_go_back(tmp_path: Path):
+    run_dir = _write_run(
+        tmp_path / "run",
+        _robots([(0, 0), (50, 0)]),
+        led=[(0.0, 0, 3, 0, 0), (1.0, 0, 0, 3, 0), (1.0, 0, 0, 0, 3), (2.0, 1, 1, 2, 3)],
+    )
+    replay = Replay(load_run(run_dir))
+    assert replay.leds(0.5).tolist() == [[3, 0, 0], [0, 0, 0]]
+    assert replay.leds(1.0).tolist() == [[0, 0, 3], [0, 0, 0]]  # same time: the later row
+    assert replay.leds(3.0).tolist() == [[0, 0, 3], [1, 2, 3]]
+    assert replay.leds(0.0).tolist() == [[3, 0, 0], [0, 0, 0]]  # back in time
+
+
+def test_replay_positions_rest_until_one_step_before_the_next_pose(tmp_path: Path):
+    # Robot 1 rests at (100, 0) until 1.0 s, then moves 0.5 mm per 50 ms step along x.
+    poses = [(1.0 + 0.05 * k, 1, 100.0 + 0.5 * k, 0.0, 0.0) for k in range(1, 21)]
+    run_dir = _write_run(tmp_path / "run", _robots([(0, 0), (100, 0)]), poses=poses)
+    replay = Replay(load_run(run_dir))
+    assert replay.moving.tolist() == [1]
+    np.testing.assert_allclose(replay.positions(0.9), [[0, 0], [100, 0]])
+    np.testing.assert_allclose(replay.positions(1.0), [[0, 0], [100, 0]])
+    np.testing.assert_allclose(replay.positions(1.525)[1], [105.25, 0.0])
+    np.testing.assert_allclose(replay.positions(9.0)[1], [110.0, 0.0])
+    np.testing.assert_allclose(replay.path(1, 1.1), [[100, 0], [100, 0], [100.5, 0], [101, 0]])
+
+
+def test_replay_stops_phases_and_senders(tmp_path: Path):
+    run_dir = _write_run(
+        tmp_path / "run",
+        _robots([(0, 0), (50, 0), (100, 0)]),
+        stops=[(1.0, 1, "crash"), (2.0, 2, "removed")],
+        events=[
+            (0.0, 0, "phase", json.dumps({"phase": "ids"})),
+            (0.5, 0, "gradient", json.dumps({"value": 1})),
+            (1.5, 2, "phase", json.dumps({"name": "election"})),
+        ],
+        messages=[(0.10, 0, 2, 2), (0.25, 1, 2, 0), (0.30, 2, 1, 1), (0.45, 0, 2, 1)],
+    )
+    replay = Replay(load_run(run_dir), window_s=0.2)
+    assert replay.stopped(1.5).tolist() == [False, True, False]
+    assert replay.present(1.5).tolist() == [True, True, True]
+    assert replay.present(2.0).tolist() == [True, True, False]
+    assert replay.phase(-1.0) is None
+    assert replay.phase(1.0) == "ids"
+    assert replay.phase(1.5) == "election"
+    assert replay.senders(0.30).tolist() == [0, 2]  # (0.1, 0.3]: robot 1 delivered nothing
+    assert replay.senders(0.45).tolist() == [0, 2]
+    assert replay.senders(0.6).tolist() == [0]
+    pairs = replay.edges(replay.positions(2.0), replay.present(2.0))
+    assert pairs.tolist() == [[0, 1]]
+
+
+# --------------------------------------------------------------------------- overlays
+
+
+def test_frames_estimates_and_paths_are_drawn(tmp_path: Path):
+    robots = _robots(
+        [(0, 0), (60, 0), (0, 60), (60, 60)],
+        est_x_mm=[5.0, 60.0, np.nan, 110.0],
+        est_y_mm=[-20.0, -30.0, np.nan, 95.0],
+        frame=[7, 7, 2, -1],
+    )
+    poses = [(0.05 * k, 3, 60.0 + 1.0 * k, 60.0, 0.0) for k in range(1, 41)]
+    run_dir = _write_run(
+        tmp_path / "run",
+        robots,
+        led=[(0.0, r, 3, 3, 0) for r in range(4)],
+        poses=poses,
+        stops=[(1.0, 1, "crash")],
+    )
+    out = animate_run(run_dir, tmp_path / "o.gif", fps=10, speed=1.0, end_s=2.0)
+    run = load_run(run_dir)
+    replay = Replay(run)
+    renderer = FrameRenderer(replay, {"estimates", "frames", "paths"}, width_px=640)
+    with Image.open(out) as gif:
+        assert gif.n_frames == 21
+        gif.seek(20)
+        frame = gif.convert("RGB")
+
+    def pixel(x: float, y: float) -> tuple[int, int, int]:
+        col, row = np.round(renderer.pixel_xy([[x, y]])[0]).astype(int)
+        return frame.getpixel((col, row))
+
+    def near(x: float, y: float, colour: tuple[int, int, int]) -> bool:
+        col, row = np.round(renderer.pixel_xy([[x, y]])[0]).astype(int)
+        around = [(col + dc, row + dr) for dc in range(-2, 3) for dr in range(-2, 3)]
+        return any(frame.getpixel(p) == colour for p in around)
+
+    table, yellow, purple = (240, 240, 240), (255, 255, 0), (148, 103, 189)
+    # Halos in the frame's colour just outside the body: frame 2 ranks first, frame 7 second.
+    halo = 16.5 + 1.5
+    assert pixel(-halo, 0) == pixel(60 + halo, 0) == (255, 127, 14)  # robots 0, 1: frame 7
+    # Robot 1 crashed: a red ring around it, on top of its halo; robot 0 has none.
+    assert pixel(60 + 20, 0) == (214, 39, 40)
+    assert pixel(-20, 0) == (255, 127, 14)
+    assert pixel(-halo, 60) == (31, 119, 180)  # robot 2: frame 2
+    assert pixel(100, 60 + halo) == table  # robot 3: no frame
+    # Robot 3 moved 40 mm: its disc is there, its path behind it, and its start is empty.
+    assert pixel(100, 60) == yellow
+    assert pixel(60, 60) == pixel(75, 60) == _PATH_COLOUR
+    # Estimates: a cross at robot 0's estimate with its error segment; none for robot 2.
+    assert near(5, -20, purple) and near(4.5, -18, purple)
+    assert not near(0, 60 + 25, purple)
+    # Robot 0 and 1 have LEDs set; their bodies are yellow.
+    assert pixel(0, 0) == pixel(60, 0) == yellow
+    assert pixel(30, 30) == table
+
+
+# ------------------------------------------------------------------------ user errors
+
+
+def test_user_errors_are_one_line_with_nothing_written(
+    gradient_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+):
+    monkeypatch.setattr(cli, "_PLUGINS", ["kilonet.animate_cli"])
+    no_messages = _write_run(tmp_path / "quiet", _robots([(0, 0)]))
+    cases = [
+        ([str(tmp_path / "nowhere")], "no such run directory"),
+        ([str(gradient_dir), "--out", str(tmp_path / "a.avi")], "unknown animation format"),
+        ([str(gradient_dir), "--overlay", "wind"], "unknown overlay 'wind'"),
+        ([str(gradient_dir), "--overlay", "estimates"], "needs est_x_mm and est_y_mm"),
+        ([str(no_messages), "--overlay", "messages"], "--set trace.messages=true"),
+        ([str(gradient_dir), "--fps", "0"], "--fps must be a positive number"),
+        ([str(gradient_dir), "--start", "4", "--end", "2"], "0 <= start <= end"),
+        ([str(gradient_dir), "--speed", "0.0001"], "raise --speed or lower --fps"),
+    ]
+    for argv, message in cases:
+        before = sorted(p.name for p in tmp_path.rglob("*"))
+        assert cli.main(["animate", *argv]) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, (argv, err)
+        assert sorted(p.name for p in tmp_path.rglob("*")) == before
+    assert not (gradient_dir / "animation.gif").exists()
+
+
+def test_mp4_without_ffmpeg_says_so(
+    gradient_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    import matplotlib.animation
+
+    monkeypatch.setattr(
+        matplotlib.animation.FFMpegWriter, "isAvailable", classmethod(lambda c: False)
+    )
+    with pytest.raises(AnimationError, match="needs ffmpeg on the PATH"):
+        animate_run(gradient_dir, tmp_path / "a.mp4")
+    assert not (tmp_path / "a.mp4").exists()
+
+
+def test_cli_writes_the_default_file(gradient_dir: Path, monkeypatch: pytest.MonkeyPatch, capsys):
+    monkeypatch.setattr(cli, "_PLUGINS", ["kilonet.animate_cli"])
+    out = gradient_dir / "animation.gif"
+    try:
+        assert cli.main(["animate", str(gradient_dir), "--end", "0.5", "--size", "200"]) == 0
+        with Image.open(out) as gif:
+            assert gif.n_frames == 6
+            assert gif.size[0] == 200
+        assert f"wrote {out}" in capsys.readouterr().err
+    finally:
+        out.unlink(missing_ok=True)

@@ -1,0 +1,528 @@
+"""Tests for kilonet.geometry: frames, reference choice, multilateration, Cramér–Rao bound."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from kilonet.alignment import procrustes_rmse
+from kilonet.geometry import (
+    FIX_REASONS,
+    GeometryError,
+    angle_at,
+    choose_references_best_conditioned,
+    choose_references_max_angle,
+    crlb_rmse_mm,
+    frame_of_three,
+    multilaterate,
+    place_references,
+    trilaterate_in_frame,
+    trilaterate_linear,
+)
+from kilonet.placement import hex_lattice
+from kilonet.visibility import visible_pairs
+
+coord = st.floats(-200.0, 200.0, allow_nan=False)
+point = st.tuples(coord, coord)
+
+
+def _dist(p, q) -> float:
+    return math.hypot(p[0] - q[0], p[1] - q[1])
+
+
+def _min_altitude(a, b, c) -> float:
+    area2 = abs((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+    return area2 / max(_dist(a, b), _dist(a, c), _dist(b, c), 1e-300)
+
+
+# ------------------------------------------------------------------- the seeds' closed forms
+
+
+def test_frame_of_three_exact_and_errors():
+    assert frame_of_three(3.0, 4.0, 5.0) == (0.0, 4.0)
+    assert frame_of_three(5.0, 4.0, 3.0) == (3.2, pytest.approx(2.4))
+    with pytest.raises(GeometryError, match="coincide"):
+        frame_of_three(0.0, 4.0, 5.0)
+    with pytest.raises(GeometryError, match="no triangle"):
+        frame_of_three(10.0, 10.0, 30.0)
+
+
+def test_trilaterate_in_frame_and_linear_refuse_collinear_frames():
+    with pytest.raises(GeometryError, match="collinear"):
+        trilaterate_in_frame(10.0, 20.0, 30.0, 40.0, 80.0, 0.0)
+    with pytest.raises(GeometryError, match="coincide"):
+        trilaterate_in_frame(10.0, 20.0, 30.0, 0.0, 80.0, 5.0)
+    line = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.0]])
+    with pytest.raises(GeometryError, match="collinear"):
+        trilaterate_linear(line, np.array([30.0, 20.0, 60.0]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(point, point, point, point)
+def test_closed_forms_recover_a_fourth_robot(p1, p2, p3, p4):
+    assume(_min_altitude(p1, p2, p3) > 10.0)
+    d12, d13, d23 = _dist(p1, p2), _dist(p1, p3), _dist(p2, p3)
+    x3, y3 = frame_of_three(d12, d13, d23)
+    frame = np.array([[0.0, 0.0], [d12, 0.0], [x3, y3]])
+    ranges = [_dist(p4, p) for p in (p1, p2, p3)]
+    x4, y4 = trilaterate_in_frame(*ranges, d12, x3, y3)
+    # The frame is the floor up to a rigid motion (perhaps mirrored): compare all distances.
+    est = np.vstack([frame, [x4, y4]])
+    true = np.array([p1, p2, p3, p4])
+    assert procrustes_rmse(est, true)[1] < 1e-6 * (1 + np.abs(true).max())
+    x, y = trilaterate_linear(frame, np.array(ranges))
+    assert (x, y) == (pytest.approx(x4, abs=1e-6), pytest.approx(y4, abs=1e-6))
+
+
+# ----------------------------------------------------------------------------- local frames
+
+
+def test_angle_at_exact_values():
+    assert angle_at(3.0, 4.0, 5.0) == pytest.approx(math.pi / 2)
+    assert angle_at(40.0, 40.0, 40.0) == pytest.approx(math.pi / 3)
+    assert angle_at(40.0, 40.0, 40.0 * math.sqrt(3.0)) == pytest.approx(2 * math.pi / 3)
+    assert angle_at(40.0, 40.0, 0.0) == 0.0
+
+
+def test_angle_at_clips_noisy_sides_and_refuses_coincident_robots():
+    assert angle_at(10.0, 10.0, 20.5) == math.pi  # triangle inequality broken by noise
+    assert angle_at(10.0, 30.0, 19.0) == 0.0
+    with pytest.raises(GeometryError, match="positive"):
+        angle_at(0.0, 30.0, 19.0)
+    with pytest.raises(GeometryError, match="non-negative"):
+        angle_at(10.0, 30.0, -1.0)
+    with pytest.raises(GeometryError, match="finite"):
+        angle_at(10.0, math.nan, 19.0)
+
+
+def test_place_references_exact_values():
+    assert place_references(3.0, 4.0, 5.0) == ((3.0, 0.0), (0.0, 4.0))
+    (xb, yb), (xc, yc) = place_references(40.0, 40.0, 40.0)
+    assert (xb, yb) == (40.0, 0.0)
+    assert (xc, yc) == (pytest.approx(20.0), pytest.approx(20.0 * math.sqrt(3.0)))
+    # Obtuse at A: C lands at negative x (thesis: (|AC| cos α, |AC| sin α)).
+    (_, _), (xc, yc) = place_references(40.0, 40.0, 40.0 * math.sqrt(3.0))
+    assert (xc, yc) == (pytest.approx(-20.0), pytest.approx(20.0 * math.sqrt(3.0)))
+
+
+def test_place_references_refuses_degenerate_triangles():
+    with pytest.raises(GeometryError, match="degenerate"):
+        place_references(40.0, 40.0, 80.0)  # C straight behind A
+    with pytest.raises(GeometryError, match="degenerate"):
+        place_references(40.0, 80.0, 40.0)  # B between A and C
+    with pytest.raises(GeometryError, match="degenerate"):
+        place_references(40.0, 40.0, 90.0)  # no triangle at all
+    flat = math.pi - math.asin(0.5 / 40.0)  # C 0.5 mm off line AB, behind A
+    d_bc = math.sqrt(2 * 40.0**2 * (1.0 - math.cos(flat)))
+    with pytest.raises(GeometryError, match=r"C is 0\.5 mm from line AB \(need >= 1\.0 mm\)"):
+        place_references(40.0, 40.0, d_bc)
+    # The threshold is a parameter: the same triangle is a frame with a lower one.
+    _, (_, yc) = place_references(40.0, 40.0, d_bc, min_height_mm=0.1)
+    assert yc == pytest.approx(0.5)
+    with pytest.raises(GeometryError, match="positive"):
+        place_references(0.0, 40.0, 40.0)
+
+
+@settings(max_examples=80, deadline=None)
+@given(point, point, point)
+def test_place_references_reproduces_the_triangle(a, b, c):
+    assume(_min_altitude(a, b, c) > 2.0)
+    d_ab, d_ac, d_bc = _dist(a, b), _dist(a, c), _dist(b, c)
+    (xb, yb), (xc, yc) = place_references(d_ab, d_ac, d_bc)
+    assert yb == 0.0 and xb == d_ab and yc > 0.0
+    tol = 1e-7 * (1.0 + max(d_ab, d_ac, d_bc))
+    assert math.hypot(xc, yc) == pytest.approx(d_ac, abs=tol)
+    assert math.hypot(xc - xb, yc) == pytest.approx(d_bc, abs=tol)
+
+
+# ------------------------------------------------------------------ choosing the references
+
+
+def test_max_angle_rule_takes_the_widest_angle_at_the_seed():
+    candidates = {
+        ("b1", "c1"): (40.0, 40.0, 40.0),  # 60°
+        ("b2", "c2"): (40.0, 40.0, 69.0),  # ≈ 119.2°
+        ("b3", "c3"): (40.0, 40.0, 56.6),  # ≈ 90°
+    }
+    pair, alpha = choose_references_max_angle(candidates)
+    assert pair == ("b2", "c2")
+    assert alpha == pytest.approx(angle_at(40.0, 40.0, 69.0))
+
+
+def test_best_conditioned_rule_takes_the_widest_triangle():
+    candidates = {
+        (1, 2): (40.0, 40.0, 69.0),  # width 20.2 mm
+        (3, 4): (69.0, 69.0, 69.0),  # equilateral, width 59.8 mm
+        (5, 6): (40.0, 40.0, 40.0),  # equilateral, smaller: width 34.6 mm
+    }
+    pair, width = choose_references_best_conditioned(candidates)
+    assert pair == (3, 4)
+    assert width == pytest.approx(69.0 * math.sqrt(3.0) / 2)
+    # Scale matters: of two similar triangles the larger wins; the thesis's rule cannot tell.
+    similar = {(5, 6): (40.0, 40.0, 40.0), (3, 4): (69.0, 69.0, 69.0)}
+    assert choose_references_best_conditioned(similar)[0] == (3, 4)
+    assert choose_references_max_angle(similar)[0] == (5, 6)  # tie: the first pair
+
+
+def test_rules_skip_degenerate_pairs_and_fail_when_none_is_left():
+    candidates = {(1, 2): (40.0, 40.0, 80.0), (1, 3): (40.0, 40.0, 40.0)}  # (1, 2): 180°
+    assert choose_references_max_angle(candidates)[0] == (1, 3)
+    assert choose_references_best_conditioned(candidates)[0] == (1, 3)
+    for rule in (choose_references_max_angle, choose_references_best_conditioned):
+        with pytest.raises(GeometryError, match="none of 1 candidate"):
+            rule({(1, 2): (40.0, 40.0, 80.0)})
+        with pytest.raises(GeometryError, match="none of 0 candidate"):
+            rule({})
+
+
+@settings(max_examples=40, deadline=None)
+@given(point, point, point)
+def test_best_conditioned_score_is_the_smallest_altitude(a, b, c):
+    assume(_min_altitude(a, b, c) > 2.0)
+    sides = (_dist(a, b), _dist(a, c), _dist(b, c))
+    _, width = choose_references_best_conditioned({("b", "c"): sides})
+    assert width == pytest.approx(_min_altitude(a, b, c), rel=1e-7, abs=1e-7)
+
+
+def test_best_conditioned_frames_localise_a_noisy_neighbourhood_better():
+    """The seed in a hex lattice (40 mm, range 85 mm, σ = 1 mm) builds its frame by each rule
+    and locates its neighbours from A, B, C; error after alignment, averaged over draws."""
+    pos = hex_lattice(61)
+    i, j, _ = visible_pairs(pos, 85.0)
+    sees = {(int(a), int(b)) for a, b in zip(i, j, strict=True)}
+    sees |= {(b, a) for a, b in sees}
+    seed = int(np.argmin(np.hypot(*(pos - pos.mean(axis=0)).T)))
+    neighbours = sorted(b for a, b in sees if a == seed)
+    rng = np.random.default_rng(1)
+    errors = {"max_angle": [], "best_conditioned": []}
+    rules = {
+        "max_angle": choose_references_max_angle,
+        "best_conditioned": choose_references_best_conditioned,
+    }
+    for _ in range(40):
+        noise = {}
+
+        def measured(a, b, noise=noise):
+            key = (min(a, b), max(a, b))
+            if key not in noise:
+                noise[key] = _dist(pos[a], pos[b]) + rng.normal(0.0, 1.0)
+            return noise[key]
+
+        candidates = {
+            (b, c): (measured(seed, b), measured(seed, c), measured(b, c))
+            for b in neighbours
+            for c in neighbours
+            if (b, c) in sees
+        }
+        for name, rule in rules.items():
+            (b, c), _ = rule(candidates)
+            frame = np.array([(0.0, 0.0), *place_references(*candidates[(b, c)])])
+            est, true = list(frame), [pos[seed], pos[b], pos[c]]
+            for r in neighbours:
+                if r not in (b, c):
+                    ranges = [measured(r, x) for x in (seed, b, c)]
+                    fix = multilaterate(frame, np.array(ranges))
+                    if fix.ok:
+                        est.append((fix.x_mm, fix.y_mm))
+                        true.append(pos[r])
+            errors[name].append(procrustes_rmse(np.array(est), np.array(true))[0])
+    thesis, ours = np.mean(errors["max_angle"]), np.mean(errors["best_conditioned"])
+    assert ours < 0.9 * thesis, (ours, thesis)
+
+
+# --------------------------------------------------------------------------- multilateration
+
+_TRIANGLE = np.array([[0.0, 0.0], [60.0, 0.0], [10.0, 50.0]])
+
+
+def _ranges(anchors, p):
+    return np.hypot(*(np.asarray(anchors) - p).T)
+
+
+def test_multilaterate_exact_on_a_triangle_and_agrees_with_the_linear_formula():
+    fix = multilaterate(_TRIANGLE, _ranges(_TRIANGLE, [30.0, 20.0]))
+    assert fix.ok and fix.reason == "" and fix.anchors == 3
+    assert (fix.x_mm, fix.y_mm) == (pytest.approx(30.0), pytest.approx(20.0))
+    assert fix.rmse_mm == pytest.approx(0.0, abs=1e-9)
+    assert 1.0 < fix.gdop < 2.0
+    ranges = _ranges(_TRIANGLE, [-15.0, 70.0])
+    fix = multilaterate(_TRIANGLE, ranges)
+    linear = trilaterate_linear(_TRIANGLE, ranges)
+    assert (fix.x_mm, fix.y_mm) == (pytest.approx(linear[0]), pytest.approx(linear[1]))
+
+
+def test_multilaterate_with_the_seed_as_an_anchor():
+    """The thesis's case: seed S at the origin plus two robots located in S's frame."""
+    (xb, yb), (xc, yc) = place_references(40.0, 45.0, 50.0)
+    anchors = np.array([[0.0, 0.0], [xb, yb], [xc, yc]])
+    fix = multilaterate(anchors, _ranges(anchors, [50.0, -30.0]))
+    assert fix.ok
+    assert (fix.x_mm, fix.y_mm) == (pytest.approx(50.0), pytest.approx(-30.0))
+
+
+def test_multilaterate_least_squares_with_noise():
+    rng = np.random.default_rng(3)
+    anchors = np.array([[0, 0], [80, 0], [0, 80], [80, 80], [40, -30], [-30, 40]], dtype=float)
+    truth = np.array([35.0, 45.0])
+    errors = []
+    for _ in range(200):
+        fix = multilaterate(anchors, _ranges(anchors, truth) + rng.normal(0, 1.0, len(anchors)))
+        assert fix.ok, fix
+        errors.append(math.hypot(fix.x_mm - truth[0], fix.y_mm - truth[1]))
+        # k − 2 degrees of freedom: the residual RMSE is about σ √((k − 2) / k).
+        assert fix.rmse_mm < 3.0
+    rms = math.sqrt(np.mean(np.square(errors)))
+    assert rms == pytest.approx(fix.gdop * 1.0, rel=0.2)  # error ≈ σ · GDOP
+
+
+def test_multilaterate_rejects_too_few_and_collinear_anchors():
+    fix = multilaterate(_TRIANGLE[:2], _ranges(_TRIANGLE[:2], [30.0, 20.0]))
+    assert (fix.ok, fix.reason, fix.anchors) == (False, "too_few_anchors", 2)
+    assert math.isnan(fix.x_mm) and math.isnan(fix.y_mm)
+    line = np.array([[0.0, 0.0], [40.0, 0.3], [80.0, 0.0], [120.0, 0.1]])
+    fix = multilaterate(line, _ranges(line, [50.0, 40.0]))
+    assert (fix.ok, fix.reason) == (False, "collinear_anchors")
+    # The width threshold follows sigma_mm unless given.
+    assert multilaterate(line, _ranges(line, [50.0, 40.0]), sigma_mm=0.01).reason != (
+        "collinear_anchors"
+    )
+    assert multilaterate(
+        _TRIANGLE, _ranges(_TRIANGLE, [30.0, 20.0]), min_anchor_width_mm=100.0
+    ).reason == ("collinear_anchors")
+
+
+def test_multilaterate_detects_the_mirror_image_of_nearly_collinear_anchors():
+    anchors = np.array([[0.0, 0.0], [40.0, 2.0], [80.0, 0.0]])  # 1.3 mm off their line
+    truth = np.array([40.0, 30.0])
+    fix = multilaterate(anchors, _ranges(anchors, truth))
+    assert (fix.ok, fix.reason) == (False, "mirror_ambiguity")
+    # The better of the two fits is still reported, with its rival's residual.
+    assert (fix.x_mm, fix.y_mm) == (pytest.approx(40.0), pytest.approx(30.0))
+    assert 0.0 < fix.mirror_rmse_mm < 3.0 / math.sqrt(3.0)
+    # Bent enough (20 mm), the mirror image no longer fits: accepted.
+    bent = np.array([[0.0, 0.0], [40.0, 20.0], [80.0, 0.0]])
+    fix = multilaterate(bent, _ranges(bent, truth))
+    assert fix.ok and fix.mirror_rmse_mm > 3.0
+    # A looser margin accepts the nearly collinear case; a tighter one rejects the bent one.
+    assert multilaterate(anchors, _ranges(anchors, truth), mirror_sigmas=0.5).ok
+    assert multilaterate(bent, _ranges(bent, truth), mirror_sigmas=20.0).reason == (
+        "mirror_ambiguity"
+    )
+
+
+def test_multilaterate_reports_the_better_side_when_the_start_is_mirrored():
+    """Nearly collinear anchors and noise: whichever side the linear start lands on, the
+    reported fit is the better of the two."""
+    anchors = np.array([[0.0, 0.0], [40.0, 4.0], [80.0, 0.0]])
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        ranges = _ranges(anchors, [40.0, 30.0]) + rng.normal(0.0, 1.0, 3)
+        fix = multilaterate(anchors, ranges, mirror_sigmas=0.0)
+        if math.isfinite(fix.mirror_rmse_mm):
+            assert fix.rmse_mm <= fix.mirror_rmse_mm
+
+
+def test_multilaterate_rejects_inconsistent_ranges_and_poor_geometry():
+    anchors = np.array([[0.0, 0.0], [80.0, 0.0], [0.0, 80.0], [80.0, 80.0]])
+    ranges = _ranges(anchors, [30.0, 40.0])
+    ranges[2] += 20.0  # a wrong range (or an anchor not where it claims to be)
+    fix = multilaterate(anchors, ranges)
+    assert (fix.ok, fix.reason) == (False, "large_residual")
+    assert fix.rmse_mm > 3.0 and math.isfinite(fix.x_mm)
+    assert multilaterate(anchors, ranges, max_rmse_mm=50.0).ok
+    far = multilaterate(_TRIANGLE, _ranges(_TRIANGLE, [1000.0, 1000.0]))
+    assert (far.ok, far.reason) == (False, "poor_geometry")
+    assert far.gdop > 5.0
+    assert (far.x_mm, far.y_mm) == (pytest.approx(1000.0), pytest.approx(1000.0))
+    assert multilaterate(_TRIANGLE, _ranges(_TRIANGLE, [1000.0, 1000.0]), max_gdop=100.0).ok
+
+
+def test_multilaterate_refuses_malformed_input_and_fix_is_frozen():
+    with pytest.raises(ValueError, match=r"\(k, 2\)"):
+        multilaterate(_TRIANGLE, np.ones(2))
+    with pytest.raises(ValueError, match="non-negative"):
+        multilaterate(_TRIANGLE, np.array([1.0, -1.0, 1.0]))
+    with pytest.raises(ValueError, match="finite"):
+        multilaterate(_TRIANGLE, np.array([1.0, np.inf, 1.0]))
+    with pytest.raises(ValueError, match="sigma_mm"):
+        multilaterate(_TRIANGLE, np.ones(3), sigma_mm=0.0)
+    fix = multilaterate(_TRIANGLE, _ranges(_TRIANGLE, [30.0, 20.0]))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        fix.x_mm = 0.0  # type: ignore[misc]
+
+
+anchor_sets = st.lists(point, min_size=3, max_size=8)
+
+
+@settings(max_examples=60, deadline=None)
+@given(anchor_sets, point)
+def test_multilaterate_recovers_noiseless_positions(anchor_list, truth):
+    anchors = np.array(anchor_list)
+    ranges = _ranges(anchors, truth)
+    assume(ranges.min() > 1.0)
+    fix = multilaterate(anchors, ranges)
+    assert fix.reason in FIX_REASONS or fix.reason == ""
+    assert fix.reason != "large_residual"
+    if fix.reason in ("", "mirror_ambiguity"):
+        assert (fix.x_mm, fix.y_mm) == (
+            pytest.approx(truth[0], abs=1e-6),
+            pytest.approx(truth[1], abs=1e-6),
+        )
+    if fix.reason == "":
+        assert fix.rmse_mm < 1e-6
+
+
+@settings(max_examples=40, deadline=None)
+@given(point, point, point, st.floats(0.05, 0.95), st.floats(0.05, 0.95))
+def test_multilaterate_accepts_points_inside_a_well_shaped_triangle(a, b, c, s, t):
+    assume(_min_altitude(a, b, c) > 30.0)
+    s, t = min(s, t), max(s, t)  # barycentric-style draw strictly inside the triangle
+    truth = np.array(a) * s + np.array(b) * (t - s) + np.array(c) * (1.0 - t)
+    anchors = np.array([a, b, c])
+    assume(_ranges(anchors, truth).min() > 5.0)
+    fix = multilaterate(anchors, _ranges(anchors, truth))
+    assert fix.ok, fix
+    assert (fix.x_mm, fix.y_mm) == (pytest.approx(truth[0]), pytest.approx(truth[1]))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    point,
+    st.floats(0.0, math.pi),
+    st.lists(st.floats(-150.0, 150.0), min_size=3, max_size=6, unique=True),
+    st.lists(st.floats(-0.45, 0.45), min_size=6, max_size=6),
+    point,
+)
+def test_collinear_anchors_are_rejected(origin, heading, along, across, truth):
+    direction = np.array([math.cos(heading), math.sin(heading)])
+    normal = np.array([-direction[1], direction[0]])
+    anchors = np.array(
+        [origin + a * direction + w * normal for a, w in zip(along, across, strict=False)]
+    )
+    assume(np.ptp(along) > 10.0)
+    fix = multilaterate(anchors, _ranges(anchors, truth))
+    assert (fix.ok, fix.reason) == (False, "collinear_anchors")
+
+
+# ----------------------------------------------------------------------- Cramér–Rao bound
+
+_EQUILATERAL = np.array([[0.0, 0.0], [40.0, 0.0], [20.0, 20.0 * math.sqrt(3.0)]])
+_SIDES = [(0, 1), (0, 2), (1, 2)]
+
+
+def _crlb_by_pinv(pos, edges, sigma):
+    """The definition, computed the slow way: a dense J and numpy's pseudo-inverse."""
+    n = len(pos)
+    info = np.zeros((2 * n, 2 * n))
+    for i, j in edges:
+        u = (pos[i] - pos[j]) / np.linalg.norm(pos[i] - pos[j])
+        block = np.outer(u, u) / sigma**2
+        for a, b, sign in ((i, i, 1), (j, j, 1), (i, j, -1), (j, i, -1)):
+            info[2 * a : 2 * a + 2, 2 * b : 2 * b + 2] += sign * block
+    return math.sqrt(np.trace(np.linalg.pinv(info, rcond=1e-9, hermitian=True)) / n)
+
+
+def test_crlb_of_a_rigid_triangle_is_sigma_sqrt5_over_3():
+    assert crlb_rmse_mm(_EQUILATERAL, _SIDES, 1.0) == pytest.approx(math.sqrt(5.0) / 3.0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(0.01, 10.0), st.floats(0.0, 2 * math.pi), point, st.booleans())
+def test_crlb_scales_with_sigma_and_ignores_rigid_motions(sigma, turn, shift, mirror):
+    pos = hex_lattice(12, jitter_mm=3.0, rng=np.random.default_rng(0))
+    i, j, _ = visible_pairs(pos, 85.0)
+    edges = np.column_stack([i, j])
+    base = crlb_rmse_mm(pos, edges, 1.0)
+    rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
+    moved = (pos * [1.0, -1.0 if mirror else 1.0]) @ rot.T + shift
+    assert crlb_rmse_mm(moved, edges, sigma) == pytest.approx(sigma * base, rel=1e-6)
+
+
+def test_crlb_matches_the_pseudo_inverse_definition():
+    pos = hex_lattice(19, jitter_mm=3.0, rng=np.random.default_rng(1))
+    i, j, _ = visible_pairs(pos, 85.0)
+    edges = np.column_stack([i, j])
+    assert crlb_rmse_mm(pos, edges, 1.5) == pytest.approx(_crlb_by_pinv(pos, edges, 1.5))
+    # Disconnected (two triangles) and flexible (a square without diagonals) graphs take the
+    # eigenvalue path; their extra null directions are dropped, as the definition's pinv does.
+    two = np.vstack([_EQUILATERAL, _EQUILATERAL + np.array([500.0, 0.0])])
+    two_edges = [*_SIDES, (3, 4), (3, 5), (4, 5)]
+    assert crlb_rmse_mm(two, two_edges, 1.0) == pytest.approx(math.sqrt(5.0) / 3.0)
+    square = np.array([[0.0, 0.0], [40.0, 0.0], [40.0, 40.0], [0.0, 40.0]])
+    ring = [(0, 1), (1, 2), (2, 3), (3, 0)]
+    assert crlb_rmse_mm(square, ring, 1.0) == pytest.approx(_crlb_by_pinv(square, ring, 1.0))
+    for pos_, edges_ in ((two, two_edges), (square, ring)):
+        with pytest.raises(GeometryError, match="not rigid"):
+            crlb_rmse_mm(pos_, edges_, 1.0, require_rigid=True)
+    assert crlb_rmse_mm(_EQUILATERAL, _SIDES, 1.0, require_rigid=True) > 0
+
+
+def test_crlb_decreases_when_edges_are_added():
+    pos = hex_lattice(37, jitter_mm=3.0, rng=np.random.default_rng(2))
+    i, j, _ = visible_pairs(pos, 85.0)
+    edges = np.column_stack([i, j])
+    near = edges[np.hypot(*(pos[i] - pos[j]).T) < 50.0]  # first neighbours: rigid already
+    previous = crlb_rmse_mm(pos, near, 1.0)
+    extra = [e for e in edges.tolist() if e not in near.tolist()]
+    for k in range(0, len(extra), 10):
+        bound = crlb_rmse_mm(pos, np.vstack([near, extra[: k + 10]]), 1.0)
+        assert bound <= previous + 1e-12
+        previous = bound
+    assert previous < 0.9 * crlb_rmse_mm(pos, near, 1.0)
+    # Measuring every pair twice (both directions) halves the variance.
+    assert crlb_rmse_mm(pos, np.vstack([edges, edges]), 1.0) == pytest.approx(
+        crlb_rmse_mm(pos, edges, 1.0) / math.sqrt(2.0)
+    )
+
+
+def test_crlb_of_lattices_against_a_bare_triangle():
+    """Hex lattices (40 mm): a denser graph lowers the bound a lot; the network's size only
+    a little (errors pile up over hops, about as √log N in the plane)."""
+
+    def bound(n, range_mm):
+        pos = hex_lattice(n)
+        i, j, _ = visible_pairs(pos, range_mm)
+        return crlb_rmse_mm(pos, np.column_stack([i, j]), 1.0)
+
+    triangle = crlb_rmse_mm(_EQUILATERAL, _SIDES, 1.0)
+    assert triangle == pytest.approx(0.745356, abs=1e-6)
+    # A centre and its six neighbours, 5 measurements per robot instead of 2.
+    assert bound(7, 85.0) < triangle
+    # First neighbours only (about 5 per robot) against second ones too (about 9).
+    assert bound(37, 85.0) < 0.7 * bound(37, 45.0)
+    # Six times the robots, under a tenth more error per robot.
+    assert 1.0 < bound(120, 85.0) / bound(19, 85.0) < 1.1
+
+
+def test_crlb_is_attained_by_the_exact_triangle_solution():
+    """Three sides fix a triangle exactly, so solving them is efficient to first order: the
+    Monte Carlo RMSE after alignment matches the bound for small noise."""
+    rng = np.random.default_rng(4)
+    sigma = 0.05
+    true_sides = [_dist(_EQUILATERAL[a], _EQUILATERAL[b]) for a, b in _SIDES]
+    sq = []
+    for _ in range(1500):
+        d01, d02, d12 = np.array(true_sides) + rng.normal(0.0, sigma, 3)
+        est = np.array([(0.0, 0.0), *place_references(d01, d02, d12)])
+        sq.append(procrustes_rmse(est, _EQUILATERAL)[0] ** 2)
+    assert math.sqrt(np.mean(sq)) == pytest.approx(
+        crlb_rmse_mm(_EQUILATERAL, _SIDES, sigma), rel=0.05
+    )
+
+
+def test_crlb_refuses_bad_graphs():
+    with pytest.raises(GeometryError, match="no measured pairs"):
+        crlb_rmse_mm(_EQUILATERAL, np.empty((0, 2), dtype=int), 1.0)
+    with pytest.raises(GeometryError, match="coincident"):
+        crlb_rmse_mm(np.zeros((2, 2)), [(0, 1)], 1.0)
+    with pytest.raises(ValueError, match="self-loop"):
+        crlb_rmse_mm(_EQUILATERAL, [(0, 0)], 1.0)
+    with pytest.raises(ValueError, match="out of range"):
+        crlb_rmse_mm(_EQUILATERAL, [(0, 3)], 1.0)
+    with pytest.raises(ValueError, match="sigma_mm"):
+        crlb_rmse_mm(_EQUILATERAL, _SIDES, 0.0)

@@ -1,0 +1,187 @@
+"""Tests for kilonet.params: typed, validated parameters addressed by dotted keys."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from kilonet.params import MediumParams, ParamError, Params, describe
+
+
+def test_defaults_match_the_kilobot_model():
+    p = Params()
+    assert p.medium.range_mm == 85.0
+    assert p.medium.line_of_sight is True
+    assert p.medium.csma is True
+    assert p.medium.message_format == "kilolib"
+    assert p.robot.tx_period_s == 0.2
+    assert p.robot.rx_mode == "callback"
+    assert p.robot.rx_buffer == 3
+    assert p.robot.ticks_per_s == 32.0
+    assert p.ranging.sigma_mm == 1.0
+    assert p.ranging.bias_sigma_mm == 0.0
+
+
+def test_overrides_parse_strings_to_field_types():
+    p = Params().with_overrides(
+        {
+            "seed": "42",
+            "duration_s": "12.5",
+            "medium.loss_prob": "0.25",
+            "medium.line_of_sight": "false",
+            "medium.csma": "on",
+            "robot.rx_mode": "polled",
+            "robot.rx_buffer": "0x10",
+            "ranging.max_mm": 200,
+        }
+    )
+    assert p.seed == 42 and isinstance(p.seed, int)
+    assert p.duration_s == 12.5
+    assert p.medium.loss_prob == 0.25
+    assert p.medium.line_of_sight is False
+    assert p.medium.csma is True
+    assert p.robot.rx_mode == "polled"
+    assert p.robot.rx_buffer == 16
+    assert p.ranging.max_mm == 200
+
+
+def test_overrides_return_a_copy():
+    base = Params()
+    changed = base.with_overrides({"medium.range_mm": 70})
+    assert base.medium.range_mm == 85.0
+    assert changed.medium.range_mm == 70.0
+    assert changed.robot == base.robot
+
+
+@pytest.mark.parametrize(
+    "key",
+    ["medium.los", "mediums.range_mm", "range_mm", "robot.scenario", "medium.range_mm.x"],
+)
+def test_unknown_key_is_an_error_naming_the_key(key):
+    with pytest.raises(ParamError, match=re.escape(f"unknown parameter {key!r}")):
+        Params().with_overrides({key: "1"})
+
+
+def test_unknown_key_lists_what_the_section_has():
+    with pytest.raises(ParamError, match="medium has: airtime_s, backoff_max_s, bitrate_bps"):
+        Params().with_overrides({"medium.los": "1"})
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "why"),
+    [
+        ("medium.loss_prob", "abc", "is not a number"),
+        ("medium.loss_prob", True, "is not a number"),
+        ("robot.rx_buffer", "2.5", "is not an integer"),
+        ("robot.rx_buffer", 2.5, "is not an integer"),
+        ("medium.csma", "maybe", "is not a boolean"),
+        ("robot.rx_mode", "push", "is not one of: callback, polled"),
+        ("medium.message_format", "kilolib3", "is not one of: kilolib, thesis"),
+    ],
+)
+def test_bad_type_is_an_error_naming_the_key(key, value, why):
+    with pytest.raises(ParamError, match=re.escape(key) + ".*" + re.escape(why)):
+        Params().with_overrides({key: value})
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [
+        ("medium.loss_prob", "1.5"),
+        ("medium.loss_prob", "-0.1"),
+        ("medium.range_mm", "10"),
+        ("ranging.max_mm", "256"),
+        ("robot.rx_buffer", "0"),
+        ("seed", "-1"),
+        ("motion.speed_error", "0.95"),
+    ],
+)
+def test_out_of_range_is_an_error_naming_the_key(key, value):
+    with pytest.raises(ParamError, match=re.escape(key) + r" = \S+ is out of range"):
+        Params().with_overrides({key: value})
+
+
+def test_non_finite_is_an_error_naming_the_key():
+    with pytest.raises(ParamError, match=r"medium\.range_mm = nan is not a finite number"):
+        Params().with_overrides({"medium.range_mm": "nan"})
+
+
+def test_cross_field_checks():
+    with pytest.raises(ParamError, match=r"battery\.cutoff_v .* below battery\.degrade_v"):
+        Params().with_overrides({"battery.cutoff_v": 3.7})
+    with pytest.raises(ParamError, match=r"ranging\.min_mm must not exceed ranging\.max_mm"):
+        Params().with_overrides({"ranging.min_mm": 100, "ranging.max_mm": 50})
+
+
+def test_direct_construction_is_validated_too():
+    with pytest.raises(
+        ParamError, match=r"medium\.loss_prob = 2\.0 is out of range \[0\.0, 1\.0\]"
+    ):
+        Params(medium=MediumParams(loss_prob=2.0))
+
+
+def test_read_toml(tmp_path):
+    path = tmp_path / "run.toml"
+    path.write_text(
+        'scenario = "gradient"\n'
+        "seed = 7\n"
+        "duration_s = 30\n"
+        "[medium]\n"
+        "loss_prob = 0.3\n"
+        "line_of_sight = false\n"
+        "[robot]\n"
+        'rx_mode = "polled"\n'
+        "rx_buffer = 5\n"
+    )
+    scenario, flat = Params.read_toml(path)
+    assert scenario == "gradient"
+    assert flat == {
+        "seed": 7,
+        "duration_s": 30,
+        "medium.loss_prob": 0.3,
+        "medium.line_of_sight": False,
+        "robot.rx_mode": "polled",
+        "robot.rx_buffer": 5,
+    }
+    p = Params().with_overrides(flat)
+    assert (p.seed, p.duration_s, p.medium.loss_prob) == (7, 30.0, 0.3)
+    assert isinstance(p.duration_s, float)
+    assert (p.medium.line_of_sight, p.robot.rx_mode, p.robot.rx_buffer) == (False, "polled", 5)
+
+
+def test_read_toml_without_scenario(tmp_path):
+    path = tmp_path / "run.toml"
+    path.write_text("[ranging]\nsigma_mm = 2\n")
+    assert Params.read_toml(path) == (None, {"ranging.sigma_mm": 2})
+
+
+def test_read_toml_errors_name_the_file(tmp_path):
+    missing = tmp_path / "nope.toml"
+    with pytest.raises(ParamError, match=re.escape(f"{missing}: no such file")):
+        Params.read_toml(missing)
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[medium\nloss_prob = 0.3\n")
+    with pytest.raises(ParamError, match=re.escape(f"{broken}: not valid TOML")):
+        Params.read_toml(broken)
+
+
+def test_toml_values_are_type_checked_by_key(tmp_path):
+    path = tmp_path / "run.toml"
+    path.write_text("[robot]\nrx_buffer = 2.5\n")
+    _, flat = Params.read_toml(path)
+    with pytest.raises(ParamError, match=r"robot\.rx_buffer = 2\.5 is not an integer"):
+        Params().with_overrides(flat)
+
+
+def test_flat_dict_and_describe_cover_every_key():
+    flat = Params().to_flat_dict()
+    assert flat["medium.range_mm"] == 85.0
+    assert flat["seed"] == 1
+    assert "scenario" not in flat
+    rows = describe(Params())
+    assert [key for key, _, _ in rows] == list(flat)
+    docs = {key: doc for key, _, doc in rows}
+    assert docs["medium.range_mm"] == "reception range, centre to centre"
+    # Every key given back as an override reproduces the same parameters.
+    assert Params().with_overrides(flat) == Params()

@@ -1,0 +1,254 @@
+"""Tests for kilonet.simulation: the run, its random streams, the robot API and its results."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from kilonet.message import Layout, Message
+from kilonet.params import Params
+from kilonet.placement import PlacementError, hex_lattice
+from kilonet.robot import Kilobot
+from kilonet.simulation import STREAMS, Simulation, stream_for
+
+
+def quiet_params(overrides: dict | None = None, *, seed: int = 1) -> Params:
+    """Parameters without a battery model, plus overrides."""
+    return Params(seed=seed).with_overrides({"battery.enabled": False, **(overrides or {})})
+
+
+# --------------------------------------------------------------------- reproducibility
+
+HOPS = Layout("hops", type=1, fields=[("hops", "B")])
+
+
+class Hops(Kilobot):
+    """A gradient-like program: robot 0 is the source; others keep min(heard) + 1."""
+
+    def setup(self) -> None:
+        self.hops = 0 if self.kilo_uid == 0 else 255
+        if self.hops == 0:
+            self.set_color(3, 3, 3)
+
+    def message_tx(self) -> Message | None:
+        return None if self.hops == 255 else HOPS.pack(hops=self.hops)
+
+    def message_rx(self, message: Message, distance_mm: int) -> None:
+        heard = HOPS.unpack(message).hops
+        if heard + 1 < self.hops:
+            self.hops = heard + 1
+            self.set_color(self.hops % 4, 0, 3 - self.hops % 4)
+            self.log("hops", hops=self.hops, distance_mm=distance_mm)
+
+    def loop(self) -> None:
+        if self.kilo_ticks % 64 == 0 and self.rand.random() < 0.5:
+            self.log("tick", value=float(self.rand.random()))
+
+
+def _gradient_run(seed: int) -> Simulation:
+    params = Params(seed=seed, duration_s=20.0).with_overrides(
+        {
+            "medium.loss_prob": 0.3,
+            "ranging.sigma_mm": 2.0,
+            "ranging.bias_sigma_mm": 1.5,
+            "trace.messages": True,
+            "battery.idle_drain_v_per_h": 50.0,
+        }
+    )
+    positions = hex_lattice(12, spacing_mm=45.0, jitter_mm=4.0, rng=stream_for(seed, "placement"))
+    sim = Simulation(positions, Hops, params)
+    sim.run()
+    return sim
+
+
+def _frames(sim: Simulation) -> dict[str, pd.DataFrame]:
+    t = sim.trace
+    return {
+        "robots": sim.robots_frame(),
+        "led": t.led_frame(),
+        "events": t.events_frame(),
+        "messages": t.messages_frame(),
+        "stops": t.stops_frame(),
+        "poses": t.poses_frame(),
+    }
+
+
+def test_same_seed_gives_identical_traces():
+    a, b = _frames(_gradient_run(5)), _frames(_gradient_run(5))
+    for name in a:
+        assert a[name].equals(b[name]), name
+    # The run did something worth comparing: losses, noisy estimates, a spreading gradient.
+    assert len(a["messages"]) > 500
+    assert a["robots"]["lost_random"].sum() > 100
+    assert len(a["events"]) > 10 and len(a["led"]) > 5
+    assert a["events"]["event"].eq("hops").sum() >= 11
+
+
+def test_different_seed_gives_a_different_trace():
+    a, b = _frames(_gradient_run(5)), _frames(_gradient_run(6))
+    for name in ("robots", "events", "messages"):
+        assert not a[name].equals(b[name]), name
+
+
+def test_streams_are_independent_and_match_stream_for():
+    sim = Simulation([[0, 0], [50, 0]], Kilobot, Params(seed=11))
+    assert set(STREAMS) == {"medium", "ranging", "battery", "faults", "motion", "placement"}
+    first = {name: float(stream_for(11, name).random()) for name in STREAMS}
+    assert len(set(first.values())) == len(STREAMS)
+    assert float(sim.stream("placement").random()) == first["placement"]
+    assert float(stream_for(12, "placement").random()) != first["placement"]
+
+
+def test_robot_random_sources_differ_and_repeat():
+    def draws(seed: int) -> list[int]:
+        sim = Simulation([[0, 0], [50, 0], [100, 0]], Kilobot, Params(seed=seed))
+        return [r.rand_soft() for r in sim.robots]
+
+    assert draws(3) == draws(3)
+    assert len(set(draws(3))) > 1 or len(set(draws(4))) > 1
+    assert all(0 <= v <= 255 for v in draws(3))
+
+
+# ----------------------------------------------------------------------- program API
+
+
+class Clock(Kilobot):
+    """Logs setup and every loop() with its tick count."""
+
+    def __init__(self, log: list) -> None:
+        self.journal = log
+
+    def setup(self) -> None:
+        self.journal.append(("setup", self.kilo_uid, self._sim.env.now))
+
+    def loop(self) -> None:
+        self.journal.append(("loop", self.kilo_uid, self._sim.env.now, self.kilo_ticks))
+
+
+def test_setup_once_then_loop_every_period():
+    log: list = []
+    params = quiet_params({"robot.loop_period_s": 0.25})
+    sim = Simulation([[0, 0], [50, 0]], lambda i: Clock(log), params)
+    sim.run(3.0)
+    assert [e for e in log if e[0] == "setup"] == [("setup", 0, 0.0), ("setup", 1, 0.0)]
+    for robot in (0, 1):
+        times = np.array([e[2] for e in log if e[0] == "loop" and e[1] == robot])
+        assert 0.0 <= times[0] <= 0.25
+        np.testing.assert_allclose(np.diff(times), 0.25, atol=1e-9)
+        ticks = [e[3] for e in log if e[0] == "loop" and e[1] == robot]
+        assert ticks == [int(t * 32) for t in times]
+
+
+def test_kilo_ticks_count_32_per_second():
+    sim = Simulation([[0, 0], [50, 0]], Kilobot, quiet_params())
+    sim.run(2.5)
+    assert sim.robots[0].kilo_ticks == 80
+    assert sim.robots[0].ticks_per_s == 32.0
+    sim = Simulation([[0, 0], [50, 0]], Kilobot, quiet_params({"robot.ticks_per_s": 31}))
+    sim.run(2.0)
+    assert sim.robots[1].kilo_ticks == 62
+
+
+def test_kilo_uid_only_with_hardware_uids():
+    sim = Simulation([[0, 0], [50, 0]], Kilobot, quiet_params())
+    assert [r.kilo_uid for r in sim.robots] == [0, 1]
+    sim = Simulation([[0, 0], [50, 0]], Kilobot, quiet_params({"robot.hardware_uids": False}))
+    with pytest.raises(AttributeError, match="hardware_uids = false"):
+        _ = sim.robots[0].kilo_uid
+
+
+def test_program_per_robot_and_type_check():
+    class Source(Kilobot):
+        pass
+
+    sim = Simulation([[0, 0], [50, 0]], lambda i: Source() if i == 0 else Kilobot(), Params())
+    assert [type(r).__name__ for r in sim.robots] == ["Source", "Kilobot"]
+    with pytest.raises(TypeError, match=r"program\(1\) returned str, not a Kilobot"):
+        Simulation([[0, 0], [50, 0]], lambda i: Kilobot() if i == 0 else "x", Params())
+
+
+def test_bad_placement_is_refused():
+    with pytest.raises(PlacementError, match="closer than the 33 mm"):
+        Simulation([[0, 0], [20, 0]], Kilobot, Params())
+
+
+class Painter(Kilobot):
+    def setup(self) -> None:
+        self.set_color(1, 2, 3)
+        self.set_color(1, 2, 3)  # unchanged: not recorded again
+        self.log("painted", shade=[1, 2, 3])
+
+    def loop(self) -> None:
+        if self.kilo_ticks >= 32:
+            self.set_color(0, 0, 0)
+
+
+def test_led_changes_and_events_are_traced():
+    sim = Simulation([[0, 0], [50, 0]], Painter, quiet_params())
+    sim.run(2.0)
+    led = sim.trace.led_frame()
+    rows = led[["t_s", "robot", "r", "g", "b"]].values.tolist()
+    assert rows[:2] == [[0.0, 0, 1, 2, 3], [0.0, 1, 1, 2, 3]]
+    assert sorted(row[1:] for row in rows[2:]) == [[0, 0, 0, 0], [1, 0, 0, 0]]
+    off = led[led["r"] == 0]["t_s"]
+    assert ((off >= 1.0) & (off < 1.0 + 1 / 32 + 1e-9)).all()
+    events = sim.trace.events_frame()
+    assert events.values.tolist() == [
+        [0.0, 0, "painted", '{"shade": [1, 2, 3]}'],
+        [0.0, 1, "painted", '{"shade": [1, 2, 3]}'],
+    ]
+    frame = sim.robots_frame()
+    assert frame[["led_r", "led_g", "led_b"]].values.tolist() == [[0, 0, 0], [0, 0, 0]]
+
+
+@pytest.mark.parametrize("color", [(4, 0, 0), (0, -1, 0), (0, 0, 1.5)])
+def test_set_color_refuses_out_of_range(color):
+    sim = Simulation([[0, 0], [50, 0]], Kilobot, Params())
+    with pytest.raises(ValueError, match="0-3"):
+        sim.robots[0].set_color(*color)
+
+
+def test_stop_when_ends_the_run_early():
+    sim = Simulation([[0, 0], [50, 0]], Kilobot, quiet_params())
+    sim.run(30.0, stop_when=lambda: sim.env.now >= 4.0)
+    assert sim.env.now == 4.0
+    sim = Simulation([[0, 0], [50, 0]], Kilobot, quiet_params({"duration_s": 3.0}))
+    sim.run()
+    assert sim.env.now == 3.0
+
+
+# ---------------------------------------------------------------------------- results
+
+
+class Chatter(Kilobot):
+    def setup(self) -> None:
+        self.heard = 0
+
+    def message_tx(self) -> Message | None:
+        return Message(b"\x01\x02")
+
+    def message_rx(self, message: Message, distance_mm: int) -> None:
+        self.heard += 1
+
+
+def test_summary_totals_match_per_robot_counters_and_callbacks():
+    params = quiet_params({"medium.loss_prob": 0.2, "medium.airtime_s": 0.02, "seed": 9})
+    sim = Simulation(hex_lattice(7, spacing_mm=40.0), Chatter, params)
+    sim.run(20.0)
+    c = sim.medium.counters
+    s = sim.summary()
+    assert s["robots"] == 7 and s["seed"] == 9 and s["sim_time_s"] == 20.0
+    assert s["messages_sent"] == sum(c["sent"])
+    assert s["messages_offered"] == sum(c["offered"]) == s["messages_sent"] + s["backoffs"]
+    assert s["bytes_sent"] == 5 * s["messages_sent"]
+    assert s["receptions_delivered"] == sum(c["received"]) == sum(r.heard for r in sim.robots)
+    assert [c["received"][i] for i in range(7)] == [r.heard for r in sim.robots]
+    for cause in ("random", "collision", "overflow", "battery", "fault"):
+        assert s[f"lost_{cause}"] == sum(c[f"lost_{cause}"])
+    assert s["lost_random"] > 0 and s["lost_collision"] > 0
+    assert s["robots_stopped"] == 0
+    frame = sim.robots_frame()
+    assert frame["received"].tolist() == c["received"]
+    assert frame["sent"].tolist() == c["sent"]
+    assert frame[["x0_mm", "y0_mm"]].values.tolist() == hex_lattice(7, spacing_mm=40.0).tolist()
