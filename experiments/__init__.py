@@ -1,0 +1,12 @@
+"""Parameter sweeps over the named scenarios, a crash-safe results store, and reports.
+
+- :mod:`experiments.sweep`: sweep files (TOML) → validated :class:`~experiments.sweep.Sweep`
+  → runs (cells × seeds).
+- :mod:`experiments.runner`: runs the missing runs on a local process pool or a Dask cluster.
+- :mod:`experiments.store`: one SQLite row per finished run, appended durably.
+- :mod:`experiments.report`: DataFrames and Figures aggregated over seeds; HTML/Markdown files.
+- :mod:`experiments.cli`: the ``kilonet sweep`` and ``kilonet report`` sub-commands.
+
+The shipped sweeps are the ``*.toml`` files beside this module; their reports are in
+``experiments/reports/``.
+"""

@@ -2,6 +2,7 @@
 
     kilonet animate DIR [--out FILE.gif|.mp4|.html] [--fps N] [--speed X]
                         [--overlay NAME ...] [--start S] [--end S] [--window S] [--size PX]
+                        [--raw-estimates]
 
 Listed in ``kilonet.cli._PLUGINS``; the work is done by :func:`kilonet.animation.animate_run`,
 which ``kilonet run --animate`` calls too.
@@ -52,6 +53,11 @@ def register(subparsers: Any) -> None:
         "one transmit period)",
     )
     p.add_argument("--size", type=int, default=640, help="frame width in pixels (640)")
+    p.add_argument(
+        "--raw-estimates",
+        action="store_true",
+        help="draw estimates as recorded, not aligned per frame onto the truth",
+    )
     p.set_defaults(func=_cmd_animate)
 
 
@@ -67,6 +73,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
             overlays=args.overlay,
             window_s=args.window,
             width_px=args.size,
+            align_estimates=not args.raw_estimates,
         )
     except AnimationError as exc:
         raise UsageError(str(exc)) from None

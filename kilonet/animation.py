@@ -55,6 +55,7 @@ from matplotlib.collections import EllipseCollection, LineCollection
 from matplotlib.figure import Figure
 from PIL import Image
 
+from kilonet.alignment import procrustes_rmse
 from kilonet.placement import ROBOT_DIAMETER_MM
 from kilonet.visibility import visible_pairs
 
@@ -65,6 +66,7 @@ __all__ = [
     "FrameRenderer",
     "Replay",
     "RunData",
+    "aligned_estimates",
     "animate_run",
     "frame_times",
     "level_to_rgb",
@@ -210,8 +212,8 @@ def load_run(run_dir: str | Path) -> RunData:
     Raises
     ------
     AnimationError
-        If the directory or its robots table is missing, a table cannot be read, lacks a
-        column, or names a robot that is not in the robots table.
+        If the directory or its robots table is missing or empty, a table cannot be read,
+        lacks a column, or names a robot that is not in the robots table.
     """
     path = Path(run_dir)
     if not path.is_dir():
@@ -220,6 +222,8 @@ def load_run(run_dir: str | Path) -> RunData:
     if robots is None:
         raise AnimationError(f"{path}: no robots.csv or robots.parquet (not a run directory?)")
     _require(robots, ("x0_mm", "y0_mm"), path / "robots")
+    if robots.empty:
+        raise AnimationError(f"{path / 'robots'}: no robots to draw")
     if "robot" in robots:
         robots = robots.sort_values("robot", kind="stable").reset_index(drop=True)
         if not np.array_equal(robots["robot"].to_numpy(), np.arange(len(robots))):
@@ -268,9 +272,17 @@ class Replay:
         The run.
     window_s : float
         Length of the window (s) for :meth:`senders`.
+    align_estimates : bool
+        Draw the estimates (robots table ``est_x_mm``, ``est_y_mm``: end-of-run values) after
+        the best rigid alignment of each frame onto the true final positions (rotation, shift,
+        reflection; :func:`kilonet.alignment.procrustes_rmse`), as the position metrics do;
+        groups of fewer than three estimates are then left out. ``False`` draws them as
+        recorded, for estimates already in table coordinates.
     """
 
-    def __init__(self, run: RunData, *, window_s: float = 0.2) -> None:
+    def __init__(
+        self, run: RunData, *, window_s: float = 0.2, align_estimates: bool = True
+    ) -> None:
         self.run = run
         self.n = run.n_robots
         self.window_s = window_s
@@ -309,16 +321,25 @@ class Replay:
         self._msg_sender = sent["sender"].to_numpy(dtype=np.intp)
 
         robots = run.robots
-        self.estimates_mm = (
-            robots[["est_x_mm", "est_y_mm"]].to_numpy(dtype=float)
-            if {"est_x_mm", "est_y_mm"} <= set(robots.columns)
-            else None
-        )
-        self.frame_ids = (
-            pd.to_numeric(robots["frame"], errors="coerce").to_numpy(dtype=float)
-            if "frame" in robots.columns
-            else None
-        )
+        #: (N,) rank of each robot's final frame among the frame labels, -1 for none.
+        self.frame_rank = _frame_ranks(robots["frame"]) if "frame" in robots.columns else None
+        self.frame_count = 0 if self.frame_rank is None else int(self.frame_rank.max() + 1)
+        self.estimates_mm = None
+        self.estimate_rmse_mm = math.nan
+        self.align_estimates = align_estimates
+        if {"est_x_mm", "est_y_mm"} <= set(robots.columns):
+            est = robots[["est_x_mm", "est_y_mm"]].to_numpy(dtype=float)
+            if align_estimates:
+                final = ["x_mm", "y_mm"] if {"x_mm", "y_mm"} <= set(robots.columns) else None
+                truth = robots[final].to_numpy(dtype=float) if final else self.start_mm
+                groups = self.frame_rank if self.frame_rank is not None else np.zeros(self.n)
+                est = aligned_estimates(est, truth, groups)
+                errors = np.hypot(*(est - truth).T)
+                errors = errors[np.isfinite(errors)]
+                self.estimate_rmse_mm = (
+                    float(np.sqrt(np.mean(errors**2))) if len(errors) else math.nan
+                )
+            self.estimates_mm = est
 
     def leds(self, t_s: float) -> np.ndarray:
         """(N, 3) kilolib LED levels at ``t_s``: the last change at or before it (0 before)."""
@@ -405,6 +426,54 @@ def _phase_label(data: Any) -> str:
     return str(value)
 
 
+def _frame_ranks(labels: pd.Series) -> np.ndarray:
+    """Rank of each robot's frame label among the distinct labels (sorted), -1 for none.
+
+    A label is none when missing, empty or a negative number.
+
+    Examples
+    --------
+    >>> _frame_ranks(pd.Series(["root9", "", "root12", None, "root9"])).tolist()
+    [1, -1, 0, -1, 1]
+    >>> _frame_ranks(pd.Series([3, -1, 7, 3])).tolist()
+    [0, -1, 1, 0]
+    """
+    text = labels.astype("string").str.strip()
+    numeric = pd.to_numeric(labels, errors="coerce")
+    member = (text.notna() & (text != "") & ~(numeric < 0)).to_numpy(dtype=bool)
+    ranks = np.full(len(labels), -1)
+    if member.any():
+        values = numeric if numeric[member].notna().all() else text
+        _, ranks[member] = np.unique(values[member].to_numpy(), return_inverse=True)
+    return ranks
+
+
+def aligned_estimates(
+    estimated_mm: np.ndarray, true_mm: np.ndarray, groups: np.ndarray
+) -> np.ndarray:
+    """Estimates after the best rigid alignment (with reflection) of each group onto the truth.
+
+    Robots are grouped by ``groups`` (e.g. the rank of their frame); a group with fewer than
+    three finite estimates cannot be aligned and comes back as NaN, as do missing estimates.
+
+    Examples
+    --------
+    >>> truth = np.array([[0.0, 0.0], [40.0, 0.0], [0.0, 30.0], [90.0, 90.0]])
+    >>> local = truth[:3] @ [[0.0, 1.0], [-1.0, 0.0]] + 500.0  # rotated, shifted frame
+    >>> est = np.vstack([local, [[1.0, 2.0]]])
+    >>> (aligned_estimates(est, truth, np.array([0, 0, 0, 1])).round(6) + 0.0).tolist()
+    [[0.0, 0.0], [40.0, 0.0], [0.0, 30.0], [nan, nan]]
+    """
+    est = np.asarray(estimated_mm, dtype=float)
+    out = np.full_like(est, np.nan)
+    known = np.isfinite(est).all(axis=1)
+    for group in np.unique(groups[known]):
+        members = np.flatnonzero(known & (groups == group))
+        if len(members) >= 3:
+            _, _, out[members] = procrustes_rmse(est[members], true_mm[members])
+    return out
+
+
 def _tracks(
     poses: pd.DataFrame, start_mm: np.ndarray, step_s: float
 ) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -461,14 +530,24 @@ class FrameRenderer:
         self.overlays = frozenset(overlays)
         self.title = title
         xmin, xmax, ymin, ymax = replay.extent_mm()
-        width_px = 2 * round(width_px / 2)
-        height_px = 2 * round(
-            min(max(width_px * (ymax - ymin) / (xmax - xmin), 160), 2 * width_px) / 2
+        # A strip above the swarm for the corner text, one line per thing it may show.
+        lines = 1 + sum(
+            (
+                "messages" in self.overlays,
+                "frames" in self.overlays and replay.frame_rank is not None,
+                "estimates" in self.overlays and replay.estimates_mm is not None,
+                len(replay._phase_t) > 0,
+            )
         )
+        strip_px = 15 * lines + 10
+        width_px = 2 * round(width_px / 2)
+        swarm_px = min(max(width_px * (ymax - ymin) / (xmax - xmin), 160), 2 * width_px)
+        height_px = 2 * round((swarm_px + strip_px) / 2)
         # Widen the shorter side so one mm is the same number of pixels both ways.
-        scale = min(width_px / (xmax - xmin), height_px / (ymax - ymin))
+        scale = min(width_px / (xmax - xmin), swarm_px / (ymax - ymin))
         cx, cy = (xmin + xmax) / 2, (ymin + ymax) / 2
-        half_w, half_h = width_px / scale / 2, height_px / scale / 2
+        half_w = width_px / scale / 2
+        bottom = cy - swarm_px / scale / 2
         self.size_px = (width_px, height_px)
         self.fig = Figure(figsize=(width_px / self.DPI, height_px / self.DPI), dpi=self.DPI)
         FigureCanvasAgg(self.fig)
@@ -476,9 +555,9 @@ class FrameRenderer:
         ax = self.fig.add_axes((0, 0, 1, 1))
         ax.set_axis_off()
         ax.set_xlim(cx - half_w, cx + half_w)
-        ax.set_ylim(cy - half_h, cy + half_h)
+        ax.set_ylim(bottom, bottom + height_px / scale)
         self.ax = ax
-        self._scale_bar(ax, cx + half_w, cy - half_h, 1 / scale)
+        self._scale_bar(ax, cx + half_w, bottom, 1 / scale)
 
         n = replay.n
         start = replay.start_mm
@@ -491,16 +570,14 @@ class FrameRenderer:
         if "paths" in self.overlays and len(replay.moving):
             self._paths = LineCollection([], colors=[_rgb(_PATH)], linewidths=1.5, zorder=1.2)
             ax.add_collection(self._paths)
-        if "frames" in self.overlays and replay.frame_ids is not None:
-            ids = replay.frame_ids
-            member = np.isfinite(ids) & (ids >= 0)
-            ranks = np.searchsorted(np.unique(ids[member]), ids[member])
-            colours = np.zeros((n, 4))
-            colours[member] = [_rgb(_FRAME_COLOURS[k % len(_FRAME_COLOURS)]) for k in ranks]
-            self._halo_colours = colours
-            self._halos = self._discs(d + 12, start, colours, zorder=1.4)
+        if "frames" in self.overlays and replay.frame_rank is not None:
+            self._members = np.flatnonzero(replay.frame_rank >= 0)
+            ranks = replay.frame_rank[self._members]
+            self._halo_colours = np.array(
+                [_rgb(_FRAME_COLOURS[k % len(_FRAME_COLOURS)]) for k in ranks]
+            ).reshape(-1, 4)
+            self._halos = self._discs(d + 6, start[self._members], self._halo_colours, 1.4)
             self._halos.set_linewidths(0)
-            self.frame_count = len(np.unique(ids[member]))
         if "estimates" in self.overlays and replay.estimates_mm is not None:
             est = replay.estimates_mm
             self._estimated = np.flatnonzero(np.isfinite(est).all(axis=1))
@@ -627,14 +704,15 @@ class FrameRenderer:
             self._paths.set_segments([r.path(k, t_s) for k in r.moving if present[k]])
         if self._halos is not None:
             colours = self._halo_colours.copy()
-            colours[~present, 3] = 0.0
-            self._halos.set_offsets(pos)
+            colours[~present[self._members], 3] = 0.0
+            self._halos.set_offsets(pos[self._members])
             self._halos.set_facecolors(colours)
-            lines.append(f"frames: {self.frame_count}")
+            lines.append(f"final frames: {r.frame_count}")
         if self._errors is not None:
             k = self._estimated[present[self._estimated]]
             est = r.estimates_mm
             self._errors.set_segments(np.stack([pos[k], est[k]], axis=1))
+            lines.append(_estimates_note(r))
         phase = r.phase(t_s)
         if phase is not None:
             lines.append(f"phase: {phase}")
@@ -653,6 +731,15 @@ class FrameRenderer:
         return Image.frombuffer(
             "RGBA", self.size_px, canvas.buffer_rgba(), "raw", "RGBA", 0, 1
         ).convert("RGB")
+
+
+def _estimates_note(replay: Replay) -> str:
+    """The corner line that says what the drawn estimates are."""
+    if not replay.align_estimates:
+        return "final estimates, as recorded"
+    if math.isnan(replay.estimate_rmse_mm):
+        return "final estimates: no frame of 3 to align"
+    return f"final estimates, aligned per frame: RMSE {replay.estimate_rmse_mm:.1f} mm"
 
 
 def _format_time(t_s: float) -> str:
@@ -868,16 +955,13 @@ def replay_data(
     if "estimates" in overlays and r.estimates_mm is not None:
         est = r.estimates_mm
         data["estimates"] = {
+            "note": _estimates_note(r),
             "x": [None if not np.isfinite(v) else round(float(v), 2) for v in est[:, 0]],
             "y": [None if not np.isfinite(v) else round(float(v), 2) for v in est[:, 1]],
         }
-    if "frames" in overlays and r.frame_ids is not None:
-        ids = r.frame_ids
-        member = np.isfinite(ids) & (ids >= 0)
-        ranks = np.full(n, -1)
-        ranks[member] = np.searchsorted(np.unique(ids[member]), ids[member])
+    if "frames" in overlays and r.frame_rank is not None:
         data["frames"] = {
-            "rank": ranks.tolist(),
+            "rank": r.frame_rank.tolist(),
             "colours": [_css(c) for c in _FRAME_COLOURS],
         }
     return data
@@ -961,6 +1045,7 @@ const px = x => (x - xmin) * scale;
 const py = y => (ymax - y) * scale;
 const shown = {};
 for (const name of D.overlays) shown[name] = true;
+const frameCount = D.frames ? D.frames.rank.reduce((a, b) => Math.max(a, b), -1) + 1 : 0;
 
 // Index of the last value <= t in sorted a[lo, hi), or lo - 1.
 function lastAtOrBefore(a, t, lo, hi) {
@@ -1027,7 +1112,7 @@ function draw(t) {
     for (let i = 0; i < N; i++) {
       const r = D.frames.rank[i]; if (r < 0 || !present(i)) continue;
       ctx.fillStyle = D.frames.colours[r % D.frames.colours.length];
-      ctx.beginPath(); ctx.arc(px(x[i]), py(y[i]), R + 6 * scale, 0, 2 * Math.PI); ctx.fill();
+      ctx.beginPath(); ctx.arc(px(x[i]), py(y[i]), R + 3 * scale, 0, 2 * Math.PI); ctx.fill();
     }
   }
   const est = shown.estimates && D.estimates;
@@ -1077,6 +1162,8 @@ function draw(t) {
   if (shown.messages && D.messages) {
     lines.push("senders in last " + D.messages.window_s + " s: " + senders);
   }
+  if (shown.frames && D.frames) lines.push("final frames: " + frameCount);
+  if (est) lines.push(D.estimates.note);
   const ph = lastAtOrBefore(D.phase.t, t, 0, D.phase.t.length);
   if (ph >= 0) lines.push("phase: " + D.phase.label[ph]);
   ctx.font = "12px monospace";
@@ -1145,7 +1232,7 @@ def _choose_overlays(run: RunData, replay: Replay, overlays: Iterable[str] | Non
             chosen.add("messages")
         if replay.estimates_mm is not None:
             chosen.add("estimates")
-        if replay.frame_ids is not None:
+        if replay.frame_rank is not None:
             chosen.add("frames")
         return chosen
     chosen = set(overlays) - {"none"}
@@ -1163,7 +1250,7 @@ def _choose_overlays(run: RunData, replay: Replay, overlays: Iterable[str] | Non
         raise AnimationError(
             f"{where}: overlay 'estimates' needs est_x_mm and est_y_mm in the robots table"
         )
-    if "frames" in chosen and replay.frame_ids is None:
+    if "frames" in chosen and replay.frame_rank is None:
         raise AnimationError(f"{where}: overlay 'frames' needs a frame column in the robots table")
     return chosen
 
@@ -1179,6 +1266,7 @@ def animate_run(
     overlays: Iterable[str] | None = None,
     window_s: float | None = None,
     width_px: int = 640,
+    align_estimates: bool = True,
 ) -> Path:
     """Animate the run directory ``out_dir``; returns the file written.
 
@@ -1205,6 +1293,9 @@ def animate_run(
         one frame interval, at most one transmit period (``robot.tx_period_s``).
     width_px : int
         Frame width in pixels (the height follows the swarm's shape).
+    align_estimates : bool
+        Align each frame's estimates onto the truth before drawing them (see :class:`Replay`);
+        ``False`` draws them as recorded.
 
     Raises
     ------
@@ -1241,7 +1332,7 @@ def animate_run(
     frame_s = speed / fps
     tx_period = float(run.params.get("robot.tx_period_s", 0.2))
     window = window_s if window_s is not None else min(frame_s, tx_period)
-    replay = Replay(run, window_s=window)
+    replay = Replay(run, window_s=window, align_estimates=align_estimates)
     chosen = _choose_overlays(run, replay, overlays)
     times = frame_times(start_s, end, fps, speed)
     if len(times) > MAX_FRAMES:

@@ -63,7 +63,9 @@ from its linear turn calibration, takes a short step, and re-trilaterates, until
   at the sensor's ceiling (``saturation_mm``, kilolib's 255) is "at least that far": it only
   rules out candidates. With no position at all but at least one distance, the follower walks
   to reduce its nearest distance (measuring the bearing from how the distance changes) until
-  all three are in reach. After ``give_up_s`` of silence or ``max_steps`` steps it gives up.
+  all three are in reach. A step after which it cannot locate itself at all (out of range, or
+  in a body's shadow) is undone and the detour taken the other way round. After ``give_up_s``
+  of silence or ``max_steps`` steps it gives up.
 * **Calibration error.** The follower learns its real speed from its step lengths and, with
   ``adapt_turns``, its real turn rate from conclusive turns.
 
@@ -351,6 +353,9 @@ def reachable_goal(goal: Point, obstacles: list[Point], radius_mm: float) -> Poi
     return (x, y)
 
 
+_SMALL_DETOUR_STEPS = 2  # rotations up to 20° are corrections, not detours
+
+
 def plan_direction(
     position: Point,
     target: Point,
@@ -362,11 +367,12 @@ def plan_direction(
     """Direction of the next step toward ``target`` around disc obstacles.
 
     The straight line is taken when it is clear all the way. Otherwise the goal direction is
-    rotated in 10° steps until a step of ``step_mm`` is clear, turning to ``side`` (+1
-    counter-clockwise, −1 clockwise) if one was chosen before, so that a detour keeps going
-    round the obstacles instead of dithering; 0 lets the first clear rotation choose.
+    rotated in 10° steps until a step of ``step_mm`` is clear. A rotation of up to 20° is a
+    correction; a larger one is a detour, and goes to ``side`` (+1 counter-clockwise, −1
+    clockwise) if a detour chose one before, so that the robot keeps going round the obstacles
+    instead of dithering; 0 lets the first clear rotation choose.
 
-    Returns the unit direction and the side used (0 when the line was clear).
+    Returns the unit direction and the side to remember (0 for the line or a correction).
 
     Examples
     --------
@@ -394,17 +400,20 @@ def plan_direction(
     def closeness(d: Point) -> float:
         return math.hypot(px + look * d[0] - target[0], py + look * d[1] - target[1])
 
-    if side == 0:
-        for k in range(1, 19):
-            found = [(closeness(d), s, d) for s in (1, -1) if (d := clear(s, k)) is not None]
-            if found:
-                _, s, d = min(found)
-                return d, s
-    else:
-        for s in (side, -side):  # keep going round the same way while that is possible
-            for k in range(1, 19):
-                if (d := clear(s, k)) is not None:
-                    return d, s
+    for k in range(1, 19):
+        found = [(s != side, closeness(d), s, d) for s in (1, -1) if (d := clear(s, k)) is not None]
+        if not found:
+            continue
+        _, _, s, d = min(found)  # the remembered side first, then the one ending nearer
+        if k <= _SMALL_DETOUR_STEPS:
+            return d, 0  # a small correction commits to no side
+        if side == 0 or s == side:
+            return d, s
+        break
+    if side:
+        for k in range(1, 19):  # keep going round the same way while that is possible
+            if (d := clear(side, k)) is not None:
+                return d, side
     return goal_dir, side  # boxed in: go straight and let contact stop the move
 
 
@@ -560,7 +569,10 @@ class FollowerConfig:
         Wait after the motors stop before readings count (a message on the air while the
         robot moved carries an old distance).
     first_step_mm, step_mm : float
-        Length of the first (and every probe) step, and of the longest ordinary step.
+        Length of the first (and every probe) step, and of the longest ordinary step near the
+        goal.
+    step_fraction : float
+        Far from the goal a step may be this fraction of the remaining distance instead.
     tolerance_mm : float
         The robot stops when its estimate is this close to the goal.
     clearance_mm : float
@@ -587,6 +599,7 @@ class FollowerConfig:
     guard_s: float = 0.1
     first_step_mm: float = 10.0
     step_mm: float = 20.0
+    step_fraction: float = 0.25
     tolerance_mm: float = 3.0
     clearance_mm: float = 1.5
     body_mm: float = 33.0
@@ -609,8 +622,8 @@ class Follower(Kilobot):
         The linear ``t = f(angle)`` this robot turns by (made on some robot, not exactly this
         one).
 
-    Attributes (read by the scenario layer after a run)
-    ---------------------------------------------------
+    Attributes
+    ----------
     outcome : str or None
         ``"reached"`` or ``"gave_up"`` once the walk ended.
     steps : int
@@ -640,7 +653,6 @@ class Follower(Kilobot):
         self._silent_since_tick = 0
         # Where the robot believes it is, its heading in the frame and how it got there.
         self.position: Point | None = None
-        self._previous: Point | None = None  # fix before the last step (None: no heading yet)
         self._heading: Point | None = None
         self._heading_measured = False
         self._last_turn_rad = 0.0  # physical, counter-clockwise positive, as intended
@@ -656,7 +668,6 @@ class Follower(Kilobot):
         self.turn_gain = 1.0  # real turn rate / calibrated rate, as learned
         # Walking toward the nearest robot when no fix is possible yet.
         self._approach: dict[str, float] | None = None
-        self._pending: tuple[int, int, int] | None = None  # turn dir, turn ticks, step ticks
 
     @property
     def handedness_settled(self) -> bool:
@@ -779,12 +790,14 @@ class Follower(Kilobot):
         fix = self._locate(distances)
         if fix is None:
             usable = {k: d for k, d in distances.items() if d is not None and math.isfinite(d)}
-            if self.position is None and usable:
+            saturated = any(d == math.inf for d in distances.values())
+            if self.position is None and usable and saturated:
+                # Never located, and some robot is beyond the sensor's reach: get closer.
                 self._approach_step(usable)
                 return True
             if self.position is not None and self._last_mode not in ("", "retreat"):
-                # The last step took the robot where it hears at most one robot (out of range
-                # or in a body's shadow): go back the way it came and detour the other way.
+                # The last step took the robot where it cannot locate itself (out of range or
+                # in a body's shadow): go back the way it came and detour the other way.
                 self._side = -self._side
                 self._plan(math.pi, self._last_step_mm, "retreat")
                 return True
@@ -823,11 +836,13 @@ class Follower(Kilobot):
             else:
                 self._plan(0.0, self.config.first_step_mm, "first")
             return True
+        # Far from the goal, longer steps: fewer of them, and a longer baseline for the heading
+        # where the fixes are least precise.
+        step = min(max(self.config.step_mm, self.config.step_fraction * to_target), to_target)
         direction, self._side = plan_direction(
-            position, target, obstacles, radius, self.config.step_mm, self._side
+            position, target, obstacles, radius, step, self._side
         )
         alpha = turn_angle(heading, direction)
-        step = min(self.config.step_mm, to_target)
         mode = "goal"
         if not self.handedness_settled:
             # Handedness not settled: make this turn big enough to tell, and the step short.
@@ -857,11 +872,10 @@ class Follower(Kilobot):
         frame has (the robot ends up heading ``±turn`` from ``heading``)."""
         probe, limit = math.radians(self.config.probe_deg), math.radians(150)
         s = 1.0 if alpha >= 0 else -1.0
-        candidates = [
-            wrap_angle(a)
-            for a in (alpha, alpha + s * probe, alpha - s * probe, s * math.pi / 2)
-            + (-s * math.pi / 2, s * probe, -s * probe, s * limit, -s * limit)
-        ]
+        # Preference order: the turn toward the goal itself, then the nearest big enough.
+        near = (alpha, alpha + s * probe, alpha - s * probe)
+        fixed = (s * math.pi / 2, -s * math.pi / 2, s * probe, -s * probe, s * limit, -s * limit)
+        candidates = [wrap_angle(a) for a in (*near, *fixed)]
         valid = [a for a in candidates if probe - 1e-9 <= abs(a) <= limit]
         for a in valid:
             if not any(
@@ -962,7 +976,6 @@ class Follower(Kilobot):
             step_s=step_ticks / tps,
         )
         now = self.kilo_ticks
-        self._pending = (1 if physical_turn_rad > 0 else -1, turn_ticks, step_ticks)
         if turn_ticks:
             self.phase = "turn"
             self.phase_end_tick = now + turn_ticks
@@ -974,9 +987,8 @@ class Follower(Kilobot):
             self._start_step(now)
 
     def _start_step(self, now: int) -> None:
-        _, _, step_ticks = self._pending
         self.phase = "step"
-        self.phase_end_tick = now + step_ticks
+        self.phase_end_tick = now + self._last_step_ticks
         self.steps += 1
         self.set_motors(self.kilo_straight_left, self.kilo_straight_right)
 

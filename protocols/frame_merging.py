@@ -35,20 +35,21 @@ partner that disagrees again, revokes "done" until it agrees anew. A seed with n
 group is isolated and done at once; a seed after ``gcs.merge_max_rounds`` rounds gives up.
 
 A robot's global position g is the mean, over the frames it is located in whose transform it
-holds, of ``R_S (x, y, 0) + v_S``, expressed in 2-D as the first two coordinates of ``R_S*ᵀ g``
-for the lowest-ID such seed S* (converged seeds share one rotation, so any seed's gives the same
-2-D coordinates up to the tolerance).
+holds (and of its smallest root), of ``R_S (x, y, 0) + v_S``, expressed in 2-D in the common
+plane laid flat (:func:`kilonet.alignment.level`: the turn that takes the plane's normal, on a
+fixed side, to +z depends on the plane only, so mirror-image frames read the same axes).
 
-Messages (quaternion x, y, z as int16 / 32767 with w ≥ 0 implied; shifts int16 in 0.25 mm)::
+Messages (rotations as the three int16 words of :func:`kilonet.alignment.pack_quaternion`;
+shifts int16 in 0.25 mm)::
 
-    type 60 TF_ROT     sender:uint16  version:uint8  qx qy qz:int16          9 bytes
+    type 60 TF_ROT     sender:uint16  version:uint8  q0 q1 q2:int16          9 bytes
     type 61 TF_SHIFT   sender:uint16  version:uint8  vx vy vz:int16          9 bytes
     type 62 QUERY      sender:uint16  member:uint16  partner:uint16  salt:uint8
                        version:uint8                                         8 bytes
 
 Frames (partners, transforms) are named by frame keys: seed ID and salt
 (:meth:`protocols.gcs.GcsRobot.frame_key`).
-    type 63 ANS_ROT    sender:uint16  version:uint8  qx qy qz:int16          9 bytes
+    type 63 ANS_ROT    sender:uint16  version:uint8  q0 q1 q2:int16          9 bytes
     type 64 ANS_SHIFT  sender:uint16  version:uint8  tx ty tz:int16          9 bytes
     type 65 ANS_ERROR  sender:uint16  version:uint8  error:uint16 (0.1 mm)
                        partner_root:uint16                                   7 bytes
@@ -60,12 +61,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from kilonet.alignment import pack_quaternion, unpack_quaternion
 from kilonet.message import Layout, Message
 from protocols.gcs_base import Phase
 
 __all__ = ["FrameMerging", "half_map", "quaternion_fields", "rotation_from_fields"]
 
-_Q = [("qx", "h", 1 / 32767), ("qy", "h", 1 / 32767), ("qz", "h", 1 / 32767)]
+_Q = [("q0", "h"), ("q1", "h"), ("q2", "h")]  # kilonet.alignment.pack_quaternion words
 _V = [("vx_mm", "h", 0.25), ("vy_mm", "h", 0.25), ("vz_mm", "h", 0.25)]
 TF_ROT = Layout("tf_rot", type=60, fields=[("sender", "H"), ("version", "B"), *_Q])
 TF_SHIFT = Layout("tf_shift", type=61, fields=[("sender", "H"), ("version", "B"), *_V])
@@ -92,25 +94,24 @@ _DONE = 0x80
 _IDENTITY = Rotation.identity()
 
 
-def quaternion_fields(rotation: Rotation) -> dict[str, float]:
-    """The message fields of a rotation: its unit quaternion's x, y, z with w ≥ 0."""
-    x, y, z, w = rotation.as_quat()
-    sign = -1.0 if w < 0 else 1.0
-    return {"qx": sign * x, "qy": sign * y, "qz": sign * z}
+def quaternion_fields(rotation: Rotation) -> dict[str, int]:
+    """The message fields of a rotation: the three words of
+    :func:`kilonet.alignment.pack_quaternion` (at most 0.0086° lost, also near 180°)."""
+    q0, q1, q2 = pack_quaternion(rotation)
+    return {"q0": q0, "q1": q1, "q2": q2}
 
 
-def rotation_from_fields(qx: float, qy: float, qz: float) -> Rotation:
-    """The rotation whose quaternion has these x, y, z and w = √(1 − x² − y² − z²) ≥ 0.
+def rotation_from_fields(q0: int, q1: int, q2: int) -> Rotation:
+    """The rotation carried by three message words.
 
     Examples
     --------
-    >>> r = Rotation.from_euler("z", 30, degrees=True)
-    >>> f = quaternion_fields(r)
-    >>> float(np.degrees(rotation_from_fields(**f).magnitude()).round(6))
-    30.0
+    >>> r = Rotation.from_euler("x", 180, degrees=True)
+    >>> back = rotation_from_fields(**quaternion_fields(r))
+    >>> bool(np.degrees((back * r.inv()).magnitude()) < 0.01)
+    True
     """
-    w = np.sqrt(max(0.0, 1.0 - qx * qx - qy * qy - qz * qz))
-    return Rotation.from_quat([qx, qy, qz, w])
+    return unpack_quaternion((q0, q1, q2))
 
 
 def half_map(
@@ -163,7 +164,12 @@ class FrameMerging(Phase):
         self.round_ticks = round(self.params.merge_round_s * tps)
         # Transforms heard, by seed: (rotation, shift, version, done); parts by version.
         r.transforms = {}
-        self.parts: dict[int, dict[int, dict[str, object]]] = {}
+        # Halves of the transform being heard, by seed: (version, {"rot"/"shift": message}).
+        self.parts: dict[int, tuple[int | None, dict[str, object]]] = {}
+        # When each transform was completed (ticks): versions are 7 bits and wrap after 128
+        # updates, so only a recently heard transform may be matched by its version.
+        self.heard_at: dict[int, int] = {}
+        self.fresh_ticks = round(8 * self.params.merge_round_s * r.ticks_per_s)
         self.outbox: list[Message] = []
         self.answers: dict[tuple[int, int], list[Message]] = {}
         self.turn = 0
@@ -274,7 +280,7 @@ class FrameMerging(Phase):
         if len(self.received) == 3:
             rot, shift, error = (self.received[k] for k in ("rot", "shift", "error"))
             self._apply(
-                rotation_from_fields(rot.qx, rot.qy, rot.qz),
+                rotation_from_fields(rot.q0, rot.q1, rot.q2),
                 np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm]),
                 error.error_mm,
                 error.partner_root,
@@ -301,6 +307,9 @@ class FrameMerging(Phase):
         tf_i, tf_k = r.transforms.get(seed), r.transforms.get(partner)
         if group is None or tf_i is None or tf_k is None or tf_i[2] & 0x7F != version & 0x7F:
             return None
+        if seed != getattr(self, "key", None):
+            if r.kilo_ticks - self.heard_at.get(seed, -(10**9)) > self.fresh_ticks:
+                return None
         members = (r.uid, *group)
         local_i, local_k = self._local_points(seed, members), self._local_points(partner, members)
         if local_i is None or local_k is None:
@@ -341,17 +350,20 @@ class FrameMerging(Phase):
             if m.sender == r.uid:
                 return
             key = r.frame_key(m.sender)
-            parts = self.parts.setdefault(key, {}).setdefault(m.version & 0x7F, {})
+            version, parts = self.parts.get(key, (None, {}))
+            if version != m.version & 0x7F:  # a newer version: older halves are void
+                version, parts = m.version & 0x7F, {}
+                self.parts[key] = (version, parts)
             parts[part] = m
             if len(parts) == 2:
                 rot, shift = parts["rot"], parts["shift"]
                 r.transforms[key] = (
-                    rotation_from_fields(rot.qx, rot.qy, rot.qz),
+                    rotation_from_fields(rot.q0, rot.q1, rot.q2),
                     np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm]),
                     m.version,
                     bool(m.version & _DONE),
                 )
-                self.parts[key] = {}
+                self.heard_at[key] = r.kilo_ticks
 
     # -- phase interface ---------------------------------------------------------------------
     def message_tx(self) -> Message | None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kilonet.alignment import level
 from kilonet.message import Message
 from kilonet.robot import Kilobot
 from protocols.frame_merging import FrameMerging
@@ -175,8 +176,8 @@ class GcsRobot(Kilobot):
 
         Among the frames it is located in whose transform it holds, it keeps those of the
         smallest root (frames of another root have not been merged with them) and averages
-        ``R_S (x, y, 0) + v_S`` over them; 2-D coordinates are the first two of ``R_S*ᵀ g`` for
-        the lowest-key such seed S* (see :mod:`protocols.frame_merging`).
+        ``R_S (x, y, 0) + v_S`` over them; 2-D coordinates are those of the common plane laid
+        flat by :func:`kilonet.alignment.level` (see :mod:`protocols.frame_merging`).
         """
         known = [k for k in sorted(self.frames) if k in self.transforms and k in self.roots]
         if not known:
@@ -188,9 +189,12 @@ class GcsRobot(Kilobot):
             rotation, shift, _, _ = self.transforms[key]
             x, y = self.frames[key]
             points.append(rotation.apply([x, y, 0.0]) + shift)
-        # Converged seeds share one rotation (their shifts differ): its inverse lays the common
-        # plane flat, so the first two coordinates agree across the swarm.
-        planar = self.transforms[known[0]][0].inv().apply(np.mean(points, axis=0))
+        # Merged frames share one plane, tilted in general, but not one rotation (a frame that
+        # was a mirror image faces the other way). Turning the plane's normal, taken on a fixed
+        # side, onto +z depends on the plane alone, so every robot reads the same 2-D axes.
+        rotation, shift = self.transforms[known[0]][:2]
+        flat, _ = level(rotation, shift)
+        planar = (flat * rotation.inv()).apply(np.mean(points, axis=0))
         return float(planar[0]), float(planar[1])
 
     @property

@@ -52,7 +52,13 @@ class GcsParams:
     )
     localization_s: float = param(20.0, lo=1.0, hi=3600.0, doc="phase 4 window")
     max_rmse_mm: float = param(4.0, lo=0.1, hi=100.0, doc="reject fixes with larger residuals")
+    sigma_mm: float = param(
+        1.0, lo=0.01, hi=100.0, doc="ranging noise the robots assume when judging a fix"
+    )
     groups_s: float = param(6.0, lo=0.5, hi=3600.0, doc="phase 5 window")
+    min_group_width_mm: float = param(
+        15.0, lo=0.0, hi=200.0, doc="thinnest merging-group triangle accepted"
+    )
     merge_round_s: float = param(4.0, lo=0.5, hi=600.0, doc="time-out of one merging round")
     merge_max_rounds: int = param(400, lo=1, hi=100_000, doc="rounds a seed runs at most")
     merge_tolerance_mm: float = param(2.0, lo=0.01, hi=100.0, doc="partners agree within this")

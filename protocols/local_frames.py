@@ -158,11 +158,10 @@ class LocalFrames(Phase):
             if self.params.reference_rule == "max_angle"
             else choose_references_best_conditioned
         )
-        (b, c), score = rule(candidates)
-        d_ab, d_ac, d_bc = candidates[(b, c)]
         try:
-            (xb, yb), (xc, yc) = place_references(d_ab, d_ac, d_bc)
-        except GeometryError as exc:
+            (b, c), score = rule(candidates)
+            (xb, yb), (xc, yc) = place_references(*candidates[(b, c)])
+        except GeometryError as exc:  # every candidate triangle is degenerate
             r.log("frame_failed", reason=str(exc))
             return
         self.references = [(b, xb, yb), (c, xc, yc)]

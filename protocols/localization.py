@@ -99,7 +99,10 @@ class Localization(Phase):
             return
         self.tried_with[key] = len(anchors)
         fix = multilaterate(
-            np.array(anchors), np.array(ranges), max_rmse_mm=self.params.max_rmse_mm
+            np.array(anchors),
+            np.array(ranges),
+            sigma_mm=self.params.sigma_mm,
+            max_rmse_mm=self.params.max_rmse_mm,
         )
         if fix.ok:
             r.frames[key] = (fix.x_mm, fix.y_mm)

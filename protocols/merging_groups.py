@@ -4,7 +4,7 @@ A robot X located in two frames I and K looks among its neighbours for two more 
 located in both frames (from their phase-4 announcements) and close enough to each other to see
 each other (their distance computed in frame I is within the longest distance X has measured
 itself); of those it keeps the pair whose triangle XYZ has the largest area, so the rotation
-between the frames is well conditioned. As in the thesis's implementation, the members do not
+between the frames is well conditioned (none thinner than ``gcs.min_group_width_mm``). As in the thesis's implementation, the members do not
 confirm the group to each other: the data needed was exchanged in phase 4. X registers the group
 with both seeds; a seed records, per partner frame, the robots it can ask in phase 6.
 
@@ -42,6 +42,7 @@ def find_groups(
     announced: dict[int, dict[int, tuple[float, float]]],
     neighbours: set[int],
     reach_mm: float,
+    min_width_mm: float = 0.0,
 ) -> dict[tuple[int, int], tuple[int, int]]:
     """Merging groups of a robot: ``{(I, K): (Y, Z)}`` for each pair of its frames I < K.
 
@@ -55,27 +56,34 @@ def find_groups(
         IDs the robot hears.
     reach_mm : float
         Y and Z count as seeing each other when their distance in frame I is at most this.
+    min_width_mm : float
+        Smallest accepted width of triangle XYZ (twice its area over its longest side, mm):
+        the rotation between the frames about a thin triangle's long axis is set by noise, and
+        a flat enough triangle even lets a mirror flip fit.
 
     Examples
     --------
     >>> own = {1: (0.0, 0.0), 2: (10.0, 0.0)}
     >>> ann = {1: {5: (40.0, 0.0), 6: (0.0, 40.0)}, 2: {5: (50.0, 0.0), 6: (10.0, 40.0)}}
-    >>> find_groups(own, ann, {5, 6}, 85.0)
+    >>> find_groups(own, ann, {5, 6}, 85.0, min_width_mm=10.0)
     {(1, 2): (5, 6)}
+    >>> find_groups(own, ann, {5, 6}, 85.0, min_width_mm=40.0)
+    {}
     """
     groups = {}
     for i, k in itertools.combinations(sorted(own), 2):
         shared = sorted(
             uid for uid in neighbours if uid in announced.get(i, {}) and uid in announced.get(k, {})
         )
-        best, best_area = None, 0.0
+        best, best_width = None, min_width_mm
         for y, z in itertools.combinations(shared, 2):
-            py, pz = announced[i][y], announced[i][z]
+            px, py, pz = own[i], announced[i][y], announced[i][z]
             if math.dist(py, pz) > reach_mm:
                 continue
-            area = _area(own[i], py, pz)
-            if area > best_area:
-                best, best_area = (y, z), area
+            longest = max(math.dist(px, py), math.dist(px, pz), math.dist(py, pz))
+            width = 2 * _area(px, py, pz) / longest if longest > 0 else 0.0
+            if width > best_width:
+                best, best_width = (y, z), width
         if best is not None:
             groups[(i, k)] = best
     return groups
@@ -89,7 +97,9 @@ class MergingGroups(Phase):
     def start(self) -> None:
         r = self.robot
         reach = max((r.table.distance(uid) for uid in r.table.ids()), default=0.0)
-        self.groups = find_groups(r.frames, r.announced, set(r.table.ids()), reach)
+        self.groups = find_groups(
+            r.frames, r.announced, set(r.table.ids()), reach, self.params.min_group_width_mm
+        )
         r.groups = self.groups
         self.registrations = [(i, k) for i, k in self.groups] + [(k, i) for i, k in self.groups]
         self.turn = 0

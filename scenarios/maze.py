@@ -94,7 +94,9 @@ class MazeParams:
     fit: Literal["lsq", "linear"] = param(
         "lsq", doc="least squares over four landmarks, or always the seed's linear formula"
     )
-    landmark_offset_mm: float = param(0.0, lo=0.0, hi=1000.0, doc="landmarks outside corners")
+    landmark_offset_mm: float = param(
+        0.0, lo=0.0, hi=1000.0, doc="landmarks stand this far outside the corners (each axis)"
+    )
     sigma_mm: float = param(5.0, lo=0.0, hi=1000.0, doc="camera range noise (sd)")
     camera_range_mm: float = param(10_000.0, lo=1.0, hi=1e6, doc="farthest landmark found")
     dropout_prob: float = param(0.05, lo=0.0, hi=1.0, doc="camera misses a landmark")

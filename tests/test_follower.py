@@ -121,8 +121,12 @@ def test_right_motor_only_turns_counter_clockwise_on_the_floor():
             self.set_motors(0, self.kilo_turn_right)
 
     params = build_params(SCENARIO, {"motion.turn_error": 0.0, "duration_s": 1.0})
-    sim = Simulation([[0, 0], [200, 0]], lambda i: Pivot() if i == 0 else Kilobot(), params,
-                     headings_rad=[0.0, 0.0])
+    sim = Simulation(
+        [[0, 0], [200, 0]],
+        lambda i: Pivot() if i == 0 else Kilobot(),
+        params,
+        headings_rad=[0.0, 0.0],
+    )
     sim.run()
     sim.motion.stop(0)
     assert math.degrees(sim.world.heading_rad[0]) == pytest.approx(45.0, abs=0.01)
@@ -136,8 +140,14 @@ def test_circle_intersections_and_reachable_goal():
 
 
 def test_planner_detours_round_a_body_on_the_path():
+    # Far from the body a small correction suffices and commits to no side.
     (dx, dy), side = plan_direction((0.0, 0.0), (120.0, 0.0), [(60.0, 0.0)], 34.5, 20.0)
-    assert side != 0 and abs(dy) > 0.1
+    assert side == 0 and 0.1 < abs(dy) <= math.sin(math.radians(20)) + 1e-9
+    # Close to it, a detour: a side is chosen, and kept when asked to.
+    (dx, dy), side = plan_direction((0.0, 0.0), (120.0, 0.0), [(40.0, 0.0)], 34.5, 20.0)
+    assert side != 0 and abs(dy) > math.sin(math.radians(25))
+    (dx, dy), kept = plan_direction((0.0, 0.0), (120.0, 0.0), [(40.0, 0.0)], 34.5, 20.0, -side)
+    assert kept == -side and dy * side < 0
     (dx, dy), side = plan_direction((0.0, 0.0), (120.0, 0.0), [(60.0, 50.0)], 34.5, 20.0)
     assert (dx, dy, side) == (1.0, 0.0, 0)
 
@@ -219,9 +229,7 @@ def test_generated_placements_respect_the_geometry():
 # --------------------------------------------------------------------------- walking runs
 
 
-@pytest.mark.parametrize(
-    ("seed", "handedness"), [(1, "left"), (2, "right"), (3, "random"), (4, "right")]
-)
+@pytest.mark.parametrize(("seed", "handedness"), [(1, "left"), (2, "right"), (3, "random")])
 def test_reaches_the_goal_from_generated_starts(seed, handedness):
     s = _run({"follower.handedness": handedness}, seed=seed)
     assert s["reached"] and s["outcome"] == "reached"
@@ -287,7 +295,7 @@ def test_saturated_distances_walk_to_the_nearest_robot_first():
     """At 245 mm beyond robot 3 the distances to robots 1 and 2 read 255 (the uint8 ceiling):
     no fix is possible, so the follower walks by the changes of its nearest distance."""
     params = build_params(SCENARIO, {"medium.range_mm": 300}, seed=3)
-    pos = np.vstack([FRAME, [GOAL + [0.0, 245.0]]])
+    pos = np.vstack([FRAME, [[GOAL[0], GOAL[1] + 245.0]]])
     sim = Simulation(pos, SCENARIO.program(params, pos), params)
     follower = sim.robots[3]
     fixes = lambda: sim.trace.events_frame().query("robot == 3 and event == 'fix'")  # noqa: E731
@@ -334,13 +342,18 @@ def test_outputs_trajectory_figure_and_summary(tmp_path):
     result = run(SCENARIO, {"follower.start_min_mm": 20.0}, seed=8)
     write_outputs(result, tmp_path)
     summary = json.loads((tmp_path / "summary.json").read_text())
-    for key in ("reached", "final_distance_mm", "steps", "sim_time_s", "path_length_mm",
-                "mirrored_frame"):
+    for key in (
+        "reached",
+        "final_distance_mm",
+        "steps",
+        "sim_time_s",
+        "path_length_mm",
+        "mirrored_frame",
+    ):
         assert key in summary
     assert isinstance(summary["reached"], bool) and isinstance(summary["mirrored_frame"], bool)
     traj = pd.read_csv(tmp_path / "trajectory.csv")
-    assert list(traj.columns[:6]) == ["t_s", "x_mm", "y_mm", "heading_rad", "est_x_mm",
-                                      "est_y_mm"]
+    assert list(traj.columns[:6]) == ["t_s", "x_mm", "y_mm", "heading_rad", "est_x_mm", "est_y_mm"]
     start = result.sim.initial_positions_mm[3]
     assert traj[["x_mm", "y_mm"]].iloc[0].tolist() == pytest.approx(start.tolist())
     final = result.sim.world.positions_mm[3]
@@ -348,6 +361,15 @@ def test_outputs_trajectory_figure_and_summary(tmp_path):
     # The last estimate, mapped to the floor, is within a few mm of the true position.
     assert np.hypot(*(traj[["est_x_mm", "est_y_mm"]].iloc[-1] - final)) < 3.0
     assert (tmp_path / "follower.png").stat().st_size > 10_000
+    # The seed's LED colours: origin white on send; x-axis blue / yellow; third green / yellow /
+    # purple; the follower shows nothing and transmits nothing.
+    led = result.sim.trace.led_frame()
+    colours = {r: set(map(tuple, g[["r", "g", "b"]].to_numpy())) for r, g in led.groupby("robot")}
+    assert colours[0] == {(3, 3, 3), (0, 0, 0)}
+    assert colours[1] == {(0, 0, 3), (3, 3, 0), (0, 0, 0)}
+    assert colours[2] == {(0, 3, 0), (3, 3, 0), (3, 0, 3), (0, 0, 0)}
+    assert 3 not in colours
+    assert result.sim.robots_frame()["offered"].tolist()[3] == 0
     assert summary["path_length_mm"] >= summary["straight_line_mm"] - summary["final_distance_mm"]
 
 

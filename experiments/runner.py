@@ -1,0 +1,335 @@
+"""Run a sweep's missing runs in parallel and store each one as it finishes.
+
+The same loop drives a local process pool (the default) and a Dask ``distributed`` cluster
+(``scheduler="tcp://host:8786"``): both are :class:`concurrent.futures.Executor` s, every run is
+one :func:`execute_run` task, and the parent process writes each result to the
+:class:`~experiments.store.ResultStore` the moment it arrives, so an interrupted sweep loses at
+most the runs in flight. Running the same sweep into the same directory again runs only the
+runs that are not stored.
+
+A run that raises is stored as failed with its error and the sweep goes on. A progress bar on
+stderr shows runs done, failures and the time left.
+
+Interrupts: Ctrl-C (SIGINT) and SIGTERM stop the sweep cleanly: pending runs are cancelled, local
+workers are terminated, the stored rows stay, and :class:`KeyboardInterrupt` reaches the caller.
+
+Local workers are started with the ``forkserver`` method, so, as with any non-``fork``
+multiprocessing, a script that calls :func:`run_sweep` must do so under
+``if __name__ == "__main__":`` (the ``kilonet`` command and notebooks need nothing).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import datetime as dt
+import json
+import multiprocessing
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+import traceback
+from collections.abc import Iterator
+from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from experiments.store import ResultStore, RunRecord
+from experiments.sweep import Run, Sweep
+
+__all__ = ["SweepAborted", "SweepOutcome", "default_workers", "execute_run", "run_sweep"]
+
+
+class SweepAborted(RuntimeError):
+    """The sweep could not go on (a worker process died, the cluster is unreachable); the runs
+    stored so far are kept and the same command resumes."""
+
+
+@dataclass(frozen=True)
+class SweepOutcome:
+    """What one call of :func:`run_sweep` did.
+
+    Attributes
+    ----------
+    total : int
+        Runs in the sweep.
+    already_stored : int
+        Runs found in the store and not run again.
+    ok, failed : int
+        Runs finished by this call, by status.
+    directory : Path
+        The sweep directory.
+    """
+
+    total: int
+    already_stored: int
+    ok: int
+    failed: int
+    directory: Path
+
+
+def default_workers() -> int:
+    """Processes of the local pool when none is asked for: the CPUs this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def execute_run(run: Run) -> RunRecord:
+    """Run one simulation and return its record; any exception becomes a failed record.
+
+    This is the task a worker process (local or Dask) executes.
+    """
+    import scenarios
+
+    started = time.perf_counter()
+    summary: dict[str, Any] | None = None
+    error: str | None = None
+    try:
+        result = scenarios.run(scenarios.get(run.scenario), run.overrides, seed=run.seed)
+        summary = json.loads(json.dumps(result.summary, default=_to_builtin))
+    except Exception as exc:  # a failing run is data for the sweep, not the end of it
+        error = describe_error(exc)
+    return RunRecord(
+        run_id=run.run_id,
+        cell=run.cell,
+        seed=run.seed,
+        status="ok" if error is None else "failed",
+        error=error,
+        wall_s=round(time.perf_counter() - started, 4),
+        worker=f"{socket.gethostname()}:{os.getpid()}",
+        finished_at=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        summary=summary,
+    )
+
+
+def describe_error(exc: BaseException) -> str:
+    """An exception in one line: type, first line of its message, and where it was raised.
+
+    >>> try:
+    ...     1 / 0
+    ... except ZeroDivisionError as exc:
+    ...     describe_error(exc).split(" (at ")[0]
+    'ZeroDivisionError: division by zero'
+    """
+    message = str(exc).strip().splitlines()
+    text = f"{type(exc).__name__}: {message[0]}" if message else type(exc).__name__
+    frames = traceback.extract_tb(exc.__traceback__)
+    if frames:
+        last = frames[-1]
+        where = "/".join(Path(last.filename).parts[-2:])
+        text += f" (at {where}:{last.lineno})"
+    return text
+
+
+def _to_builtin(value: Any) -> Any:
+    """JSON fallback for numpy scalars and arrays in a summary."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"summary value {value!r} of type {type(value).__name__} is not JSON-able")
+
+
+def run_sweep(
+    sweep: Sweep,
+    directory: str | Path,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    retry_failed: bool = False,
+    progress: bool = True,
+    source: str | None = None,
+) -> SweepOutcome:
+    """Run every run of ``sweep`` that ``directory`` does not hold yet.
+
+    Parameters
+    ----------
+    sweep : Sweep
+        What to run.
+    directory : path
+        The sweep directory (created if missing; resumed if it holds this sweep).
+    workers : int, optional
+        Local worker processes (default: :func:`default_workers`). Not used with ``scheduler``.
+    scheduler : str, optional
+        Address of a Dask ``distributed`` scheduler; its workers run the runs.
+    retry_failed : bool
+        Run again the runs stored as failed (their rows are replaced).
+    progress : bool
+        Show the progress bar on stderr.
+    source : str, optional
+        The sweep file's text, copied into a new directory.
+
+    Returns
+    -------
+    SweepOutcome
+
+    Raises
+    ------
+    experiments.store.StoreError
+        If ``directory`` holds another sweep or is in use.
+    SweepAborted
+        If a local worker process died or the scheduler is unreachable.
+    KeyboardInterrupt
+        On Ctrl-C or SIGTERM, after cancelling the pending runs; finished runs stay stored.
+    """
+    if workers is not None and workers < 1:
+        raise ValueError(f"workers must be at least 1, not {workers}")
+    runs = sweep.runs()
+    with ResultStore.create_or_open(directory, sweep, source=source) as store, store.lock():
+        done = store.finished_ids(include_failed=not retry_failed)
+        todo = [r for r in runs if r.run_id not in done]
+        ok = failed = 0
+        if todo:
+            with (
+                _sigterm_as_interrupt(),
+                _progress_bar(len(runs), len(runs) - len(todo), progress) as bar,
+                _executor(workers, scheduler, len(todo)) as executor,
+            ):
+                futures = {executor.submit(execute_run, run): run for run in todo}
+                for future in cf.as_completed(futures):
+                    record = _record_of(future, futures[future])
+                    store.append(record)
+                    if record.status == "ok":
+                        ok += 1
+                    else:
+                        failed += 1
+                    bar.set_postfix_str(f"{failed} failed", refresh=False)
+                    bar.update()
+        return SweepOutcome(len(runs), len(runs) - len(todo), ok, failed, Path(directory))
+
+
+def _record_of(future: cf.Future, run: Run) -> RunRecord:
+    """The record a finished future carries; a task the executor itself lost (a Dask worker
+    killed while running it) is a failed run, a broken local pool ends the sweep."""
+    try:
+        return future.result()
+    except BrokenProcessPool as exc:
+        raise SweepAborted(
+            f"a worker process died unexpectedly ({exc}); finished runs are stored, "
+            "run the same command to resume"
+        ) from None
+    except Exception as exc:
+        return RunRecord(
+            run_id=run.run_id,
+            cell=run.cell,
+            seed=run.seed,
+            status="failed",
+            error=describe_error(exc),
+            wall_s=None,
+            worker="lost",
+            finished_at=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            summary=None,
+        )
+
+
+@contextmanager
+def _progress_bar(total: int, initial: int, enabled: bool) -> Iterator[tqdm]:
+    with tqdm(
+        total=total,
+        initial=initial,
+        unit="run",
+        file=sys.stderr,
+        disable=not enabled,
+        dynamic_ncols=True,
+        bar_format="{l_bar}{bar}| {n}/{total} runs{postfix} [{elapsed}<{remaining}]",
+        postfix="0 failed",
+    ) as bar:
+        yield bar
+
+
+@contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """While the sweep runs, SIGTERM stops it like Ctrl-C does (so workers are cleaned up)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+@contextmanager
+def _executor(workers: int | None, scheduler: str | None, runs: int) -> Iterator[cf.Executor]:
+    if scheduler is not None:
+        with _dask_executor(scheduler) as executor:
+            yield executor
+    else:
+        with _local_executor(min(workers or default_workers(), runs)) as executor:
+            yield executor
+
+
+@contextmanager
+def _local_executor(workers: int) -> Iterator[cf.Executor]:
+    # forkserver: workers start from a clean process with the scenarios already imported (the
+    # parent may hold threads and open files, which fork would copy), and start fast.
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["scenarios", "experiments.runner"])
+    executor = cf.ProcessPoolExecutor(
+        max_workers=workers, mp_context=context, initializer=_prepare_worker
+    )
+    try:
+        yield executor
+    except BaseException:
+        _terminate_local(executor)
+        raise
+    executor.shutdown(wait=True)
+
+
+def _prepare_worker() -> None:
+    """Set up a local worker process.
+
+    Workers leave Ctrl-C to the parent, which cancels the sweep and terminates them. tqdm (the
+    runs' disabled progress bars) would otherwise create a named multiprocessing lock here that
+    a terminated worker never releases; a thread lock serves a worker's single thread.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    tqdm.set_lock(threading.RLock())
+
+
+def _terminate_local(executor: cf.ProcessPoolExecutor) -> None:
+    """Cancel pending runs and end the workers now rather than after their current run."""
+    if hasattr(executor, "terminate_workers"):  # Python >= 3.14
+        executor.terminate_workers()
+        return
+    processes = list((executor._processes or {}).values())
+    executor.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    for process in processes:
+        process.join()
+
+
+@contextmanager
+def _dask_executor(scheduler: str) -> Iterator[cf.Executor]:
+    try:
+        from distributed import Client
+    except ImportError:
+        raise SweepAborted(
+            "--scheduler needs Dask distributed: pip install 'kilonet[cluster]'"
+        ) from None
+    try:
+        client = Client(scheduler, set_as_default=False)
+    except OSError as exc:
+        raise SweepAborted(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+    executor = client.get_executor(pure=False)
+    try:
+        yield executor
+    except BaseException:
+        executor.shutdown(wait=False)  # cancels the runs not finished yet
+        client.close()
+        raise
+    executor.shutdown(wait=True)
+    client.close()
