@@ -1036,13 +1036,15 @@ const ctx = canvas.getContext("2d");
 const [xmin, xmax, ymin, ymax] = D.extent_mm;
 const W = 720;
 const scale = W / (xmax - xmin);
-const H = Math.round((ymax - ymin) * scale);
+// A strip above the swarm for the corner text, one line per thing it may show.
+const strip = 16 * (1 + !!D.messages + !!D.frames + !!D.estimates + (D.phase.t.length > 0)) + 10;
+const H = Math.round((ymax - ymin) * scale) + strip;
 const dpr = window.devicePixelRatio || 1;
 canvas.width = W * dpr; canvas.height = H * dpr;
 canvas.style.width = W + "px"; canvas.style.height = H + "px";
 ctx.scale(dpr, dpr);
 const px = x => (x - xmin) * scale;
-const py = y => (ymax - y) * scale;
+const py = y => (ymax - y) * scale + strip;
 const shown = {};
 for (const name of D.overlays) shown[name] = true;
 const frameCount = D.frames ? D.frames.rank.reduce((a, b) => Math.max(a, b), -1) + 1 : 0;

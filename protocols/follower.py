@@ -572,7 +572,8 @@ class FollowerConfig:
         Length of the first (and every probe) step, and of the longest ordinary step near the
         goal.
     step_fraction : float
-        Far from the goal a step may be this fraction of the remaining distance instead.
+        Far from the goal a step may be this fraction of the remaining distance instead (a
+        first or probe step half of it), since far fixes are less precise.
     tolerance_mm : float
         The robot stops when its estimate is this close to the goal.
     clearance_mm : float
@@ -834,7 +835,7 @@ class Follower(Kilobot):
                 turn = _ESCAPE_TURNS[(self._blocked_steps - 1) % len(_ESCAPE_TURNS)]
                 self._plan(turn, self.config.first_step_mm, "escape")
             else:
-                self._plan(0.0, self.config.first_step_mm, "first")
+                self._plan(0.0, self._short_step_mm(to_target), "first")
             return True
         # Far from the goal, longer steps: fewer of them, and a longer baseline for the heading
         # where the fixes are least precise.
@@ -846,17 +847,23 @@ class Follower(Kilobot):
         mode = "goal"
         if not self.handedness_settled:
             # Handedness not settled: make this turn big enough to tell, and the step short.
-            step = min(step, self.config.first_step_mm)
+            step = min(step, self._short_step_mm(to_target))
             alpha = self._probe_turn(position, heading, alpha, step, obstacles, radius)
             mode = "probe"
         elif abs(alpha) > math.pi / 2:
-            step = min(step, self.config.first_step_mm)  # a long turn is the least accurate
+            step = min(step, self._short_step_mm(to_target))  # a long turn is least accurate
         if abs(alpha) < math.radians(self.config.min_turn_deg):
             alpha = 0.0
         # α is in the frame; the pivot is physical, and flips in a mirrored frame.
         physical = abs(alpha) * frame_direction(alpha, self.mirrored)
         self._plan(physical, step, mode)
         return True
+
+    def _short_step_mm(self, to_target_mm: float) -> float:
+        """Length of a first, probe or after-long-turn step: ``first_step_mm``, longer far
+        from the goal where a fix is less precise (half the far-field step fraction)."""
+        c = self.config
+        return max(c.first_step_mm, c.step_fraction / 2 * to_target_mm)
 
     def _probe_turn(
         self,

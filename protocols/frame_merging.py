@@ -20,13 +20,16 @@ A round of seed I:
    broadcasts the new transform. Its partner seeds do the same towards it, so frames meet
    instead of oscillating.
 
-Beyond the thesis — roots. Half steps alone are a diffusion: on a chain of L frames agreement
-takes on the order of L² rounds, far too slow for a thousand robots. So every seed also carries
-a *root*, the smallest seed ID its frame has been aligned to (initially its own), broadcast in
-TF_ROOT. A member answering for (I, K) takes the **whole** step (fraction 1) when K's root is
-smaller than I's, and I adopts that root; between frames of the same root it takes the half
-step, which averages out the measurement noise. The smallest root spreads like a flood, so the
-frames lock together in a number of rounds that grows with the diameter, not its square.
+Beyond the thesis — a rank. Half steps alone are a diffusion: on a chain of L frames agreement
+takes on the order of L² rounds, and with delayed, noisy answers it keeps ringing (we measured
+disagreements of tens of millimetres that never settled). So every seed also carries a *rank*:
+the smallest seed ID its frame has been aligned to (its root, initially its own ID) and its hops
+from that root, broadcast in TF_ROOT and ordered (root, hops). A member answering for (I, K)
+takes the **whole** step (fraction 1) when K ranks at least one hop better than I, and I takes
+rank(K) + 1 hop; between equal ranks it takes the thesis's half step; toward a worse rank none.
+The smallest root spreads like a flood and each frame follows a parent one hop nearer to it, so
+the frames lock together in a number of rounds that grows with the diameter, not its square,
+and settle instead of ringing.
 
 Termination, decided by each seed alone: when ``gcs.merge_stable_rounds`` answers in a row
 report a disagreement within ``gcs.merge_tolerance_mm`` from partners of the same root, the seed
@@ -52,8 +55,8 @@ Frames (partners, transforms) are named by frame keys: seed ID and salt
     type 63 ANS_ROT    sender:uint16  version:uint8  q0 q1 q2:int16          9 bytes
     type 64 ANS_SHIFT  sender:uint16  version:uint8  tx ty tz:int16          9 bytes
     type 65 ANS_ERROR  sender:uint16  version:uint8  error:uint16 (0.1 mm)
-                       partner_root:uint16                                   7 bytes
-    type 66 TF_ROOT    sender:uint16  root:uint16                            4 bytes
+                       partner_root:uint16  partner_hops:uint8               8 bytes
+    type 66 TF_ROOT    sender:uint16  root:uint16  hops:uint8                5 bytes
 """
 
 from __future__ import annotations
@@ -87,9 +90,15 @@ ANS_SHIFT = Layout("ans_shift", type=64, fields=[("sender", "H"), ("version", "B
 ANS_ERROR = Layout(
     "ans_error",
     type=65,
-    fields=[("sender", "H"), ("version", "B"), ("error_mm", "H", 0.1), ("partner_root", "H")],
+    fields=[
+        ("sender", "H"),
+        ("version", "B"),
+        ("error_mm", "H", 0.1),
+        ("partner_root", "H"),
+        ("partner_hops", "B"),
+    ],
 )
-TF_ROOT = Layout("tf_root", type=66, fields=[("sender", "H"), ("root", "H")])
+TF_ROOT = Layout("tf_root", type=66, fields=[("sender", "H"), ("root", "H"), ("hops", "B")])
 _DONE = 0x80
 _IDENTITY = Rotation.identity()
 
@@ -173,7 +182,8 @@ class FrameMerging(Phase):
         self.outbox: list[Message] = []
         self.answers: dict[tuple[int, int], list[Message]] = {}
         self.turn = 0
-        self.roots: dict[int, int] = r.roots  # root of each seed heard, by frame key
+        # Rank of each seed heard, by frame key: root ID · 256 + hops (smaller ranks better).
+        self.ranks: dict[int, int] = r.ranks
         if r.is_seed:
             self.rotation = _IDENTITY
             self.shift = np.zeros(3)
@@ -186,7 +196,7 @@ class FrameMerging(Phase):
             self.asking: tuple[int, int] | None = None
             self.received: dict[str, object] = {}
             self.round_start = r.kilo_ticks
-            self.root = r.uid
+            self.rank = r.uid << 8
             self.key = r.frame_key(r.uid)
             self._publish()
             if not r.partners:
@@ -204,7 +214,7 @@ class FrameMerging(Phase):
     def _publish(self) -> None:
         r = self.robot
         r.transforms[self.key] = (self.rotation, self.shift, self.version, self.done)
-        self.roots[self.key] = self.root
+        self.ranks[self.key] = self.rank
 
     def _version_byte(self) -> int:
         return (self.version & 0x7F) | (_DONE if self.done else 0)
@@ -223,18 +233,25 @@ class FrameMerging(Phase):
                 self._apply(*answer)
 
     def _apply(
-        self, rotation: Rotation, shift: np.ndarray, error_mm: float, partner_root: int
+        self, rotation: Rotation, shift: np.ndarray, error_mm: float, partner_rank: int
     ) -> None:
         r = self.robot
-        agreed = error_mm <= self.params.merge_tolerance_mm and partner_root == self.root
-        if partner_root < self.root:
-            self.root = partner_root  # the whole step was taken: this frame now follows it
+        same_root = partner_rank >> 8 == self.rank >> 8
+        agreed = error_mm <= self.params.merge_tolerance_mm and same_root
+        if partner_rank + 1 < self.rank:
+            self.rank = partner_rank + 1  # the whole step was taken: this frame follows it
         self.rotation = rotation * self.rotation
         self.shift = rotation.apply(self.shift) + shift
         self.version += 1
         self.rounds += 1
         self.stable = self.stable + 1 if agreed else 0
-        r.log("merge_round", round=self.rounds, error_mm=round(error_mm, 3), root=self.root)
+        r.log(
+            "merge_round",
+            round=self.rounds,
+            error_mm=round(error_mm, 3),
+            root=self.rank >> 8,
+            hops=self.rank & 0xFF,
+        )
         self.asking = None
         if self.done and not agreed:
             self.done = r.merge_done = False  # a partner disagrees again: keep merging
@@ -253,7 +270,7 @@ class FrameMerging(Phase):
         self.turn += 1
         version = self._version_byte()
         if self.turn % 5 == 1:
-            return TF_ROOT.pack(sender=r.uid, root=self.root)
+            return TF_ROOT.pack(sender=r.uid, root=self.rank >> 8, hops=self.rank & 0xFF)
         if self.asking is not None and not self.final and self.turn % 3 == 0:
             member, partner = self.asking
             return QUERY.pack(
@@ -283,7 +300,7 @@ class FrameMerging(Phase):
                 rotation_from_fields(rot.q0, rot.q1, rot.q2),
                 np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm]),
                 error.error_mm,
-                error.partner_root,
+                (error.partner_root << 8) | error.partner_hops,
             )
 
     # -- member side -------------------------------------------------------------------------
@@ -301,7 +318,7 @@ class FrameMerging(Phase):
         self, seed: int, partner: int, version: int
     ) -> tuple[Rotation, np.ndarray, float, int] | None:
         r = self.robot
-        root_i, root_k = self.roots.get(seed), self.roots.get(partner)
+        rank_i, rank_k = self.ranks.get(seed), self.ranks.get(partner)
         key = (min(seed, partner), max(seed, partner))
         group = r.groups.get(key)
         tf_i, tf_k = r.transforms.get(seed), r.transforms.get(partner)
@@ -314,25 +331,29 @@ class FrameMerging(Phase):
         local_i, local_k = self._local_points(seed, members), self._local_points(partner, members)
         if local_i is None or local_k is None:
             return None
-        if root_i is None or root_k is None:
+        if rank_i is None or rank_k is None:
             return None
         global_i = tf_i[0].apply(local_i) + tf_i[1]
         global_k = tf_k[0].apply(local_k) + tf_k[1]
-        fraction = 1.0 if root_k < root_i else 0.5 if root_k == root_i else 0.0
-        return (*half_map(global_i, global_k, fraction), root_k)
+        fraction = 1.0 if rank_k < rank_i else 0.5 if rank_k == rank_i else 0.0
+        return (*half_map(global_i, global_k, fraction), rank_k)
 
     def _answer(self, seed: int, partner: int, version: int) -> None:
         answer = self._compute_answer(seed, partner, version)
         if answer is None:
             return
-        rotation, shift, error, root_k = answer
+        rotation, shift, error, rank_k = answer
         r = self.robot
         tx, ty, tz = shift
         self.answers[(seed, version & 0x7F)] = [
             ANS_ROT.pack(sender=r.uid, version=version, **quaternion_fields(rotation)),
             ANS_SHIFT.pack(sender=r.uid, version=version, vx_mm=tx, vy_mm=ty, vz_mm=tz),
             ANS_ERROR.pack(
-                sender=r.uid, version=version, error_mm=min(error, 6500.0), partner_root=root_k
+                sender=r.uid,
+                version=version,
+                error_mm=min(error, 6500.0),
+                partner_root=rank_k >> 8,
+                partner_hops=min(rank_k & 0xFF, 255),
             ),
         ]
         self.outbox.extend(self.answers[(seed, version & 0x7F)])
@@ -341,7 +362,7 @@ class FrameMerging(Phase):
         r = self.robot
         if TF_ROOT.matches(message):
             m = TF_ROOT.unpack(message)
-            self.roots[r.frame_key(m.sender)] = m.root
+            self.ranks[r.frame_key(m.sender)] = (m.root << 8) | m.hops
             return
         for layout, part in ((TF_ROT, "rot"), (TF_SHIFT, "shift")):
             if not layout.matches(message):

@@ -98,7 +98,7 @@ class GcsRobot(Kilobot):
         self.partners: dict[int, set[int]] = {}
         # Phase 6: transforms heard, by seed: (rotation, shift (3,), version byte, done).
         self.transforms: dict = {}
-        self.roots: dict[int, int] = {}  # root (smallest aligned seed ID) of each seed heard
+        self.ranks: dict[int, int] = {}  # merge rank of each seed heard (frame_merging)
         self.merge_done = False
         # Positions neighbours announced, by frame key then neighbour ID, mm.
         self.announced: dict[int, dict[int, tuple[float, float]]] = {}
@@ -179,11 +179,11 @@ class GcsRobot(Kilobot):
         ``R_S (x, y, 0) + v_S`` over them; 2-D coordinates are those of the common plane laid
         flat by :func:`kilonet.alignment.level` (see :mod:`protocols.frame_merging`).
         """
-        known = [k for k in sorted(self.frames) if k in self.transforms and k in self.roots]
+        known = [k for k in sorted(self.frames) if k in self.transforms and k in self.ranks]
         if not known:
             return None
-        root = min(self.roots[k] for k in known)
-        known = [k for k in known if self.roots[k] == root]
+        root = min(self.ranks[k] >> 8 for k in known)
+        known = [k for k in known if self.ranks[k] >> 8 == root]
         points = []
         for key in known:
             rotation, shift, _, _ = self.transforms[key]
@@ -200,7 +200,9 @@ class GcsRobot(Kilobot):
     @property
     def global_root(self) -> int | None:
         """Root of the merged frame this robot's estimate is in (None without an estimate)."""
-        roots = [self.roots[k] for k in self.frames if k in self.transforms and k in self.roots]
+        roots = [
+            self.ranks[k] >> 8 for k in self.frames if k in self.transforms and k in self.ranks
+        ]
         return min(roots) if roots else None
 
     def message_tx(self) -> Message | None:

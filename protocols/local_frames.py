@@ -213,7 +213,7 @@ class LocalFrames(Phase):
             self._choose_references()
 
 
-def announce_reference(robot) -> Message | None:  # noqa: ANN001 - a GcsRobot
+def announce_reference(robot) -> Message | None:
     """A seed's next REF message (its references in turn), or ``None`` without references."""
     refs = robot.references
     if not refs:
@@ -223,7 +223,7 @@ def announce_reference(robot) -> Message | None:  # noqa: ANN001 - a GcsRobot
     return REF.pack(sender=robot.uid, reference=uid, x_mm=x, y_mm=y)
 
 
-def receive_reference(robot, message: Message) -> None:  # noqa: ANN001 - a GcsRobot
+def receive_reference(robot, message: Message) -> None:
     """A REF naming this robot locates it in the seed's frame."""
     if not REF.matches(message):
         return

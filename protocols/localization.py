@@ -42,7 +42,7 @@ POS = Layout(
 )
 
 
-def announce_position(robot) -> Message | None:  # noqa: ANN001 - a GcsRobot
+def announce_position(robot) -> Message | None:
     """The robot's next POS message (its frames in turn), or ``None`` if it is located nowhere."""
     if not robot.frames:
         return None
@@ -53,7 +53,7 @@ def announce_position(robot) -> Message | None:  # noqa: ANN001 - a GcsRobot
     return POS.pack(sender=robot.uid, seed=key >> 8, seed_salt=key & 0xFF, x_mm=x, y_mm=y)
 
 
-def receive_position(robot, message: Message) -> int | None:  # noqa: ANN001 - a GcsRobot
+def receive_position(robot, message: Message) -> int | None:
     """Store a neighbour's announced position; return the key of the frame it is in."""
     if not POS.matches(message):
         return None

@@ -164,7 +164,7 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
         out.update(
             {
                 "localized_fraction": len(done) / sim.n_robots,
-                "frames": int(len(sizes)),
+                "frames": len(sizes),
                 "largest_frame_fraction": float(sizes.max() / sim.n_robots) if len(sizes) else 0,
                 "rmse_mm": _pooled_rmse(per_frame),
                 "crlb_rmse_mm": crlb_rmse_mm(truth, edges, sim.params.ranging.sigma_mm),
