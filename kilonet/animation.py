@@ -61,6 +61,7 @@ from kilonet.visibility import visible_pairs
 
 __all__ = [
     "FORMATS",
+    "MAX_FRAMES",
     "OVERLAYS",
     "AnimationError",
     "FrameRenderer",

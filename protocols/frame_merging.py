@@ -264,9 +264,9 @@ class FrameMerging(Phase):
 
     def _seed_message(self) -> Message | None:
         r = self.robot
-        if not self.final and r.partners:
-            if self.asking is None or r.kilo_ticks - self.round_start > self.round_ticks:
-                self._new_round()
+        timed_out = r.kilo_ticks - self.round_start > self.round_ticks
+        if not self.final and r.partners and (self.asking is None or timed_out):
+            self._new_round()
         self.turn += 1
         version = self._version_byte()
         if self.turn % 5 == 1:
@@ -324,9 +324,9 @@ class FrameMerging(Phase):
         tf_i, tf_k = r.transforms.get(seed), r.transforms.get(partner)
         if group is None or tf_i is None or tf_k is None or tf_i[2] & 0x7F != version & 0x7F:
             return None
-        if seed != getattr(self, "key", None):
-            if r.kilo_ticks - self.heard_at.get(seed, -(10**9)) > self.fresh_ticks:
-                return None
+        heard = self.heard_at.get(seed, -(10**9))
+        if seed != getattr(self, "key", None) and r.kilo_ticks - heard > self.fresh_ticks:
+            return None
         members = (r.uid, *group)
         local_i, local_k = self._local_points(seed, members), self._local_points(partner, members)
         if local_i is None or local_k is None:
@@ -411,6 +411,6 @@ class FrameMerging(Phase):
 
     def loop(self) -> None:
         r = self.robot
-        if r.is_seed and not self.final and r.partners and self.asking is not None:
-            if r.kilo_ticks - self.round_start > self.round_ticks:
-                self._new_round()
+        waiting = r.is_seed and not self.final and r.partners and self.asking is not None
+        if waiting and r.kilo_ticks - self.round_start > self.round_ticks:
+            self._new_round()

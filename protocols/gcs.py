@@ -105,7 +105,9 @@ class GcsRobot(Kilobot):
         tps = self.ticks_per_s
         self._windows = [
             (cls, round(start * tps), end * tps)
-            for cls, (_, start, end) in zip(_PHASE_CLASSES, phase_windows_s(self.params))
+            for cls, (_, start, end) in zip(
+                _PHASE_CLASSES, phase_windows_s(self.params), strict=False
+            )
         ]
         self._phase_index = -1
         self._loops = 0

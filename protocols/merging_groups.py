@@ -4,7 +4,8 @@ A robot X located in two frames I and K looks among its neighbours for two more 
 located in both frames (from their phase-4 announcements) and close enough to each other to see
 each other (their distance computed in frame I is within the longest distance X has measured
 itself); of those it keeps the pair whose triangle XYZ has the largest area, so the rotation
-between the frames is well conditioned (none thinner than ``gcs.min_group_width_mm``). As in the thesis's implementation, the members do not
+between the frames is well conditioned (none thinner than
+``gcs.min_group_width_mm``). As in the thesis's implementation, the members do not
 confirm the group to each other: the data needed was exchanged in phase 4. X registers the group
 with both seeds; a seed records, per partner frame, the robots it can ask in phase 6.
 

@@ -49,6 +49,10 @@ class NeighbourTable:
         """Drop ``uid`` (it announced a new ID)."""
         self._by_id.pop(uid, None)
 
+    def get(self, uid: int, default: Neighbour | None = None) -> Neighbour | None:
+        """The neighbour ``uid``, or ``default`` if not heard."""
+        return self._by_id.get(uid, default)
+
     def distance(self, uid: int) -> float:
         """Mean measured distance to ``uid``, mm."""
         return self._by_id[uid].distance_mm

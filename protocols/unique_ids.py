@@ -89,7 +89,7 @@ class UniqueIds(Phase):
                 self._redraw()
                 return
             salt = self.salts.setdefault(m.sender, m.salt)
-            known = r.table[m.sender] if m.sender in r.table else None
+            known = r.table.get(m.sender)
             far_apart = (
                 known is not None
                 and known.samples >= 2

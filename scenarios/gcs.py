@@ -51,7 +51,7 @@ def _stop_when(sim: Simulation) -> bool:
     name, start, end = windows[-1]
     now = sim.env.now
     if name != "merge":
-        return now >= end
+        return now >= end + 1.0  # a second more, so every robot has closed the last window
     seeds = [r for r in sim.robots if r.is_seed]
     return now > start and bool(seeds) and all(r.merge_done for r in seeds)
 
@@ -106,7 +106,6 @@ def _pooled_rmse(groups: list[tuple[np.ndarray, np.ndarray]]) -> float:
 
 
 def _metrics(sim: Simulation) -> dict[str, Any]:
-    p: GcsParams = sim.params.scenario
     windows = _windows(sim)
     robots = sim.robots
     truth = sim.world.positions_mm

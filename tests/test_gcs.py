@@ -81,7 +81,7 @@ def test_phase2_reports_an_impossible_topology_and_still_ends():
     positions = np.array([[0.0, 0.0], [40.0, 0.0], [20.0, 35.0], [300.0, 0.0]])
     result = scenarios.run(GCS, {"gcs.until": "seeds"}, placement=positions)
     end = phase_windows_s(result.params.scenario)[-1][2]
-    assert result.sim.env.now == pytest.approx(end)
+    assert result.sim.env.now == pytest.approx(end + 1.0)
     assert result.summary["seed_check_failed"] >= 1
     events = result.sim.trace.events_frame()
     failed = events[events.event == "seed_check_failed"]
