@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from scenarios import gcs, gradient
+from scenarios import gcs, gradient, maze
 from scenarios.base import RunResult, Scenario, ScenarioError, run, write_outputs
 
 __all__ = [
@@ -16,7 +16,9 @@ __all__ = [
     "write_outputs",
 ]
 
-SCENARIOS: dict[str, Scenario] = {s.name: s for s in (gcs.SCENARIO, gradient.SCENARIO)}
+SCENARIOS: dict[str, Scenario] = {
+    s.name: s for s in (gcs.SCENARIO, gradient.SCENARIO, maze.SCENARIO)
+}
 
 #: What ``kilonet run`` runs when no scenario is named.
 DEFAULT = "gradient"
