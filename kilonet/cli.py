@@ -29,7 +29,7 @@ USER_ERRORS = (ParamError, PlacementError)
 #: Modules that add sub-commands: each has ``register(subparsers)``, which adds its parsers
 #: with ``set_defaults(func=handler)``; a handler returns the exit status and raises
 #: :class:`UsageError` (or another user error) for bad input.
-_PLUGINS: list[str] = []
+_PLUGINS: list[str] = ["kilonet.animate_cli"]
 
 
 class UsageError(Exception):
@@ -71,6 +71,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if scenario.name != "gcs":
             raise UsageError(f"--until applies to the gcs scenario, not {scenario.name!r}")
         overrides["gcs.until"] = args.until
+    if args.animate and args.out is None:
+        raise UsageError("--animate needs --out DIR: the animation is drawn from the run directory")
     if args.placement is not None and not Path(args.placement).exists():
         raise UsageError(f"{args.placement}: no such placement file")
     result = scenarios.run(
@@ -80,6 +82,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
         written = scenarios.write_outputs(result, args.out, fmt=args.format)
         if not args.json:
             print(f"wrote {len(written)} files to {args.out}", file=sys.stderr)
+        if args.animate:
+            from kilonet.animation import AnimationError, animate_run
+
+            try:
+                movie = animate_run(Path(args.out))
+            except AnimationError as exc:
+                raise UsageError(str(exc)) from None
+            if not args.json:
+                print(f"wrote {movie}", file=sys.stderr)
     if args.json:
         print(json.dumps(result.summary, indent=2))
     else:
@@ -135,6 +146,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--out", help="directory for tables, summary.json and figures")
     run.add_argument("--format", default="csv", choices=["csv", "parquet"], help="table format")
     run.add_argument("--json", action="store_true", help="print only the summary JSON on stdout")
+    run.add_argument(
+        "--animate", action="store_true", help="also write DIR/animation.gif (needs --out)"
+    )
     run.set_defaults(func=_cmd_run)
     sub.add_parser("scenarios", help="list the named scenarios").set_defaults(func=_cmd_scenarios)
     params = sub.add_parser("params", help="list every parameter with its default")
