@@ -61,11 +61,11 @@ from its linear turn calibration, takes a short step, and re-trilaterates, until
   window are never used. A robot unheard for ``listen_timeout_s`` is left out: two distances
   and the dead-reckoned previous position pick one of the two circle intersections. A distance
   at the sensor's ceiling (``saturation_mm``, kilolib's 255) is "at least that far": it only
-  rules out candidates. With no position at all but at least one distance, the follower walks
-  to reduce its nearest distance (measuring the bearing from how the distance changes) until
-  all three are in reach. A step after which it cannot locate itself at all (out of range, or
-  in a body's shadow) is undone and the detour taken the other way round. After ``give_up_s``
-  of silence or ``max_steps`` steps it gives up.
+  rules out candidates. A step after which it cannot locate itself at all (out of range, or in
+  a body's shadow) is undone and a detour taken the other way round. When that does not help,
+  or a distance is saturated, the follower walks to reduce its nearest distance (measuring the
+  bearing from how that distance changes) until it can locate itself again. Before its first
+  move it only waits. After ``give_up_s`` of silence or ``max_steps`` steps it gives up.
 * **Calibration error.** The follower learns its real speed from its step lengths and, with
   ``adapt_turns``, its real turn rate from conclusive turns.
 
@@ -573,7 +573,7 @@ class FollowerConfig:
         goal.
     step_fraction : float
         Far from the goal a step may be this fraction of the remaining distance instead (a
-        first or probe step half of it), since far fixes are less precise.
+        first or probe step half of it, up to ``step_mm``), since far fixes are less precise.
     tolerance_mm : float
         The robot stops when its estimate is this close to the goal.
     clearance_mm : float
@@ -792,17 +792,21 @@ class Follower(Kilobot):
         if fix is None:
             usable = {k: d for k, d in distances.items() if d is not None and math.isfinite(d)}
             saturated = any(d == math.inf for d in distances.values())
-            if self.position is None and usable and saturated:
-                # Never located, and some robot is beyond the sensor's reach: get closer.
-                self._approach_step(usable)
-                return True
-            if self.position is not None and self._last_mode not in ("", "retreat"):
+            if self.steps == 0 and not saturated:
+                return False  # wait for fresh readings from all three (never act on stale ones)
+            if self.position is not None and self._last_mode not in ("retreat", "approach"):
                 # The last step took the robot where it cannot locate itself (out of range or
                 # in a body's shadow): go back the way it came and detour the other way.
                 self._side = -self._side
                 self._plan(math.pi, self._last_step_mm, "retreat")
                 return True
-            return False  # wait for fresh readings (never act on stale ones)
+            if not usable:
+                return False
+            # Some robot is beyond the sensor's reach (or still unheard after going back):
+            # get closer to the nearest one heard before locating again.
+            self.position = None
+            self._approach_step(usable)
+            return True
         position, kind = fix
         self._learn_from_step(position)
         self.position = position
@@ -861,9 +865,10 @@ class Follower(Kilobot):
 
     def _short_step_mm(self, to_target_mm: float) -> float:
         """Length of a first, probe or after-long-turn step: ``first_step_mm``, longer far
-        from the goal where a fix is less precise (half the far-field step fraction)."""
+        from the goal where a fix is less precise (half the far-field step fraction), but at
+        most ``step_mm`` (the step may well lead away from the goal)."""
         c = self.config
-        return max(c.first_step_mm, c.step_fraction / 2 * to_target_mm)
+        return max(c.first_step_mm, min(c.step_mm, c.step_fraction / 2 * to_target_mm))
 
     def _probe_turn(
         self,

@@ -24,9 +24,10 @@ Beyond the thesis — a rank. Half steps alone are a diffusion: on a chain of L 
 takes on the order of L² rounds, and with delayed, noisy answers it keeps ringing (we measured
 disagreements of tens of millimetres that never settled). So every seed also carries a *rank*:
 the smallest seed ID its frame has been aligned to (its root, initially its own ID) and its hops
-from that root, broadcast in TF_ROOT and ordered (root, hops). A member answering for (I, K)
-takes the **whole** step (fraction 1) when K ranks at least one hop better than I, and I takes
-rank(K) + 1 hop; between equal ranks it takes the thesis's half step; toward a worse rank none.
+from that root, broadcast in TF_ROOT and ordered (root, hops). The member always answers with
+the half step and K's rank as it heard it; the seed, which alone knows its own rank for sure,
+applies the half step twice (nearly the whole step) when K ranks better and then takes
+rank(K) + 1 hop, once between equal ranks (the thesis), and not at all toward a worse rank.
 The smallest root spreads like a flood and each frame follows a parent one hop nearer to it, so
 the frames lock together in a number of rounds that grows with the diameter, not its square,
 and settle instead of ringing.
@@ -238,10 +239,16 @@ class FrameMerging(Phase):
         r = self.robot
         same_root = partner_rank >> 8 == self.rank >> 8
         agreed = error_mm <= self.params.merge_tolerance_mm and same_root
+        # The answer is the half step. Toward a better-ranked partner take it twice (the whole
+        # rotation, nearly the whole shift) and follow that partner; between equals take it
+        # once (the thesis); toward a worse-ranked one stay: it will come. Ranks only fall, so
+        # a partner rank the member heard a while ago errs on the side of staying.
+        steps = 2 if partner_rank < self.rank else 1 if partner_rank == self.rank else 0
         if partner_rank + 1 < self.rank:
-            self.rank = partner_rank + 1  # the whole step was taken: this frame follows it
-        self.rotation = rotation * self.rotation
-        self.shift = rotation.apply(self.shift) + shift
+            self.rank = partner_rank + 1
+        for _ in range(steps):
+            self.rotation = rotation * self.rotation
+            self.shift = rotation.apply(self.shift) + shift
         self.version += 1
         self.rounds += 1
         self.stable = self.stable + 1 if agreed else 0
@@ -318,7 +325,7 @@ class FrameMerging(Phase):
         self, seed: int, partner: int, version: int
     ) -> tuple[Rotation, np.ndarray, float, int] | None:
         r = self.robot
-        rank_i, rank_k = self.ranks.get(seed), self.ranks.get(partner)
+        rank_k = self.ranks.get(partner)
         key = (min(seed, partner), max(seed, partner))
         group = r.groups.get(key)
         tf_i, tf_k = r.transforms.get(seed), r.transforms.get(partner)
@@ -331,12 +338,11 @@ class FrameMerging(Phase):
         local_i, local_k = self._local_points(seed, members), self._local_points(partner, members)
         if local_i is None or local_k is None:
             return None
-        if rank_i is None or rank_k is None:
+        if rank_k is None:
             return None
         global_i = tf_i[0].apply(local_i) + tf_i[1]
         global_k = tf_k[0].apply(local_k) + tf_k[1]
-        fraction = 1.0 if rank_k < rank_i else 0.5 if rank_k == rank_i else 0.0
-        return (*half_map(global_i, global_k, fraction), rank_k)
+        return (*half_map(global_i, global_k), rank_k)
 
     def _answer(self, seed: int, partner: int, version: int) -> None:
         answer = self._compute_answer(seed, partner, version)
