@@ -81,6 +81,9 @@ class Battery:
         self.level = level
         self.motor_factor = 1.0 - level * (1.0 - p.motor_factor_at_cutoff)
         self.led_factor = 1.0 - level * (1.0 - p.led_factor_at_cutoff)
+        now = self.sim.env.now
+        for r in changed.tolist():
+            self.sim.trace.battery(now, r, volts[r], level[r], self.led_factor[r])
         world = self.sim.world
         for r in np.flatnonzero((volts <= p.cutoff_v) & world.running).tolist():
             self.sim.stop_robot(r, "battery")

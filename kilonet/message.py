@@ -92,7 +92,8 @@ class PayloadLimit:
             raise PayloadError(
                 f"the {self.name} message format has no type byte; got type={message.type}"
             )
-        used = int.from_bytes(data, "big").bit_length()
+        # Little-endian like Layout: bits beyond the limit are the top bits of the last byte.
+        used = int.from_bytes(data, "little").bit_length()
         if len(data) > -(-self.data_bits // 8) or used > self.data_bits:
             raise PayloadError(
                 f"message payload of {len(data)} bytes ({used} significant bits) exceeds "

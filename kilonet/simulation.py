@@ -246,6 +246,7 @@ class Simulation:
                 "present": w.present,
                 "stop_cause": [self.stop_causes.get(i, "") for i in range(self.n_robots)],
                 "voltage_v": self.battery.voltages(),
+                "led_factor": self.battery.led_factor,
                 "led_r": [r.color[0] for r in self.robots],
                 "led_g": [r.color[1] for r in self.robots],
                 "led_b": [r.color[2] for r in self.robots],

@@ -23,6 +23,7 @@ class Trace:
         self._poses: list[tuple[float, int, float, float, float]] = []
         self._stops: list[tuple[float, int, str]] = []
         self._messages: list[tuple[float, int, int, int]] = []
+        self._battery: list[tuple[float, int, float, float, float]] = []
 
     def led(self, t_s: float, robot: int, color: tuple[int, int, int]) -> None:
         """Record that ``robot`` set its LED to ``color`` (kilolib 0–3 per channel)."""
@@ -43,6 +44,13 @@ class Trace:
     def message(self, t_s: float, sender: int, receivers: int, delivered: int) -> None:
         """Record a transmission that ended at ``t_s``: receivers in range, and deliveries."""
         self._messages.append((t_s, sender, receivers, delivered))
+
+    def battery(
+        self, t_s: float, robot: int, voltage_v: float, level: float, led_factor: float
+    ) -> None:
+        """Record a change of ``robot``'s battery degradation ``level`` (0 fine, 1 cut-off) and
+        the LED brightness factor that goes with it (animations dim the LED by it)."""
+        self._battery.append((t_s, robot, float(voltage_v), float(level), float(led_factor)))
 
     def led_frame(self) -> pd.DataFrame:
         """LED changes: ``t_s, robot, r, g, b``."""
@@ -65,9 +73,16 @@ class Trace:
         where ``t_s`` is the end of airtime."""
         return pd.DataFrame(self._messages, columns=["t_s", "sender", "receivers", "delivered"])
 
+    def battery_frame(self) -> pd.DataFrame:
+        """Battery degradation changes: ``t_s, robot, voltage_v, level, led_factor``."""
+        return pd.DataFrame(
+            self._battery, columns=["t_s", "robot", "voltage_v", "level", "led_factor"]
+        )
+
     def frames(self) -> dict[str, pd.DataFrame]:
         """All tables by name."""
         return {
+            "battery": self.battery_frame(),
             "led": self.led_frame(),
             "events": self.events_frame(),
             "poses": self.poses_frame(),

@@ -679,9 +679,9 @@ class Fixed(Kilobot):
 @pytest.mark.parametrize(
     ("message", "ok"),
     [
-        (Message(((1 << 23) - 1).to_bytes(3, "big")), True),  # 23 significant bits
+        (Message(((1 << 23) - 1).to_bytes(3, "little")), True),  # 23 significant bits
         (Message(b"\x00\x01"), True),
-        (Message((1 << 23).to_bytes(3, "big")), False),  # 24 significant bits
+        (Message((1 << 23).to_bytes(3, "little")), False),  # 24 significant bits
         (Message(b"\x00\x00\x00\x00"), False),  # 4 bytes
         (Message(b"\x01", type=1), False),  # the thesis format has no type byte
     ],

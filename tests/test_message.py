@@ -44,7 +44,7 @@ def test_data_must_be_bytes():
 
 @pytest.mark.parametrize(
     "data",
-    [b"", b"\x01", ((1 << 23) - 1).to_bytes(3, "big"), b"\x00\x7f\xff", b"\x7f\xff\xff"],
+    [b"", b"\x01", ((1 << 23) - 1).to_bytes(3, "little"), b"\xff\x7f\x00", b"\xff\xff\x7f"],
 )
 def test_thesis_accepts_23_bits(data):
     THESIS.check(Message(data))
@@ -53,9 +53,9 @@ def test_thesis_accepts_23_bits(data):
 @pytest.mark.parametrize(
     ("data", "why"),
     [
-        ((1 << 23).to_bytes(3, "big"), "24 significant bits"),
+        ((1 << 23).to_bytes(3, "little"), "24 significant bits"),
         (b"\xff\xff\xff", "24 significant bits"),
-        (b"\x00\x00\x00\x01", "4 bytes"),
+        (b"\x01\x00\x00\x00", "4 bytes"),
     ],
 )
 def test_thesis_refuses_more_than_23_bits(data, why):

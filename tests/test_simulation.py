@@ -93,7 +93,15 @@ def test_different_seed_gives_a_different_trace():
 
 def test_streams_are_independent_and_match_stream_for():
     sim = Simulation([[0, 0], [50, 0]], Kilobot, Params(seed=11))
-    assert set(STREAMS) == {"medium", "ranging", "battery", "faults", "motion", "placement"}
+    assert set(STREAMS) == {
+        "medium",
+        "ranging",
+        "battery",
+        "faults",
+        "motion",
+        "placement",
+        "schedule",
+    }
     first = {name: float(stream_for(11, name).random()) for name in STREAMS}
     assert len(set(first.values())) == len(STREAMS)
     assert float(sim.stream("placement").random()) == first["placement"]
