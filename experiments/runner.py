@@ -185,10 +185,12 @@ def run_sweep(
         done = store.finished_ids(include_failed=not retry_failed)
         todo = [r for r in runs if r.run_id not in done]
         ok = failed = 0
+        # the bar counts every stored run, so it starts at the runs kept from before
+        failed_before = 0 if retry_failed else store.counts()["failed"]
         if todo:
             with (
                 _sigterm_as_interrupt(),
-                _progress_bar(len(runs), len(runs) - len(todo), progress) as bar,
+                _progress_bar(len(runs), len(runs) - len(todo), failed_before, progress) as bar,
                 _executor(workers, scheduler, len(todo)) as executor,
             ):
                 futures = {executor.submit(execute_run, run): run for run in todo}
@@ -199,7 +201,7 @@ def run_sweep(
                         ok += 1
                     else:
                         failed += 1
-                    bar.set_postfix_str(f"{failed} failed", refresh=False)
+                    bar.set_postfix_str(f"{failed_before + failed} failed", refresh=False)
                     bar.update()
         return SweepOutcome(len(runs), len(runs) - len(todo), ok, failed, Path(directory))
 
@@ -229,7 +231,7 @@ def _record_of(future: cf.Future, run: Run) -> RunRecord:
 
 
 @contextmanager
-def _progress_bar(total: int, initial: int, enabled: bool) -> Iterator[tqdm]:
+def _progress_bar(total: int, initial: int, failed: int, enabled: bool) -> Iterator[tqdm]:
     with tqdm(
         total=total,
         initial=initial,
@@ -238,7 +240,7 @@ def _progress_bar(total: int, initial: int, enabled: bool) -> Iterator[tqdm]:
         disable=not enabled,
         dynamic_ncols=True,
         bar_format="{l_bar}{bar}| {n}/{total} runs{postfix} [{elapsed}<{remaining}]",
-        postfix="0 failed",
+        postfix=f"{failed} failed",
     ) as bar:
         yield bar
 

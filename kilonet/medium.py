@@ -39,6 +39,7 @@ from itertools import repeat
 from typing import TYPE_CHECKING
 
 import numpy as np
+
 from kilonet.clock import Timer, push
 from kilonet.message import KILOLIB, THESIS, Message, PayloadLimit
 from kilonet.robot import Kilobot

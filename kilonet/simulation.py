@@ -219,7 +219,8 @@ class Simulation:
             self.robots[robot].message_rx(message, distance_mm)
 
     def stop_robot(self, robot: int, cause: str, *, remove: bool = False) -> None:
-        """Stop ``robot`` (``cause``: crash, removed, battery); ``remove`` lifts it off the table."""
+        """Stop ``robot`` (``cause``: crash, removed, battery); ``remove`` lifts it off the
+        table."""
         if not self.world.running[robot] and not remove:
             return
         self.motion.stop(robot)
