@@ -120,5 +120,7 @@ def communication_graph(
     )
     g = nx.Graph()
     g.add_nodes_from(range(len(positions_mm)))
-    g.add_weighted_edges_from(zip(i.tolist(), j.tolist(), d.tolist(), strict=True), weight="distance_mm")
+    g.add_weighted_edges_from(
+        zip(i.tolist(), j.tolist(), d.tolist(), strict=True), weight="distance_mm"
+    )
     return g
