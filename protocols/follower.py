@@ -788,6 +788,9 @@ class Follower(Kilobot):
     # -- deciding the next move --------------------------------------------------------------
     def _act(self, distances: dict[int, float | None]) -> bool:
         """Locate and plan the next move; False if there is nothing to act on yet."""
+        if self.steps >= self.config.max_steps:
+            self._finish("gave_up", reason="steps")
+            return True
         fix = self._locate(distances)
         if fix is None:
             usable = {k: d for k, d in distances.items() if d is not None and math.isfinite(d)}
@@ -828,9 +831,6 @@ class Follower(Kilobot):
         )
         if min(to_goal, to_target) <= self.config.tolerance_mm:
             self._finish("reached", to_goal_mm=to_goal)
-            return True
-        if self.steps >= self.config.max_steps:
-            self._finish("gave_up", reason="steps")
             return True
         heading = self._heading
         if heading is None:

@@ -56,8 +56,12 @@ Frames (partners, transforms) are named by frame keys: seed ID and salt
     type 63 ANS_ROT    sender:uint16  version:uint8  q0 q1 q2:int16          9 bytes
     type 64 ANS_SHIFT  sender:uint16  version:uint8  tx ty tz:int16          9 bytes
     type 65 ANS_ERROR  sender:uint16  version:uint8  error:uint16 (0.1 mm)
-                       partner_root:uint16  partner_hops:uint8               8 bytes
-    type 66 TF_ROOT    sender:uint16  root:uint16  hops:uint8                5 bytes
+                       partner_root:uint16  partner_root_salt:uint8
+                       partner_hops:uint8                                    9 bytes
+    type 66 TF_ROOT    sender:uint16  root:uint16  root_salt:uint8  hops:uint8   6 bytes
+
+A rank is the root's frame key (ID and salt: IDs alone repeat across a large swarm, and two
+roots that share one would pull the frames apart forever) times 256 plus the hops.
 """
 
 from __future__ import annotations
@@ -96,10 +100,15 @@ ANS_ERROR = Layout(
         ("version", "B"),
         ("error_mm", "H", 0.1),
         ("partner_root", "H"),
+        ("partner_root_salt", "B"),
         ("partner_hops", "B"),
     ],
 )
-TF_ROOT = Layout("tf_root", type=66, fields=[("sender", "H"), ("root", "H"), ("hops", "B")])
+TF_ROOT = Layout(
+    "tf_root",
+    type=66,
+    fields=[("sender", "H"), ("root", "H"), ("root_salt", "B"), ("hops", "B")],
+)
 _DONE = 0x80
 _IDENTITY = Rotation.identity()
 
@@ -183,7 +192,7 @@ class FrameMerging(Phase):
         self.outbox: list[Message] = []
         self.answers: dict[tuple[int, int], list[Message]] = {}
         self.turn = 0
-        # Rank of each seed heard, by frame key: root ID · 256 + hops (smaller ranks better).
+        # Rank of each seed heard, by frame key: root frame key · 256 + hops (smaller better).
         self.ranks: dict[int, int] = r.ranks
         if r.is_seed:
             self.rotation = _IDENTITY
@@ -197,7 +206,7 @@ class FrameMerging(Phase):
             self.asking: tuple[int, int] | None = None
             self.received: dict[str, object] = {}
             self.round_start = r.kilo_ticks
-            self.rank = r.uid << 8
+            self.rank = r.frame_key(r.uid) << 8
             self.key = r.frame_key(r.uid)
             self._publish()
             if not r.partners:
@@ -244,7 +253,7 @@ class FrameMerging(Phase):
         # once (the thesis); toward a worse-ranked one stay: it will come. Ranks only fall, so
         # a partner rank the member heard a while ago errs on the side of staying.
         steps = 2 if partner_rank < self.rank else 1 if partner_rank == self.rank else 0
-        if partner_rank + 1 < self.rank:
+        if partner_rank + 1 < self.rank and partner_rank & 0xFF < 0xFF:
             self.rank = partner_rank + 1
         for _ in range(steps):
             self.rotation = rotation * self.rotation
@@ -256,7 +265,7 @@ class FrameMerging(Phase):
             "merge_round",
             round=self.rounds,
             error_mm=round(error_mm, 3),
-            root=self.rank >> 8,
+            root=self.rank >> 16,
             hops=self.rank & 0xFF,
         )
         self.asking = None
@@ -277,7 +286,12 @@ class FrameMerging(Phase):
         self.turn += 1
         version = self._version_byte()
         if self.turn % 5 == 1:
-            return TF_ROOT.pack(sender=r.uid, root=self.rank >> 8, hops=self.rank & 0xFF)
+            return TF_ROOT.pack(
+                sender=r.uid,
+                root=self.rank >> 16,
+                root_salt=(self.rank >> 8) & 0xFF,
+                hops=self.rank & 0xFF,
+            )
         if self.asking is not None and not self.final and self.turn % 3 == 0:
             member, partner = self.asking
             return QUERY.pack(
@@ -307,7 +321,7 @@ class FrameMerging(Phase):
                 rotation_from_fields(rot.q0, rot.q1, rot.q2),
                 np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm]),
                 error.error_mm,
-                (error.partner_root << 8) | error.partner_hops,
+                (error.partner_root << 16) | (error.partner_root_salt << 8) | error.partner_hops,
             )
 
     # -- member side -------------------------------------------------------------------------
@@ -358,8 +372,9 @@ class FrameMerging(Phase):
                 sender=r.uid,
                 version=version,
                 error_mm=min(error, 6500.0),
-                partner_root=rank_k >> 8,
-                partner_hops=min(rank_k & 0xFF, 255),
+                partner_root=rank_k >> 16,
+                partner_root_salt=(rank_k >> 8) & 0xFF,
+                partner_hops=rank_k & 0xFF,
             ),
         ]
         self.outbox.extend(self.answers[(seed, version & 0x7F)])
@@ -368,7 +383,7 @@ class FrameMerging(Phase):
         r = self.robot
         if TF_ROOT.matches(message):
             m = TF_ROOT.unpack(message)
-            self.ranks[r.frame_key(m.sender)] = (m.root << 8) | m.hops
+            self.ranks[r.frame_key(m.sender)] = (m.root << 16) | (m.root_salt << 8) | m.hops
             return
         for layout, part in ((TF_ROT, "rot"), (TF_SHIFT, "shift")):
             if not layout.matches(message):
