@@ -124,6 +124,7 @@ class Simulation:
             headings = np.asarray(headings_rad, dtype=float)
         self.world = World(positions.copy(), headings.copy())
         self.initial_positions_mm = positions.copy()
+        self.initial_headings_rad = headings.copy()
         self.trace = Trace()
         self.robots: list[Kilobot] = []
         build = program if not _is_program_class(program) else (lambda _i: program())
