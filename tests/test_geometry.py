@@ -380,7 +380,10 @@ def test_multilaterate_recovers_noiseless_positions(anchor_list, truth):
 @settings(max_examples=40, deadline=None)
 @given(point, point, point, st.floats(0.05, 0.95), st.floats(0.05, 0.95))
 def test_multilaterate_accepts_points_inside_a_well_shaped_triangle(a, b, c, s, t):
-    assume(_min_altitude(a, b, c) > 30.0)
+    longest = max(math.dist(a, b), math.dist(b, c), math.dist(a, c))
+    # Well shaped: no thinner than 40 % of its longest side (an elongated triangle seen from
+    # near a sharp corner has a GDOP above 5, which multilaterate rightly refuses).
+    assume(_min_altitude(a, b, c) > max(30.0, 0.4 * longest))
     s, t = min(s, t), max(s, t)  # barycentric-style draw strictly inside the triangle
     truth = np.array(a) * s + np.array(b) * (t - s) + np.array(c) * (1.0 - t)
     anchors = np.array([a, b, c])
