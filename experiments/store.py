@@ -296,7 +296,9 @@ class ResultStore:
         (``run_id, seed, status, error, wall_s, worker, finished_at``) and every summary figure.
 
         A figure whose name clashes with a parameter or meta column is prefixed ``summary.``;
-        the summary's own ``seed`` (always equal to the run's) is dropped.
+        the summary's own ``seed`` (always equal to the run's) is dropped. Nested figures are
+        flattened: a mapping ``{"phase_times_s": {"ids": 8.0}}`` becomes the column
+        ``phase_times_s.ids``, and a list becomes its JSON text.
         """
         swept = self.sweep().swept
         taken = set(swept) | set(META_COLUMNS)
@@ -312,7 +314,7 @@ class ResultStore:
                 worker=rec.worker,
                 finished_at=rec.finished_at,
             )
-            for key, value in (rec.summary or {}).items():
+            for key, value in _flat_summary(rec.summary or {}).items():
                 if key == "seed":
                     continue
                 row[f"summary.{key}" if key in taken else key] = value
@@ -353,6 +355,23 @@ class ResultStore:
                 ),
             )
         return cursor.rowcount == 1
+
+
+def _flat_summary(summary: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Summary figures as one level of columns.
+
+    >>> _flat_summary({"a": 1, "t": {"ids": 8.0, "seeds": 33.0}, "phases": ["ids", "seeds"]})
+    {'a': 1, 't.ids': 8.0, 't.seeds': 33.0, 'phases': '["ids", "seeds"]'}
+    """
+    out: dict[str, Any] = {}
+    for key, value in summary.items():
+        if isinstance(value, dict):
+            out.update(_flat_summary(value, f"{prefix}{key}."))
+        elif isinstance(value, list):
+            out[f"{prefix}{key}"] = json.dumps(value)
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
 
 
 def _connect(path: Path) -> sqlite3.Connection:

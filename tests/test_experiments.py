@@ -214,7 +214,11 @@ def record(run_id: str, status: str = "ok", value: float = 1.0) -> RunRecord:
         wall_s=0.5,
         worker="here:1",
         finished_at="2026-01-01T00:00:00+00:00",
-        summary={"seed": 1, "wall_s": 9.0, "hits": value} if status == "ok" else None,
+        summary=(
+            {"seed": 1, "wall_s": 9.0, "hits": value, "t_s": {"ids": 8.0}, "ran": ["ids"]}
+            if status == "ok"
+            else None
+        ),
     )
 
 
@@ -232,6 +236,8 @@ def test_store_never_duplicates_and_replaces_only_failures(tmp_path):
     assert list(frame["hits"]) == [4.0, 2.0]
     # a summary figure named like a meta column is kept under a prefix; its seed is dropped
     assert list(frame["summary.wall_s"]) == [9.0, 9.0]
+    # nested figures become columns: mappings by dotted name, lists as JSON text
+    assert list(frame["t_s.ids"]) == [8.0, 8.0] and list(frame["ran"]) == ['["ids"]'] * 2
     assert list(frame.columns[:2]) == ["medium.loss_prob", "run_id"]
     assert (tmp_path / "d" / "sweep.toml").read_text() == SMALL
 
