@@ -132,7 +132,7 @@ class _Transmission:
 #: Loss codes in an outcome row, by cause (0: delivered).
 _RANDOM, _BATTERY, _FAULT = 1, 2, 3
 _LOSS_CODES = {_RANDOM: "random", _BATTERY: "battery", _FAULT: "fault"}
-_MAX_ROWS_PER_REFILL = 256
+_MAX_ROWS_PER_REFILL = 64
 
 
 class InfraredMedium:
