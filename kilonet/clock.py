@@ -13,14 +13,13 @@ Examples
 >>> import simpy
 >>> env = simpy.Environment()
 >>> log = []
->>> call_later(env, 2.0, lambda e: log.append(("b", env.now, e._value)), "x")
->>> timer = Timer(env, lambda t: log.append(("a", env.now, t._value)), 7)
+>>> timer = Timer(env, lambda t: log.append((env.now, t._value)), 7)
 >>> timer.schedule(1.0)
 >>> env.run()
 >>> timer.schedule(0.5)
 >>> env.run()
 >>> log
-[('a', 1.0, 7), ('b', 2.0, 'x'), ('a', 2.5, 7)]
+[(1.0, 7), (1.5, 7)]
 """
 
 from __future__ import annotations
@@ -32,31 +31,12 @@ from typing import Any
 import simpy
 from simpy.events import NORMAL
 
-__all__ = ["Timer", "Wakeup", "call_later", "push"]
-
-
-class Wakeup:
-    """A bare one-shot event: the minimum ``simpy.Environment.step`` needs."""
-
-    __slots__ = ("_ok", "_value", "callbacks")
-
-    def __init__(self, callback: Callable[[Any], None], value: Any) -> None:
-        self.callbacks = [callback]
-        self._value = value
-        self._ok = True
+__all__ = ["Timer", "push"]
 
 
 def push(env: simpy.Environment, at_s: float, event: Any) -> None:
     """Queue ``event`` (anything with ``callbacks``, ``_ok``, ``_value``) at time ``at_s``."""
     heappush(env._queue, (at_s, NORMAL, next(env._eid), event))
-
-
-def call_later(
-    env: simpy.Environment, delay_s: float, callback: Callable[[Wakeup], None], value: Any = None
-) -> None:
-    """Call ``callback(wakeup)`` after ``delay_s`` simulated seconds; ``wakeup._value`` is
-    ``value``. Ties with other events break by scheduling order, as in SimPy."""
-    push(env, env._now + delay_s, Wakeup(callback, value))
 
 
 class Timer:

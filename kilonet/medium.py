@@ -171,8 +171,9 @@ class InfraredMedium:
         self._loss_battery = np.zeros(n)
         self._loss_fault = np.zeros(n)
         # Per-robot channel state as Python lists: scalar access is what the hot path does.
-        # Channel state per robot: when the latest reception to begin there ends (all messages
-        # share one airtime, so it ends last), and that reception, to mark it on a collision.
+        # Channel state per robot: until when it is busy (the latest reception to begin there,
+        # or its own transmission; all messages share one airtime, so the latest ends last),
+        # and that latest reception, to mark it on a collision.
         self._busy_until = [-np.inf] * n
         self._last_rx: list[_Transmission | None] = [None] * n
         self._any_extra_loss = False  # some receiver has a battery or fault loss share
