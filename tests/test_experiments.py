@@ -349,10 +349,7 @@ def test_a_task_lost_by_the_executor_is_stored_as_failed(tmp_path):
         assert store.records() == [rec]
 
 
-_CLI = (
-    "import sys, kilonet.cli as c; c._PLUGINS.append('experiments.cli'); "
-    "sys.exit(c.main(sys.argv[1:]))"
-)
+_CLI = "import sys, kilonet.cli as c; sys.exit(c.main(sys.argv[1:]))"
 
 
 def test_cli_sweep_interrupted_by_ctrl_c_then_resumed(tmp_path):
