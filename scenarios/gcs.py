@@ -30,7 +30,8 @@ import pandas as pd
 from kilonet.alignment import procrustes_rmse
 from kilonet.geometry import crlb_rmse_mm
 from kilonet.simulation import Simulation
-from kilonet.visibility import visible_pairs
+from kilonet.topology import failure_cases, rigidity_facts
+from kilonet.visibility import communication_graph, visible_pairs
 from protocols.gcs import GcsRobot, phase_windows_s
 from protocols.gcs_base import GcsParams
 from scenarios.base import RunResult, Scenario
@@ -105,6 +106,29 @@ def _pooled_rmse(groups: list[tuple[np.ndarray, np.ndarray]]) -> float:
     return math.sqrt(squared / count) if count else math.nan
 
 
+def _failures(sim: Simulation) -> dict[str, Any]:
+    """The thesis's failure cases as this run produced them (robot indices), with the
+    communication graph's rigidity facts that explain them."""
+    seeds = _seed_robot_by_key(sim)
+    located = {i: [seeds[k] for k in r.frames if k in seeds] for i, r in enumerate(sim.robots)}
+    groups = [
+        (seeds[a], seeds[b]) for r in sim.robots for a, b in r.groups if a in seeds and b in seeds
+    ]
+    cases = failure_cases(range(sim.n_robots), located, sorted(seeds.values()), groups)
+    p = sim.params.medium
+    facts = rigidity_facts(
+        communication_graph(sim.world.positions_mm, p.range_mm, line_of_sight=p.line_of_sight)
+    )
+    return {
+        "unlocalizable": cases["unlocalizable"],
+        "isolated_seeds": cases["isolated_seeds"],
+        "split_frames": len(cases["frames"]) if cases["split"] else 0,
+        "frame_components": cases["frames"],
+        "articulation_points": facts["articulation_points"],
+        "robots_with_fewer_than_3_neighbours": facts["low_degree"],
+    }
+
+
 def _metrics(sim: Simulation) -> dict[str, Any]:
     windows = _windows(sim)
     robots = sim.robots
@@ -151,6 +175,7 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
         out["fix_rejections"] = int(counts.get("fix_rejected", 0))
     if "groups" in reached:
         out["merging_groups"] = int(sum(len(r.groups) for r in robots))
+        out["failures"] = _failures(sim)
     if "merge" in reached:
         est = estimates_frame(sim)
         done = est[est.localized]

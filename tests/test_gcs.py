@@ -220,3 +220,16 @@ def test_merge_100_robots_into_one_frame(loss):
     assert frames == 1
     assert localized >= 0.95
     assert rmse <= 5.0
+
+
+def test_failures_section_names_the_lone_robot_and_its_isolated_frame():
+    from kilonet.placement import hex_lattice
+
+    swarm = hex_lattice(19, spacing_mm=40.0)
+    positions = np.vstack([swarm, [[500.0, 0.0]]])  # robot 19 hears nobody
+    result = scenarios.run(GCS, {"gcs.until": "groups"}, placement=positions)
+    failures = result.summary["failures"]
+    assert 19 in failures["unlocalizable"]
+    assert 19 in failures["isolated_seeds"]
+    assert failures["split_frames"] >= 2  # the lone frame is a component of its own
+    assert 19 in failures["robots_with_fewer_than_3_neighbours"]
