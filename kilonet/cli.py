@@ -29,7 +29,7 @@ USER_ERRORS = (ParamError, PlacementError)
 #: Modules that add sub-commands: each has ``register(subparsers)``, which adds its parsers
 #: with ``set_defaults(func=handler)``; a handler returns the exit status and raises
 #: :class:`UsageError` (or another user error) for bad input.
-_PLUGINS: list[str] = ["kilonet.animate_cli", "experiments.cli"]
+_PLUGINS: list[str] = ["kilonet.animate_cli", "experiments.cli", "scenarios.analyze"]
 
 
 class UsageError(Exception):

@@ -233,3 +233,17 @@ def test_failures_section_names_the_lone_robot_and_its_isolated_frame():
     assert 19 in failures["isolated_seeds"]
     assert failures["split_frames"] >= 2  # the lone frame is a component of its own
     assert 19 in failures["robots_with_fewer_than_3_neighbours"]
+
+
+def test_analyze_predicts_the_lone_robot_before_a_full_run(tmp_path, capsys):
+    from kilonet.cli import main
+    from kilonet.placement import hex_lattice, save_csv
+
+    placement = tmp_path / "swarm.csv"
+    save_csv(np.vstack([hex_lattice(19, spacing_mm=40.0), [[500.0, 0.0]]]), placement)
+    assert main(["analyze", str(placement), "--json", "--figure", str(tmp_path / "a.png")]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["unlocalizable"] == [19]
+    assert report["isolated_seeds"] == [19]
+    assert [len(c) for c in report["frames"]][-1] == 1 and report["split"]
+    assert (tmp_path / "a.png").stat().st_size > 1000

@@ -1,0 +1,161 @@
+"""``kilonet analyze``: predict the global coordinate system's failure cases before a full run.
+
+Runs phases 1–2 (IDs and seed election) on the placement, then predicts phases 3–5 from the
+geometry: each seed takes the reference pair its rule would choose from true distances; robots
+join a seed's frame when they see the seed and at least two robots already in that frame
+(repeated until nothing changes, as localization spreads); merging groups are found as the
+robots would find them. The frame graph's components are the global frames merging can reach.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+import scenarios
+from kilonet.geometry import (
+    GeometryError,
+    choose_references_best_conditioned,
+    choose_references_max_angle,
+)
+from kilonet.topology import failure_cases, rigidity_facts
+from kilonet.visibility import communication_graph
+from protocols.merging_groups import find_groups
+
+__all__ = ["predict", "register"]
+
+
+def predict(
+    placement: str | Path | np.ndarray, seed: int = 1, overrides: dict | None = None
+) -> dict[str, Any]:
+    """Run phases 1–2 on ``placement`` and predict the failure cases of phases 3–6.
+
+    Returns the failure cases (robot indices), the rigidity facts, the seeds and the
+    predicted frames per robot.
+    """
+    result = scenarios.run(
+        scenarios.get("gcs"),
+        {**(overrides or {}), "gcs.until": "seeds"},
+        seed=seed,
+        placement=placement,
+    )
+    sim = result.sim
+    p = sim.params
+    pos = sim.world.positions_mm
+    graph = communication_graph(pos, p.medium.range_mm, line_of_sight=p.medium.line_of_sight)
+    seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
+    rule = (
+        choose_references_max_angle
+        if p.scenario.reference_rule == "max_angle"
+        else choose_references_best_conditioned
+    )
+    members: dict[int, set[int]] = {}
+    for s in seeds:
+        near = sorted(graph[s])
+        candidates = {
+            (b, c): (
+                math.dist(pos[s], pos[b]),
+                math.dist(pos[s], pos[c]),
+                math.dist(pos[b], pos[c]),
+            )
+            for k, b in enumerate(near)
+            for c in near[k + 1 :]
+            if graph.has_edge(b, c)
+        }
+        try:
+            (b, c), _ = rule(candidates)
+        except GeometryError:
+            continue
+        inside = {s, b, c}
+        changed = True
+        while changed:  # localization spreads among robots that see the seed
+            changed = False
+            for robot in near:
+                if robot not in inside and len(inside & set(graph[robot])) >= 3:
+                    inside.add(robot)
+                    changed = True
+        members[s] = inside
+    located = {i: sorted(s for s, m in members.items() if i in m) for i in range(sim.n_robots)}
+    groups = []
+    reach = p.medium.range_mm
+    for i in range(sim.n_robots):
+        own = {s: tuple(pos[i]) for s in located[i]}
+        announced = {s: {j: tuple(pos[j]) for j in members[s]} for s in located[i]}
+        found = find_groups(own, announced, set(graph[i]), reach, p.scenario.min_group_width_mm)
+        groups.extend(found)
+    cases = failure_cases(range(sim.n_robots), located, seeds, groups)
+    return {
+        "robots": sim.n_robots,
+        "seeds": seeds,
+        "located_in": located,
+        **cases,
+        **rigidity_facts(graph),
+    }
+
+
+def _figure(pos: np.ndarray, report: dict[str, Any], path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(6, 6))
+    ax.scatter(pos[:, 0], pos[:, 1], s=40, c="0.75", label="robots")
+    ax.scatter(*pos[report["seeds"]].T, s=40, c="tab:blue", label="seeds")
+    for key, color, label in (
+        ("unlocalizable", "tab:red", "cannot localize"),
+        ("isolated_seeds", "tab:orange", "isolated seed"),
+        ("articulation_points", "k", "articulation point"),
+    ):
+        if report[key]:
+            ax.scatter(*pos[report[key]].T, s=90, facecolors="none", edgecolors=color, label=label)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(f"predicted global frames: {len(report['frames'])}")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _cmd(args: argparse.Namespace) -> int:
+    from kilonet.cli import UsageError
+    from kilonet.placement import load_csv
+
+    if not Path(args.placement).exists():
+        raise UsageError(f"{args.placement}: no such placement file")
+    positions = load_csv(args.placement)
+    report = predict(positions, seed=args.seed)
+    figure = Path(args.figure or Path(args.placement).with_suffix(".analysis.png"))
+    _figure(positions, report, figure)
+    if args.json:
+        print(json.dumps({k: v for k, v in report.items() if k != "located_in"}, indent=2))
+        return 0
+    print(f"robots                 {report['robots']}")
+    print(f"seeds                  {len(report['seeds'])}")
+    print(f"cannot localize        {len(report['unlocalizable'])}  {report['unlocalizable']}")
+    print(f"isolated seeds         {len(report['isolated_seeds'])}  {report['isolated_seeds']}")
+    sizes = [len(c) for c in report["frames"]]
+    print(f"global frames          {len(report['frames'])}  sizes {sizes}")
+    print(f"articulation points    {report['articulation_points']}")
+    print(f"fewer than 3 neighbours {report['low_degree']}")
+    print(f"figure                 {figure}", file=sys.stderr)
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    """Add ``kilonet analyze PLACEMENT.csv [--seed S] [--json] [--figure F.png]``."""
+    parser = subparsers.add_parser(
+        "analyze", help="predict the global coordinate system's failure cases for a placement"
+    )
+    parser.add_argument("placement", help="CSV with columns x_mm,y_mm")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--json", action="store_true", help="print the prediction as JSON")
+    parser.add_argument("--figure", help="PNG to write (default: next to the placement)")
+    parser.set_defaults(func=_cmd)
