@@ -70,9 +70,15 @@ roots that share one would pull the frames apart forever) times 256 plus the hop
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
-from kilonet.alignment import pack_quaternion, unpack_quaternion
+from kilonet.alignment import (
+    half_step,
+    pack_quaternion,
+    rotation_between_frames,
+    unpack_quaternion,
+)
+from kilonet.geometry import GeometryError
 from kilonet.message import Layout, Message
 from protocols.gcs_base import Phase
 
@@ -167,10 +173,8 @@ def half_map(
     >>> round(float(np.degrees(r_h.magnitude())), 6), round(err, 3)
     (45.0, 50.0)
     """
-    c_i, c_k = points_i.mean(axis=0), points_k.mean(axis=0)
-    full, _ = Rotation.align_vectors(points_k - c_k, points_i - c_i)
-    half = Slerp([0.0, 1.0], Rotation.concatenate([_IDENTITY, full]))(fraction)
-    shift = (1 - fraction) * c_i + fraction * c_k - half.apply(c_i)
+    full, full_shift = rotation_between_frames(points_i, points_k)
+    half, shift = half_step(full, full_shift, fraction, about_mm=points_i.mean(axis=0))
     disagreement = float(np.max(np.linalg.norm(points_k - points_i, axis=1)))
     return half, shift, disagreement
 
@@ -358,7 +362,10 @@ class FrameMerging(Phase):
             return None
         global_i = tf_i[0].apply(local_i) + tf_i[1]
         global_k = tf_k[0].apply(local_k) + tf_k[1]
-        return (*half_map(global_i, global_k), rank_k)
+        try:
+            return (*half_map(global_i, global_k), rank_k)
+        except GeometryError:  # members nearly in a line: no rotation to learn from them
+            return None
 
     def _answer(self, seed: int, partner: int, version: int) -> None:
         answer = self._compute_answer(seed, partner, version)
