@@ -82,7 +82,7 @@ from kilonet.geometry import GeometryError
 from kilonet.message import Layout, Message
 from protocols.gcs_base import Phase
 
-__all__ = ["FrameMerging", "half_map", "quaternion_fields", "rotation_from_fields"]
+__all__ = ["FrameMerging", "Transform", "half_map", "quaternion_fields", "rotation_from_fields"]
 
 _Q = [("q0", "h"), ("q1", "h"), ("q2", "h")]  # kilonet.alignment.pack_quaternion words
 _V = [("vx_mm", "h", 0.25), ("vy_mm", "h", 0.25), ("vz_mm", "h", 0.25)]
@@ -122,6 +122,55 @@ _DONE = 0x80
 _IDENTITY = Rotation.identity()
 
 
+class Transform:
+    """A seed's frame transform as a robot holds it: ``global = rotation · (x, y, 0) + shift``.
+
+    A heard transform keeps the three message words and decodes the rotation on first use:
+    robots hear many more transforms than they ever use, and decoding is the costly part.
+
+    Parameters
+    ----------
+    shift : (3,) array
+        mm.
+    version : int
+        The version byte as broadcast (bit 7: the seed is done).
+    rotation : Rotation, optional
+        The rotation itself (a seed's own transform) ...
+    words : tuple of three int, optional
+        ... or its :func:`quaternion_fields` words (a heard one).
+    """
+
+    __slots__ = ("_rotation", "_words", "shift", "version")
+
+    def __init__(
+        self,
+        shift: np.ndarray,
+        version: int,
+        *,
+        rotation: Rotation | None = None,
+        words: tuple[int, int, int] | None = None,
+    ) -> None:
+        if (rotation is None) == (words is None):
+            raise ValueError("give a Transform either its rotation or its words")
+        self._rotation, self._words = rotation, words
+        self.shift, self.version = shift, version
+
+    @property
+    def rotation(self) -> Rotation:
+        if self._rotation is None:
+            self._rotation = unpack_quaternion(self._words)
+        return self._rotation
+
+    @property
+    def done(self) -> bool:
+        """Whether the seed reported itself done with this version."""
+        return bool(self.version & _DONE)
+
+    def apply(self, points_mm: np.ndarray) -> np.ndarray:
+        """Local points, (n, 3) or (3,), mm, in the seed's "global" coordinates, mm."""
+        return self.rotation.apply(points_mm) + self.shift
+
+
 def quaternion_fields(rotation: Rotation) -> dict[str, int]:
     """The message fields of a rotation: the three words of
     :func:`kilonet.alignment.pack_quaternion` (at most 0.0086° lost, also near 180°)."""
@@ -159,8 +208,10 @@ def half_map(
     -------
     rotation, shift, disagreement_mm
         ``R_H`` (the fraction of the rotation, SLERP from the identity), ``t_H`` moving the
-        centroid by the same fraction, and the largest distance between a robot's two
-        positions.
+        centroid by the same fraction, and the disagreement of the two transforms: the
+        farthest the full rigid map moves one of the robots. (Not the largest distance between
+        a robot's two positions: that also holds the members' own position errors, which no
+        transform removes, so it would never fall below them.)
 
     Examples
     --------
@@ -175,7 +226,8 @@ def half_map(
     """
     full, full_shift = rotation_between_frames(points_i, points_k)
     half, shift = half_step(full, full_shift, fraction, about_mm=points_i.mean(axis=0))
-    disagreement = float(np.max(np.linalg.norm(points_k - points_i, axis=1)))
+    moved = full.apply(points_i) + full_shift
+    disagreement = float(np.max(np.linalg.norm(moved - points_i, axis=1)))
     return half, shift, disagreement
 
 
@@ -188,7 +240,7 @@ class FrameMerging(Phase):
         r = self.robot
         tps = r.ticks_per_s
         self.round_ticks = round(self.params.merge_round_s * tps)
-        # Transforms heard, by seed: (rotation, shift, version, done); parts by version.
+        # Transforms heard, by seed (a Transform each); their halves are collected by version.
         r.transforms = {}
         # Halves of the transform being heard, by seed: (version, {"rot"/"shift": message}).
         self.parts: dict[int, tuple[int | None, dict[str, object]]] = {}
@@ -197,7 +249,9 @@ class FrameMerging(Phase):
         self.heard_at: dict[int, int] = {}
         self.fresh_ticks = round(8 * self.params.merge_round_s * r.ticks_per_s)
         self.outbox: list[Message] = []
-        self.answers: dict[tuple[int, int], list[Message]] = {}
+        # The last answer given to each seed: (version byte, messages). Only the latest is kept:
+        # versions wrap after 128 rounds, and an answer to an old round must never be resent.
+        self.answers: dict[int, tuple[int, list[Message]]] = {}
         self.turn = 0
         # Rank of each seed heard, by frame key: root frame key · 256 + hops (smaller better).
         self.ranks: dict[int, int] = r.ranks
@@ -214,6 +268,7 @@ class FrameMerging(Phase):
             self.received: dict[str, object] = {}
             self.round_start = r.kilo_ticks
             self.rank = r.frame_key(r.uid) << 8
+            self.partner_ranks: dict[int, int] = {}  # as the last answer about each reported
             self.key = r.frame_key(r.uid)
             self._publish()
             if not r.partners:
@@ -230,7 +285,9 @@ class FrameMerging(Phase):
 
     def _publish(self) -> None:
         r = self.robot
-        r.transforms[self.key] = (self.rotation, self.shift, self.version, self.done)
+        r.transforms[self.key] = Transform(
+            self.shift, self._version_byte(), rotation=self.rotation
+        )
         self.ranks[self.key] = self.rank
 
     def _version_byte(self) -> int:
@@ -238,7 +295,13 @@ class FrameMerging(Phase):
 
     def _new_round(self) -> None:
         r = self.robot
-        partner = sorted(r.partners)[int(r.rand.integers(len(r.partners)))]
+        # Every other round goes to the best-ranked partner known (the parent it follows), the
+        # rest to a partner at random: that is how better ranks are found at all.
+        parents = [k for k in sorted(r.partners) if self.partner_ranks.get(k, 1 << 40) < self.rank]
+        if parents and self.rounds % 2 == 0:
+            partner = min(parents, key=self.partner_ranks.__getitem__)
+        else:
+            partner = sorted(r.partners)[int(r.rand.integers(len(r.partners)))]
         members = sorted(r.partners[partner])
         member = members[int(r.rand.integers(len(members)))]
         self.asking = (member, partner)
@@ -253,6 +316,8 @@ class FrameMerging(Phase):
         self, rotation: Rotation, shift: np.ndarray, error_mm: float, partner_rank: int
     ) -> None:
         r = self.robot
+        if self.asking is not None:
+            self.partner_ranks[self.asking[1]] = partner_rank
         same_root = partner_rank >> 8 == self.rank >> 8
         agreed = error_mm <= self.params.merge_tolerance_mm and same_root
         # The answer is the half step: take it toward a better-ranked partner and follow that
@@ -349,7 +414,7 @@ class FrameMerging(Phase):
         key = (min(seed, partner), max(seed, partner))
         group = r.groups.get(key)
         tf_i, tf_k = r.transforms.get(seed), r.transforms.get(partner)
-        if group is None or tf_i is None or tf_k is None or tf_i[2] & 0x7F != version & 0x7F:
+        if group is None or tf_i is None or tf_k is None or tf_i.version & 0x7F != version & 0x7F:
             return None
         heard = self.heard_at.get(seed, -(10**9))
         if seed != getattr(self, "key", None) and r.kilo_ticks - heard > self.fresh_ticks:
@@ -360,8 +425,7 @@ class FrameMerging(Phase):
             return None
         if rank_k is None:
             return None
-        global_i = tf_i[0].apply(local_i) + tf_i[1]
-        global_k = tf_k[0].apply(local_k) + tf_k[1]
+        global_i, global_k = tf_i.apply(local_i), tf_k.apply(local_k)
         try:
             return (*half_map(global_i, global_k), rank_k)
         except GeometryError:  # members nearly in a line: no rotation to learn from them
@@ -374,7 +438,7 @@ class FrameMerging(Phase):
         rotation, shift, error, rank_k = answer
         r = self.robot
         tx, ty, tz = shift
-        self.answers[(seed, version & 0x7F)] = [
+        messages = [
             ANS_ROT.pack(sender=r.uid, version=version, **quaternion_fields(rotation)),
             ANS_SHIFT.pack(sender=r.uid, version=version, vx_mm=tx, vy_mm=ty, vz_mm=tz),
             ANS_ERROR.pack(
@@ -386,7 +450,8 @@ class FrameMerging(Phase):
                 partner_hops=rank_k & 0xFF,
             ),
         ]
-        self.outbox.extend(self.answers[(seed, version & 0x7F)])
+        self.answers[seed] = (version & 0x7F, messages)
+        self.outbox.extend(messages)
 
     def _track_transform(self, message: Message) -> None:
         r = self.robot
@@ -408,11 +473,10 @@ class FrameMerging(Phase):
             parts[part] = m
             if len(parts) == 2:
                 rot, shift = parts["rot"], parts["shift"]
-                r.transforms[key] = (
-                    rotation_from_fields(rot.q0, rot.q1, rot.q2),
+                r.transforms[key] = Transform(
                     np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm]),
                     m.version,
-                    bool(m.version & _DONE),
+                    words=(rot.q0, rot.q1, rot.q2),
                 )
                 self.heard_at[key] = r.kilo_ticks
 
@@ -431,8 +495,8 @@ class FrameMerging(Phase):
             m = QUERY.unpack(message)
             if m.member == r.uid and not self.outbox:
                 seed = r.frame_key(m.sender)
-                cached = self.answers.get((seed, m.version & 0x7F))
-                if cached is not None:
+                version, cached = self.answers.get(seed, (None, []))
+                if version == m.version & 0x7F:
                     self.outbox.extend(cached)
                 else:
                     self._answer(seed, (m.partner << 8) | m.partner_salt, m.version)

@@ -96,8 +96,9 @@ class GcsRobot(Kilobot):
         # Phase 5: this robot's groups {(I, K): (Y, Z)}; a seed's partners {K: {members}}.
         self.groups: dict[tuple[int, int], tuple[int, int]] = {}
         self.partners: dict[int, set[int]] = {}
-        # Phase 6: transforms heard, by seed: (rotation, shift (3,), version byte, done).
+        # Phase 6: transforms heard, by frame key (protocols.frame_merging.Transform).
         self.transforms: dict = {}
+        self._position_cache: tuple[tuple, tuple[float, float] | None] = ((), None)
         self.ranks: dict[int, int] = {}  # merge rank of each seed heard (frame_merging)
         self.merge_done = False
         # Positions neighbours announced, by frame key then neighbour ID, mm.
@@ -141,7 +142,7 @@ class GcsRobot(Kilobot):
             self.set_color(1, 1, 1)
         elif name == "seeds":
             self.set_color(0, 0, 2)
-        elif self.merge_done or (name == "merge" and self.global_position() is not None):
+        elif self.merge_done or (name == "merge" and self.global_root is not None):
             self.set_color(0, 3, 3)
         elif self.frames:
             self.set_color(0, 3, 0)
@@ -186,18 +187,20 @@ class GcsRobot(Kilobot):
             return None
         root = min(self.ranks[k] >> 8 for k in known)
         known = [k for k in known if self.ranks[k] >> 8 == root]
-        points = []
-        for key in known:
-            rotation, shift, _, _ = self.transforms[key]
-            x, y = self.frames[key]
-            points.append(rotation.apply([x, y, 0.0]) + shift)
+        # The LED asks often and transforms change seldom: recompute only on a new version.
+        state = tuple((k, self.transforms[k].version, id(self.transforms[k])) for k in known)
+        if state == self._position_cache[0]:
+            return self._position_cache[1]
+        points = [self.transforms[k].apply([*self.frames[k], 0.0]) for k in known]
         # Merged frames share one plane, tilted in general, but not one rotation (a frame that
         # was a mirror image faces the other way). Turning the plane's normal, taken on a fixed
         # side, onto +z depends on the plane alone, so every robot reads the same 2-D axes.
-        rotation, shift = self.transforms[known[0]][:2]
-        flat, _ = level(rotation, shift)
-        planar = (flat * rotation.inv()).apply(np.mean(points, axis=0))
-        return float(planar[0]), float(planar[1])
+        first = self.transforms[known[0]]
+        flat, _ = level(first.rotation, first.shift)
+        planar = (flat * first.rotation.inv()).apply(np.mean(points, axis=0))
+        position = float(planar[0]), float(planar[1])
+        self._position_cache = (state, position)
+        return position
 
     @property
     def global_root(self) -> int | None:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from kilonet.alignment import (
     _LEVEL_UP,
@@ -109,6 +109,20 @@ def test_rotation_between_frames_is_least_squares_like_procrustes():
     assert apply_2d(rot, v, local) == pytest.approx(aligned, abs=1e-9)
 
 
+@settings(max_examples=80, deadline=None)
+@given(point_sets, quaternions, st.floats(0.0, 3.0))
+def test_rotation_between_frames_is_the_kabsch_optimum_of_align_vectors(points, quat, noise):
+    # The closed form (Horn's quaternion) must find the rotation scipy's Kabsch finds.
+    a = np.column_stack([np.array(points), np.zeros(len(points))])
+    assume(_spread(a[:, :2]) > 1.0)
+    rng = np.random.default_rng(len(points))
+    b = Rotation.from_quat(quat).apply(a) + rng.normal(0.0, noise, a.shape)
+    assume(_spread(b) > 1.0)
+    rot, _ = rotation_between_frames(a, b)
+    kabsch, _ = Rotation.align_vectors(b - b.mean(axis=0), a - a.mean(axis=0))
+    assert (rot * kabsch.inv()).magnitude() == pytest.approx(0.0, abs=1e-6)
+
+
 def test_rotation_between_frames_refuses_collinear_and_malformed_input():
     line = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.0]])
     with pytest.raises(GeometryError, match="frame a are collinear"):
@@ -198,6 +212,14 @@ def test_half_step_interpolates_between_identity_and_the_transform(quat, shift, 
         r1, v1 = half_step(full, shift, 1.0, about_mm=centre)
         assert transform_distance(r1, v1, full, shift)[0] == pytest.approx(0.0, abs=1e-7)
         assert transform_distance(r1, v1, full, shift)[1] == pytest.approx(0.0, abs=1e-6)
+
+
+@given(quaternions, st.floats(0.0, 1.0))
+def test_half_step_turns_exactly_as_scipy_slerp_from_the_identity(quat, frac):
+    full = Rotation.from_quat(quat)
+    slerp = Slerp([0.0, 1.0], Rotation.concatenate([Rotation.identity(), full]))([frac])[0]
+    rot, _ = half_step(full, [0.0, 0.0], frac)
+    assert (rot * slerp.inv()).magnitude() == pytest.approx(0.0, abs=1e-7)
 
 
 @settings(max_examples=20, deadline=None)
