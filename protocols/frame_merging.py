@@ -7,18 +7,21 @@ broadcast their transform (TF_ROT, TF_SHIFT) with an 8-bit version.
 
 A round of seed I:
 
-1. I picks at random a partner frame K and a robot X that registered a merging group (X, Y, Z)
-   for (I, K), and sends ``QUERY(I → X, K, version)``, repeating it until answered or until
-   ``gcs.merge_round_s`` passes (then it tries another member).
+1. I picks a partner frame K — every other round the best-ranked partner it knows of (see
+   ranks below), otherwise each partner in turn — and a robot X that registered a merging group
+   (X, Y, Z) for (I, K), and sends ``QUERY(I → X, K, version, tag)``, repeating it until
+   answered or until ``gcs.merge_round_s`` passes (then a new round starts). The tag numbers
+   the round: the answer carries it, so an answer to an earlier round (perhaps about another
+   partner, from the same member, for the same version) is never taken for this one's.
 2. X, once it holds I's transform of that version and K's latest transform, maps the three
    members' local positions into both "global" frames, finds the rigid map M from I's to K's
-   (Kabsch, ``scipy.spatial.transform.Rotation.align_vectors``), and takes **half** of it:
+   (the least-squares rotation: Horn's closed form, the same optimum as Kabsch in
+   ``scipy.spatial.transform.Rotation.align_vectors``), and takes **half** of it:
    R_H = Slerp(I, R_M)(½) and the shift that moves the members' centroid half way,
    t_H = (c_I + c_K)/2 − R_H c_I. It answers with R_H (a quaternion, ANS_ROT), t_H (ANS_SHIFT)
-   and the members' largest disagreement between the two frames (ANS_ERROR).
+   and the disagreement of the two transforms: the farthest M moves a member (ANS_ERROR).
 3. I applies the step: R_I ← R_H R_I, v_I ← R_H v_I + t_H, bumps its version and
-   broadcasts the new transform. Its partner seeds do the same towards it, so frames meet
-   instead of oscillating.
+   broadcasts the new transform.
 
 Beyond the thesis — a rank. Half steps alone are a diffusion: on a chain of L frames agreement
 takes on the order of L² rounds, and with delayed, noisy answers it keeps ringing (we measured
@@ -36,9 +39,11 @@ the frames lock together in a number of rounds that grows with the diameter, not
 and settle instead of ringing (see the measurements below).
 
 Termination, decided by each seed alone: when ``gcs.merge_stable_rounds`` answers in a row
-report a disagreement within ``gcs.merge_tolerance_mm`` from partners of the same root, the seed
-is done (bit 7 of its version). It keeps running rounds, so a smaller root arriving later, or a
-partner that disagrees again, revokes "done" until it agrees anew. A seed with no registered
+agree and every partner has answered at least once, the seed is done (bit 7 of its version).
+An answer agrees when the partner ranks worse or equal (this seed does not move toward it:
+that partner follows its own parent), or when the parent's disagreement is within
+``gcs.merge_tolerance_mm``. The seed keeps running rounds, so a smaller root arriving later, or
+a parent that disagrees again, revokes "done" until it agrees anew. A seed with no registered
 group is isolated and done at once; a seed after ``gcs.merge_max_rounds`` rounds gives up.
 
 A robot's global position g is the mean, over the frames it is located in whose transform it
@@ -52,13 +57,13 @@ shifts int16 in 0.25 mm)::
     type 60 TF_ROT     sender:uint16  version:uint8  q0 q1 q2:int16          9 bytes
     type 61 TF_SHIFT   sender:uint16  version:uint8  vx vy vz:int16          9 bytes
     type 62 QUERY      sender:uint16  member:uint16  partner:uint16  salt:uint8
-                       version:uint8                                         8 bytes
+                       version:uint8  tag:uint8                              9 bytes
 
 Frames (partners, transforms) are named by frame keys: seed ID and salt
 (:meth:`protocols.gcs.GcsRobot.frame_key`).
-    type 63 ANS_ROT    sender:uint16  version:uint8  q0 q1 q2:int16          9 bytes
-    type 64 ANS_SHIFT  sender:uint16  version:uint8  tx ty tz:int16          9 bytes
-    type 65 ANS_ERROR  sender:uint16  version:uint8  error:uint16 (0.1 mm)
+    type 63 ANS_ROT    sender:uint16  tag:uint8  q0 q1 q2:int16              9 bytes
+    type 64 ANS_SHIFT  sender:uint16  tag:uint8  tx ty tz:int16              9 bytes
+    type 65 ANS_ERROR  sender:uint16  tag:uint8  error:uint16 (0.1 mm)
                        partner_root:uint16  partner_root_salt:uint8
                        partner_hops:uint8                                    9 bytes
     type 66 TF_ROOT    sender:uint16  root:uint16  root_salt:uint8  hops:uint8   6 bytes
@@ -81,6 +86,7 @@ from kilonet.alignment import (
 from kilonet.geometry import GeometryError
 from kilonet.message import Layout, Message
 from protocols.gcs_base import Phase
+from protocols.split_detection import SplitCheck
 
 __all__ = ["FrameMerging", "Transform", "half_map", "quaternion_fields", "rotation_from_fields"]
 
@@ -97,16 +103,17 @@ QUERY = Layout(
         ("partner", "H"),
         ("partner_salt", "B"),
         ("version", "B"),
+        ("tag", "B"),
     ],
 )
-ANS_ROT = Layout("ans_rot", type=63, fields=[("sender", "H"), ("version", "B"), *_Q])
-ANS_SHIFT = Layout("ans_shift", type=64, fields=[("sender", "H"), ("version", "B"), *_V])
+ANS_ROT = Layout("ans_rot", type=63, fields=[("sender", "H"), ("tag", "B"), *_Q])
+ANS_SHIFT = Layout("ans_shift", type=64, fields=[("sender", "H"), ("tag", "B"), *_V])
 ANS_ERROR = Layout(
     "ans_error",
     type=65,
     fields=[
         ("sender", "H"),
-        ("version", "B"),
+        ("tag", "B"),
         ("error_mm", "H", 0.1),
         ("partner_root", "H"),
         ("partner_root_salt", "B"),
@@ -249,16 +256,24 @@ class FrameMerging(Phase):
         self.heard_at: dict[int, int] = {}
         self.fresh_ticks = round(8 * self.params.merge_round_s * r.ticks_per_s)
         self.outbox: list[Message] = []
-        # The last answer given to each seed: (version byte, messages). Only the latest is kept:
-        # versions wrap after 128 rounds, and an answer to an old round must never be resent.
+        # The last answer given to each seed: (round tag, messages). Only the latest is kept:
+        # tags wrap after 256 rounds, and an answer to an old round must never be resent.
         self.answers: dict[int, tuple[int, list[Message]]] = {}
         self.turn = 0
         # Rank of each seed heard, by frame key: root frame key · 256 + hops (smaller better).
-        self.ranks: dict[int, int] = r.ranks
+        # Merging (again, after a recovery) starts afresh: transforms, ranks and the check.
+        r.ranks = self.ranks = {}
+        r.merge_done = False
+        r.check = SplitCheck(r)
+        self.done_since: int | None = None
         if r.is_seed:
             self.rotation = _IDENTITY
             self.shift = np.zeros(3)
             self.version = 0
+            # Every round has its own tag, carried by the query and its answers: versions
+            # change only when a step is taken, so a round that timed out and a new one (maybe
+            # about another partner, with the same member) would otherwise share answers.
+            self.tag = 0
             self.done = False
             self.final = False
             self.rounds = 0
@@ -269,6 +284,7 @@ class FrameMerging(Phase):
             self.round_start = r.kilo_ticks
             self.rank = r.frame_key(r.uid) << 8
             self.partner_ranks: dict[int, int] = {}  # as the last answer about each reported
+            self.turns = 0  # rounds started (answered or not)
             self.key = r.frame_key(r.uid)
             self._publish()
             if not r.partners:
@@ -280,14 +296,13 @@ class FrameMerging(Phase):
         self.final = how != "agreed"  # isolated or gave up: no more rounds
         r = self.robot
         r.merge_done = True
+        self.done_since = r.kilo_ticks
         r.log("merge_done", how=how, rounds=self.rounds)
         self._publish()
 
     def _publish(self) -> None:
         r = self.robot
-        r.transforms[self.key] = Transform(
-            self.shift, self._version_byte(), rotation=self.rotation
-        )
+        r.transforms[self.key] = Transform(self.shift, self._version_byte(), rotation=self.rotation)
         self.ranks[self.key] = self.rank
 
     def _version_byte(self) -> int:
@@ -296,15 +311,18 @@ class FrameMerging(Phase):
     def _new_round(self) -> None:
         r = self.robot
         # Every other round goes to the best-ranked partner known (the parent it follows), the
-        # rest to a partner at random: that is how better ranks are found at all.
-        parents = [k for k in sorted(r.partners) if self.partner_ranks.get(k, 1 << 40) < self.rank]
-        if parents and self.rounds % 2 == 0:
+        # others to each partner in turn: that is how better ranks are found at all.
+        partners = sorted(r.partners)
+        parents = [k for k in partners if self.partner_ranks.get(k, 1 << 40) < self.rank]
+        self.turns += 1
+        if parents and self.turns % 2 == 0:
             partner = min(parents, key=self.partner_ranks.__getitem__)
         else:
-            partner = sorted(r.partners)[int(r.rand.integers(len(r.partners)))]
+            partner = partners[(self.turns // 2) % len(partners)]
         members = sorted(r.partners[partner])
         member = members[int(r.rand.integers(len(members)))]
         self.asking = (member, partner)
+        self.tag = (self.tag + 1) & 0xFF
         self.received = {}
         self.round_start = r.kilo_ticks
         if member == r.uid:  # the seed is a member itself: no message needed
@@ -318,8 +336,10 @@ class FrameMerging(Phase):
         r = self.robot
         if self.asking is not None:
             self.partner_ranks[self.asking[1]] = partner_rank
-        same_root = partner_rank >> 8 == self.rank >> 8
-        agreed = error_mm <= self.params.merge_tolerance_mm and same_root
+        # Only a better-ranked partner (a parent) can be disagreed with: this seed moves toward
+        # it. An equal or worse one follows its own parent; its disagreement is its business,
+        # and letting it revoke "done" kept seeds resuming long after they had settled.
+        agreed = partner_rank >= self.rank or error_mm <= self.params.merge_tolerance_mm
         # The answer is the half step: take it toward a better-ranked partner and follow that
         # partner; toward an equal or worse one stay (it follows its own parent). Ranks only
         # fall, so a partner rank the member heard a while ago errs on the side of staying.
@@ -338,12 +358,19 @@ class FrameMerging(Phase):
             error_mm=round(error_mm, 3),
             root=self.rank >> 16,
             hops=self.rank & 0xFF,
+            partner=self.asking[1] >> 8 if self.asking else -1,
+            partner_hops=partner_rank & 0xFF,
+            stepped=steps,
         )
         self.asking = None
         if self.done and not agreed:
             self.done = r.merge_done = False  # a partner disagrees again: keep merging
+            self.done_since = None
             r.log("merge_resumed", rounds=self.rounds)
-        if not self.done and self.stable >= self.params.merge_stable_rounds:
+        # Done only once every partner has answered at least once: a partner never asked may
+        # hold a better root, and a seed done before hearing of it would soon resume.
+        heard_all = len(self.partner_ranks) == len(r.partners)
+        if not self.done and heard_all and self.stable >= self.params.merge_stable_rounds:
             self._finish("agreed")
         elif self.rounds >= self.params.merge_max_rounds:
             self._finish("gave_up")
@@ -371,6 +398,7 @@ class FrameMerging(Phase):
                 partner=partner >> 8,
                 partner_salt=partner & 0xFF,
                 version=version,
+                tag=self.tag,
             )
         if self.turn % 2 == 0:
             return TF_ROT.pack(sender=r.uid, version=version, **quaternion_fields(self.rotation))
@@ -384,7 +412,7 @@ class FrameMerging(Phase):
         for layout, part in ((ANS_ROT, "rot"), (ANS_SHIFT, "shift"), (ANS_ERROR, "error")):
             if layout.matches(message):
                 m = layout.unpack(message)
-                if m.sender == member and m.version & 0x7F == self.version & 0x7F:
+                if m.sender == member and m.tag == self.tag:
                     self.received[part] = m
         if len(self.received) == 3:
             rot, shift, error = (self.received[k] for k in ("rot", "shift", "error"))
@@ -431,7 +459,7 @@ class FrameMerging(Phase):
         except GeometryError:  # members nearly in a line: no rotation to learn from them
             return None
 
-    def _answer(self, seed: int, partner: int, version: int) -> None:
+    def _answer(self, seed: int, partner: int, version: int, tag: int) -> None:
         answer = self._compute_answer(seed, partner, version)
         if answer is None:
             return
@@ -439,18 +467,18 @@ class FrameMerging(Phase):
         r = self.robot
         tx, ty, tz = shift
         messages = [
-            ANS_ROT.pack(sender=r.uid, version=version, **quaternion_fields(rotation)),
-            ANS_SHIFT.pack(sender=r.uid, version=version, vx_mm=tx, vy_mm=ty, vz_mm=tz),
+            ANS_ROT.pack(sender=r.uid, tag=tag, **quaternion_fields(rotation)),
+            ANS_SHIFT.pack(sender=r.uid, tag=tag, vx_mm=tx, vy_mm=ty, vz_mm=tz),
             ANS_ERROR.pack(
                 sender=r.uid,
-                version=version,
+                tag=tag,
                 error_mm=min(error, 6500.0),
                 partner_root=rank_k >> 16,
                 partner_root_salt=(rank_k >> 8) & 0xFF,
                 partner_hops=rank_k & 0xFF,
             ),
         ]
-        self.answers[seed] = (version & 0x7F, messages)
+        self.answers[seed] = (tag, messages)
         self.outbox.extend(messages)
 
     def _track_transform(self, message: Message) -> None:
@@ -495,11 +523,11 @@ class FrameMerging(Phase):
             m = QUERY.unpack(message)
             if m.member == r.uid and not self.outbox:
                 seed = r.frame_key(m.sender)
-                version, cached = self.answers.get(seed, (None, []))
-                if version == m.version & 0x7F:
+                tag, cached = self.answers.get(seed, (None, []))
+                if tag == m.tag:
                     self.outbox.extend(cached)
                 else:
-                    self._answer(seed, (m.partner << 8) | m.partner_salt, m.version)
+                    self._answer(seed, (m.partner << 8) | m.partner_salt, m.version, m.tag)
         if r.is_seed:
             self._seed_receive(message)
 

@@ -61,9 +61,20 @@ class GcsParams:
     )
     merge_round_s: float = param(4.0, lo=0.5, hi=600.0, doc="time-out of one merging round")
     merge_max_rounds: int = param(400, lo=1, hi=100_000, doc="rounds a seed runs at most")
-    merge_tolerance_mm: float = param(2.0, lo=0.01, hi=100.0, doc="partners agree within this")
-    merge_tolerance_deg: float = param(1.0, lo=0.01, hi=90.0, doc="and within this angle")
+    merge_tolerance_mm: float = param(
+        4.0, lo=0.01, hi=100.0, doc="a seed agrees with its parent within this (map motion)"
+    )
     merge_stable_rounds: int = param(4, lo=1, hi=1000, doc="agreeing rounds before done")
+    check_tolerance_mm: float = param(
+        8.0, lo=0.1, hi=1000.0, doc="measured and computed neighbour distances agree within this"
+    )
+    split_confirm_s: float = param(
+        20.0, lo=0.5, hi=3600.0, doc="a split boundary must persist this long to act on it"
+    )
+    recoveries: int = param(2, lo=0, hi=20, doc="recovery epochs (edge seeds, phases 3-6) at most")
+    recover_flood_s: float = param(
+        20.0, lo=1.0, hi=600.0, doc="a recovery epoch starts this long after it is requested"
+    )
 
 
 class Phase:
