@@ -9,6 +9,10 @@ The phases (one module each) run in windows on the robot's own clock, in order:
 5. :mod:`protocols.merging_groups` — groups of three robots located in the same two frames;
 6. :mod:`protocols.frame_merging` — rounds of half-way transforms until partners agree.
 
+Alongside merging, :mod:`protocols.split_detection` checks the merged frame against measured
+distances, and :mod:`protocols.recovery` answers a split that persists with a recovery epoch:
+edge seeds (phase ``edges``) and phases 3-6 again, at most ``gcs.recoveries`` times.
+
 ``gcs.until`` stops the program after a phase. The robot's state that phases share lives on
 :class:`GcsRobot` (its ID, neighbour table, seeds in view, local positions, transforms); phases
 hold their own working state. LED: phase 1 white, 2 blue (seeds red), 3 references yellow,
@@ -28,7 +32,9 @@ from protocols.local_frames import LocalFrames
 from protocols.localization import Localization
 from protocols.merging_groups import MergingGroups
 from protocols.neighbours import NeighbourTable
+from protocols.recovery import EdgeSeeds, RecoveryFlood
 from protocols.seed_election import SeedElection
+from protocols.split_detection import SplitCheck
 from protocols.unique_ids import UniqueIds
 
 __all__ = ["GcsRobot", "phase_windows_s"]
@@ -36,6 +42,14 @@ __all__ = ["GcsRobot", "phase_windows_s"]
 _PHASE_CLASSES: tuple[type[Phase], ...] = (
     UniqueIds,
     SeedElection,
+    LocalFrames,
+    Localization,
+    MergingGroups,
+    FrameMerging,
+)
+#: What a recovery epoch runs: edge seeds, then phases 3-6 again.
+_RECOVERY_CLASSES: tuple[type[Phase], ...] = (
+    EdgeSeeds,
     LocalFrames,
     Localization,
     MergingGroups,
@@ -101,6 +115,11 @@ class GcsRobot(Kilobot):
         self._position_cache: tuple[tuple, tuple[float, float] | None] = ((), None)
         self.ranks: dict[int, int] = {}  # merge rank of each seed heard (frame_merging)
         self.merge_done = False
+        # Checking and recovering (split_detection, recovery): the check runs while merging.
+        self.check: SplitCheck | None = None
+        self.recovery = RecoveryFlood(self)
+        self.epoch = 0  # recovery epochs started so far
+        self.edge_seed = False
         # Positions neighbours announced, by frame key then neighbour ID, mm.
         self.announced: dict[int, dict[int, tuple[float, float]]] = {}
         tps = self.ticks_per_s
@@ -133,6 +152,22 @@ class GcsRobot(Kilobot):
             self.phase.finish()
             self.phase = None  # past the last phase asked for: the robot falls silent
 
+    def schedule_recovery(self, epoch: int, start_tick: int) -> None:
+        """Run recovery epoch ``epoch`` from ``start_tick``: the running phase (merging) ends
+        there and edge seeds, frames, localization, groups and merging follow in windows of
+        the usual lengths (see :mod:`protocols.recovery`)."""
+        self.epoch = epoch
+        p = self.params
+        lengths = (p.elect_s, p.frames_s, p.localization_s, p.groups_s, float("inf"))
+        cls, start, _ = self._windows[self._phase_index]
+        windows = [*self._windows[: self._phase_index], (cls, start, start_tick)]
+        t = start_tick
+        for cls, length in zip(_RECOVERY_CLASSES, lengths, strict=True):
+            end = t + length * self.ticks_per_s
+            windows.append((cls, round(t), end))
+            t = end
+        self._windows = windows
+
     def _show(self) -> None:
         """LED by phase and role, as listed in the module docstring."""
         name = self.phase_name
@@ -163,6 +198,9 @@ class GcsRobot(Kilobot):
                 self._receive(*received)
         if self.phase is not None:
             self.phase.loop()
+            check = self.check
+            if check is not None and not self.recovery.pending and check.wants_recovery():
+                self.recovery.request()
             self._loops += 1
             if self._loops % 16 == 0:  # refresh the LED now and then, not every loop
                 self._show()
@@ -212,7 +250,15 @@ class GcsRobot(Kilobot):
 
     def message_tx(self) -> Message | None:
         self._advance()
-        return self.phase.message_tx() if self.phase is not None else None
+        flood = self.recovery.message_tx()
+        if flood is not None:
+            return flood
+        if self.phase is None:
+            return None
+        message = self.phase.message_tx()
+        if message is None and self.check is not None and self.phase_name == "merge":
+            message = self.check.message_tx()
+        return message
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
         self._receive(message, distance_mm)
@@ -220,7 +266,10 @@ class GcsRobot(Kilobot):
     def _receive(self, message: Message, distance_mm: int) -> None:
         if self.phase is None:
             return
+        self.recovery.message_rx(message)
         self.phase.message_rx(message, distance_mm)
+        if self.check is not None and self.phase_name == "merge":
+            self.check.message_rx(message)
         sender = int.from_bytes(message.data[:2], "little")
         if sender != self.uid:
             self.table.heard(sender, distance_mm, tick=self.kilo_ticks)

@@ -74,12 +74,14 @@ class LocalFrames(Phase):
         # Asking side (seeds): tables heard, by neighbour: chunk -> entries, and last chunk.
         self.tables: dict[int, dict[int, list[tuple[int, int]]]] = {}
         self.last_chunk: dict[int, int] = {}
-        self.queue = [uid for uid in r.table.ids()] if r.is_seed else []
+        # A seed that built its frame in an earlier epoch (protocols.recovery) keeps it: the
+        # positions located in it must stay valid.
+        self.queue = [uid for uid in r.table.ids()] if r.is_seed and not r.references else []
         self.attempts = dict.fromkeys(self.queue, 0)
         self.asking: int | None = None
         self.asked_at = 0
-        self.references: list[tuple[int, float, float]] = []
-        self.tried = False  # the seed has chosen (or failed to choose) its references
+        self.references: list[tuple[int, float, float]] = list(r.references)
+        self.tried = bool(r.references)  # the seed has chosen (or failed to choose) references
         self.skipped = 0
 
     # -- answering ---------------------------------------------------------------------------

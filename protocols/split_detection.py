@@ -1,0 +1,136 @@
+"""Checking the merged frame from inside the swarm: the thesis's detection (§7), finished here.
+
+Once a robot is *settled* — it has a global position and every transform that position uses is
+marked done by its seed — it broadcasts that position now and then::
+
+    type 70 POS  sender:uint16  x:int16  y:int16 (0.5 mm)  root:uint16  root_salt:uint8  9 bytes
+
+``root`` is the frame key of the merged frame its estimate is in (see
+:mod:`protocols.frame_merging`). A settled robot that hears a settled neighbour compares, as
+the thesis proposes, the distance computed from both global positions with the distance it
+measures (the running mean of its neighbour table):
+
+* the neighbour is in **another merged frame** (another root) — the two frames were never
+  merged, and the computed distance means nothing: this robot is on the boundary of a split;
+* same frame, but the two distances differ by more than ``gcs.check_tolerance_mm``: the merged
+  frame is **inconsistent** here (a bad fix or a bad merge).
+
+The flags describe the latest message from each neighbour, so they clear when merging goes
+on and the frames meet after all. A robot that has been on a split boundary for
+``gcs.split_confirm_s`` without interruption asks for a recovery
+(:mod:`protocols.recovery`) — unless ``gcs.recoveries`` have been run already.
+
+The comparison uses only what the robot heard: its neighbours' messages and its own ranging.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from kilonet.message import Layout, Message
+
+if TYPE_CHECKING:
+    from protocols.gcs import GcsRobot
+
+__all__ = ["POS", "SplitCheck"]
+
+POS = Layout(
+    "pos",
+    type=70,
+    fields=[
+        ("sender", "H"),
+        ("x_mm", "h", 0.5),
+        ("y_mm", "h", 0.5),
+        ("root", "H"),
+        ("root_salt", "B"),
+    ],
+)
+_POS_EVERY = 4  # one message opportunity in this many carries a POS (others are free)
+_LIMIT_MM = 16383.0  # int16 in 0.5 mm
+
+
+class SplitCheck:
+    """The check on one robot, run alongside merging (phase 6).
+
+    Attributes
+    ----------
+    other_frame : dict[int, int]
+        Neighbour ID → root of the other merged frame it reported.
+    inconsistent : dict[int, float]
+        Neighbour ID → |computed − measured| distance, mm, where above the tolerance.
+    boundary_since : int or None
+        Tick since which the robot has been on a split boundary without interruption.
+    """
+
+    def __init__(self, robot: GcsRobot) -> None:
+        self.robot = robot
+        self.params = robot.params
+        self.other_frame: dict[int, int] = {}
+        self.inconsistent: dict[int, float] = {}
+        self.boundary_since: int | None = None
+        self.turn = 0
+
+    # -- own state ---------------------------------------------------------------------------
+    def settled(self) -> bool:
+        """Whether this robot's global position is final as far as it can tell: it has one,
+        and every seed whose transform it uses has reported itself done."""
+        r = self.robot
+        root = r.global_root
+        if root is None:
+            return False
+        return all(
+            r.transforms[k].done
+            for k in r.frames
+            if k in r.transforms and r.ranks.get(k, -1) >> 8 == root
+        )
+
+    @property
+    def on_split_boundary(self) -> bool:
+        """A neighbour's estimate is in another merged frame."""
+        return bool(self.other_frame)
+
+    def wants_recovery(self) -> bool:
+        """On a split boundary for ``gcs.split_confirm_s`` and recoveries are left."""
+        r = self.robot
+        if self.boundary_since is None or r.epoch >= self.params.recoveries:
+            return False
+        confirm = round(self.params.split_confirm_s * r.ticks_per_s)
+        return r.kilo_ticks - self.boundary_since >= confirm
+
+    # -- messages ----------------------------------------------------------------------------
+    def message_tx(self) -> Message | None:
+        """A POS now and then, once settled."""
+        self.turn += 1
+        if self.turn % _POS_EVERY or not self.settled():
+            return None
+        r = self.robot
+        x, y = r.global_position()
+        if abs(x) > _LIMIT_MM or abs(y) > _LIMIT_MM:
+            return None  # a frame still far off its partners' (it will not stay settled)
+        root = r.global_root
+        return POS.pack(sender=r.uid, x_mm=x, y_mm=y, root=root >> 8, root_salt=root & 0xFF)
+
+    def message_rx(self, message: Message) -> None:
+        """Compare a settled neighbour's POS with this robot's own estimate and ranging."""
+        if not POS.matches(message):
+            return
+        r = self.robot
+        m = POS.unpack(message)
+        if m.sender not in r.table or not self.settled():
+            return
+        root = (m.root << 8) | m.root_salt
+        self.other_frame.pop(m.sender, None)
+        self.inconsistent.pop(m.sender, None)
+        if root != r.global_root:
+            self.other_frame[m.sender] = root
+        else:
+            x, y = r.global_position()
+            mismatch = abs(math.hypot(m.x_mm - x, m.y_mm - y) - r.table.distance(m.sender))
+            if mismatch > self.params.check_tolerance_mm:
+                self.inconsistent[m.sender] = mismatch
+        if self.other_frame and self.boundary_since is None:
+            self.boundary_since = r.kilo_ticks
+            r.log("split_detected", neighbours=sorted(self.other_frame))
+        elif not self.other_frame:
+            self.boundary_since = None
