@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -23,14 +22,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import scenarios
-from kilonet.geometry import (
-    GeometryError,
-    choose_references_best_conditioned,
-    choose_references_max_angle,
-)
-from kilonet.topology import failure_cases, rigidity_facts
-from kilonet.visibility import communication_graph
-from protocols.merging_groups import find_groups
+from scenarios.prediction import predict_from_seeds
 
 __all__ = ["predict", "register"]
 
@@ -50,57 +42,8 @@ def predict(
         placement=placement,
     )
     sim = result.sim
-    p = sim.params
-    pos = sim.world.positions_mm
-    graph = communication_graph(pos, p.medium.range_mm, line_of_sight=p.medium.line_of_sight)
     seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
-    rule = (
-        choose_references_max_angle
-        if p.scenario.reference_rule == "max_angle"
-        else choose_references_best_conditioned
-    )
-    members: dict[int, set[int]] = {}
-    for s in seeds:
-        near = sorted(graph[s])
-        candidates = {
-            (b, c): (
-                math.dist(pos[s], pos[b]),
-                math.dist(pos[s], pos[c]),
-                math.dist(pos[b], pos[c]),
-            )
-            for k, b in enumerate(near)
-            for c in near[k + 1 :]
-            if graph.has_edge(b, c)
-        }
-        try:
-            (b, c), _ = rule(candidates)
-        except GeometryError:
-            continue
-        inside = {s, b, c}
-        changed = True
-        while changed:  # localization spreads among robots that see the seed
-            changed = False
-            for robot in near:
-                if robot not in inside and len(inside & set(graph[robot])) >= 3:
-                    inside.add(robot)
-                    changed = True
-        members[s] = inside
-    located = {i: sorted(s for s, m in members.items() if i in m) for i in range(sim.n_robots)}
-    groups = []
-    reach = p.medium.range_mm
-    for i in range(sim.n_robots):
-        own = {s: tuple(pos[i]) for s in located[i]}
-        announced = {s: {j: tuple(pos[j]) for j in members[s]} for s in located[i]}
-        found = find_groups(own, announced, set(graph[i]), reach, p.scenario.min_group_width_mm)
-        groups.extend(found)
-    cases = failure_cases(range(sim.n_robots), located, seeds, groups)
-    return {
-        "robots": sim.n_robots,
-        "seeds": seeds,
-        "located_in": located,
-        **cases,
-        **rigidity_facts(graph),
-    }
+    return predict_from_seeds(sim.world.positions_mm, sim.params, seeds)
 
 
 def _figure(pos: np.ndarray, report: dict[str, Any], path: Path) -> None:

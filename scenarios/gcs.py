@@ -35,6 +35,7 @@ from kilonet.visibility import communication_graph, visible_pairs
 from protocols.gcs import GcsRobot, phase_windows_s
 from protocols.gcs_base import GcsParams
 from scenarios.base import RunResult, Scenario
+from scenarios.prediction import predict_from_seeds
 
 __all__ = ["SCENARIO", "estimates_frame", "local_frames_frame"]
 
@@ -53,8 +54,23 @@ def _stop_when(sim: Simulation) -> bool:
     now = sim.env.now
     if name != "merge":
         return now >= end + 1.0  # a second more, so every robot has closed the last window
-    seeds = [r for r in sim.robots if r.is_seed]
-    return now > start and bool(seeds) and all(r.merge_done for r in seeds)
+    robots = sim.robots
+    seeds = [r for r in robots if r.is_seed]
+    if now <= start or not seeds or not all(r.merge_done for r in seeds):
+        return False
+    # Nothing more will happen: every robot merges in the same epoch, no recovery is announced
+    # or about to be (a split boundary that will be acted on), and since the last seed was done
+    # the robots have had the time to check their neighbours (split_detection).
+    p = sim.params.scenario
+    if len({r.epoch for r in robots}) > 1 or any(
+        r.phase_name != "merge"
+        or r.recovery.pending
+        or (r.check is not None and r.check.boundary_since is not None and r.epoch < p.recoveries)
+        for r in robots
+    ):
+        return False
+    settled_s = max(r.phase.done_since for r in seeds) / robots[0].ticks_per_s
+    return now - settled_s >= p.split_confirm_s + 2.0
 
 
 def _seed_robot_by_key(sim: Simulation) -> dict[int, int]:
@@ -80,6 +96,7 @@ def estimates_frame(sim: Simulation) -> pd.DataFrame:
     for i, r in enumerate(sim.robots):
         est = r.global_position() if hasattr(r, "transforms") else None
         root = r.global_root if est is not None else None
+        check = getattr(r, "check", None)
         rows.append(
             {
                 "robot": i,
@@ -91,6 +108,12 @@ def estimates_frame(sim: Simulation) -> pd.DataFrame:
                 "frame": "" if root is None else f"root{root}",
                 "localized": est is not None,
                 "seed_of_frame": seeds.get(r.frame_key(r.uid), -1) if r.is_seed else -1,
+                # Failure cases as this robot ended (thesis §7) and what the swarm detected.
+                "unlocalizable": not r.frames,
+                "isolated_seed": r.is_seed and not r.partners,
+                "split_boundary": check is not None and check.on_split_boundary,
+                "inconsistent": check is not None and bool(check.inconsistent),
+                "edge_seed": r.edge_seed,
             }
         )
     return pd.DataFrame(rows)
@@ -176,6 +199,17 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
     if "groups" in reached:
         out["merging_groups"] = int(sum(len(r.groups) for r in robots))
         out["failures"] = _failures(sim)
+        # What the geometry and phase 2's election predicted (scenarios.prediction), next to
+        # what happened: the topology sweep compares the two.
+        elected = [k for k, r in enumerate(robots) if r.is_seed and not r.edge_seed]
+        keys = {k: robots[k].frame_key(robots[k].uid) for k in elected}
+        prediction = predict_from_seeds(truth, sim.params, elected, keys)
+        out["predicted"] = {
+            "final_frames": prediction["final_frames"],
+            "unlocalizable": prediction["unlocalizable"],
+            "isolated_seeds": prediction["isolated_seeds"],
+            "boundary": prediction["boundary"],
+        }
     if "merge" in reached:
         est = estimates_frame(sim)
         done = est[est.localized]
@@ -197,6 +231,12 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
                     max((r.phase.rounds for r in robots if r.is_seed and r.phase), default=0)
                 ),
                 "seeds_done": int(sum(r.merge_done for r in robots if r.is_seed)),
+                "recoveries": int(max(r.epoch for r in robots)),
+                "edge_seeds": int(est.edge_seed.sum()),
+                "detected": {
+                    "split_boundary": est.robot[est.split_boundary].tolist(),
+                    "inconsistent": est.robot[est.inconsistent].tolist(),
+                },
             }
         )
     return out

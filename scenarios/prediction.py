@@ -1,0 +1,135 @@
+"""Predicting the global coordinate system's outcome from the geometry and an election.
+
+Given true positions, the parameters and the seeds phase 2 elected, phases 3–5 are predicted
+from the geometry alone: each seed takes the reference pair its rule would choose from true
+distances; robots join a seed's frame when they see the seed and at least two robots already in
+that frame (repeated until nothing changes, as localization spreads); merging groups are found
+as the robots would find them (:func:`protocols.merging_groups.find_groups`). The frame graph's
+components (:func:`kilonet.topology.failure_cases`) are the global frames merging can reach.
+
+Used before a run (``kilonet analyze``) and after one (the ``gcs`` scenario reports the
+prediction next to what it observed).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from kilonet.geometry import (
+    GeometryError,
+    choose_references_best_conditioned,
+    choose_references_max_angle,
+)
+from kilonet.params import Params
+from kilonet.topology import failure_cases, rigidity_facts
+from kilonet.visibility import communication_graph
+from protocols.merging_groups import find_groups
+
+__all__ = ["predict_from_seeds"]
+
+
+def predict_from_seeds(
+    pos: np.ndarray,
+    params: Params,
+    seeds: Sequence[int],
+    frame_keys: Mapping[int, int] | None = None,
+) -> dict[str, Any]:
+    """The failure cases phases 3–6 will meet, predicted from geometry.
+
+    Parameters
+    ----------
+    pos : (n, 2) array
+        True positions, mm.
+    params : Params
+        The run's parameters (range, line of sight, the ``gcs`` section's reference rule and
+        thinnest group).
+    seeds : sequence of int
+        Robot indices elected seeds in phase 2.
+    frame_keys : mapping, optional
+        Seed index → its frame key (ID and salt, :meth:`protocols.gcs.GcsRobot.frame_key`).
+        A robot located in frames of several components reports the one of the smallest key
+        (the merged frame's root, as :mod:`protocols.frame_merging` ranks them); without keys,
+        the largest.
+
+    Returns
+    -------
+    dict
+        ``robots``, ``seeds``, ``located_in`` (robot → seeds whose frames it will be located
+        in), the cases of :func:`kilonet.topology.failure_cases` (``unlocalizable``,
+        ``isolated_seeds``, ``frames``, ``split``) and the rigidity facts of the communication
+        graph; ``final_frame`` (robot → index into ``frames`` of the merged frame it will
+        report, ``None`` if unlocalizable), ``final_frames`` (how many distinct ones robots
+        report) and ``boundary`` (robots with a neighbour reporting another merged frame).
+    """
+    p = params
+    n = len(pos)
+    graph = communication_graph(pos, p.medium.range_mm, line_of_sight=p.medium.line_of_sight)
+    rule = (
+        choose_references_max_angle
+        if p.scenario.reference_rule == "max_angle"
+        else choose_references_best_conditioned
+    )
+    members: dict[int, set[int]] = {}
+    for s in seeds:
+        near = sorted(graph[s])
+        candidates = {
+            (b, c): (
+                math.dist(pos[s], pos[b]),
+                math.dist(pos[s], pos[c]),
+                math.dist(pos[b], pos[c]),
+            )
+            for k, b in enumerate(near)
+            for c in near[k + 1 :]
+            if graph.has_edge(b, c)
+        }
+        try:
+            (b, c), _ = rule(candidates)
+        except GeometryError:
+            continue
+        inside = {s, b, c}
+        changed = True
+        while changed:  # localization spreads among robots that see the seed
+            changed = False
+            for robot in near:
+                if robot not in inside and len(inside & set(graph[robot])) >= 3:
+                    inside.add(robot)
+                    changed = True
+        members[s] = inside
+    located = {i: sorted(s for s, m in members.items() if i in m) for i in range(n)}
+    groups = []
+    reach = p.medium.range_mm
+    for i in range(n):
+        own = {s: tuple(pos[i]) for s in located[i]}
+        announced = {s: {j: tuple(pos[j]) for j in members[s]} for s in located[i]}
+        found = find_groups(own, announced, set(graph[i]), reach, p.scenario.min_group_width_mm)
+        groups.extend(found)
+    cases = failure_cases(range(n), located, list(seeds), groups)
+    component_of = {s: c for c, frames in enumerate(cases["frames"]) for s in frames}
+    if frame_keys is None:
+        order = {c: c for c in range(len(cases["frames"]))}  # largest first
+    else:
+        order = {c: min(frame_keys[s] for s in frames) for c, frames in enumerate(cases["frames"])}
+    final = {
+        i: min((component_of[s] for s in located[i]), key=order.__getitem__, default=None)
+        for i in range(n)
+    }
+    boundary = sorted(
+        i
+        for i in range(n)
+        if final[i] is not None
+        and any(final[j] is not None and final[j] != final[i] for j in graph[i])
+    )
+    return {
+        "robots": n,
+        "seeds": list(seeds),
+        "located_in": located,
+        **cases,
+        "final_frame": final,
+        "final_frames": len({c for c in final.values() if c is not None}),
+        "boundary": boundary,
+        **rigidity_facts(graph),
+    }
