@@ -74,7 +74,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.animate and args.out is None:
         raise UsageError("--animate needs --out DIR: the animation is drawn from the run directory")
     if args.placement is not None and not Path(args.placement).exists():
-        raise UsageError(f"{args.placement}: no such placement file")
+        from scenarios.thesis_placements import NAMED_PLACEMENTS
+
+        if args.placement not in NAMED_PLACEMENTS:
+            raise UsageError(
+                f"{args.placement}: no such placement file or named placement "
+                f"(named: {', '.join(NAMED_PLACEMENTS)})"
+            )
     result = scenarios.run(
         scenario, overrides, seed=args.seed, placement=args.placement, progress=not args.json
     )
@@ -131,7 +137,11 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a scenario and print its summary")
     run.add_argument("target", nargs="?", help="scenario name or run file (.toml)")
-    run.add_argument("--placement", help="CSV of start positions with columns x_mm,y_mm")
+    run.add_argument(
+        "--placement",
+        help="CSV of start positions with columns x_mm,y_mm, or a named placement "
+        "(thesis-7.1a, thesis-7.1b, thesis-7.1c: the thesis's failure cases)",
+    )
     run.add_argument("--robots", type=int, help="number of robots (placement.robots)")
     run.add_argument("--seed", type=int, help="master seed")
     run.add_argument("--duration", type=float, help="simulated seconds (duration_s)")

@@ -24,6 +24,7 @@ from kilonet.params import ParamError, Params
 from kilonet.placement import hex_lattice, line, load_csv, random_uniform
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation, stream_for
+from scenarios.thesis_placements import NAMED_PLACEMENTS
 
 __all__ = [
     "RunResult",
@@ -117,7 +118,10 @@ def build_params(
 def place(
     scenario: Scenario, params: Params, placement: str | Path | np.ndarray | None = None
 ) -> np.ndarray:
-    """The robots' start positions (mm): a file or array if given, else a generator.
+    """The robots' start positions (mm): a named placement, file or array if given, else a
+    generator. A string that names a placement of
+    :data:`scenarios.thesis_placements.NAMED_PLACEMENTS` (``"thesis-7.1a"``) is that placement,
+    whether or not a file of that name exists.
 
     Raises
     ------
@@ -126,6 +130,8 @@ def place(
     kilonet.params.ParamError
         If a generator cannot place the robots with its parameters (density too high).
     """
+    if isinstance(placement, str) and placement in NAMED_PLACEMENTS:
+        return NAMED_PLACEMENTS[placement]()
     if isinstance(placement, str | Path):
         return load_csv(placement)
     if placement is not None:
