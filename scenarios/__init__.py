@@ -21,7 +21,7 @@ SCENARIOS: dict[str, Scenario] = {
 }
 
 #: What ``kilonet run`` runs when no scenario is named.
-DEFAULT = "gradient"
+DEFAULT = "gcs"
 
 
 def get(name: str) -> Scenario:
