@@ -23,6 +23,7 @@ import numpy as np
 
 import scenarios
 from scenarios.prediction import predict_from_seeds
+from scenarios.thesis_placements import NAMED_PLACEMENTS
 
 __all__ = ["predict", "register"]
 
@@ -71,11 +72,19 @@ def _cmd(args: argparse.Namespace) -> int:
     from kilonet.cli import UsageError
     from kilonet.placement import load_csv
 
-    if not Path(args.placement).exists():
-        raise UsageError(f"{args.placement}: no such placement file")
-    positions = load_csv(args.placement)
+    if args.placement in NAMED_PLACEMENTS:
+        positions = NAMED_PLACEMENTS[args.placement]()
+        default_figure = Path(f"{args.placement}.analysis.png")
+    elif Path(args.placement).exists():
+        positions = load_csv(args.placement)
+        default_figure = Path(args.placement).with_suffix(".analysis.png")
+    else:
+        named = ", ".join(sorted(NAMED_PLACEMENTS))
+        raise UsageError(
+            f"{args.placement}: no such placement file or named placement (named: {named})"
+        )
     report = predict(positions, seed=args.seed)
-    figure = Path(args.figure or Path(args.placement).with_suffix(".analysis.png"))
+    figure = Path(args.figure or default_figure)
     _figure(positions, report, figure)
     if args.json:
         print(json.dumps({k: v for k, v in report.items() if k != "located_in"}, indent=2))
@@ -85,7 +94,9 @@ def _cmd(args: argparse.Namespace) -> int:
     print(f"cannot localize        {len(report['unlocalizable'])}  {report['unlocalizable']}")
     print(f"isolated seeds         {len(report['isolated_seeds'])}  {report['isolated_seeds']}")
     sizes = [len(c) for c in report["frames"]]
-    print(f"global frames          {len(report['frames'])}  sizes {sizes}")
+    print(f"frame graph components {len(report['frames'])}  sizes {sizes}")
+    print(f"final global frames    {report['final_frames']}  (as robots will report them)")
+    print(f"on a frame boundary    {len(report['boundary'])}  {report['boundary']}")
     print(f"articulation points    {report['articulation_points']}")
     print(f"fewer than 3 neighbours {report['low_degree']}")
     print(f"figure                 {figure}", file=sys.stderr)
@@ -93,11 +104,13 @@ def _cmd(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: Any) -> None:
-    """Add ``kilonet analyze PLACEMENT.csv [--seed S] [--json] [--figure F.png]``."""
+    """Add ``kilonet analyze PLACEMENT [--seed S] [--json] [--figure F.png]``."""
     parser = subparsers.add_parser(
         "analyze", help="predict the global coordinate system's failure cases for a placement"
     )
-    parser.add_argument("placement", help="CSV with columns x_mm,y_mm")
+    parser.add_argument(
+        "placement", help="CSV with columns x_mm,y_mm, or a named placement (thesis-7.1a, ...)"
+    )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--json", action="store_true", help="print the prediction as JSON")
     parser.add_argument("--figure", help="PNG to write (default: next to the placement)")

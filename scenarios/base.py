@@ -169,7 +169,7 @@ def run(
         Dotted parameter keys to set (``{"medium.loss_prob": 0.2}``).
     seed : int, optional
         Master seed (overrides ``seed`` in ``overrides``).
-    placement : path or (N, 2) array, optional
+    placement : name, path or (N, 2) array, optional
         Start positions in mm instead of the scenario's generator.
     progress : bool
         Show a progress bar on stderr (simulated seconds).
