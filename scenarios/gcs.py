@@ -173,6 +173,7 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
         if now >= start:
             phase_times[name] = round(min(now, end) - start, 3)
     out: dict[str, Any] = {
+        "mean_neighbours": 2.0 * len(i) / sim.n_robots,  # in the line-of-sight graph
         "phases_run": [name for name, _, _ in windows],
         "phase_times_s": phase_times,
         "ids_duplicate_neighbours": duplicates,
@@ -239,6 +240,12 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
                 },
             }
         )
+        # The truth the swarm's detection is judged by: robots with a neighbour (line of
+        # sight) whose estimate ended in another final frame.
+        label = est.frame.to_numpy()
+        split = (label[i] != "") & (label[j] != "") & (label[i] != label[j])
+        boundary = sorted({int(k) for k in np.concatenate([i[split], j[split]])})
+        out.setdefault("failures", {})["boundary"] = boundary
     return out
 
 

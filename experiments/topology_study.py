@@ -1,0 +1,166 @@
+"""When does the global coordinate system end with one global frame? (issue 6)
+
+Reads a finished run of the sweep ``experiments/topology.toml`` (``kilonet sweep
+experiments/topology.toml --out DIR``) and writes a Markdown report with:
+
+* the confusion table of the predicted number of final frames (geometry and phase 2's
+  election, :mod:`scenarios.prediction`) against the observed number, runs without recovery;
+* the share of runs ending with one global frame without and with recovery
+  (:mod:`protocols.recovery`), over the same placements;
+* the swarm's split detection (:mod:`protocols.split_detection`) judged against the run's
+  truth (robots with a neighbour whose estimate ended in another final frame): precision and
+  recall, pooled over runs;
+* a figure: the probability of one global frame against the mean neighbour count.
+
+    python -m experiments.topology_study DIR [--out experiments/reports]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from experiments.report import _markdown_table, load
+
+__all__ = ["detection_scores", "one_frame_shares", "prediction_confusion", "write_report"]
+
+RECOVERY = "gcs.recoveries"
+
+
+def _done(results: pd.DataFrame) -> pd.DataFrame:
+    return results[results.status == "ok"].copy()
+
+
+def prediction_confusion(results: pd.DataFrame) -> tuple[pd.DataFrame, float]:
+    """Predicted against observed final frames (runs without recovery) and the share of runs
+    where they are equal."""
+    runs = _done(results)
+    runs = runs[runs[RECOVERY] == 0]
+    table = pd.crosstab(
+        runs["predicted.final_frames"].astype(int).rename("predicted"),
+        runs["frames"].astype(int).rename("observed"),
+    )
+    equal = float((runs["predicted.final_frames"] == runs["frames"]).mean())
+    return table, equal
+
+
+def one_frame_shares(results: pd.DataFrame) -> pd.DataFrame:
+    """Share of runs ending with one global frame, without and with recovery, by range and
+    density and overall."""
+    runs = _done(results)
+    runs["one_frame"] = runs["frames"] == 1
+    by = ["medium.range_mm", "placement.density_per_m2"]
+    cells = runs.pivot_table(index=by, columns=RECOVERY, values="one_frame", aggfunc="mean")
+    cells.loc[("all", "all"), :] = runs.groupby(RECOVERY)["one_frame"].mean()
+    neighbours = runs.groupby(by)["mean_neighbours"].mean()
+    cells.insert(0, "mean_neighbours", neighbours)
+    cells.loc[("all", "all"), "mean_neighbours"] = runs["mean_neighbours"].mean()
+    return cells.rename(columns={0: "without recovery", 2: "with recovery"})
+
+
+def detection_scores(results: pd.DataFrame) -> dict[str, float]:
+    """Pooled precision and recall of the swarm's split-boundary flags against the run's truth
+    (robots next to another final frame), runs without recovery."""
+    runs = _done(results)
+    runs = runs[runs[RECOVERY] == 0]
+    hits = flagged = truth = 0
+    for detected, actual in zip(
+        runs["detected.split_boundary"], runs["failures.boundary"], strict=True
+    ):
+        d, a = set(json.loads(detected)), set(json.loads(actual))
+        hits += len(d & a)
+        flagged += len(d)
+        truth += len(a)
+    return {
+        "precision": hits / flagged if flagged else float("nan"),
+        "recall": hits / truth if truth else float("nan"),
+        "flagged": flagged,
+        "boundary_robots": truth,
+    }
+
+
+def _figure(results: pd.DataFrame, path: Path) -> None:
+    runs = _done(results)
+    runs["one_frame"] = runs["frames"] == 1
+    edges = np.arange(np.floor(runs.mean_neighbours.min()), runs.mean_neighbours.max() + 2, 2.0)
+    runs["bin"] = pd.cut(runs.mean_neighbours, edges)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for recoveries, label in ((0, "without recovery"), (2, "with recovery")):
+        part = runs[runs[RECOVERY] == recoveries].groupby("bin", observed=True)
+        share, count = part["one_frame"].mean(), part["one_frame"].size()
+        centres = [b.mid for b in share.index]
+        # Wilson-free binomial standard error: enough to show which bins are thin.
+        err = np.sqrt(share * (1 - share) / count)
+        ax.errorbar(centres, share, yerr=err, marker="o", capsize=3, label=label)
+    ax.set_xlabel("mean neighbour count (line of sight)")
+    ax.set_ylabel("P(one global frame)")
+    ax.set_ylim(-0.05, 1.05)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    ax.set_title("Global coordinate system: one frame against density and range")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def write_report(sweep_dir: str | Path, out_dir: str | Path) -> Path:
+    """Write ``topology.md`` and ``topology_files/one_frame.png`` under ``out_dir``."""
+    sweep, results = load(sweep_dir)
+    out = Path(out_dir)
+    files = out / "topology_files"
+    files.mkdir(parents=True, exist_ok=True)
+    confusion, equal = prediction_confusion(results)
+    shares = one_frame_shares(results)
+    scores = detection_scores(results)
+    _figure(results, files / "one_frame.png")
+    runs = _done(results)
+    placements = runs[runs[RECOVERY] == 0]
+    lines = [
+        "# Topology: one global frame or several",
+        "",
+        sweep.description,
+        "",
+        f"{len(runs)} runs finished ({len(placements)} placements); "
+        f"{int((results.status != 'ok').sum())} failed.",
+        "",
+        "## Predicted against observed final frames (without recovery)",
+        "",
+        f"Equal in **{equal:.0%}** of runs.",
+        "",
+        *_markdown_table(confusion.reset_index().rename(columns={"predicted": "predicted"})),
+        "",
+        "## Share of runs ending with one global frame",
+        "",
+        *_markdown_table(shares.reset_index()),
+        "",
+        "## Split detection in the swarm (without recovery)",
+        "",
+        f"Precision {scores['precision']:.2f}, recall {scores['recall']:.2f} "
+        f"({scores['flagged']} robots flagged, {scores['boundary_robots']} on a boundary).",
+        "",
+        "![P(one global frame) against mean neighbour count](topology_files/one_frame.png)",
+        "",
+    ]
+    path = out / "topology.md"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sweep_dir", help="output directory of kilonet sweep topology.toml")
+    parser.add_argument("--out", default="experiments/reports")
+    args = parser.parse_args()
+    print(write_report(args.sweep_dir, args.out))
+
+
+if __name__ == "__main__":
+    main()
