@@ -199,7 +199,8 @@ class GcsRobot(Kilobot):
         if self.phase is not None:
             self.phase.loop()
             check = self.check
-            if check is not None and not self.recovery.pending and check.wants_recovery():
+            merging = self.phase_name == "merge"
+            if merging and check and not self.recovery.pending and check.wants_recovery():
                 self.recovery.request()
             self._loops += 1
             if self._loops % 16 == 0:  # refresh the LED now and then, not every loop
@@ -255,10 +256,12 @@ class GcsRobot(Kilobot):
             return flood
         if self.phase is None:
             return None
-        message = self.phase.message_tx()
-        if message is None and self.check is not None and self.phase_name == "merge":
+        # While merging, the check takes its turn first (one opportunity in a few, once
+        # settled): seeds always have something of their own to send.
+        message = None
+        if self.check is not None and self.phase_name == "merge":
             message = self.check.message_tx()
-        return message
+        return message if message is not None else self.phase.message_tx()
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
         self._receive(message, distance_mm)

@@ -18,6 +18,7 @@ from kilonet.placement import validate_positions
 from kilonet.visibility import communication_graph
 from scenarios.analyze import predict
 from scenarios.base import build_params, place
+from scenarios.gcs import estimates_frame
 from scenarios.thesis_placements import (
     BLUE_SEED_7_1B,
     LEFT_GROUP_7_1C,
@@ -153,3 +154,37 @@ def test_7_1c_full_run_ends_with_two_global_frames():
     assert result.summary["localized_fraction"] == 1.0
     assert result.summary["frames"] == 2
     assert result.summary["largest_frame_fraction"] == 0.5
+
+
+def _precision_recall(detected: list[int], truth: list[int]) -> tuple[float, float]:
+    hits = len(set(detected) & set(truth))
+    return hits / max(len(detected), 1), hits / max(len(truth), 1)
+
+
+def test_7_1c_the_swarm_detects_the_split_where_the_two_frames_touch():
+    # Detection in the swarm (measured against computed distances, roots compared) against
+    # the run's truth: robots with a neighbour whose estimate ended in the other frame.
+    result = scenarios.run(GCS, {"gcs.recoveries": 0}, seed=1, placement="thesis-7.1c")
+    s = result.summary
+    assert s["frames"] == 2 and s["recoveries"] == 0
+    truth = s["failures"]["boundary"]
+    assert len(truth) >= 4  # the ends of the two links
+    precision, recall = _precision_recall(s["detected"]["split_boundary"], truth)
+    assert precision == 1.0
+    assert recall >= 0.75
+    table = estimates_frame(result.sim)  # robots.csv's columns
+    assert sorted(table.robot[table.split_boundary]) == sorted(s["detected"]["split_boundary"])
+
+
+def test_7_1c_recovery_runs_at_most_the_allowed_epochs_when_it_cannot_join_the_frames():
+    # Nobody sees two robots of the other square, so edge seeds cannot bridge the gap: the
+    # swarm tries gcs.recoveries times, then reports the split instead of trying forever.
+    result = scenarios.run(GCS, {"gcs.recoveries": 2}, seed=1, placement="thesis-7.1c")
+    s = result.summary
+    assert s["recoveries"] == 2
+    assert s["frames"] == 2
+    assert s["edge_seeds"] >= 1
+    events = result.sim.trace.events_frame()
+    started = events[events.event == "recovery_requested"]
+    epochs = {json.loads(d)["epoch"] for d in started.data}
+    assert epochs == {1, 2}
