@@ -105,9 +105,26 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _print_summary(summary: dict[str, Any]) -> None:
-    width = max(len(k) for k in summary)
-    for key, value in summary.items():
-        shown = f"{value:.4g}" if isinstance(value, float) else value
+    """One line per figure; nested sections flattened to dotted names, long lists shortened
+    (``--json`` prints everything)."""
+    flat: dict[str, Any] = {}
+
+    def walk(section: dict[str, Any], prefix: str) -> None:
+        for key, value in section.items():
+            if isinstance(value, dict):
+                walk(value, f"{prefix}{key}.")
+            else:
+                flat[f"{prefix}{key}"] = value
+
+    walk(summary, "")
+    width = max(len(k) for k in flat)
+    for key, value in flat.items():
+        if isinstance(value, float):
+            shown = f"{value:.4g}"
+        elif isinstance(value, list) and len(value) > 8:
+            shown = f"{len(value)} items: {', '.join(map(str, value[:6]))}, ..."
+        else:
+            shown = value
         print(f"{key:<{width}}  {shown}")
 
 
