@@ -12,14 +12,18 @@ A round of seed I:
    (X, Y, Z) for (I, K), and sends ``QUERY(I → X, K, version, tag)``, repeating it until
    answered or until ``gcs.merge_round_s`` passes (then a new round starts). The tag numbers
    the round: the answer carries it, so an answer to an earlier round (perhaps about another
-   partner, from the same member, for the same version) is never taken for this one's.
+   partner, from the same member, for the same version) is never taken for this one's. Tags
+   start at random, and the answer names the seed it is for (below).
 2. X, once it holds I's transform of that version and K's latest transform, maps the three
    members' local positions into both "global" frames, finds the rigid map M from I's to K's
    (the least-squares rotation: Horn's closed form, the same optimum as Kabsch in
    ``scipy.spatial.transform.Rotation.align_vectors``), and takes **half** of it:
    R_H = Slerp(I, R_M)(½) and the shift that moves the members' centroid half way,
-   t_H = (c_I + c_K)/2 − R_H c_I. It answers with R_H (a quaternion, ANS_ROT), t_H (ANS_SHIFT)
-   and the disagreement of the two transforms: the farthest M moves a member (ANS_ERROR).
+   t_H = (c_I + c_K)/2 − R_H c_I. It answers with the disagreement of the two transforms (the
+   farthest M moves a member) and K's rank (ANS_ERROR, naming the seed), then R_H (a
+   quaternion, ANS_ROT) and t_H (ANS_SHIFT). It answers one seed at a time, so the rotation and
+   shift that follow an ANS_ERROR belong to it: without that, a seed took another seed's
+   answer whose tag matched, and a merged frame's root leaked into frames never merged with it.
 3. I applies the step: R_I ← R_H R_I, v_I ← R_H v_I + t_H, bumps its version and
    broadcasts the new transform.
 
@@ -63,7 +67,8 @@ Frames (partners, transforms) are named by frame keys: seed ID and salt
 (:meth:`protocols.gcs.GcsRobot.frame_key`).
     type 63 ANS_ROT    sender:uint16  tag:uint8  q0 q1 q2:int16              9 bytes
     type 64 ANS_SHIFT  sender:uint16  tag:uint8  tx ty tz:int16              9 bytes
-    type 65 ANS_ERROR  sender:uint16  tag:uint8  error:uint16 (0.1 mm)
+    type 65 ANS_ERROR  sender:uint16  tag:uint8  seed:uint8 (its ID's low byte)
+                       error:uint8 (0.5 mm, saturating at 127.5)
                        partner_root:uint16  partner_root_salt:uint8
                        partner_hops:uint8                                    9 bytes
     type 66 TF_ROOT    sender:uint16  root:uint16  root_salt:uint8  hops:uint8   6 bytes
@@ -114,7 +119,8 @@ ANS_ERROR = Layout(
     fields=[
         ("sender", "H"),
         ("tag", "B"),
-        ("error_mm", "H", 0.1),
+        ("seed", "B"),
+        ("error_mm", "B", 0.5),
         ("partner_root", "H"),
         ("partner_root_salt", "B"),
         ("partner_hops", "B"),
@@ -273,7 +279,9 @@ class FrameMerging(Phase):
             # Every round has its own tag, carried by the query and its answers: versions
             # change only when a step is taken, so a round that timed out and a new one (maybe
             # about another partner, with the same member) would otherwise share answers.
-            self.tag = 0
+            # Tags start at random: every seed starts its rounds at the same moment, and a
+            # member that several seeds ask must not have its answer to one taken by another.
+            self.tag = int(r.rand.integers(256))
             self.done = False
             self.final = False
             self.rounds = 0
@@ -408,12 +416,21 @@ class FrameMerging(Phase):
     def _seed_receive(self, message: Message) -> None:
         if self.final or self.asking is None:
             return
+        r = self.robot
         member, _ = self.asking
-        for layout, part in ((ANS_ROT, "rot"), (ANS_SHIFT, "shift"), (ANS_ERROR, "error")):
-            if layout.matches(message):
-                m = layout.unpack(message)
-                if m.sender == member and m.tag == self.tag:
-                    self.received[part] = m
+        # A member answers one seed at a time, ANS_ERROR first: it names the seed (an answer to
+        # another seed that drew the same tag is refused), and the rotation and shift that
+        # follow it from that member belong to the same answer.
+        if ANS_ERROR.matches(message):
+            m = ANS_ERROR.unpack(message)
+            if m.sender == member and m.tag == self.tag and m.seed == r.uid & 0xFF:
+                self.received = {"error": m}
+        elif "error" in self.received:
+            for layout, part in ((ANS_ROT, "rot"), (ANS_SHIFT, "shift")):
+                if layout.matches(message):
+                    m = layout.unpack(message)
+                    if m.sender == member and m.tag == self.tag:
+                        self.received[part] = m
         if len(self.received) == 3:
             rot, shift, error = (self.received[k] for k in ("rot", "shift", "error"))
             self._apply(
@@ -467,16 +484,17 @@ class FrameMerging(Phase):
         r = self.robot
         tx, ty, tz = shift
         messages = [
-            ANS_ROT.pack(sender=r.uid, tag=tag, **quaternion_fields(rotation)),
-            ANS_SHIFT.pack(sender=r.uid, tag=tag, vx_mm=tx, vy_mm=ty, vz_mm=tz),
             ANS_ERROR.pack(
                 sender=r.uid,
                 tag=tag,
-                error_mm=min(error, 6500.0),
+                seed=(seed >> 8) & 0xFF,
+                error_mm=min(error, 127.5),
                 partner_root=rank_k >> 16,
                 partner_root_salt=(rank_k >> 8) & 0xFF,
                 partner_hops=rank_k & 0xFF,
             ),
+            ANS_ROT.pack(sender=r.uid, tag=tag, **quaternion_fields(rotation)),
+            ANS_SHIFT.pack(sender=r.uid, tag=tag, vx_mm=tx, vy_mm=ty, vz_mm=tz),
         ]
         self.answers[seed] = (tag, messages)
         self.outbox.extend(messages)
