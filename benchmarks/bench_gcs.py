@@ -1,9 +1,9 @@
 """The global coordinate system end to end: phases 1-6 on jittered hex lattices.
 
-Prints, per size: wall time, simulated time (and each phase's share), merging rounds (all seeds
-together and the most any seed ran), final frames, localized share, RMSE after the best rigid
-alignment and the Cramér-Rao bound for the same measurement graph. Issue 5's target: 1,000
-robots in at most 60 s of wall time on the 2-core development machine.
+Prints, per size: wall time, CPU time, simulated time (and each phase's share), merging rounds
+(all seeds together and the most any seed ran), final frames, localized share, RMSE after the
+best rigid alignment and the Cramér-Rao bound for the same measurement graph. Issue 5's target:
+1,000 robots in at most 60 s of wall time on the 2-core development machine.
 
     python benchmarks/bench_gcs.py [--sizes 100 1000] [--seed 1] [--set key=value ...]
 """
@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import time
 
 import scenarios
 
@@ -31,11 +33,16 @@ FIELDS = (
 
 
 def run_one(n: int, seed: int, overrides: dict[str, str]) -> dict:
-    """One gcs run of ``n`` robots; the summary's headline figures."""
+    """One gcs run of ``n`` robots; the summary's headline figures, the CPU time it took (less
+    disturbed than wall time by other work on the machine) and the load average."""
+    cpu = time.process_time()
     result = scenarios.run(
         scenarios.get("gcs"), {"placement.robots": n, **overrides}, seed=seed, progress=True
     )
-    return {key: result.summary.get(key) for key in FIELDS}
+    figures = {key: result.summary.get(key) for key in FIELDS}
+    figures["cpu_time_s"] = round(time.process_time() - cpu, 1)
+    figures["load_average_1min"] = os.getloadavg()[0]
+    return figures
 
 
 def main() -> None:

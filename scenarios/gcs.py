@@ -11,7 +11,15 @@ robots build their own IDs) and measures each phase against ground truth:
 * groups — merging groups;
 * merge — final global frames (robots grouped by the root their estimate is in), localized
   share, RMSE of the global estimates after aligning each final frame to the truth, pooled
-  over robots, and the anchor-free Cramér–Rao bound for the same graph and noise.
+  over robots, and the anchor-free Cramér–Rao bound for the same graph and noise;
+* failures (thesis §7) — ``failures``: what the run built (unlocalizable robots, isolated seeds,
+  the frame graph's components, robots next to another final frame); ``predicted``: what the
+  geometry and phase 2's election predicted (:mod:`scenarios.prediction`); ``detected``: what
+  the swarm flagged itself (:mod:`protocols.split_detection`); ``recoveries`` and
+  ``edge_seeds`` (:mod:`protocols.recovery`). ``robots.csv`` carries the same per robot.
+
+The run ends when every seed is done merging, no recovery is pending, and the robots have had
+``gcs.split_confirm_s`` to check their neighbours.
 """
 
 from __future__ import annotations
