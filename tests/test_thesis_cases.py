@@ -172,6 +172,12 @@ def test_7_1c_the_swarm_detects_the_split_where_the_two_frames_touch():
     precision, recall = _precision_recall(s["detected"]["split_boundary"], truth)
     assert precision == 1.0
     assert recall >= 0.75
+    # ... and against what the analysis predicted from geometry and the election alone.
+    precision, recall = _precision_recall(
+        s["detected"]["split_boundary"], s["predicted"]["boundary"]
+    )
+    assert precision == 1.0
+    assert recall >= 0.75
     table = estimates_frame(result.sim)  # robots.csv's columns
     assert sorted(table.robot[table.split_boundary]) == sorted(s["detected"]["split_boundary"])
 
