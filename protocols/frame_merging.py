@@ -132,6 +132,7 @@ TF_ROOT = Layout(
     fields=[("sender", "H"), ("root", "H"), ("root_salt", "B"), ("hops", "B")],
 )
 _DONE = 0x80
+_EDGE_ROOT = 0x8000  # in the root's ID field: the root is an edge seed (ranks last)
 _IDENTITY = Rotation.identity()
 
 
@@ -290,7 +291,10 @@ class FrameMerging(Phase):
             self.asking: tuple[int, int] | None = None
             self.received: dict[str, object] = {}
             self.round_start = r.kilo_ticks
-            self.rank = r.frame_key(r.uid) << 8
+            # An edge seed's frame (protocols.recovery) ranks after every elected seed's: bit 15
+            # of the root's ID field is free (IDs have at most 15 bits). Otherwise a new frame
+            # that merges with nothing could win robots over from the frame they were in.
+            self.rank = (r.frame_key(r.uid) << 8) | (_EDGE_ROOT << 16 if r.edge_seed else 0)
             self.partner_ranks: dict[int, int] = {}  # as the last answer about each reported
             self.turns = 0  # rounds started (answered or not)
             self.key = r.frame_key(r.uid)
