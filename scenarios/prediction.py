@@ -3,7 +3,8 @@
 Given true positions, the parameters and the seeds phase 2 elected, phases 3–5 are predicted
 from the geometry alone: each seed takes the reference pair its rule would choose from true
 distances; robots join a seed's frame when they see the seed and at least two robots already in
-that frame (repeated until nothing changes, as localization spreads); merging groups are found
+that frame and the robots' own fix test accepts those anchors (repeated until nothing changes,
+as localization spreads); merging groups are found
 as the robots would find them (:func:`protocols.merging_groups.find_groups`). The frame graph's
 components (:func:`kilonet.topology.failure_cases`) are the global frames merging can reach.
 
@@ -23,6 +24,7 @@ from kilonet.geometry import (
     GeometryError,
     choose_references_best_conditioned,
     choose_references_max_angle,
+    multilaterate,
 )
 from kilonet.params import Params
 from kilonet.topology import failure_cases, rigidity_facts
@@ -95,7 +97,18 @@ def predict_from_seeds(
         while changed:  # localization spreads among robots that see the seed
             changed = False
             for robot in near:
-                if robot not in inside and len(inside & set(graph[robot])) >= 3:
+                anchors = sorted(inside & set(graph[robot]))
+                if robot in inside or len(anchors) < 3:
+                    continue
+                # The robot's own test (protocols.localization), on true distances: a fix from
+                # nearly collinear anchors, or one with a mirror image, is rejected there too.
+                fix = multilaterate(
+                    pos[anchors],
+                    np.linalg.norm(pos[anchors] - pos[robot], axis=1),
+                    sigma_mm=p.scenario.sigma_mm,
+                    max_rmse_mm=p.scenario.max_rmse_mm,
+                )
+                if fix.ok:
                     inside.add(robot)
                     changed = True
         members[s] = inside
