@@ -90,14 +90,14 @@ def detection_scores(results: pd.DataFrame) -> dict[str, float]:
 def _figure(results: pd.DataFrame, path: Path) -> None:
     runs = _done(results)
     runs["one_frame"] = runs["frames"] == 1
-    edges = np.arange(np.floor(runs.mean_neighbours.min()), runs.mean_neighbours.max() + 2, 2.0)
+    edges = np.arange(np.floor(runs.mean_neighbours.min()), runs.mean_neighbours.max() + 1, 1.0)
     runs["bin"] = pd.cut(runs.mean_neighbours, edges)
     fig, ax = plt.subplots(figsize=(6, 4))
     for recoveries, label in ((0, "without recovery"), (2, "with recovery")):
         part = runs[runs[RECOVERY] == recoveries].groupby("bin", observed=True)
         share, count = part["one_frame"].mean(), part["one_frame"].size()
         centres = [b.mid for b in share.index]
-        # Wilson-free binomial standard error: enough to show which bins are thin.
+        # The binomial standard error of each share: enough to show which bins are thin.
         err = np.sqrt(share * (1 - share) / count)
         ax.errorbar(centres, share, yerr=err, marker="o", capsize=3, label=label)
     ax.set_xlabel("mean neighbour count (line of sight)")
