@@ -2,7 +2,9 @@
 
 Each placement is detected as its case twice: by the prediction of ``kilonet analyze``
 (phases 1-2 run, phases 3-5 from geometry) and by a run up to merging groups, whose summary's
-``failures`` section is computed from what the robots built.
+``failures`` section is computed from what the robots built. The split case also tests the
+swarm's own detection (against the run's truth and the prediction) and recovery (bounded when
+it cannot help; joining the frames when edge seeds can bridge them).
 """
 
 from __future__ import annotations
@@ -194,3 +196,23 @@ def test_7_1c_recovery_runs_at_most_the_allowed_epochs_when_it_cannot_join_the_f
     started = events[events.event == "recovery_requested"]
     epochs = {json.loads(d)["epoch"] for d in started.data}
     assert epochs == {1, 2}
+
+
+def test_recovery_joins_a_split_that_edge_seeds_can_bridge():
+    # A random placement of the topology sweep (experiments/topology.toml) that ends with two
+    # global frames without recovery, and with one after edge seeds were elected between them.
+    settings = {
+        "placement.kind": "random",
+        "placement.area": "disc",
+        "placement.robots": 30,
+        "placement.density_per_m2": 350,
+        "medium.range_mm": 125,
+    }
+    without = scenarios.run(GCS, {**settings, "gcs.recoveries": 0}, seed=6).summary
+    assert without["frames"] == 2
+    assert without["detected"]["split_boundary"] == without["failures"]["boundary"]
+    recovered = scenarios.run(GCS, {**settings, "gcs.recoveries": 2}, seed=6).summary
+    assert recovered["frames"] == 1
+    assert recovered["recoveries"] >= 1 and recovered["edge_seeds"] >= 1
+    assert recovered["localized_fraction"] == 1.0
+    assert recovered["rmse_mm"] < 5.0
