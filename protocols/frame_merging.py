@@ -170,6 +170,11 @@ class Transform:
         self.shift, self.version = shift, version
 
     @property
+    def words(self) -> tuple[int, int, int] | None:
+        """The message words it was heard as (``None`` for a seed's own)."""
+        return self._words
+
+    @property
     def rotation(self) -> Rotation:
         if self._rotation is None:
             self._rotation = unpack_quaternion(self._words)
@@ -523,11 +528,18 @@ class FrameMerging(Phase):
             parts[part] = m
             if len(parts) == 2:
                 rot, shift = parts["rot"], parts["shift"]
-                r.transforms[key] = Transform(
-                    np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm]),
-                    m.version,
-                    words=(rot.q0, rot.q1, rot.q2),
-                )
+                words = (rot.q0, rot.q1, rot.q2)
+                shift_mm = np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm])
+                held = r.transforms.get(key)
+                # Seeds repeat each version many times: keep the object (and what robots cached
+                # from it, see GcsRobot.global_position) unless something changed.
+                if (
+                    held is None
+                    or held.version != m.version
+                    or held.words != words
+                    or not np.array_equal(held.shift, shift_mm)
+                ):
+                    r.transforms[key] = Transform(shift_mm, m.version, words=words)
                 self.heard_at[key] = r.kilo_ticks
 
     # -- phase interface ---------------------------------------------------------------------
