@@ -354,7 +354,11 @@ _CLI = "import sys, kilonet.cli as c; sys.exit(c.main(sys.argv[1:]))"
 
 def test_cli_sweep_interrupted_by_ctrl_c_then_resumed(tmp_path):
     sweep_file = tmp_path / "many.toml"
-    sweep_file.write_text(SMALL.replace("seeds = 2", "seeds = 20"))
+    # Runs long enough (about 0.2 s each) that a busy machine cannot finish all 40 between the
+    # third stored run and the interrupt.
+    sweep_file.write_text(
+        SMALL.replace("seeds = 2", "seeds = 20").replace("duration_s = 5.0", "duration_s = 30.0")
+    )
     sweep = load_sweep(sweep_file)
     out = tmp_path / "out"
     process = subprocess.Popen(
