@@ -6,6 +6,7 @@ marked slow (``pytest -m slow``).
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import networkx as nx
@@ -169,7 +170,7 @@ def test_half_map_steps_merge_mirror_image_frames():
         h_i, t_i, err = half_map(gi, gk)
         gi = h_i.apply(gi) + t_i
         errors.append(err)
-    assert all(b < a for a, b in zip(errors, errors[1:], strict=False))  # shrinks every round
+    assert all(b < a for a, b in itertools.pairwise(errors))  # shrinks every round
     assert np.allclose(gi, gk, atol=1e-3)
 
 
