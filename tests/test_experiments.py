@@ -352,6 +352,14 @@ def test_a_task_lost_by_the_executor_is_stored_as_failed(tmp_path):
 _CLI = "import sys, kilonet.cli as c; sys.exit(c.main(sys.argv[1:]))"
 
 
+def _as_from_a_terminal() -> None:
+    """Give the child the signal state a shell gives a command: Ctrl-C unblocked and handled
+    by default. Inside a long pytest run the parent's state can differ (in the full suite
+    SIGINT never reached the child); a user's terminal does not pass that on."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_cli_sweep_interrupted_by_ctrl_c_then_resumed(tmp_path):
     sweep_file = tmp_path / "many.toml"
     # Runs long enough (about 0.2 s each) that a busy machine cannot finish all 40 between the
@@ -365,6 +373,7 @@ def test_cli_sweep_interrupted_by_ctrl_c_then_resumed(tmp_path):
         [sys.executable, "-c", _CLI, "sweep", str(sweep_file), "--out", str(out), "--workers", "2"],
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=_as_from_a_terminal,
     )
     db = out / DB_NAME
     while process.poll() is None and _rows(db) < 3:
