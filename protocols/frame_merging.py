@@ -292,7 +292,6 @@ class FrameMerging(Phase):
             self.final = False
             self.rounds = 0
             self.stable = 0
-            self.done = False
             self.asking: tuple[int, int] | None = None
             self.received: dict[str, object] = {}
             self.round_start = r.kilo_ticks

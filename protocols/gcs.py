@@ -221,12 +221,11 @@ class GcsRobot(Kilobot):
         ``R_S (x, y, 0) + v_S`` over them; 2-D coordinates are those of the common plane laid
         flat by :func:`kilonet.alignment.level` (see :mod:`protocols.frame_merging`).
         """
-        known = [k for k in sorted(self.frames) if k in self.transforms and k in self.ranks]
-        if not known:
+        root, known = self.global_frames()
+        if root is None:
             return None
-        root = min(self.ranks[k] >> 8 for k in known)
-        known = [k for k in known if self.ranks[k] >> 8 == root]
-        # The LED asks often and transforms change seldom: recompute only on a new version.
+        # The check asks on every POS and transforms change seldom: recompute only when one
+        # of them is new.
         state = tuple((k, self.transforms[k].version, id(self.transforms[k])) for k in known)
         if state == self._position_cache[0]:
             return self._position_cache[1]
@@ -241,13 +240,20 @@ class GcsRobot(Kilobot):
         self._position_cache = (state, position)
         return position
 
+    def global_frames(self) -> tuple[int | None, list[int]]:
+        """The root of the merged frame this robot's estimate is in and the frames (keys, in
+        order) that estimate uses: those it is located in whose transform and rank it holds,
+        of the smallest root. ``(None, [])`` without an estimate."""
+        known = [k for k in sorted(self.frames) if k in self.transforms and k in self.ranks]
+        if not known:
+            return None, []
+        root = min(self.ranks[k] >> 8 for k in known)
+        return root, [k for k in known if self.ranks[k] >> 8 == root]
+
     @property
     def global_root(self) -> int | None:
         """Root of the merged frame this robot's estimate is in (None without an estimate)."""
-        roots = [
-            self.ranks[k] >> 8 for k in self.frames if k in self.transforms and k in self.ranks
-        ]
-        return min(roots) if roots else None
+        return self.global_frames()[0]
 
     def message_tx(self) -> Message | None:
         self._advance()

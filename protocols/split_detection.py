@@ -76,14 +76,8 @@ class SplitCheck:
         """Whether this robot's global position is final as far as it can tell: it has one,
         and every seed whose transform it uses has reported itself done."""
         r = self.robot
-        root = r.global_root
-        if root is None:
-            return False
-        return all(
-            r.transforms[k].done
-            for k in r.frames
-            if k in r.transforms and r.ranks.get(k, -1) >> 8 == root
-        )
+        root, frames = r.global_frames()
+        return root is not None and all(r.transforms[k].done for k in frames)
 
     @property
     def on_split_boundary(self) -> bool:
