@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 
 import numpy as np
@@ -378,15 +379,27 @@ def test_multilaterate_recovers_noiseless_positions(anchor_list, truth):
 
 
 @settings(max_examples=40, deadline=None)
-@given(point, point, point, st.floats(0.05, 0.95), st.floats(0.05, 0.95))
-def test_multilaterate_accepts_points_inside_a_well_shaped_triangle(a, b, c, s, t):
-    longest = max(math.dist(a, b), math.dist(b, c), math.dist(a, c))
-    # Well shaped: no thinner than 40 % of its longest side (an elongated triangle seen from
-    # near a sharp corner has a GDOP above 5, which multilaterate rightly refuses).
-    assume(_min_altitude(a, b, c) > max(30.0, 0.4 * longest))
+@given(
+    point,
+    st.floats(20.0, 150.0),
+    st.floats(0.0, 2.0 * math.pi),
+    st.lists(st.floats(-0.25, 0.25), min_size=3, max_size=3),
+    st.floats(0.05, 0.95),
+    st.floats(0.05, 0.95),
+)
+def test_multilaterate_accepts_points_inside_a_well_shaped_triangle(
+    centre, radius_mm, heading, wobble, s, t
+):
+    # Built well shaped rather than filtered: vertices near an equilateral triangle's, each
+    # moved up to 0.25 rad around the circumcircle (an elongated triangle seen from near a sharp
+    # corner has a GDOP above 5, which multilaterate rightly refuses). Random triangles that pass
+    # such a filter are rare enough that Hypothesis's health check failed the test.
+    angles = heading + np.array([0.0, 2.0, 4.0]) * math.pi / 3.0 + np.array(wobble)
+    anchors = np.array(centre) + radius_mm * np.column_stack([np.cos(angles), np.sin(angles)])
+    longest = max(math.dist(p, q) for p, q in itertools.combinations(anchors, 2))
+    assert _min_altitude(*anchors) > 0.6 * longest  # the construction is what it claims
     s, t = min(s, t), max(s, t)  # barycentric-style draw strictly inside the triangle
-    truth = np.array(a) * s + np.array(b) * (t - s) + np.array(c) * (1.0 - t)
-    anchors = np.array([a, b, c])
+    truth = anchors[0] * s + anchors[1] * (t - s) + anchors[2] * (1.0 - t)
     assume(_ranges(anchors, truth).min() > 5.0)
     fix = multilaterate(anchors, _ranges(anchors, truth))
     assert fix.ok, fix

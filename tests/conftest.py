@@ -1,0 +1,13 @@
+"""Hypothesis profiles: the default run is derandomized so CI sees the same examples every time.
+
+``HYPOTHESIS_PROFILE=explore python -m pytest`` draws fresh random examples (500 where a test
+sets no count) to hunt for new counterexamples; a failure prints the example to pin.
+"""
+
+import os
+
+from hypothesis import settings
+
+settings.register_profile("default", derandomize=True)
+settings.register_profile("explore", derandomize=False, max_examples=500)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
