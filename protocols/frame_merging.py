@@ -375,6 +375,7 @@ class FrameMerging(Phase):
             root=self.rank >> 16,
             hops=self.rank & 0xFF,
             partner=self.asking[1] >> 8 if self.asking else -1,
+            member=self.asking[0] if self.asking else -1,
             partner_hops=partner_rank & 0xFF,
             stepped=steps,
         )

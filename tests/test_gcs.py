@@ -89,17 +89,28 @@ def test_phase2_reports_an_impossible_topology_and_still_ends():
     assert 3 in set(failed.robot)
 
 
-def test_phase3_frames_match_the_truth_within_three_sigma():
-    result = run(40, "frames")
+@pytest.mark.parametrize(
+    ("robots", "seed"),
+    [
+        (40, 1),
+        # IDs are unique only among neighbours: here a reference's table held another robot
+        # with the other reference's ID (see protocols.local_frames.reference_candidates).
+        (100, 3),
+    ],
+)
+def test_phase3_frames_match_the_truth_within_three_sigma(robots, seed):
+    result = run(robots, "frames", seed=seed)
     sim = result.sim
     sigma = sim.params.ranging.sigma_mm
     truth = sim.world.positions_mm
-    by_uid = {r.uid: i for i, r in enumerate(sim.robots)}
+    graph = communication_graph(truth, sim.params.medium.range_mm)
     seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
     assert result.summary["seeds_with_frame"] == len(seeds)
     for a in seeds:
         (b, xb, yb), (c, xc, yc) = sim.robots[a].references
-        pb, pc = truth[by_uid[b]], truth[by_uid[c]]
+        # The seed's neighbours of those IDs (IDs repeat across the swarm, not among them).
+        (pb,) = [truth[k] for k in graph[a] if sim.robots[k].uid == b]
+        (pc,) = [truth[k] for k in graph[a] if sim.robots[k].uid == c]
         est = np.array([[0.0, 0.0], [xb, yb], [xc, yc]])
         # The frame is the truth up to a rigid motion (maybe a reflection): compare distances.
         for (p, q), (u, v) in [
