@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import struct
 from collections import namedtuple
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = [
@@ -53,6 +53,9 @@ class Message:
 
     data: bytes = b""
     type: int = 0
+    # The last Layout.unpack of this message, (layout, record): the medium hands one message
+    # object to every receiver, so each transmission is decoded once, not once per receiver.
+    _decoded: Any = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def size_bytes(self) -> int:
@@ -143,6 +146,7 @@ class Layout:
         self._names = [f[0] for f in fields]
         self._codes = [f[1] for f in fields]
         self._scales = [f[2] if len(f) > 2 else None for f in fields]
+        self._named_scales = list(zip(self._names, self._scales, strict=True))
         self._struct = struct.Struct("<" + "".join(self._codes))
         if self._struct.size > max_bytes:
             raise PayloadError(
@@ -167,16 +171,19 @@ class Layout:
         PayloadError
             If a field is missing, unknown, or its value does not fit the field's type.
         """
-        unknown = set(values) - set(self._names)
-        missing = [n for n in self._names if n not in values]
-        if unknown or missing:
+        try:
+            raw = [
+                values[name] if scale is None else round(values[name] / scale)
+                for name, scale in self._named_scales
+            ]
+        except KeyError:
+            raw = None
+        if raw is None or len(values) != len(raw):
+            unknown = set(values) - set(self._names)
+            missing = [n for n in self._names if n not in values]
             raise PayloadError(
                 f"layout {self.name!r}: missing fields {missing}, unknown fields {sorted(unknown)}"
             )
-        raw = []
-        for name, scale in zip(self._names, self._scales, strict=True):
-            value = values[name]
-            raw.append(round(value / scale) if scale is not None else value)
         try:
             return Message(self._struct.pack(*raw), self.type)
         except struct.error as exc:
@@ -198,6 +205,9 @@ class Layout:
         PayloadError
             If the message's type is not this layout's, or the payload is too short.
         """
+        decoded = message._decoded
+        if decoded is not None and decoded[0] is self:
+            return decoded[1]
         if message.type != self.type:
             raise PayloadError(
                 f"layout {self.name!r} has type {self.type}, the message has {message.type}"
@@ -206,9 +216,11 @@ class Layout:
             raw = self._struct.unpack_from(message.data)
         except struct.error as exc:
             raise PayloadError(f"layout {self.name!r}: {exc}") from exc
-        if not self._scaled:
-            return self._make(raw)
-        return self._make([v * s if s else v for v, s in zip(raw, self._scales, strict=True)])
+        if self._scaled:
+            raw = [v * s if s else v for v, s in zip(raw, self._scales, strict=True)]
+        record = self._make(raw)
+        object.__setattr__(message, "_decoded", (self, record))  # records are immutable
+        return record
 
     def matches(self, message: Message) -> bool:
         """Whether ``message`` carries this layout's type byte."""

@@ -21,6 +21,8 @@ located robots green, merged robots cyan.
 
 from __future__ import annotations
 
+import struct
+
 import numpy as np
 
 from kilonet.alignment import level
@@ -47,6 +49,8 @@ _PHASE_CLASSES: tuple[type[Phase], ...] = (
     MergingGroups,
     FrameMerging,
 )
+#: Every message's first field, the sender's ID (uint16).
+_SENDER = struct.Struct("<H").unpack_from
 #: What a recovery epoch runs: edge seeds, then phases 3-6 again.
 _RECOVERY_CLASSES: tuple[type[Phase], ...] = (
     EdgeSeeds,
@@ -94,6 +98,7 @@ class GcsRobot(Kilobot):
         self.params = params
 
     def setup(self) -> None:
+        self._polled = self.polled  # fixed for a run; loop() asks many times a second
         self.table = NeighbourTable()
         self.uid = -1
         self.salt = 0
@@ -132,10 +137,13 @@ class GcsRobot(Kilobot):
         self._phase_index = -1
         self._loops = 0
         self.phase: Phase | None = None
+        self._due_tick: float = 0
         self._advance()
 
     def _advance(self) -> None:
         ticks = self.kilo_ticks
+        if ticks < self._due_tick:  # called on every loop and transmit opportunity
+            return
         while (
             self._phase_index + 1 < len(self._windows)
             and ticks >= self._windows[self._phase_index + 1][1]
@@ -151,6 +159,14 @@ class GcsRobot(Kilobot):
         if self.phase is not None and ticks >= self._windows[self._phase_index][2]:
             self.phase.finish()
             self.phase = None  # past the last phase asked for: the robot falls silent
+        self._due_tick = self._next_window_change()
+
+    def _next_window_change(self) -> float:
+        """The tick at which the next phase starts or the running one ends."""
+        i, windows = self._phase_index, self._windows
+        start = windows[i + 1][1] if i + 1 < len(windows) else float("inf")
+        end = windows[i][2] if self.phase is not None else float("inf")
+        return min(start, end)
 
     def schedule_recovery(self, epoch: int, start_tick: int) -> None:
         """Run recovery epoch ``epoch`` from ``start_tick``: the running phase (merging) ends
@@ -167,6 +183,7 @@ class GcsRobot(Kilobot):
             windows.append((cls, round(t), end))
             t = end
         self._windows = windows
+        self._due_tick = self._next_window_change()
 
     def _show(self) -> None:
         """LED by phase and role, as listed in the module docstring."""
@@ -193,13 +210,14 @@ class GcsRobot(Kilobot):
 
     def loop(self) -> None:
         self._advance()
-        if self.polled:
+        if self._polled:
             while (received := self.get_message()) is not None:
                 self._receive(*received)
-        if self.phase is not None:
-            self.phase.loop()
+        phase = self.phase
+        if phase is not None:
+            phase.loop()
             check = self.check
-            merging = self.phase_name == "merge"
+            merging = phase.name == "merge"
             if merging and check and not self.recovery.pending and check.wants_recovery():
                 self.recovery.request()
             self._loops += 1
@@ -273,12 +291,13 @@ class GcsRobot(Kilobot):
         self._receive(message, distance_mm)
 
     def _receive(self, message: Message, distance_mm: int) -> None:
-        if self.phase is None:
+        phase = self.phase
+        if phase is None:
             return
         self.recovery.message_rx(message)
-        self.phase.message_rx(message, distance_mm)
-        if self.check is not None and self.phase_name == "merge":
+        phase.message_rx(message, distance_mm)
+        if self.check is not None and phase.name == "merge":
             self.check.message_rx(message)
-        sender = int.from_bytes(message.data[:2], "little")
+        (sender,) = _SENDER(message.data)
         if sender != self.uid:
-            self.table.heard(sender, distance_mm, tick=self.kilo_ticks)
+            self.table.heard(sender, distance_mm)

@@ -2,7 +2,7 @@
 
 Every message of the global-coordinate-system protocol starts with the sender's ID, so each
 reception refines the running mean of the distance to that neighbour (averaging the ranging
-noise down) and refreshes when it was last heard. Only the robot's own receptions feed it.
+noise down). Only the robot's own receptions feed it.
 """
 
 from __future__ import annotations
@@ -12,13 +12,12 @@ from dataclasses import dataclass
 __all__ = ["Neighbour", "NeighbourTable"]
 
 
-@dataclass
+@dataclass(slots=True)
 class Neighbour:
-    """One neighbour as heard: mean measured distance (mm), samples, last tick heard."""
+    """One neighbour as heard: mean measured distance (mm) and the number of samples."""
 
     distance_mm: float
     samples: int
-    last_tick: int
 
 
 class NeighbourTable:
@@ -27,7 +26,7 @@ class NeighbourTable:
     Examples
     --------
     >>> t = NeighbourTable()
-    >>> t.heard(7, 40, tick=1); t.heard(7, 42, tick=5)
+    >>> t.heard(7, 40); t.heard(7, 42)
     >>> t.distance(7), t[7].samples, 7 in t, 8 in t
     (41.0, 2, True, False)
     """
@@ -35,15 +34,14 @@ class NeighbourTable:
     def __init__(self) -> None:
         self._by_id: dict[int, Neighbour] = {}
 
-    def heard(self, uid: int, distance_mm: float, *, tick: int) -> None:
+    def heard(self, uid: int, distance_mm: float) -> None:
         """Record a reception from ``uid`` at ``distance_mm``."""
         n = self._by_id.get(uid)
         if n is None:
-            self._by_id[uid] = Neighbour(float(distance_mm), 1, tick)
+            self._by_id[uid] = Neighbour(float(distance_mm), 1)
         else:
             n.samples += 1
             n.distance_mm += (distance_mm - n.distance_mm) / n.samples
-            n.last_tick = tick
 
     def forget(self, uid: int) -> None:
         """Drop ``uid`` (it announced a new ID)."""
