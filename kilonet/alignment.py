@@ -35,6 +35,7 @@ __all__ = [
     "half_step",
     "invert",
     "level",
+    "level_turn",
     "pack_quaternion",
     "procrustes_rmse",
     "rotation_between_frames",
@@ -423,6 +424,28 @@ def apply_2d(
 _LEVEL_UP = np.array([0.26726124191242440, 0.53452248382484879, 0.80178372573727319])
 
 
+def level_turn(rotation: Rotation) -> Rotation:
+    """The turn Q of :func:`level`: the shortest rotation taking the normal of the plane that
+    ``rotation`` maps z = 0 onto, on the side of a fixed generic direction, to +z.
+
+    Global coordinates ``g`` read in the plane laid flat are ``(Q g)[:2]`` (up to the plane's
+    height in ``(Q g)[2]``).
+
+    Examples
+    --------
+    >>> q = level_turn(Rotation.from_euler("x", -90, degrees=True))
+    >>> q.apply([0.0, 1.0, 0.0]).round(9).tolist()  # the tilted plane's normal, laid upright
+    [0.0, 0.0, 1.0]
+    """
+    normal = rotation.apply([0.0, 0.0, 1.0])
+    if normal @ _LEVEL_UP < 0:
+        normal = -normal
+    axis = np.cross(normal, [0.0, 0.0, 1.0])
+    return Rotation.from_rotvec(
+        axis / max(np.linalg.norm(axis), 1e-300) * math.atan2(np.linalg.norm(axis), normal[2])
+    )
+
+
 def level(rotation: Rotation, shift_mm: np.ndarray) -> tuple[Rotation, np.ndarray]:
     """Lay a (possibly tilted) frame transform back onto the table plane z = 0.
 
@@ -457,14 +480,7 @@ def level(rotation: Rotation, shift_mm: np.ndarray) -> tuple[Rotation, np.ndarra
     >>> apply_2d(rot, shift, [[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]]).round(9).tolist()
     [[1.0, -7.0], [11.0, -7.0], [1.0, 3.0]]
     """
-    normal = rotation.apply([0.0, 0.0, 1.0])
-    if normal @ _LEVEL_UP < 0:
-        normal = -normal
-    axis = np.cross(normal, [0.0, 0.0, 1.0])
-    turn = Rotation.from_rotvec(
-        axis / max(np.linalg.norm(axis), 1e-300) * math.atan2(np.linalg.norm(axis), normal[2])
-    )
-    flat_rotation, flat_shift = compose(turn, np.zeros(3), rotation, shift_mm)
+    flat_rotation, flat_shift = compose(level_turn(rotation), np.zeros(3), rotation, shift_mm)
     flat_shift[2] = 0.0
     return flat_rotation, flat_shift
 

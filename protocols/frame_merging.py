@@ -84,6 +84,7 @@ from scipy.spatial.transform import Rotation
 
 from kilonet.alignment import (
     half_step,
+    level_turn,
     pack_quaternion,
     rotation_between_frames,
     unpack_quaternion,
@@ -154,7 +155,7 @@ class Transform:
         ... or its :func:`quaternion_fields` words (a heard one).
     """
 
-    __slots__ = ("_rotation", "_words", "shift", "version")
+    __slots__ = ("_flat", "_matrix", "_rotation", "_words", "shift", "version")
 
     def __init__(
         self,
@@ -168,6 +169,8 @@ class Transform:
             raise ValueError("give a Transform either its rotation or its words")
         self._rotation, self._words = rotation, words
         self.shift, self.version = shift, version
+        self._matrix: np.ndarray | None = None
+        self._flat: np.ndarray | None = None
 
     @property
     def words(self) -> tuple[int, int, int] | None:
@@ -179,6 +182,22 @@ class Transform:
         if self._rotation is None:
             self._rotation = unpack_quaternion(self._words)
         return self._rotation
+
+    def apply_point(self, x_mm: float, y_mm: float) -> np.ndarray:
+        """One local point (x, y, 0), mm, in the seed's "global" coordinates, mm (a robot asks
+        this many times a second: a matrix product, not a scipy ``Rotation.apply``)."""
+        if self._matrix is None:
+            self._matrix = self.rotation.as_matrix()
+        m = self._matrix
+        return m[:, 0] * x_mm + m[:, 1] * y_mm + self.shift
+
+    @property
+    def flat(self) -> np.ndarray:
+        """The 3×3 matrix of :func:`kilonet.alignment.level_turn` for this transform: global
+        coordinates in the common plane laid flat are the first two of ``flat @ g``."""
+        if self._flat is None:
+            self._flat = level_turn(self.rotation).as_matrix()
+        return self._flat
 
     @property
     def done(self) -> bool:

@@ -25,7 +25,6 @@ import struct
 
 import numpy as np
 
-from kilonet.alignment import level
 from kilonet.message import Message
 from kilonet.robot import Kilobot
 from protocols.frame_merging import FrameMerging
@@ -247,14 +246,13 @@ class GcsRobot(Kilobot):
         state = tuple((k, self.transforms[k].version, id(self.transforms[k])) for k in known)
         if state == self._position_cache[0]:
             return self._position_cache[1]
-        points = [self.transforms[k].apply([*self.frames[k], 0.0]) for k in known]
+        points = [self.transforms[k].apply_point(*self.frames[k]) for k in known]
         # Merged frames share one plane, tilted in general, but not one rotation (a frame that
         # was a mirror image faces the other way). Turning the plane's normal, taken on a fixed
         # side, onto +z depends on the plane alone, so every robot reads the same 2-D axes.
-        first = self.transforms[known[0]]
-        flat, _ = level(first.rotation, first.shift)
-        planar = (flat * first.rotation.inv()).apply(np.mean(points, axis=0))
-        position = float(planar[0]), float(planar[1])
+        flat = self.transforms[known[0]].flat
+        mean = points[0] if len(points) == 1 else np.mean(points, axis=0)
+        position = float(flat[0] @ mean), float(flat[1] @ mean)
         self._position_cache = (state, position)
         return position
 
