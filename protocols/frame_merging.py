@@ -132,6 +132,8 @@ TF_ROOT = Layout(
     type=66,
     fields=[("sender", "H"), ("root", "H"), ("root_salt", "B"), ("hops", "B")],
 )
+#: The two halves of a broadcast transform, by message type.
+_TRANSFORM_PARTS = {TF_ROT.type: (TF_ROT, "rot"), TF_SHIFT.type: (TF_SHIFT, "shift")}
 _DONE = 0x80
 _EDGE_ROOT = 0x8000  # in the root's ID field: the root is an edge seed (ranks last)
 _IDENTITY = Rotation.identity()
@@ -527,39 +529,38 @@ class FrameMerging(Phase):
         self.answers[seed] = (tag, messages)
         self.outbox.extend(messages)
 
+    def _track_root(self, message: Message) -> None:
+        r = self.robot
+        m = TF_ROOT.unpack(message)
+        self.ranks[r.frame_key(m.sender)] = (m.root << 16) | (m.root_salt << 8) | m.hops
+
     def _track_transform(self, message: Message) -> None:
         r = self.robot
-        if TF_ROOT.matches(message):
-            m = TF_ROOT.unpack(message)
-            self.ranks[r.frame_key(m.sender)] = (m.root << 16) | (m.root_salt << 8) | m.hops
+        layout, part = _TRANSFORM_PARTS[message.type]
+        m = layout.unpack(message)
+        if m.sender == r.uid:
             return
-        for layout, part in ((TF_ROT, "rot"), (TF_SHIFT, "shift")):
-            if not layout.matches(message):
-                continue
-            m = layout.unpack(message)
-            if m.sender == r.uid:
-                return
-            key = r.frame_key(m.sender)
-            version, parts = self.parts.get(key, (None, {}))
-            if version != m.version & 0x7F:  # a newer version: older halves are void
-                version, parts = m.version & 0x7F, {}
-                self.parts[key] = (version, parts)
-            parts[part] = m
-            if len(parts) == 2:
-                rot, shift = parts["rot"], parts["shift"]
-                words = (rot.q0, rot.q1, rot.q2)
-                shift_mm = np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm])
-                held = r.transforms.get(key)
-                # Seeds repeat each version many times: keep the object (and what robots cached
-                # from it, see GcsRobot.global_position) unless something changed.
-                if (
-                    held is None
-                    or held.version != m.version
-                    or held.words != words
-                    or not np.array_equal(held.shift, shift_mm)
-                ):
-                    r.transforms[key] = Transform(shift_mm, m.version, words=words)
-                self.heard_at[key] = r.kilo_ticks
+        key = r.frame_key(m.sender)
+        version, parts = self.parts.get(key, (None, {}))
+        if version != m.version & 0x7F:  # a newer version: older halves are void
+            version, parts = m.version & 0x7F, {}
+            self.parts[key] = (version, parts)
+        parts[part] = m
+        if len(parts) == 2:
+            rot, shift = parts["rot"], parts["shift"]
+            words = (rot.q0, rot.q1, rot.q2)
+            shift_mm = [shift.vx_mm, shift.vy_mm, shift.vz_mm]
+            held = r.transforms.get(key)
+            # Seeds repeat each version many times: keep the object (and what robots cached
+            # from it, see GcsRobot.global_position) unless something changed.
+            if (
+                held is None
+                or held.version != m.version
+                or held.words != words
+                or held.shift.tolist() != shift_mm
+            ):
+                r.transforms[key] = Transform(np.array(shift_mm), m.version, words=words)
+            self.heard_at[key] = r.kilo_ticks
 
     # -- phase interface ---------------------------------------------------------------------
     def message_tx(self) -> Message | None:
@@ -571,8 +572,12 @@ class FrameMerging(Phase):
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
         r = self.robot
-        self._track_transform(message)
-        if QUERY.matches(message):
+        kind = message.type
+        if kind in _TRANSFORM_PARTS:
+            self._track_transform(message)
+        elif kind == TF_ROOT.type:
+            self._track_root(message)
+        elif QUERY.matches(message):
             m = QUERY.unpack(message)
             if m.member == r.uid and not self.outbox:
                 seed = r.frame_key(m.sender)
