@@ -33,20 +33,32 @@ disagreements of tens of millimetres that never settled). So every seed also car
 the smallest seed ID its frame has been aligned to (its root, initially its own ID) and its hops
 from that root, broadcast in TF_ROOT and ordered (root, hops). The member always answers with
 the half step and K's rank as it heard it; the seed, which alone knows its own rank for sure,
-applies the half step (the thesis's step) only when K ranks better, and then takes
-rank(K) + 1 hop; toward an equal or worse rank it stays (that partner follows its own parent).
-We measured the alternatives on a 100-robot lattice: the thesis's symmetric half steps kept
-disagreements of tens of millimetres; whole steps toward parents plus half steps between equals
-left 22 mm RMSE; half steps toward parents only, 8.8 mm (still short of agreement there).
+applies the half step (the thesis's step) only when K is its *parent* — the best-ranked partner
+it has heard of, ties going to the smaller frame key — and takes rank(K) + 1 hop; toward any
+other partner it stays (that partner follows a parent of its own). One parent, not every
+better-ranked partner: two partners one hop nearer the root reach it along different chains
+and differ by those chains' errors (5-7 mm on 300 robots), and a seed that stepped toward both
+swung between them and never settled. We measured the alternatives on a 100-robot lattice
+(before phase 3 checked that references see each other, which bent some frames): the thesis's
+symmetric half steps kept disagreements of tens of millimetres; whole steps toward parents plus
+half steps between equals left 22 mm RMSE; half steps toward parents only, 8.8 mm.
 The smallest root spreads like a flood and each frame follows a parent one hop nearer to it, so
 the frames lock together in a number of rounds that grows with the diameter, not its square,
 and settle instead of ringing (see the measurements below).
 
+Hints, also beyond the thesis. A seed learns a partner's rank only by asking about it, one
+partner after another, so the flood crossed each frame in several rounds; meanwhile groups of
+frames that had settled on a local root reported themselves done, the split check saw their
+boundary with the advancing root as a split, and a needless recovery epoch restarted phases 3-6
+(300 robots: detected 35 s into merging, 150 simulated s lost). But a group member hears both of
+its seeds' ranks (TF_ROOT): when it sees partner K rank better than seed I could, it sends
+``HINT(I, K)`` (at most once per pair and ``gcs.merge_round_s``), and I asks K through that
+member at once, unless it already knows K as a parent.
+
 Termination, decided by each seed alone: when ``gcs.merge_stable_rounds`` answers in a row
 agree and every partner has answered at least once, the seed is done (bit 7 of its version).
-An answer agrees when the partner ranks worse or equal (this seed does not move toward it:
-that partner follows its own parent), or when the parent's disagreement is within
-``gcs.merge_tolerance_mm``. The seed keeps running rounds, so a smaller root arriving later, or
+An answer agrees when the partner is not the parent (this seed does not move toward it), or
+when the parent's disagreement is within ``gcs.merge_tolerance_mm``. The seed keeps running rounds, so a smaller root arriving later, or
 a parent that disagrees again, revokes "done" until it agrees anew. A seed with no registered
 group is isolated and done at once; a seed after ``gcs.merge_max_rounds`` rounds gives up.
 
@@ -72,6 +84,8 @@ Frames (partners, transforms) are named by frame keys: seed ID and salt
                        partner_root:uint16  partner_root_salt:uint8
                        partner_hops:uint8                                    9 bytes
     type 66 TF_ROOT    sender:uint16  root:uint16  root_salt:uint8  hops:uint8   6 bytes
+    type 67 HINT       sender:uint16  seed:uint16  partner:uint16  partner_salt:uint8
+                                                                             7 bytes
 
 A rank is the root's frame key (ID and salt: IDs alone repeat across a large swarm, and two
 roots that share one would pull the frames apart forever) times 256 plus the hops.
@@ -94,7 +108,14 @@ from kilonet.message import Layout, Message
 from protocols.gcs_base import Phase
 from protocols.split_detection import SplitCheck
 
-__all__ = ["FrameMerging", "Transform", "half_map", "quaternion_fields", "rotation_from_fields"]
+__all__ = [
+    "HINT",
+    "FrameMerging",
+    "Transform",
+    "half_map",
+    "quaternion_fields",
+    "rotation_from_fields",
+]
 
 _Q = [("q0", "h"), ("q1", "h"), ("q2", "h")]  # kilonet.alignment.pack_quaternion words
 _V = [("vx_mm", "h", 0.25), ("vy_mm", "h", 0.25), ("vz_mm", "h", 0.25)]
@@ -131,6 +152,11 @@ TF_ROOT = Layout(
     "tf_root",
     type=66,
     fields=[("sender", "H"), ("root", "H"), ("root_salt", "B"), ("hops", "B")],
+)
+HINT = Layout(
+    "hint",
+    type=67,
+    fields=[("sender", "H"), ("seed", "H"), ("partner", "H"), ("partner_salt", "B")],
 )
 #: The two halves of a broadcast transform, by message type.
 _TRANSFORM_PARTS = {TF_ROT.type: (TF_ROT, "rot"), TF_SHIFT.type: (TF_SHIFT, "shift")}
@@ -293,6 +319,8 @@ class FrameMerging(Phase):
         # tags wrap after 256 rounds, and an answer to an old round must never be resent.
         self.answers: dict[int, tuple[int, list[Message]]] = {}
         self.turn = 0
+        # When this robot last hinted each (seed, partner) pair of its groups (ticks).
+        self.hinted_at: dict[tuple[int, int], int] = {}
         # Rank of each seed heard, by frame key: root frame key · 256 + hops (smaller better).
         # Merging (again, after a recovery) starts afresh: transforms, ranks and the check.
         r.ranks = self.ranks = {}
@@ -314,6 +342,7 @@ class FrameMerging(Phase):
             self.rounds = 0
             self.stable = 0
             self.asking: tuple[int, int] | None = None
+            self.hint: tuple[int, int] | None = None  # (member, partner) from a HINT
             self.received: dict[str, object] = {}
             self.round_start = r.kilo_ticks
             # An edge seed's frame (protocols.recovery) ranks after every elected seed's: bit 15
@@ -346,18 +375,26 @@ class FrameMerging(Phase):
         return (self.version & 0x7F) | (_DONE if self.done else 0)
 
     def _new_round(self) -> None:
+        """Start a round: after a hint ask its member about its partner; otherwise every other
+        round goes to the best-ranked partner known (the parent it follows), the others to each
+        partner in turn: that is how better ranks are found without hints."""
         r = self.robot
-        # Every other round goes to the best-ranked partner known (the parent it follows), the
-        # others to each partner in turn: that is how better ranks are found at all.
-        partners = sorted(r.partners)
-        parents = [k for k in partners if self.partner_ranks.get(k, 1 << 40) < self.rank]
-        self.turns += 1
-        if parents and self.turns % 2 == 0:
-            partner = min(parents, key=self.partner_ranks.__getitem__)
+        hinted, self.hint = self.hint, None
+        if hinted is not None and self.partner_ranks.get(hinted[1], 1 << 40) < self.rank:
+            hinted = None  # known already: a parent is asked every other round anyway
+        if hinted is not None:
+            member, partner = hinted
+            r.log("merge_hint", partner=partner >> 8, member=member)
         else:
-            partner = partners[(self.turns // 2) % len(partners)]
-        members = sorted(r.partners[partner])
-        member = members[int(r.rand.integers(len(members)))]
+            partners = sorted(r.partners)
+            parent = self._parent()
+            self.turns += 1
+            if parent is not None and self.turns % 2 == 0:
+                partner = parent
+            else:
+                partner = partners[(self.turns // 2) % len(partners)]
+            members = sorted(r.partners[partner])
+            member = members[int(r.rand.integers(len(members)))]
         self.asking = (member, partner)
         self.tag = (self.tag + 1) & 0xFF
         self.received = {}
@@ -367,23 +404,31 @@ class FrameMerging(Phase):
             if answer is not None:
                 self._apply(*answer)
 
+    def _parent(self) -> int | None:
+        """The partner this seed follows: the best rank it has heard of, ties going to the
+        smaller frame key; ``None`` while no partner ranks better than the seed itself."""
+        better = [(rank, key) for key, rank in self.partner_ranks.items() if rank < self.rank]
+        return min(better)[1] if better else None
+
     def _apply(
         self, rotation: Rotation, shift: np.ndarray, error_mm: float, partner_rank: int
     ) -> None:
         r = self.robot
-        if self.asking is not None:
-            self.partner_ranks[self.asking[1]] = partner_rank
-        # Only a better-ranked partner (a parent) can be disagreed with: this seed moves toward
-        # it. An equal or worse one follows its own parent; its disagreement is its business,
-        # and letting it revoke "done" kept seeds resuming long after they had settled.
-        agreed = partner_rank >= self.rank or error_mm <= self.params.merge_tolerance_mm
-        # The answer is the half step: take it toward a better-ranked partner and follow that
-        # partner; toward an equal or worse one stay (it follows its own parent). Ranks only
-        # fall, so a partner rank the member heard a while ago errs on the side of staying.
-        steps = 1 if partner_rank < self.rank else 0
-        if partner_rank + 1 < self.rank and partner_rank & 0xFF < 0xFF:
-            self.rank = partner_rank + 1
-        for _ in range(steps):
+        asked = self.asking[1] if self.asking is not None else None
+        if asked is not None:
+            self.partner_ranks[asked] = partner_rank
+        # The answer is the half step: take it toward the parent only, and only the parent
+        # can be disagreed with. Every other partner follows a parent of its own, and their
+        # disagreement is theirs: two partners one hop nearer the root reach it along
+        # different chains and differ by the chains' errors (300 robots: 5-7 mm, more than
+        # the tolerance), so following both kept a seed swinging between them and resuming
+        # for 400 simulated seconds. Ranks only fall, so a partner rank the member heard a
+        # while ago errs on the side of staying.
+        follow = asked is not None and asked == self._parent()
+        agreed = not follow or error_mm <= self.params.merge_tolerance_mm
+        if follow:
+            if partner_rank + 1 < self.rank and partner_rank & 0xFF < 0xFF:
+                self.rank = partner_rank + 1
             self.rotation = rotation * self.rotation
             self.shift = rotation.apply(self.shift) + shift
         self.version += 1
@@ -398,7 +443,7 @@ class FrameMerging(Phase):
             partner=self.asking[1] >> 8 if self.asking else -1,
             member=self.asking[0] if self.asking else -1,
             partner_hops=partner_rank & 0xFF,
-            stepped=steps,
+            stepped=int(follow),
         )
         self.asking = None
         if self.done and not agreed:
@@ -444,9 +489,14 @@ class FrameMerging(Phase):
         return TF_SHIFT.pack(sender=r.uid, version=version, vx_mm=vx, vy_mm=vy, vz_mm=vz)
 
     def _seed_receive(self, message: Message) -> None:
-        if self.final or self.asking is None:
+        if self.final:
             return
         r = self.robot
+        if HINT.matches(message):
+            self._take_hint(HINT.unpack(message))
+            return
+        if self.asking is None:
+            return
         member, _ = self.asking
         # A member answers one seed at a time, ANS_ERROR first: it names the seed (an answer to
         # another seed that drew the same tag is refused), and the rotation and shift that
@@ -470,7 +520,43 @@ class FrameMerging(Phase):
                 (error.partner_root << 16) | (error.partner_root_salt << 8) | error.partner_hops,
             )
 
+    def _take_hint(self, m) -> None:
+        """A member says partner K ranks better than this seed: the next round asks K through
+        that member (the running round is not cut short: hints from several members would
+        otherwise keep restarting it)."""
+        r = self.robot
+        partner = (m.partner << 8) | m.partner_salt
+        if m.seed == r.uid and m.sender in r.partners.get(partner, ()):
+            self.hint = (m.sender, partner)
+
     # -- member side -------------------------------------------------------------------------
+    def _hint(self) -> Message | None:
+        """A HINT for a seed of this robot's groups whose partner ranks better than it could
+        know: both seeds broadcast their ranks (TF_ROOT) and this robot hears both, while the
+        seed learns its partner's rank only by asking about it, one partner after another.
+        At most one hint per pair and ``gcs.merge_round_s``."""
+        r = self.robot
+        now = r.kilo_ticks
+        own = getattr(self, "key", None)
+        ranks = self.ranks
+        for pair in r.groups:
+            for seed, partner in (pair, pair[::-1]):
+                rank_seed, rank_partner = ranks.get(seed), ranks.get(partner)
+                if rank_seed is None or rank_partner is None or rank_partner + 1 >= rank_seed:
+                    continue
+                if (
+                    seed == own
+                    or now - self.hinted_at.get((seed, partner), -self.round_ticks)
+                    < self.round_ticks
+                ):
+                    continue
+                self.hinted_at[(seed, partner)] = now
+                return HINT.pack(
+                    sender=r.uid, seed=seed >> 8, partner=partner >> 8, partner_salt=partner & 0xFF
+                )
+        return None
+
+    # -- member side: answers -------------------------------------------------------------------
     def _local_points(self, frame: int, members: tuple[int, ...]) -> np.ndarray | None:
         r = self.robot
         points = []
@@ -566,6 +652,9 @@ class FrameMerging(Phase):
     def message_tx(self) -> Message | None:
         if self.outbox:
             return self.outbox.pop(0)
+        hint = self._hint()
+        if hint is not None:
+            return hint
         if self.robot.is_seed:
             return self._seed_message()
         return None
