@@ -53,14 +53,15 @@ boundary with the advancing root as a split, and a needless recovery epoch resta
 (300 robots: detected 35 s into merging, 150 simulated s lost). But a group member hears both of
 its seeds' ranks (TF_ROOT): when it sees partner K rank better than seed I could, it sends
 ``HINT(I, K)`` (at most once per pair and ``gcs.merge_round_s``), and I asks K through that
-member at once, unless it already knows K as a parent.
+member in its next round, unless it already knows K as a parent.
 
 Termination, decided by each seed alone: when ``gcs.merge_stable_rounds`` answers in a row
 agree and every partner has answered at least once, the seed is done (bit 7 of its version).
 An answer agrees when the partner is not the parent (this seed does not move toward it), or
-when the parent's disagreement is within ``gcs.merge_tolerance_mm``. The seed keeps running rounds, so a smaller root arriving later, or
-a parent that disagrees again, revokes "done" until it agrees anew. A seed with no registered
-group is isolated and done at once; a seed after ``gcs.merge_max_rounds`` rounds gives up.
+when the parent's disagreement is within ``gcs.merge_tolerance_mm``. The seed keeps running
+rounds, so a smaller root arriving later, or a parent that disagrees again, revokes "done"
+until it agrees anew. A seed with no registered group is isolated and done at once; a seed
+after ``gcs.merge_max_rounds`` rounds gives up.
 
 A robot's global position g is the mean, over the frames it is located in whose transform it
 holds (and of its smallest root), of ``R_S (x, y, 0) + v_S``, expressed in 2-D in the common
@@ -343,6 +344,7 @@ class FrameMerging(Phase):
             self.stable = 0
             self.asking: tuple[int, int] | None = None
             self.hint: tuple[int, int] | None = None  # (member, partner) from a HINT
+            self.query_due = False
             self.received: dict[str, object] = {}
             self.round_start = r.kilo_ticks
             # An edge seed's frame (protocols.recovery) ranks after every elected seed's: bit 15
@@ -396,6 +398,7 @@ class FrameMerging(Phase):
             members = sorted(r.partners[partner])
             member = members[int(r.rand.integers(len(members)))]
         self.asking = (member, partner)
+        self.query_due = True
         self.tag = (self.tag + 1) & 0xFF
         self.received = {}
         self.round_start = r.kilo_ticks
@@ -431,7 +434,9 @@ class FrameMerging(Phase):
                 self.rank = partner_rank + 1
             self.rotation = rotation * self.rotation
             self.shift = rotation.apply(self.shift) + shift
-        self.version += 1
+            # A new version only when the transform moved: members that hold the current one
+            # can answer the next round at once (rounds are told apart by their tags).
+            self.version += 1
         self.rounds += 1
         self.stable = self.stable + 1 if agreed else 0
         r.log(
@@ -473,7 +478,8 @@ class FrameMerging(Phase):
                 root_salt=(self.rank >> 8) & 0xFF,
                 hops=self.rank & 0xFF,
             )
-        if self.asking is not None and not self.final and self.turn % 3 == 0:
+        if self.asking is not None and not self.final and (self.query_due or self.turn % 3 == 0):
+            self.query_due = False  # a new round's query goes out first, then every third turn
             member, partner = self.asking
             return QUERY.pack(
                 sender=r.uid,
