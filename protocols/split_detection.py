@@ -126,5 +126,6 @@ class SplitCheck:
         if self.other_frame and self.boundary_since is None:
             self.boundary_since = r.kilo_ticks
             r.log("split_detected", neighbours=sorted(self.other_frame))
-        elif not self.other_frame:
+        elif not self.other_frame and self.boundary_since is not None:
+            r.log("split_cleared", after_s=(r.kilo_ticks - self.boundary_since) / r.ticks_per_s)
             self.boundary_since = None

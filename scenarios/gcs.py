@@ -19,7 +19,8 @@ robots build their own IDs) and measures each phase against ground truth:
   ``edge_seeds`` (:mod:`protocols.recovery`). ``robots.csv`` carries the same per robot.
 
 The run ends when every seed is done merging, no recovery is pending, and the robots have had
-``gcs.split_confirm_s`` to check their neighbours.
+a few seconds to check their neighbours without finding a split boundary that a recovery
+would act on (while one lasts, the run waits for it to clear or to start a recovery).
 """
 
 from __future__ import annotations
@@ -56,6 +57,11 @@ def _windows(sim: Simulation) -> list[tuple[str, float, float]]:
     return phase_windows_s(sim.params.scenario)
 
 
+#: After the last seed is done, the time robots get to exchange positions (a settled robot
+#: sends one at every fourth transmit opportunity, about one a second) and flag a boundary.
+_CHECK_S = 5.0
+
+
 def _stop_when(sim: Simulation) -> bool:
     windows = _windows(sim)
     name, start, end = windows[-1]
@@ -78,7 +84,7 @@ def _stop_when(sim: Simulation) -> bool:
     ):
         return False
     settled_s = max(r.phase.done_since for r in seeds) / robots[0].ticks_per_s
-    return now - settled_s >= p.split_confirm_s + 2.0
+    return now - settled_s >= _CHECK_S
 
 
 def _seed_robot_by_key(sim: Simulation) -> dict[int, int]:
