@@ -16,9 +16,13 @@ measures (the running mean of its neighbour table):
   frame is **inconsistent** here (a bad fix or a bad merge).
 
 The flags describe the latest message from each neighbour, so they clear when merging goes
-on and the frames meet after all. A robot that has been on a split boundary for
-``gcs.split_confirm_s`` without interruption asks for a recovery
-(:mod:`protocols.recovery`) — unless ``gcs.recoveries`` have been run already.
+on and the frames meet after all. They also lapse: a neighbour's flag when it has sent no POS
+for ``_FRESH_S`` (it is merging again), and all of them when this robot stops being settled
+(its own frame is moving). Without that, a flag raised while a 1,000-robot swarm was still
+flooding its root stayed up long after both robots had joined that root, and set off a needless
+recovery epoch. A robot that has been on a split boundary for ``gcs.split_confirm_s`` without
+interruption asks for a recovery (:mod:`protocols.recovery`) — unless ``gcs.recoveries`` have
+been run already.
 
 The comparison uses only what the robot heard: its neighbours' messages and its own ranging.
 """
@@ -48,6 +52,7 @@ POS = Layout(
 )
 _POS_EVERY = 4  # one message opportunity in this many carries a POS (others are free)
 _LIMIT_MM = 16383.0  # int16 in 0.5 mm
+_FRESH_S = 5.0  # a neighbour's flag lapses after this long without a POS from it
 
 
 class SplitCheck:
@@ -69,6 +74,7 @@ class SplitCheck:
         self.other_frame: dict[int, int] = {}
         self.inconsistent: dict[int, float] = {}
         self.boundary_since: int | None = None
+        self.pos_heard_at: dict[int, int] = {}  # neighbour ID -> tick of its latest POS
         self.turn = 0
 
     # -- own state ---------------------------------------------------------------------------
@@ -87,10 +93,37 @@ class SplitCheck:
     def wants_recovery(self) -> bool:
         """On a split boundary for ``gcs.split_confirm_s`` and recoveries are left."""
         r = self.robot
+        if self.boundary_since is None:
+            return False
+        self._lapse()
         if self.boundary_since is None or r.epoch >= self.params.recoveries:
             return False
         confirm = round(self.params.split_confirm_s * r.ticks_per_s)
         return r.kilo_ticks - self.boundary_since >= confirm
+
+    def _lapse(self) -> None:
+        """Drop flags that no longer describe the present (see the module docstring)."""
+        r = self.robot
+        if not self.settled():
+            self.other_frame.clear()
+            self.inconsistent.clear()
+            self.pos_heard_at.clear()
+        else:
+            fresh_after = r.kilo_ticks - _FRESH_S * r.ticks_per_s
+            for uid in [u for u, tick in self.pos_heard_at.items() if tick < fresh_after]:
+                del self.pos_heard_at[uid]
+                self.other_frame.pop(uid, None)
+                self.inconsistent.pop(uid, None)
+        self._update_boundary()
+
+    def _update_boundary(self) -> None:
+        r = self.robot
+        if self.other_frame and self.boundary_since is None:
+            self.boundary_since = r.kilo_ticks
+            r.log("split_detected", neighbours=sorted(self.other_frame))
+        elif not self.other_frame and self.boundary_since is not None:
+            r.log("split_cleared", after_s=(r.kilo_ticks - self.boundary_since) / r.ticks_per_s)
+            self.boundary_since = None
 
     # -- messages ----------------------------------------------------------------------------
     def message_tx(self) -> Message | None:
@@ -114,6 +147,7 @@ class SplitCheck:
         if m.sender not in r.table or not self.settled():
             return
         root = (m.root << 8) | m.root_salt
+        self.pos_heard_at[m.sender] = r.kilo_ticks
         self.other_frame.pop(m.sender, None)
         self.inconsistent.pop(m.sender, None)
         if root != r.global_root:
@@ -123,9 +157,4 @@ class SplitCheck:
             mismatch = abs(math.hypot(m.x_mm - x, m.y_mm - y) - r.table.distance(m.sender))
             if mismatch > self.params.check_tolerance_mm:
                 self.inconsistent[m.sender] = mismatch
-        if self.other_frame and self.boundary_since is None:
-            self.boundary_since = r.kilo_ticks
-            r.log("split_detected", neighbours=sorted(self.other_frame))
-        elif not self.other_frame and self.boundary_since is not None:
-            r.log("split_cleared", after_s=(r.kilo_ticks - self.boundary_since) / r.ticks_per_s)
-            self.boundary_since = None
+        self._update_boundary()
