@@ -62,6 +62,10 @@ class Message:
         """Bytes on the air: payload, type byte and a 2-byte CRC."""
         return len(self.data) + 3
 
+    def __reduce__(self) -> tuple:
+        # Copies and pickles carry the message, not the decode cache (which holds a Layout).
+        return (Message, (self.data, self.type))
+
 
 @dataclass(frozen=True, slots=True)
 class PayloadLimit:

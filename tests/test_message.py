@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import copy
+import pickle
+
 import pytest
 
 from kilonet.message import KILOLIB, THESIS, Layout, Message, PayloadError
@@ -158,3 +161,13 @@ def test_layout_unpack_checks_type_and_length():
 def test_layout_matches_by_type():
     assert POSITION.matches(Message(b"", type=3))
     assert not POSITION.matches(Message(b"", type=2))
+
+
+def test_a_decoded_message_still_pickles_and_copies_as_itself():
+    layout = Layout("pos", type=3, fields=[("seed", "B"), ("x_mm", "h", 0.5)])
+    message = layout.pack(seed=7, x_mm=-12.5)
+    record = layout.unpack(message)
+    assert layout.unpack(message) is record  # decoded once for every receiver
+    for twin in (pickle.loads(pickle.dumps(message)), copy.deepcopy(message)):
+        assert twin == message
+        assert layout.unpack(twin) == record
