@@ -322,6 +322,8 @@ class FrameMerging(Phase):
         self.turn = 0
         # When this robot last hinted each (seed, partner) pair of its groups (ticks).
         self.hinted_at: dict[tuple[int, int], int] = {}
+        # The latest query to this robot it could not answer yet: (seed, partner, version, tag).
+        self.pending_query: tuple[int, int, int, int] | None = None
         # Rank of each seed heard, by frame key: root frame key · 256 + hops (smaller better).
         # Merging (again, after a recovery) starts afresh: transforms, ranks and the check.
         r.ranks = self.ranks = {}
@@ -345,6 +347,7 @@ class FrameMerging(Phase):
             self.asking: tuple[int, int] | None = None
             self.hint: tuple[int, int] | None = None  # (member, partner) from a HINT
             self.query_due = False
+            self.unpublished = 0
             self.received: dict[str, object] = {}
             self.round_start = r.kilo_ticks
             # An edge seed's frame (protocols.recovery) ranks after every elected seed's: bit 15
@@ -437,6 +440,7 @@ class FrameMerging(Phase):
             # A new version only when the transform moved: members that hold the current one
             # can answer the next round at once (rounds are told apart by their tags).
             self.version += 1
+            self.unpublished = 2  # its two halves go out before anything else
         self.rounds += 1
         self.stable = self.stable + 1 if agreed else 0
         r.log(
@@ -471,6 +475,11 @@ class FrameMerging(Phase):
             self._new_round()
         self.turn += 1
         version = self._version_byte()
+        if self.unpublished:
+            # A member cannot answer the next query before it holds both halves of the new
+            # version: send them first.
+            self.unpublished -= 1
+            return self._transform_message(rotation=self.unpublished == 1)
         if self.turn % 5 == 1:
             return TF_ROOT.pack(
                 sender=r.uid,
@@ -489,10 +498,15 @@ class FrameMerging(Phase):
                 version=version,
                 tag=self.tag,
             )
-        if self.turn % 2 == 0:
-            return TF_ROT.pack(sender=r.uid, version=version, **quaternion_fields(self.rotation))
+        return self._transform_message(rotation=self.turn % 2 == 0)
+
+    def _transform_message(self, *, rotation: bool) -> Message:
+        """One half of this seed's transform: TF_ROT or TF_SHIFT."""
+        sender, version = self.robot.uid, self._version_byte()
+        if rotation:
+            return TF_ROT.pack(sender=sender, version=version, **quaternion_fields(self.rotation))
         vx, vy, vz = self.shift
-        return TF_SHIFT.pack(sender=r.uid, version=version, vx_mm=vx, vy_mm=vy, vz_mm=vz)
+        return TF_SHIFT.pack(sender=sender, version=version, vx_mm=vx, vy_mm=vy, vz_mm=vz)
 
     def _seed_receive(self, message: Message) -> None:
         if self.final:
@@ -598,10 +612,11 @@ class FrameMerging(Phase):
         except GeometryError:  # members nearly in a line: no rotation to learn from them
             return None
 
-    def _answer(self, seed: int, partner: int, version: int, tag: int) -> None:
+    def _answer(self, seed: int, partner: int, version: int, tag: int) -> bool:
+        """Queue the answer to a query; ``False`` if this robot cannot answer it yet."""
         answer = self._compute_answer(seed, partner, version)
         if answer is None:
-            return
+            return False
         rotation, shift, error, rank_k = answer
         r = self.robot
         tx, ty, tz = shift
@@ -620,6 +635,7 @@ class FrameMerging(Phase):
         ]
         self.answers[seed] = (tag, messages)
         self.outbox.extend(messages)
+        return True
 
     def _track_root(self, message: Message) -> None:
         r = self.robot
@@ -653,6 +669,10 @@ class FrameMerging(Phase):
             ):
                 r.transforms[key] = Transform(np.array(shift_mm), m.version, words=words)
             self.heard_at[key] = r.kilo_ticks
+            pending = self.pending_query
+            answerable = pending is not None and key in pending[:2] and not self.outbox
+            if answerable and self._answer(*pending):
+                self.pending_query = None
 
     # -- phase interface ---------------------------------------------------------------------
     def message_tx(self) -> Message | None:
@@ -680,7 +700,10 @@ class FrameMerging(Phase):
                 if tag == m.tag:
                     self.outbox.extend(cached)
                 else:
-                    self._answer(seed, (m.partner << 8) | m.partner_salt, m.version, m.tag)
+                    query = (seed, (m.partner << 8) | m.partner_salt, m.version, m.tag)
+                    # Not answerable yet (usually: the seed's new version is still on its way):
+                    # answer the moment the missing transform is complete.
+                    self.pending_query = None if self._answer(*query) else query
         if r.is_seed:
             self._seed_receive(message)
 
