@@ -53,7 +53,7 @@ __all__ = ["LOSS_CAUSES", "InfraredMedium", "RandomBlock"]
 #: Causes a reception can be lost to, as counted per receiving robot.
 LOSS_CAUSES = ("random", "collision", "overflow", "battery", "fault")
 
-_BLOCK = 1 << 15
+_BLOCK = 1 << 11
 
 
 class RandomBlock:
@@ -160,6 +160,7 @@ class InfraredMedium:
         self._ranging = sim.params.ranging
         n = sim.n_robots
         self.n = n
+        self._ids = list(range(n))  # one int object per robot, shared by every list
 
         self._medium_rng = sim.stream("medium")
         self._uniform = RandomBlock(self._medium_rng.random)
@@ -272,7 +273,8 @@ class InfraredMedium:
             r, d = r[near], d[near]
         self._rx_idx[s] = r
         self._rx_d[s] = d + self.bias_mm[r]
-        self._rx_r[s] = r.tolist()
+        ids = self._ids
+        self._rx_r[s] = [ids[k] for k in r.tolist()]
         self._rx_h[s] = [self._handlers[k] for k in self._rx_r[s]]
         self._row_count[s] = self._row_next[s] = 0  # rows drawn for the old lists are void
 

@@ -97,13 +97,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from kilonet.alignment import (
-    half_step,
-    level_turn,
-    pack_quaternion,
-    rotation_between_frames,
-    unpack_quaternion,
-)
+from kilonet.alignment import half_map, level_turn, pack_quaternion, unpack_quaternion
 from kilonet.geometry import GeometryError
 from kilonet.message import Layout, Message
 from protocols.gcs_base import Phase
@@ -113,7 +107,6 @@ __all__ = [
     "HINT",
     "FrameMerging",
     "Transform",
-    "half_map",
     "quaternion_fields",
     "rotation_from_fields",
 ]
@@ -215,10 +208,15 @@ class Transform:
     def apply_point(self, x_mm: float, y_mm: float) -> np.ndarray:
         """One local point (x, y, 0), mm, in the seed's "global" coordinates, mm (a robot asks
         this many times a second: a matrix product, not a scipy ``Rotation.apply``)."""
+        m = self.matrix
+        return m[:, 0] * x_mm + m[:, 1] * y_mm + self.shift
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The rotation as a 3×3 matrix (computed once)."""
         if self._matrix is None:
             self._matrix = self.rotation.as_matrix()
-        m = self._matrix
-        return m[:, 0] * x_mm + m[:, 1] * y_mm + self.shift
+        return self._matrix
 
     @property
     def flat(self) -> np.ndarray:
@@ -235,7 +233,7 @@ class Transform:
 
     def apply(self, points_mm: np.ndarray) -> np.ndarray:
         """Local points, (n, 3) or (3,), mm, in the seed's "global" coordinates, mm."""
-        return self.rotation.apply(points_mm) + self.shift
+        return points_mm @ self.matrix.T + self.shift
 
 
 def quaternion_fields(rotation: Rotation) -> dict[str, int]:
@@ -256,46 +254,6 @@ def rotation_from_fields(q0: int, q1: int, q2: int) -> Rotation:
     True
     """
     return unpack_quaternion((q0, q1, q2))
-
-
-def half_map(
-    points_i: np.ndarray, points_k: np.ndarray, fraction: float = 0.5
-) -> tuple[Rotation, np.ndarray, float]:
-    """A fraction (default half) of the rigid map taking points in frame I onto the same
-    robots in frame K.
-
-    Parameters
-    ----------
-    points_i, points_k : (n, 3) arrays
-        The same robots' "global" positions through I's and K's transforms, mm.
-    fraction : float
-        0 stays, 0.5 goes half way (the thesis), 1 goes all the way.
-
-    Returns
-    -------
-    rotation, shift, disagreement_mm
-        ``R_H`` (the fraction of the rotation, SLERP from the identity), ``t_H`` moving the
-        centroid by the same fraction, and the disagreement of the two transforms: the
-        farthest the full rigid map moves one of the robots. (Not the largest distance between
-        a robot's two positions: that also holds the members' own position errors, which no
-        transform removes, so it would never fall below them.)
-
-    Examples
-    --------
-    A frame K that is I turned by 90° about z and shifted by 10 mm along x:
-
-    >>> p_i = np.array([[0.0, 0, 0], [40, 0, 0], [0, 40, 0]])
-    >>> turn = Rotation.from_euler("z", 90, degrees=True)
-    >>> p_k = turn.apply(p_i) + [10.0, 0, 0]
-    >>> r_h, t_h, err = half_map(p_i, p_k)
-    >>> round(float(np.degrees(r_h.magnitude())), 6), round(err, 3)
-    (45.0, 50.0)
-    """
-    full, full_shift = rotation_between_frames(points_i, points_k)
-    half, shift = half_step(full, full_shift, fraction, about_mm=points_i.mean(axis=0))
-    moved = full.apply(points_i) + full_shift
-    disagreement = float(np.max(np.linalg.norm(moved - points_i, axis=1)))
-    return half, shift, disagreement
 
 
 class FrameMerging(Phase):
@@ -327,6 +285,7 @@ class FrameMerging(Phase):
         # Rank of each seed heard, by frame key: root frame key · 256 + hops (smaller better).
         # Merging (again, after a recovery) starts afresh: transforms, ranks and the check.
         r.ranks = self.ranks = {}
+        r.merge_state += 1
         r.merge_done = False
         r.check = SplitCheck(r)
         self.done_since: int | None = None
@@ -375,6 +334,7 @@ class FrameMerging(Phase):
         r = self.robot
         r.transforms[self.key] = Transform(self.shift, self._version_byte(), rotation=self.rotation)
         self.ranks[self.key] = self.rank
+        r.merge_state += 1
 
     def _version_byte(self) -> int:
         return (self.version & 0x7F) | (_DONE if self.done else 0)
@@ -640,7 +600,10 @@ class FrameMerging(Phase):
     def _track_root(self, message: Message) -> None:
         r = self.robot
         m = TF_ROOT.unpack(message)
-        self.ranks[r.frame_key(m.sender)] = (m.root << 16) | (m.root_salt << 8) | m.hops
+        key, rank = r.frame_key(m.sender), (m.root << 16) | (m.root_salt << 8) | m.hops
+        if self.ranks.get(key) != rank:
+            self.ranks[key] = rank
+            r.merge_state += 1
 
     def _track_transform(self, message: Message) -> None:
         r = self.robot
@@ -668,6 +631,7 @@ class FrameMerging(Phase):
                 or held.shift.tolist() != shift_mm
             ):
                 r.transforms[key] = Transform(np.array(shift_mm), m.version, words=words)
+                r.merge_state += 1
             self.heard_at[key] = r.kilo_ticks
             pending = self.pending_query
             answerable = pending is not None and key in pending[:2] and not self.outbox

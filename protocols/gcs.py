@@ -116,8 +116,15 @@ class GcsRobot(Kilobot):
         self.partners: dict[int, set[int]] = {}
         # Phase 6: transforms heard, by frame key (protocols.frame_merging.Transform).
         self.transforms: dict = {}
-        self._position_cache: tuple[tuple, tuple[float, float] | None] = ((), None)
         self.ranks: dict[int, int] = {}  # merge rank of each seed heard (frame_merging)
+        # Bumped by frame_merging whenever a transform or rank is set anew: the global estimate
+        # (asked on every POS heard) is recomputed only when this or the frames change.
+        self.merge_state = 0
+        self._frames_cache: tuple[tuple[int, int], tuple[int | None, list[int]]] = (
+            (-1, -1),
+            (None, []),
+        )
+        self._position_cache: tuple[tuple[int, int], tuple[float, float] | None] = ((-1, -1), None)
         self.merge_done = False
         # Checking and recovering (split_detection, recovery): the check runs while merging.
         self.check: SplitCheck | None = None
@@ -238,14 +245,13 @@ class GcsRobot(Kilobot):
         ``R_S (x, y, 0) + v_S`` over them; 2-D coordinates are those of the common plane laid
         flat by :func:`kilonet.alignment.level` (see :mod:`protocols.frame_merging`).
         """
-        root, known = self.global_frames()
-        if root is None:
-            return None
-        # The check asks on every POS and transforms change seldom: recompute only when one
-        # of them is new.
-        state = tuple((k, self.transforms[k].version, id(self.transforms[k])) for k in known)
+        state = (self.merge_state, len(self.frames))
         if state == self._position_cache[0]:
             return self._position_cache[1]
+        root, known = self.global_frames()
+        if root is None:
+            self._position_cache = (state, None)
+            return None
         points = [self.transforms[k].apply_point(*self.frames[k]) for k in known]
         # Merged frames share one plane, tilted in general, but not one rotation (a frame that
         # was a mirror image faces the other way). Turning the plane's normal, taken on a fixed
@@ -260,6 +266,14 @@ class GcsRobot(Kilobot):
         """The root of the merged frame this robot's estimate is in and the frames (keys, in
         order) that estimate uses: those it is located in whose transform and rank it holds,
         of the smallest root. ``(None, [])`` without an estimate."""
+        # Frames are only ever added, and merge_state moves with every transform or rank.
+        state = (self.merge_state, len(self.frames))
+        if state == self._frames_cache[0]:
+            return self._frames_cache[1]
+        self._frames_cache = (state, self._global_frames())
+        return self._frames_cache[1]
+
+    def _global_frames(self) -> tuple[int | None, list[int]]:
         known = [k for k in sorted(self.frames) if k in self.transforms and k in self.ranks]
         if not known:
             return None, []

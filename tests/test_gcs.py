@@ -15,9 +15,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import scenarios
-from kilonet.alignment import procrustes_rmse
+from kilonet.alignment import half_map, procrustes_rmse
 from kilonet.visibility import communication_graph
-from protocols.frame_merging import TF_ROT, half_map, quaternion_fields, rotation_from_fields
+from protocols.frame_merging import TF_ROT, quaternion_fields, rotation_from_fields
 from protocols.gcs import phase_windows_s
 from protocols.gcs_base import GcsParams
 from protocols.unique_ids import ID
