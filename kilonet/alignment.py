@@ -244,7 +244,8 @@ def half_map(
     GeometryError
         If fewer than 3 points are given or the points of a frame are collinear.
     ValueError
-        If the arrays' shapes differ or are not (k, 2) / (k, 3).
+        If the arrays' shapes differ or are not (k, 2) / (k, 3), or ``fraction`` is outside
+        [0, 1].
 
     Examples
     --------
@@ -257,6 +258,8 @@ def half_map(
     >>> round(float(np.degrees(r_h.magnitude())), 6), round(err, 3)
     (45.0, 50.0)
     """
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"fraction must be in [0, 1]; got {fraction}")
     a, b = _points3(points_i, "points_i"), _points3(points_k, "points_k")
     if a.shape != b.shape:
         raise ValueError(f"points_i and points_k differ in shape: {a.shape} vs {b.shape}")

@@ -17,6 +17,7 @@ from kilonet.alignment import (
     apply_2d,
     apply_3d,
     compose,
+    half_map,
     half_step,
     invert,
     level,
@@ -237,6 +238,40 @@ def test_halving_the_remainder_converges(quat, shift, about):
     angle_left, shift_left = transform_distance(*current, *target)
     assert angle_left < 1e-9
     assert shift_left < 1e-6
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.tuples(coord, coord, coord), min_size=3, max_size=6),
+    quaternions,
+    st.tuples(coord, coord, coord),
+    st.floats(0.0, 1.0),
+    st.booleans(),
+)
+def test_half_map_is_the_half_step_of_the_best_fit_transform(points, quat, shift, frac, flat):
+    a = np.array(points)
+    if flat:
+        a[:, 2] = 0.0
+    assume(_spread(a) > 1.0)
+    # Frame K: turned and moved, plus a little disagreement no rigid map removes.
+    b = Rotation.from_quat(quat).apply(a) + shift + np.sin(np.arange(a.size)).reshape(a.shape)
+    rot, v, disagreement = half_map(a, b, frac)
+    full, full_shift = rotation_between_frames(a, b)
+    want_rot, want_v = half_step(full, full_shift, frac, about_mm=a.mean(axis=0))
+    assert (rot * want_rot.inv()).magnitude() == pytest.approx(0.0, abs=1e-7)
+    assert v == pytest.approx(want_v, abs=1e-6)
+    moved = full.apply(a) + full_shift
+    assert disagreement == pytest.approx(np.linalg.norm(moved - a, axis=1).max(), abs=1e-6)
+
+
+def test_half_map_refuses_collinear_points_and_bad_fractions():
+    line = np.array([[0.0, 0.0, 0.0], [10.0, 5.0, 0.0], [30.0, 15.0, 0.0]])
+    with pytest.raises(GeometryError, match="frame I are collinear"):
+        half_map(line, _TRIANGLE)
+    with pytest.raises(GeometryError, match="frame K are collinear"):
+        half_map(_TRIANGLE, line)
+    with pytest.raises(ValueError, match="fraction"):
+        half_map(_TRIANGLE, _TRIANGLE, 1.5)
 
 
 def test_half_step_of_a_mirror_merge_stands_the_frame_on_edge():
