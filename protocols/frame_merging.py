@@ -25,7 +25,15 @@ A round of seed I:
    shift that follow an ANS_ERROR belong to it: without that, a seed took another seed's
    answer whose tag matched, and a merged frame's root leaked into frames never merged with it.
 3. I applies the step: R_I ← R_H R_I, v_I ← R_H v_I + t_H, bumps its version and
-   broadcasts the new transform.
+   broadcasts the new transform. A seed that is a member of the group answers itself at
+   once, and then waits a second before its next round (else it would step at every transmit
+   opportunity, faster than its partner's transform is heard anew).
+
+Beyond the thesis — whole steps. When the parent (below) disagrees by more than
+``gcs.merge_whole_step_mm``, the seed applies the half step twice: the whole rotation and,
+but for the turn of the second half of the move, the whole shift. Near the parent, half steps
+average the answers' noise away. Measured on 100 robots (seeds 1-3): merging 87/101/100 →
+81/75/72 simulated s; 300 robots 168 → 127 s.
 
 Beyond the thesis — a rank. Half steps alone are a diffusion: on a chain of L frames agreement
 takes on the order of L² rounds, and with delayed, noisy answers it keeps ringing (we measured
@@ -53,7 +61,10 @@ boundary with the advancing root as a split, and a needless recovery epoch resta
 (300 robots: detected 35 s into merging, 150 simulated s lost). But a group member hears both of
 its seeds' ranks (TF_ROOT): when it sees partner K rank better than seed I could, it sends
 ``HINT(I, K)`` (at most once per pair and ``gcs.merge_round_s``), and I asks K through that
-member in its next round, unless it already knows K as a parent.
+member in its next round, unless it already knows K as a parent; a running round that no hint
+started ends at once. A seed whose rank improves sends TF_ROOT at its next opportunity. The
+root thus crosses a frame in about 3 s instead of 5 (1,000 robots: 20 hops in 59 s instead of
+101).
 
 Termination, decided by each seed alone: when ``gcs.merge_stable_rounds`` answers in a row
 agree and every partner has answered at least once, the seed is done (bit 7 of its version).
@@ -157,6 +168,7 @@ _TRANSFORM_PARTS = {TF_ROT.type: (TF_ROT, "rot"), TF_SHIFT.type: (TF_SHIFT, "shi
 _DONE = 0x80
 _EDGE_ROOT = 0x8000  # in the root's ID field: the root is an edge seed (ranks last)
 _IDENTITY = Rotation.identity()
+_OWN_ROUND_S = 1.0  # pause after a round the seed answered itself (about a round's length)
 
 
 class Transform:
@@ -305,10 +317,13 @@ class FrameMerging(Phase):
             self.stable = 0
             self.asking: tuple[int, int] | None = None
             self.hint: tuple[int, int] | None = None  # (member, partner) from a HINT
+            self.hinted_round = False  # the running round was started by a hint
             self.query_due = False
             self.unpublished = 0
+            self.rank_unpublished = False
             self.received: dict[str, object] = {}
             self.round_start = r.kilo_ticks
+            self.next_round_tick = 0.0  # a round answered by the seed itself pauses the next
             # An edge seed's frame (protocols.recovery) ranks after every elected seed's: bit 15
             # of the root's ID field is free (IDs have at most 15 bits). Otherwise a new frame
             # that merges with nothing could win robots over from the frame they were in.
@@ -347,6 +362,7 @@ class FrameMerging(Phase):
         hinted, self.hint = self.hint, None
         if hinted is not None and self.partner_ranks.get(hinted[1], 1 << 40) < self.rank:
             hinted = None  # known already: a parent is asked every other round anyway
+        self.hinted_round = hinted is not None
         if hinted is not None:
             member, partner = hinted
             r.log("merge_hint", partner=partner >> 8, member=member)
@@ -369,6 +385,10 @@ class FrameMerging(Phase):
             answer = self._compute_answer(self.key, partner, self._version_byte())
             if answer is not None:
                 self._apply(*answer)
+                # An answer of its own comes at once; without a pause the seed would run a
+                # round at every transmit opportunity, stepping again before its partner's
+                # transform was heard anew, and use up gcs.merge_max_rounds in a minute.
+                self.next_round_tick = r.kilo_ticks + _OWN_ROUND_S * r.ticks_per_s
 
     def _parent(self) -> int | None:
         """The partner this seed follows: the best rank it has heard of, ties going to the
@@ -395,8 +415,13 @@ class FrameMerging(Phase):
         if follow:
             if partner_rank + 1 < self.rank and partner_rank & 0xFF < 0xFF:
                 self.rank = partner_rank + 1
-            self.rotation = rotation * self.rotation
-            self.shift = rotation.apply(self.shift) + shift
+                self.rank_unpublished = True
+            # Far off, the half step goes twice: the whole rotation and, but for the turn of
+            # the remaining half move, the whole shift; near the parent, half steps average
+            # the answers' noise away.
+            for _ in range(2 if error_mm > self.params.merge_whole_step_mm else 1):
+                self.rotation = rotation * self.rotation
+                self.shift = rotation.apply(self.shift) + shift
             # A new version only when the transform moved: members that hold the current one
             # can answer the next round at once (rounds are told apart by their tags).
             self.version += 1
@@ -430,23 +455,28 @@ class FrameMerging(Phase):
 
     def _seed_message(self) -> Message | None:
         r = self.robot
-        timed_out = r.kilo_ticks - self.round_start > self.round_ticks
-        if not self.final and r.partners and (self.asking is None or timed_out):
+        now = r.kilo_ticks
+        timed_out = now - self.round_start > self.round_ticks
+        idle = self.asking is None and now >= self.next_round_tick
+        if not self.final and r.partners and (idle or timed_out):
             self._new_round()
         self.turn += 1
         version = self._version_byte()
-        if self.unpublished:
-            # A member cannot answer the next query before it holds both halves of the new
-            # version: send them first.
-            self.unpublished -= 1
-            return self._transform_message(rotation=self.unpublished == 1)
-        if self.turn % 5 == 1:
+        if self.rank_unpublished or self.turn % 5 == 1:
+            # A better rank goes out at once: members that hear it hint the next seeds, and
+            # that is how the root spreads (at 1,000 robots it crosses 20 frames).
+            self.rank_unpublished = False
             return TF_ROOT.pack(
                 sender=r.uid,
                 root=self.rank >> 16,
                 root_salt=(self.rank >> 8) & 0xFF,
                 hops=self.rank & 0xFF,
             )
+        if self.unpublished:
+            # A member cannot answer the next query before it holds both halves of the new
+            # version: send them first.
+            self.unpublished -= 1
+            return self._transform_message(rotation=self.unpublished == 1)
         if self.asking is not None and not self.final and (self.query_due or self.turn % 3 == 0):
             self.query_due = False  # a new round's query goes out first, then every third turn
             member, partner = self.asking
@@ -502,12 +532,15 @@ class FrameMerging(Phase):
 
     def _take_hint(self, m) -> None:
         """A member says partner K ranks better than this seed: the next round asks K through
-        that member (the running round is not cut short: hints from several members would
-        otherwise keep restarting it)."""
+        that member, and a running round that no hint started ends now (a better root is
+        what the whole swarm waits for; a hinted round is not cut short, or hints from
+        several members would keep restarting it)."""
         r = self.robot
         partner = (m.partner << 8) | m.partner_salt
         if m.seed == r.uid and m.sender in r.partners.get(partner, ()):
             self.hint = (m.sender, partner)
+            if not self.hinted_round and self.asking is not None and self.asking[1] != partner:
+                self.asking = None  # its answers are refused by their tag from now on
 
     # -- member side -------------------------------------------------------------------------
     def _hint(self) -> Message | None:

@@ -36,6 +36,12 @@ class GcsParams:
         "merge", doc="last phase to run"
     )
     id_bits: int = param(8, lo=2, hi=15, doc="random IDs are drawn from this many bits")
+    # Windows sized on lossless runs with a margin: on a 1,000-robot lattice the last frame
+    # was built 17.7 s into phase 3, the last robot located 9.0 s into phase 4, the last groups
+    # registered 0.1 s into phase 5. Phase 1 keeps its 8 s: IDs settle in 1.3 s, but with 5 s
+    # a 40-robot swarm merged into a frame with a needless recovery epoch, not without. A
+    # lossy channel needs longer ones (20 % loss: ids_s = 12, frames_s = 90,
+    # localization_s = 40).
     ids_s: float = param(8.0, lo=0.5, hi=600.0, doc="phase 1 window")
     duplicate_distance_mm: float = param(
         12.0, lo=1.0, hi=200.0, doc="one ID heard at distances this far apart is two robots"
@@ -43,19 +49,19 @@ class GcsParams:
     elect_s: float = param(3.0, lo=0.5, hi=600.0, doc="top and each bottom election window")
     check_s: float = param(2.0, lo=0.5, hi=600.0, doc="seed check window after each election")
     reelections: int = param(5, lo=0, hi=50, doc="bottom re-elections at most")
-    frames_s: float = param(45.0, lo=1.0, hi=3600.0, doc="phase 3 window")
+    frames_s: float = param(30.0, lo=1.0, hi=3600.0, doc="phase 3 window")
     ask_timeout_s: float = param(2.0, lo=0.2, hi=60.0, doc="seed skips a silent neighbour")
     busy_reset_s: float = param(3.0, lo=0.2, hi=60.0, doc="a busy neighbour resets itself")
     ask_attempts: int = param(2, lo=1, hi=20, doc="times a seed tries each neighbour")
     reference_rule: Literal["max_angle", "best_conditioned"] = param(
         "max_angle", doc="how a seed picks its two references"
     )
-    localization_s: float = param(20.0, lo=1.0, hi=3600.0, doc="phase 4 window")
+    localization_s: float = param(15.0, lo=1.0, hi=3600.0, doc="phase 4 window")
     max_rmse_mm: float = param(4.0, lo=0.1, hi=100.0, doc="reject fixes with larger residuals")
     sigma_mm: float = param(
         1.0, lo=0.01, hi=100.0, doc="ranging noise the robots assume when judging a fix"
     )
-    groups_s: float = param(6.0, lo=0.5, hi=3600.0, doc="phase 5 window")
+    groups_s: float = param(3.0, lo=0.5, hi=3600.0, doc="phase 5 window")
     min_group_width_mm: float = param(
         15.0, lo=0.0, hi=200.0, doc="thinnest merging-group triangle accepted"
     )
@@ -65,11 +71,20 @@ class GcsParams:
         4.0, lo=0.01, hi=100.0, doc="a seed agrees with its parent within this (map motion)"
     )
     merge_stable_rounds: int = param(4, lo=1, hi=1000, doc="agreeing rounds before done")
+    merge_whole_step_mm: float = param(
+        16.0,
+        lo=0.0,
+        hi=1000.0,
+        doc="a seed steps the whole way toward a parent that disagrees by more (128+: never)",
+    )
     check_tolerance_mm: float = param(
         8.0, lo=0.1, hi=1000.0, doc="measured and computed neighbour distances agree within this"
     )
+    # Long enough for the root to cross a region that settled on a local root first: at
+    # 1,000 robots a boundary stood for 20 s (and set off a needless recovery) while the root
+    # was still on its way, at about 3 s per frame.
     split_confirm_s: float = param(
-        20.0, lo=0.5, hi=3600.0, doc="a split boundary must persist this long to act on it"
+        40.0, lo=0.5, hi=3600.0, doc="a split boundary must persist this long to act on it"
     )
     recoveries: int = param(2, lo=0, hi=20, doc="recovery epochs (edge seeds, phases 3-6) at most")
     recover_flood_s: float = param(
