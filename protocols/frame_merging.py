@@ -292,6 +292,9 @@ class FrameMerging(Phase):
         self.turn = 0
         # When this robot last hinted each (seed, partner) pair of its groups (ticks).
         self.hinted_at: dict[tuple[int, int], int] = {}
+        # (merge_state, tick) of the last scan that found no hint to send, and the tick from
+        # which a pair held back then may go (see _hint).
+        self.hint_scanned: tuple[int, float] = (-1, 0)
         # The latest query to this robot it could not answer yet: (seed, partner, version, tag).
         self.pending_query: tuple[int, int, int, int] | None = None
         # Rank of each seed heard, by frame key: root frame key · 256 + hops (smaller better).
@@ -550,23 +553,30 @@ class FrameMerging(Phase):
         At most one hint per pair and ``gcs.merge_round_s``."""
         r = self.robot
         now = r.kilo_ticks
+        # Asked at every transmit opportunity: scan the groups again only once a rank has
+        # changed or a pair held back by the time limit may go.
+        if r.merge_state == self.hint_scanned[0] and now < self.hint_scanned[1]:
+            return None
         own = getattr(self, "key", None)
         ranks = self.ranks
+        due = float("inf")
         for pair in r.groups:
             for seed, partner in (pair, pair[::-1]):
                 rank_seed, rank_partner = ranks.get(seed), ranks.get(partner)
                 if rank_seed is None or rank_partner is None or rank_partner + 1 >= rank_seed:
                     continue
-                if (
-                    seed == own
-                    or now - self.hinted_at.get((seed, partner), -self.round_ticks)
-                    < self.round_ticks
-                ):
+                if seed == own:
+                    continue
+                last = self.hinted_at.get((seed, partner))
+                if last is not None and now - last < self.round_ticks:
+                    due = min(due, last + self.round_ticks)
                     continue
                 self.hinted_at[(seed, partner)] = now
+                self.hint_scanned = (-1, 0)  # more pairs may be due: scan again next time
                 return HINT.pack(
                     sender=r.uid, seed=seed >> 8, partner=partner >> 8, partner_salt=partner & 0xFF
                 )
+        self.hint_scanned = (r.merge_state, due)
         return None
 
     # -- member side: answers -------------------------------------------------------------------

@@ -33,9 +33,9 @@ from protocols.local_frames import LocalFrames
 from protocols.localization import Localization
 from protocols.merging_groups import MergingGroups
 from protocols.neighbours import NeighbourTable
-from protocols.recovery import EdgeSeeds, RecoveryFlood
+from protocols.recovery import RECOVER, EdgeSeeds, RecoveryFlood
 from protocols.seed_election import SeedElection
-from protocols.split_detection import SplitCheck
+from protocols.split_detection import POS, SplitCheck
 from protocols.unique_ids import UniqueIds
 
 __all__ = ["GcsRobot", "phase_windows_s"]
@@ -218,7 +218,7 @@ class GcsRobot(Kilobot):
         self._advance()
         if self._polled:
             while (received := self.get_message()) is not None:
-                self._receive(*received)
+                self.message_rx(*received)
         phase = self.phase
         if phase is not None:
             phase.loop()
@@ -300,15 +300,15 @@ class GcsRobot(Kilobot):
         return message if message is not None else self.phase.message_tx()
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        self._receive(message, distance_mm)
-
-    def _receive(self, message: Message, distance_mm: int) -> None:
         phase = self.phase
         if phase is None:
             return
-        self.recovery.message_rx(message)
+        # Recovery floods and POS are rare: dispatch on the type byte, not a call per message.
+        kind = message.type
+        if kind == RECOVER.type:
+            self.recovery.message_rx(message)
         phase.message_rx(message, distance_mm)
-        if self.check is not None and phase.name == "merge":
+        if kind == POS.type and self.check is not None and phase.name == "merge":
             self.check.message_rx(message)
         (sender,) = _SENDER(message.data)
         if sender != self.uid:
