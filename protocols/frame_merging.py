@@ -646,7 +646,8 @@ class FrameMerging(Phase):
         key, rank = r.frame_key(m.sender), (m.root << 16) | (m.root_salt << 8) | m.hops
         if self.ranks.get(key) != rank:
             self.ranks[key] = rank
-            r.merge_state += 1
+            if key in r.frames:  # only frames it is located in shape its estimate and hints
+                r.merge_state += 1
 
     def _track_transform(self, message: Message) -> None:
         r = self.robot
@@ -674,7 +675,8 @@ class FrameMerging(Phase):
                 or held.shift.tolist() != shift_mm
             ):
                 r.transforms[key] = Transform(np.array(shift_mm), m.version, words=words)
-                r.merge_state += 1
+                if key in r.frames:
+                    r.merge_state += 1
             self.heard_at[key] = r.kilo_ticks
             pending = self.pending_query
             answerable = pending is not None and key in pending[:2] and not self.outbox

@@ -117,8 +117,9 @@ class GcsRobot(Kilobot):
         # Phase 6: transforms heard, by frame key (protocols.frame_merging.Transform).
         self.transforms: dict = {}
         self.ranks: dict[int, int] = {}  # merge rank of each seed heard (frame_merging)
-        # Bumped by frame_merging whenever a transform or rank is set anew: the global estimate
-        # (asked on every POS heard) is recomputed only when this or the frames change.
+        # Bumped by frame_merging whenever the transform or rank of a frame this robot is
+        # located in is set anew: the global estimate (asked on every POS heard) is recomputed
+        # only when this or the frames change.
         self.merge_state = 0
         self._frames_cache: tuple[tuple[int, int], tuple[int | None, list[int]]] = (
             (-1, -1),

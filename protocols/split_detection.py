@@ -76,14 +76,18 @@ class SplitCheck:
         self.boundary_since: int | None = None
         self.pos_heard_at: dict[int, int] = {}  # neighbour ID -> tick of its latest POS
         self.turn = 0
+        self._settled: tuple[tuple[int, int], bool] = ((-1, -1), False)  # (state, settled)
 
     # -- own state ---------------------------------------------------------------------------
     def settled(self) -> bool:
         """Whether this robot's global position is final as far as it can tell: it has one,
         and every seed whose transform it uses has reported itself done."""
         r = self.robot
-        root, frames = r.global_frames()
-        return root is not None and all(r.transforms[k].done for k in frames)
+        state = (r.merge_state, len(r.frames))
+        if state != self._settled[0]:
+            root, frames = r.global_frames()
+            self._settled = (state, root is not None and all(r.transforms[k].done for k in frames))
+        return self._settled[1]
 
     @property
     def on_split_boundary(self) -> bool:

@@ -28,11 +28,23 @@ class StandInRobot:
         self.kilo_ticks = 0
         self.ticks_per_s = TPS
         self.epoch = 0
+        # As GcsRobot: merge_state moves whenever what global_frames() reads changes.
+        self.merge_state = 0
+        self.frames = {OWN_ROOT: (0.0, 0.0)}
         self.settled = True
         self.events: list[str] = []
         self.table = NeighbourTable()
         self.table.heard(5, 40.0)
         self.transforms = {OWN_ROOT: SimpleNamespace(done=True)}
+
+    @property
+    def settled(self) -> bool:
+        return self._settled
+
+    @settled.setter
+    def settled(self, value: bool) -> None:
+        self._settled = value
+        self.merge_state += 1
 
     def global_frames(self):
         return (OWN_ROOT, [OWN_ROOT]) if self.settled else (None, [])
