@@ -71,6 +71,10 @@ class GcsParams:
         4.0, lo=0.01, hi=100.0, doc="a seed agrees with its parent within this (map motion)"
     )
     merge_stable_rounds: int = param(4, lo=1, hi=1000, doc="agreeing rounds before done")
+    merge_member: Literal["random", "fixed"] = param(
+        "random",
+        doc="member asked about a partner: a new one each round, or one kept while it answers",
+    )
     merge_whole_step_mm: float = param(
         16.0,
         lo=0.0,

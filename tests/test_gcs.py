@@ -200,6 +200,32 @@ def _merged(result):
     return s["frames"], s["localized_fraction"], s["rmse_mm"]
 
 
+def _member_switches(result) -> float:
+    """Share of a seed's consecutive rounds about one partner that asked another member."""
+    events = result.sim.trace.events_frame()
+    rounds = events[events.event == "merge_round"]
+    last, same, switched = {}, 0, 0
+    for robot, data in zip(rounds.robot, rounds.data, strict=True):
+        fields = json.loads(data)
+        key = (robot, fields["partner"])
+        if key in last:
+            same += last[key] == fields["member"]
+            switched += last[key] != fields["member"]
+        last[key] = fields["member"]
+    return switched / (same + switched)
+
+
+def test_fixed_member_rule_keeps_asking_one_member_per_partner():
+    # "random" draws a member each round; "fixed" keeps one until a round times out (hints
+    # name their own member, so a few switches remain).
+    drawn = run(40, "merge", **{"gcs.merge_member": "random"})
+    kept = run(40, "merge", **{"gcs.merge_member": "fixed"})
+    assert _member_switches(drawn) > 0.4
+    assert _member_switches(kept) < 0.2
+    assert kept.summary["frames"] == 1
+    assert kept.summary["rmse_mm"] <= 5.0
+
+
 def test_merge_small_swarm_ends_by_itself_in_one_frame_per_group_component():
     result = run(40, "merge")
     sim = result.sim
