@@ -84,7 +84,7 @@ or two parent answers in a row beyond the tolerance revoke "done" until it agree
 stray answer does not: answers about one parent differ by 1-5 mm with the member asked some
 15 frames from the root, and resuming on each sent waves of "resumed" down the tree (1,000
 robots, seed 1: merging 196 → 126 simulated s, 308 → 177 s of CPU, RMSE 2.9 → 3.6 mm; 100 and
-300 robots unchanged but for seed 1 of 100: 159 → 151 s). A seed with no registered group is
+300 robots unchanged but for seed 1 of 100: 159 → 154 s). A seed with no registered group is
 isolated and done at once; a seed after ``gcs.merge_max_rounds`` rounds gives up.
 
 A robot's global position g is the mean, over the frames it is located in whose transform it
@@ -436,8 +436,8 @@ class FrameMerging(Phase):
         # while ago errs on the side of staying.
         follow = asked is not None and asked == self._parent()
         agreed = not follow or error_mm <= self.params.merge_tolerance_mm
-        # Parent answers in a row beyond the tolerance (see the resume rule below).
-        self.disagreed = 0 if agreed else self.disagreed + 1
+        if follow:  # parent answers in a row beyond the tolerance (see the resume rule below)
+            self.disagreed = 0 if agreed else self.disagreed + 1
         new_root = False
         if follow:
             if partner_rank + 1 < self.rank and partner_rank & 0xFF < 0xFF:
