@@ -246,7 +246,7 @@ class GcsRobot(Kilobot):
         ``R_S (x, y, 0) + v_S`` over them; 2-D coordinates are those of the common plane laid
         flat by :func:`kilonet.alignment.level` (see :mod:`protocols.frame_merging`).
         """
-        state = (self.merge_state, len(self.frames))
+        state = self.estimate_state
         if state == self._position_cache[0]:
             return self._position_cache[1]
         root, known = self.global_frames()
@@ -263,12 +263,17 @@ class GcsRobot(Kilobot):
         self._position_cache = (state, position)
         return position
 
+    @property
+    def estimate_state(self) -> tuple[int, int]:
+        """What the global estimate depends on, as a cache key: frames are only ever added,
+        and ``merge_state`` moves with every transform or rank of a frame this robot is in."""
+        return self.merge_state, len(self.frames)
+
     def global_frames(self) -> tuple[int | None, list[int]]:
         """The root of the merged frame this robot's estimate is in and the frames (keys, in
         order) that estimate uses: those it is located in whose transform and rank it holds,
         of the smallest root. ``(None, [])`` without an estimate."""
-        # Frames are only ever added, and merge_state moves with every transform or rank.
-        state = (self.merge_state, len(self.frames))
+        state = self.estimate_state
         if state == self._frames_cache[0]:
             return self._frames_cache[1]
         self._frames_cache = (state, self._global_frames())

@@ -83,7 +83,7 @@ class SplitCheck:
         """Whether this robot's global position is final as far as it can tell: it has one,
         and every seed whose transform it uses has reported itself done."""
         r = self.robot
-        state = (r.merge_state, len(r.frames))
+        state = r.estimate_state
         if state != self._settled[0]:
             root, frames = r.global_frames()
             self._settled = (state, root is not None and all(r.transforms[k].done for k in frames))

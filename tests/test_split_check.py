@@ -46,6 +46,10 @@ class StandInRobot:
         self._settled = value
         self.merge_state += 1
 
+    @property
+    def estimate_state(self):
+        return self.merge_state, len(self.frames)
+
     def global_frames(self):
         return (OWN_ROOT, [OWN_ROOT]) if self.settled else (None, [])
 
