@@ -121,7 +121,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from kilonet.alignment import half_map, level_turn, pack_quaternion, unpack_quaternion
+from kilonet.alignment import (
+    half_map,
+    level_matrix,
+    pack_quaternion,
+    unpack_quaternion,
+    words_matrix,
+)
 from kilonet.geometry import GeometryError
 from kilonet.message import Layout, Message
 from protocols.gcs_base import Phase
@@ -202,7 +208,7 @@ class Transform:
         ... or its :func:`quaternion_fields` words (a heard one).
     """
 
-    __slots__ = ("_flat", "_matrix", "_rotation", "_words", "shift", "version")
+    __slots__ = ("_affine", "_flat", "_matrix", "_rotation", "_words", "shift", "version")
 
     def __init__(
         self,
@@ -218,6 +224,7 @@ class Transform:
         self.shift, self.version = shift, version
         self._matrix: np.ndarray | None = None
         self._flat: np.ndarray | None = None
+        self._affine: tuple[float, ...] | None = None  # apply_point's matrix columns and shift
 
     @property
     def words(self) -> tuple[int, int, int] | None:
@@ -230,17 +237,21 @@ class Transform:
             self._rotation = unpack_quaternion(self._words)
         return self._rotation
 
-    def apply_point(self, x_mm: float, y_mm: float) -> np.ndarray:
+    def apply_point(self, x_mm: float, y_mm: float) -> tuple[float, float, float]:
         """One local point (x, y, 0), mm, in the seed's "global" coordinates, mm (a robot asks
-        this many times a second: a matrix product, not a scipy ``Rotation.apply``)."""
-        m = self.matrix
-        return m[:, 0] * x_mm + m[:, 1] * y_mm + self.shift
+        this many times a second: plain floats, not NumPy or a scipy ``Rotation.apply``)."""
+        if self._affine is None:
+            (a, b, _), (c, d, _), (e, f, _) = self.matrix.tolist()
+            self._affine = (a, b, c, d, e, f, *(float(v) for v in self.shift))
+        a, b, c, d, e, f, sx, sy, sz = self._affine
+        return a * x_mm + b * y_mm + sx, c * x_mm + d * y_mm + sy, e * x_mm + f * y_mm + sz
 
     @property
     def matrix(self) -> np.ndarray:
-        """The rotation as a 3×3 matrix (computed once)."""
+        """The rotation as a 3×3 matrix (computed once, from the words when heard)."""
         if self._matrix is None:
-            self._matrix = self.rotation.as_matrix()
+            words = self._words
+            self._matrix = self.rotation.as_matrix() if words is None else words_matrix(words)
         return self._matrix
 
     @property
@@ -248,7 +259,7 @@ class Transform:
         """The 3×3 matrix of :func:`kilonet.alignment.level_turn` for this transform: global
         coordinates in the common plane laid flat are the first two of ``flat @ g``."""
         if self._flat is None:
-            self._flat = level_turn(self.rotation).as_matrix()
+            self._flat = level_matrix(self.matrix)
         return self._flat
 
     @property

@@ -23,8 +23,6 @@ from __future__ import annotations
 
 import struct
 
-import numpy as np
-
 from kilonet.message import Message
 from kilonet.robot import Kilobot
 from protocols.frame_merging import FrameMerging
@@ -257,9 +255,12 @@ class GcsRobot(Kilobot):
         # Merged frames share one plane, tilted in general, but not one rotation (a frame that
         # was a mirror image faces the other way). Turning the plane's normal, taken on a fixed
         # side, onto +z depends on the plane alone, so every robot reads the same 2-D axes.
-        flat = self.transforms[known[0]].flat
-        mean = points[0] if len(points) == 1 else np.mean(points, axis=0)
-        position = float(flat[0] @ mean), float(flat[1] @ mean)
+        row_x, row_y, _ = self.transforms[known[0]].flat.tolist()
+        mean = [sum(c) / len(points) for c in zip(*points, strict=True)]
+        position = (
+            row_x[0] * mean[0] + row_x[1] * mean[1] + row_x[2] * mean[2],
+            row_y[0] * mean[0] + row_y[1] * mean[1] + row_y[2] * mean[2],
+        )
         self._position_cache = (state, position)
         return position
 

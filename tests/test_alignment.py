@@ -21,11 +21,13 @@ from kilonet.alignment import (
     half_step,
     invert,
     level,
+    level_matrix,
     pack_quaternion,
     procrustes_rmse,
     rotation_between_frames,
     transform_distance,
     unpack_quaternion,
+    words_matrix,
 )
 from kilonet.geometry import GeometryError
 from kilonet.message import KILOLIB, Layout
@@ -408,6 +410,29 @@ def test_level_agrees_for_mirror_image_frames_on_one_plane(quat, shift, turn, mo
     assert xy_i == pytest.approx(xy_k, abs=1e-6)
 
 
+@settings(max_examples=100, deadline=None)
+@given(quaternions)
+def test_level_matrix_is_the_shortest_turn_of_the_normal_to_z(quat):
+    """Against the construction from the definition: axis n × e_z, angle between n and e_z,
+    n the plane's normal on the side of the reference direction."""
+    matrix = Rotation.from_quat(quat).as_matrix()
+    normal = matrix[:, 2] if matrix[:, 2] @ _LEVEL_UP >= 0 else -matrix[:, 2]
+    axis = np.cross(normal, [0.0, 0.0, 1.0])
+    assume(np.linalg.norm(axis) > 1e-9)
+    expected = Rotation.from_rotvec(
+        axis / np.linalg.norm(axis) * math.atan2(np.linalg.norm(axis), normal[2])
+    ).as_matrix()
+    got = level_matrix(matrix)
+    assert got == pytest.approx(expected, abs=1e-12)
+    assert got @ normal == pytest.approx([0.0, 0.0, 1.0], abs=1e-12)
+
+
+def test_level_matrix_of_a_flat_frame_is_the_identity_on_either_side():
+    assert level_matrix(np.eye(3)).tolist() == np.eye(3).tolist()
+    flip = Rotation.from_rotvec([math.pi, 0.0, 0.0]).as_matrix()  # normal -z: the same plane
+    assert level_matrix(flip) == pytest.approx(np.eye(3), abs=1e-12)
+
+
 # ---------------------------------------------------------------------- quaternion packing
 
 
@@ -432,6 +457,13 @@ def test_quaternion_round_trip_error_is_bounded(quat):
     assert (back.inv() * rot).magnitude() <= QUATERNION_MAX_ANGLE_ERROR_RAD
     # The sign of the quaternion does not matter.
     assert pack_quaternion(Rotation.from_quat(-np.array(quat))) == words
+
+
+@settings(max_examples=100, deadline=None)
+@given(quaternions)
+def test_words_matrix_is_the_unpacked_rotations_matrix(quat):
+    words = pack_quaternion(Rotation.from_quat(quat))
+    assert words_matrix(words) == pytest.approx(unpack_quaternion(words).as_matrix(), abs=1e-12)
 
 
 def test_quaternion_error_bound_is_tight_and_holds_for_mirror_turns():
@@ -471,5 +503,7 @@ def test_unpack_quaternion_refuses_bad_words():
         unpack_quaternion((0, 0, 1))
     with pytest.raises(ValueError, match="unit quaternion"):
         unpack_quaternion((32766, 32766, 32766))
+    with pytest.raises(ValueError, match="must be even"):
+        words_matrix((0, 0, 1))
     with pytest.raises(ValueError, match="single rotation"):
         pack_quaternion(Rotation.random(2, random_state=np.random.default_rng(0)))
