@@ -80,7 +80,10 @@ agree and every partner has answered at least once, the seed is done (bit 7 of i
 An answer agrees when the partner is not the parent (this seed does not move toward it), or
 when the parent's disagreement is within ``gcs.merge_tolerance_mm``. The seed keeps running
 rounds, so a smaller root arriving later, a parent more than ``gcs.merge_whole_step_mm`` off,
-or two parent answers in a row beyond the tolerance revoke "done" until it agrees anew. One
+or two parent answers in a row beyond the tolerance revoke "done" until it agrees anew. A
+partner that has never answered stops holding up "done" after ``gcs.merge_silent_rounds``
+rounds about it timed out (event ``merge_partner_silent``): a member located in both frames
+need not hear the partner's seed, so it may never hold the transform it would answer with. One
 stray answer does not: answers about one parent differ by 1-5 mm with the member asked some
 15 frames from the root, and resuming on each sent waves of "resumed" down the tree (1,000
 robots, seed 1: merging 196 → 126 simulated s, 308 → 177 s of CPU, RMSE 2.9 → 3.6 mm; 100 and
@@ -358,6 +361,7 @@ class FrameMerging(Phase):
             # that merges with nothing could win robots over from the frame they were in.
             self.rank = (r.frame_key(r.uid) << 8) | (_EDGE_ROOT << 16 if r.edge_seed else 0)
             self.partner_ranks: dict[int, int] = {}  # as the last answer about each reported
+            self.unanswered: dict[int, int] = {}  # rounds timed out, per partner never answered
             self.turns = 0  # rounds started (answered or not)
             self.key = r.frame_key(r.uid)
             self._publish()
@@ -389,7 +393,12 @@ class FrameMerging(Phase):
         partner in turn: that is how better ranks are found without hints."""
         r = self.robot
         if self.asking is not None:  # the last round timed out: try another member next time
-            self.members.pop(self.asking[1], None)
+            asked = self.asking[1]
+            self.members.pop(asked, None)
+            if asked not in self.partner_ranks:
+                self.unanswered[asked] = self.unanswered.get(asked, 0) + 1
+                if self.unanswered[asked] == self.params.merge_silent_rounds:
+                    r.log("merge_partner_silent", partner=asked >> 8)
         hinted, self.hint = self.hint, None
         if hinted is not None and self.partner_ranks.get(hinted[1], 1 << 40) < self.rank:
             hinted = None  # known already: a parent is asked every other round anyway
@@ -488,8 +497,14 @@ class FrameMerging(Phase):
             self.done_since = None
             r.log("merge_resumed", rounds=self.rounds)
         # Done only once every partner has answered at least once: a partner never asked may
-        # hold a better root, and a seed done before hearing of it would soon resume.
-        heard_all = len(self.partner_ranks) == len(r.partners)
+        # hold a better root, and a seed done before hearing of it would soon resume. Unless a
+        # partner never answers: its only group members may not hear its seed (at 1,000
+        # robots, seed 3, four seeds waited for such a partner until they gave up at 400
+        # rounds, 815 simulated s of merging instead of about 150), or its seed crashed.
+        silent = self.params.merge_silent_rounds
+        heard_all = all(
+            k in self.partner_ranks or self.unanswered.get(k, 0) >= silent for k in r.partners
+        )
         if not self.done and heard_all and self.stable >= self.params.merge_stable_rounds:
             self._finish("agreed")
         elif self.rounds >= self.params.merge_max_rounds:

@@ -71,6 +71,12 @@ class GcsParams:
         4.0, lo=0.01, hi=100.0, doc="a seed agrees with its parent within this (map motion)"
     )
     merge_stable_rounds: int = param(4, lo=1, hi=1000, doc="agreeing rounds before done")
+    merge_silent_rounds: int = param(
+        3,
+        lo=1,
+        hi=1000,
+        doc="unanswered rounds after which a partner never heard from stops holding up done",
+    )
     merge_member: Literal["random", "fixed"] = param(
         "random",
         doc="member asked about a partner: a new one each round, or one kept while it answers",

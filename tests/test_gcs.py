@@ -253,6 +253,35 @@ def test_merge_small_swarm_ends_by_itself_in_one_frame_per_group_component():
     assert frames == nx.number_connected_components(groups)
 
 
+def test_a_partner_that_never_answers_stops_holding_up_done():
+    """A seed crashes just before merging, so no member ever holds its transform: rounds
+    about it time out, and after gcs.merge_silent_rounds of them its partners are done
+    without it (before, they ran rounds until gcs.merge_max_rounds and the run never ended)."""
+    from kilonet import Simulation
+    from scenarios.base import build_params, place
+
+    params = build_params(GCS, {"placement.robots": 40, "gcs.merge_max_rounds": 300}, seed=1)
+    positions = place(GCS, params, None)
+    sim = Simulation(positions, GCS.program(params, positions), params)
+    merge_start = phase_windows_s(params.scenario)[-1][1]
+    sim.run(merge_start - 0.5)
+    seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
+    crashed = max(seeds, key=lambda i: len(sim.robots[i].partners))
+    crashed_key = sim.robots[crashed].frame_key(sim.robots[crashed].uid)
+    waiting = [i for i in seeds if crashed_key in sim.robots[i].partners]
+    assert waiting
+    sim.faults.crash_at(crashed, merge_start - 0.4)
+    sim.run(merge_start + 600.0, stop_when=lambda: GCS.stop_when(sim))
+    assert sim.env.now < merge_start + 600.0  # the swarm ended merging by itself
+    events = sim.trace.events_frame()
+    silent = events[events.event == "merge_partner_silent"]
+    assert set(silent.robot) == set(waiting)
+    assert {json.loads(d)["partner"] for d in silent.data} == {crashed_key >> 8}
+    done = events[events.event == "merge_done"]
+    assert {json.loads(d)["how"] for d in done.data} == {"agreed"}
+    assert all(sim.robots[i].merge_done for i in seeds if i != crashed)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("loss", [0.0, 0.2])
 def test_merge_100_robots_into_one_frame(loss):
