@@ -80,14 +80,14 @@ agree and every partner has answered at least once, the seed is done (bit 7 of i
 An answer agrees when the partner is not the parent (this seed does not move toward it), or
 when the parent's disagreement is within ``gcs.merge_tolerance_mm``. The seed keeps running
 rounds, so a smaller root arriving later, a parent more than ``gcs.merge_whole_step_mm`` off,
-or two parent answers in a row beyond the tolerance revoke "done" until it agrees anew. A
-partner that has never answered stops holding up "done" after ``gcs.merge_silent_rounds``
-rounds about it timed out (event ``merge_partner_silent``): a member located in both frames
-need not hear the partner's seed, so it may never hold the transform it would answer with. One
+or two parent answers in a row beyond the tolerance revoke "done" until it agrees anew. One
 stray answer does not: answers about one parent differ by 1-5 mm with the member asked some
 15 frames from the root, and resuming on each sent waves of "resumed" down the tree (1,000
 robots, seed 1: merging 196 → 126 simulated s, 308 → 177 s of CPU, RMSE 2.9 → 3.6 mm; 100 and
-300 robots unchanged but for seed 1 of 100: 159 → 154 s). A seed with no registered group is
+300 robots unchanged but for seed 1 of 100: 159 → 154 s). A partner that has never answered
+stops holding up "done" after ``gcs.merge_silent_rounds`` rounds about it timed out (event
+``merge_partner_silent``): a member located in both frames need not hear the partner's seed,
+so it may never hold the transform it would answer with. A seed with no registered group is
 isolated and done at once; a seed after ``gcs.merge_max_rounds`` rounds gives up.
 
 A robot's global position g is the mean, over the frames it is located in whose transform it

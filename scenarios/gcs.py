@@ -69,7 +69,7 @@ def _stop_when(sim: Simulation) -> bool:
     if name != "merge":
         return now >= end + 1.0  # a second more, so every robot has closed the last window
     running = sim.world.running
-    robots = [r for i, r in enumerate(sim.robots) if running[i]]  # crashed ones wait for nothing
+    robots = [r for i, r in enumerate(sim.robots) if running[i]]  # a crashed seed is never done
     seeds = [r for r in robots if r.is_seed]
     if now <= start or not seeds or not all(r.merge_done for r in seeds):
         return False
