@@ -88,7 +88,8 @@ robots, seed 1: merging 196 → 126 simulated s, 308 → 177 s of CPU, RMSE 2.9 
 stops holding up "done" after ``gcs.merge_silent_rounds`` rounds about it timed out (event
 ``merge_partner_silent``): a member located in both frames need not hear the partner's seed,
 so it may never hold the transform it would answer with. A seed with no registered group is
-isolated and done at once; a seed after ``gcs.merge_max_rounds`` rounds gives up.
+isolated and done at once; a seed after ``gcs.merge_max_rounds`` rounds gives up if it is
+not done, and otherwise stops its rounds, done as it was.
 
 A robot's global position g is the mean, over the frames it is located in whose transform it
 holds (and of its smallest root), of ``R_S (x, y, 0) + v_S``, expressed in 2-D in the common
@@ -508,7 +509,10 @@ class FrameMerging(Phase):
         if not self.done and heard_all and self.stable >= self.params.merge_stable_rounds:
             self._finish("agreed")
         elif self.rounds >= self.params.merge_max_rounds:
-            self._finish("gave_up")
+            if self.done:  # agreed already: only the watch for late news ends here
+                self.final = True
+            else:
+                self._finish("gave_up")
         self._publish()
 
     def _seed_message(self) -> Message | None:

@@ -282,6 +282,26 @@ def test_a_partner_that_never_answers_stops_holding_up_done():
     assert all(sim.robots[i].merge_done for i in seeds if i != crashed)
 
 
+def test_a_done_seed_that_uses_up_its_rounds_stays_done_and_is_not_reported_as_giving_up():
+    # Done seeds keep running rounds (a better root may still come); at gcs.merge_max_rounds
+    # they stop. Before, they logged merge_done how="gave_up" there although they had agreed.
+    result = run(40, "merge", **{"gcs.merge_max_rounds": 20})
+    events = result.sim.trace.events_frame()
+    outcomes = events[events.event.isin(["merge_done", "merge_resumed"])]
+    last: dict[int, str] = {}
+    capped = 0
+    for row in outcomes.itertuples():
+        how = json.loads(row.data).get("how", "resumed")
+        assert not (how == "gave_up" and last.get(row.robot) == "agreed"), row.robot
+        last[row.robot] = how
+    for i, r in enumerate(result.sim.robots):
+        if r.is_seed and r.phase.rounds >= 20:
+            capped += 1
+            assert r.phase.final
+            assert r.merge_done == (last[i] in ("agreed", "gave_up"))
+    assert capped >= 10  # most seeds reached the cap: the case was exercised
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("loss", [0.0, 0.2])
 def test_merge_100_robots_into_one_frame(loss):
