@@ -57,6 +57,21 @@ class Kilobot:
     ``_index``, ``_rx_buffer`` and ``_color``: a program must not use these names.
     """
 
+    # The simulation's handles live in slots inside the object: kilo_ticks reads two of them
+    # on almost every call into a program, robot after robot in no order, and an object's
+    # own slots are the fewest cache lines to touch. Programs keep a __dict__ for their state.
+    __slots__ = (
+        "__dict__",
+        "__weakref__",
+        "_color",
+        "_env",
+        "_index",
+        "_rx_buffer",
+        "_sim",
+        "_tps",
+        "rand",
+    )
+
     # kilolib's motor calibration values; any non-zero value runs a motor.
     kilo_straight_left = 70
     kilo_straight_right = 70

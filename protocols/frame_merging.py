@@ -299,6 +299,44 @@ def rotation_from_fields(q0: int, q1: int, q2: int) -> Rotation:
 class FrameMerging(Phase):
     """Phase 6 on one robot: seeds run rounds; members answer; everyone tracks transforms."""
 
+    __slots__ = (  # see GcsRobot.__slots__: 38 attributes
+        "answers",
+        "asking",
+        "disagreed",
+        "done",
+        "done_since",
+        "final",
+        "fresh_ticks",
+        "heard_at",
+        "hint",
+        "hint_scanned",
+        "hinted_at",
+        "hinted_round",
+        "key",
+        "members",
+        "next_round_tick",
+        "outbox",
+        "partner_ranks",
+        "parts",
+        "pending_query",
+        "query_due",
+        "rank",
+        "rank_unpublished",
+        "ranks",
+        "received",
+        "rotation",
+        "round_start",
+        "round_ticks",
+        "rounds",
+        "shift",
+        "stable",
+        "tag",
+        "turn",
+        "turns",
+        "unanswered",
+        "unpublished",
+        "version",
+    )
     name = "merge"
 
     def start(self) -> None:

@@ -91,6 +91,44 @@ class GcsRobot(Kilobot):
         The protocol's parameters (time-outs, rules, tolerances).
     """
 
+    # Its state, the phases' shared state included, in slots: with more than 30 attributes an
+    # instance dict is no longer CPython's compact shared-key kind, and every delivery and loop
+    # reads several attributes, robot after robot. Slots here and in FrameMerging cut the CPU
+    # time by 8 % at 300 robots and 2 % at 1,000, with identical results.
+    __slots__ = (
+        "_due_tick",
+        "_frames_cache",
+        "_loops",
+        "_phase_index",
+        "_polled",
+        "_position_cache",
+        "_windows",
+        "announced",
+        "check",
+        "edge_seed",
+        "epoch",
+        "frames",
+        "groups",
+        "is_seed",
+        "merge_done",
+        "merge_state",
+        "params",
+        "partners",
+        "phase",
+        "pos_turn",
+        "ranks",
+        "recovery",
+        "ref_turn",
+        "references",
+        "role",
+        "salt",
+        "salts",
+        "seeds",
+        "table",
+        "transforms",
+        "uid",
+    )
+
     def __init__(self, params: GcsParams) -> None:
         self.params = params
 

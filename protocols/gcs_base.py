@@ -105,6 +105,7 @@ class GcsParams:
 class Phase:
     """One phase of the protocol on one robot. Subclasses override what they use."""
 
+    __slots__ = ("__dict__", "params", "robot")  # see GcsRobot.__slots__
     name = ""
 
     def __init__(self, robot: GcsRobot) -> None:
