@@ -26,7 +26,7 @@ import pandas as pd
 import simpy
 
 from kilonet.battery import Battery
-from kilonet.clock import Timer
+from kilonet.clock import LoopRound
 from kilonet.faults import FaultInjector
 from kilonet.medium import LOSS_CAUSES, InfraredMedium
 from kilonet.message import Message
@@ -160,24 +160,27 @@ class Simulation:
         self.battery.start()
         loop_period = self.params.robot.loop_period_s
         loop_rng = self.stream("schedule")
+        loops = LoopRound(self.env, loop_period)
         for i, robot in enumerate(self.robots):
             robot.setup()
             self.medium.start(i)
             # An empty loop() has no effect on a robot; skipping it keeps idle programs cheap.
             if type(robot).loop is not Kilobot.loop:
-                self._schedule_loop(i, float(loop_rng.uniform(0, loop_period)))
+                loops.add(float(loop_rng.uniform(0, loop_period)), self._loop_call(i))
+        loops.start()
 
-    def _schedule_loop(self, i: int, delay: float) -> None:
+    def _loop_call(self, i: int) -> Callable[[], bool]:
+        """Robot ``i``'s turn in the loop round: its ``loop()`` while it runs."""
         loop = self.robots[i].loop
         running = self.world.running
-        period = self.params.robot.loop_period_s
 
-        def tick(timer: Timer) -> None:
+        def call() -> bool:
             if running[i]:
                 loop()
-                timer.schedule(period)
+                return True
+            return False
 
-        Timer(self.env, tick, i).schedule(delay)
+        return call
 
     def run(
         self, until_s: float | None = None, *, stop_when: Callable[[], bool] | None = None
