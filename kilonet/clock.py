@@ -97,7 +97,8 @@ class LoopRound:
     def __init__(self, env: simpy.Environment, period_s: float) -> None:
         self._env = env
         self._period = period_s
-        self._added: list[tuple[float, int, Callable[[], bool]]] = []
+        # Loops added before start(); None once started.
+        self._added: list[tuple[float, int, Callable[[], bool]]] | None = []
         self._keys: list[tuple[float, int, int]] = []
         self._callbacks: list[Callable[[], bool]] = []
         self._next = 0
@@ -111,18 +112,30 @@ class LoopRound:
         ------
         ValueError
             If ``first_s`` is outside ``[0, period_s)``.
+        RuntimeError
+            If the round has started.
         """
+        if self._added is None:
+            raise RuntimeError("loops can only be added to a LoopRound before it starts")
         if not 0 <= first_s < self._period:
             raise ValueError(f"a first time of {first_s} s is outside [0, {self._period}) s")
         env = self._env
         self._added.append((env._now + first_s, next(env._eid), callback))
 
     def start(self) -> None:
-        """Queue the round (after the last :meth:`add`)."""
+        """Queue the round (after the last :meth:`add`).
+
+        Raises
+        ------
+        RuntimeError
+            If it has started already.
+        """
+        if self._added is None:
+            raise RuntimeError("a LoopRound starts only once")
         self._added.sort(key=lambda added: added[:2])
         self._keys = [(t, NORMAL, eid) for t, eid, _ in self._added]
         self._callbacks = [callback for *_, callback in self._added]
-        self._added = []
+        self._added = None
         if self._keys:
             self._queue(0)
 
@@ -138,7 +151,16 @@ class LoopRound:
         while True:
             t = keys[k][0]
             env._now = t
-            if callbacks[k]():
+            try:
+                again = callbacks[k]()
+            except BaseException:
+                # As with a Timer of its own, the loop that raised is not run again, and the
+                # others go on if whoever runs the simulation carries on.
+                del keys[k], callbacks[k]
+                if keys:
+                    self._queue(k % len(keys))
+                raise
+            if again:
                 keys[k] = (t + period, NORMAL, next(eid))
                 k += 1
             else:
