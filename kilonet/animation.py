@@ -11,8 +11,8 @@ events, appear in the top-left corner.
 Overlays (:data:`OVERLAYS`):
 
 ``edges``
-    the line-of-sight communication graph (:func:`kilonet.visibility.visible_pairs`) with the
-    run's ``medium.range_mm`` and ``medium.line_of_sight``, recomputed when robots move or leave;
+    the communication graph (:class:`kilonet.visibility.LinkModel`) with the run's
+    ``medium.range_mm`` and ``medium.occlusion*``, recomputed when robots move or leave;
 ``messages``
     a blue ring around each robot that delivered a message in the last ``window_s`` seconds
     (needs a run with ``--set trace.messages=true``);
@@ -57,7 +57,7 @@ from PIL import Image
 
 from kilonet.alignment import procrustes_rmse
 from kilonet.placement import ROBOT_DIAMETER_MM
-from kilonet.visibility import visible_pairs
+from kilonet.visibility import LinkModel
 
 __all__ = [
     "FORMATS",
@@ -289,8 +289,14 @@ class Replay:
         self.window_s = window_s
         self.start_mm = run.robots[["x0_mm", "y0_mm"]].to_numpy(dtype=float)
         self.radius_mm = ROBOT_DIAMETER_MM / 2
-        self.range_mm = float(run.params.get("medium.range_mm", 85.0))
-        self.line_of_sight = bool(run.params.get("medium.line_of_sight", True))
+        params = run.params
+        self.links = LinkModel(
+            float(params.get("medium.range_mm", 85.0)),
+            params.get("medium.occlusion", "none"),
+            float(params.get("medium.occlusion_range_factor", 1.0)),
+            float(params.get("medium.occlusion_loss", 0.0)),
+            self.radius_mm,
+        )
         step_s = float(run.params.get("motion.step_s", 0.05))
 
         led = run.led.sort_values("t_s", kind="stable")
@@ -393,14 +399,8 @@ class Replay:
 
     def edges(self, positions_mm: np.ndarray, present: np.ndarray) -> np.ndarray:
         """(E, 2) robot pairs that can hear each other at these positions."""
-        i, j, _ = visible_pairs(
-            positions_mm,
-            self.range_mm,
-            radius_mm=self.radius_mm,
-            line_of_sight=self.line_of_sight,
-            present=present,
-        )
-        return np.column_stack([i, j])
+        links = self.links.links(positions_mm, present)
+        return np.column_stack([links.i, links.j])
 
     def extent_mm(self, margin_mm: float = 30.0) -> tuple[float, float, float, float]:
         """``(xmin, xmax, ymin, ymax)`` covering every position a robot held, plus a margin."""

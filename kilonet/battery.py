@@ -66,7 +66,15 @@ class Battery:
 
     def voltage(self, robot: int) -> float:
         """Voltage of one robot now, V."""
-        return float(self.voltages()[robot])
+        if not self.params.enabled:
+            return float(self.initial_v[robot])
+        p = self.params
+        hours = self.sim.env.now / 3600.0
+        return float(
+            self.initial_v[robot]
+            - p.idle_drain_v_per_h * hours
+            - p.motor_drain_v_per_h * self.motor_s[robot] / 3600.0
+        )
 
     def _update(self, _event: object = None) -> None:
         p = self.params

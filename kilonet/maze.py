@@ -50,9 +50,7 @@ from dataclasses import dataclass, field
 
 import networkx as nx
 import numpy as np
-from simpy.events import Timeout
 
-from kilonet.motion import contact_distance
 from kilonet.robot import Kilobot
 
 __all__ = [
@@ -607,62 +605,16 @@ class MazeKilobot(Kilobot):
         sim, i = self._sim, self._index
         if not sim.world.running[i]:
             return
-        factor = float(sim.battery.motor_factor[i])
-        turn = abs((heading - sim.world.heading_rad[i] + math.pi) % (2 * math.pi) - math.pi)
-        # A robot configured with no speed at all never gets there (1e-9: no division by zero).
-        turn_s = turn / max(sim.motion.turn_rad_s[i] * factor, 1e-9)
-        straight_s = self._hardware.maze.cell_mm / max(sim.motion.speed_mm_s[i] * factor, 1e-9)
-        slipped = bool(sim.stream("motion").random() < self._hardware.slip_prob)
-        self._driving = True
-        self._record_pose()
-        Timeout(sim.env, turn_s).callbacks.append(
-            lambda _e: self._turned(heading, turn_s, direction, straight_s, slipped)
-        )
-
-    # -- the drive's internals ----------------------------------------------------------------
-    def _turned(
-        self, heading: float, turn_s: float, direction: str, straight_s: float, slipped: bool
-    ) -> None:
-        sim, i = self._sim, self._index
-        if not sim.world.running[i]:
-            self._driving = False
-            return
-        sim.world.heading_rad[i] = heading
-        sim.battery.motor_s[i] += turn_s  # one motor pivots
-        self._record_pose()
-        Timeout(sim.env, straight_s).callbacks.append(
-            lambda _e: self._arrived(direction, straight_s, slipped)
-        )
-
-    def _arrived(self, direction: str, straight_s: float, slipped: bool) -> None:
-        sim, i = self._sim, self._index
-        self._driving = False
-        if not sim.world.running[i]:
-            return
-        sim.battery.motor_s[i] += 2 * straight_s  # both motors run
         maze = self._hardware.maze
         cell = self._true_cell()
+        slipped = bool(sim.stream("motion").random() < self._hardware.slip_prob)
+        # A wall in the way or a slip: the robot turns, bumps and stays in its cell.
         target = cell if slipped else maze.neighbour(cell, direction)
-        if target != cell and self._body_in_the_way(direction, maze.cell_mm):
-            target = cell
-        if target != cell:
-            sim.world.positions_mm[i] = maze.centre_mm(target)
-            sim.medium.rebuild_topology()
-        self._record_pose()
+        self._driving = True
+        sim.motion.move_to(i, heading, maze.centre_mm(target), self._arrived, drive_mm=maze.cell_mm)
 
-    def _body_in_the_way(self, direction: str, distance_mm: float) -> bool:
-        # Robots never overlap: another body on the way to the next centre stops the move.
-        world = self._sim.world
-        others = np.flatnonzero(world.present)
-        others = others[others != self._index]
-        heading = HEADING_RAD[direction]
-        free = contact_distance(
-            world.positions_mm[self._index],
-            np.array([math.cos(heading), math.sin(heading)]),
-            world.positions_mm[others],
-            world.diameter_mm,
-        )
-        return free < distance_mm
+    def _arrived(self, _moved: bool) -> None:
+        self._driving = False
 
     def _true_cell(self) -> int:
         # The hardware's own contact with the world: which cell's walls the sensor faces.
@@ -671,7 +623,3 @@ class MazeKilobot(Kilobot):
         if cell is None:
             raise MazeError(f"robot {self._index} at ({x:.1f}, {y:.1f}) mm is outside the maze")
         return cell
-
-    def _record_pose(self) -> None:
-        sim, i = self._sim, self._index
-        sim.trace.pose(sim.env.now, i, *sim.world.positions_mm[i], sim.world.heading_rad[i])

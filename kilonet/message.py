@@ -1,9 +1,15 @@
 """Kilobot messages and the helper that packs protocol fields into them.
 
-A kilolib v2 message carries ``data[9]`` payload bytes and one ``type`` byte (the CRC is the
-medium's business). The thesis's older library carried only 23 payload bits. Both limits are
+A kilolib v2 message (``message_t``) carries ``data[9]`` payload bytes, one ``type`` byte and a
+16-bit ``crc``. The thesis's older library carried only 23 payload bits. Both limits are
 :class:`PayloadLimit` values; the medium checks every offered message against its limit, so a
 protocol that tries to send more fails loudly instead of silently getting a bigger radio.
+
+The CRC is kilolib's :func:`message_crc` (CRC-CCITT as avr-libc's ``_crc_ccitt_update``, start
+value 0xFFFF, over the nine data bytes and the type byte). A receiver drops a message whose
+``crc`` does not match, as kilolib's receive interrupt does (the sync lab relies on it: it sets
+``crc = 0`` to make its neighbours ignore a message). A Python program may leave ``crc`` unset
+(``None``), which stands for the correct CRC, so only ported C code needs to compute it.
 
 Protocols never hand-roll bytes: they declare a :class:`Layout` of named, typed fields (struct
 codes, optionally fixed-point scaled) and call :meth:`Layout.pack` / :meth:`Layout.unpack`.
@@ -32,6 +38,7 @@ __all__ = [
     "Message",
     "PayloadError",
     "PayloadLimit",
+    "message_crc",
 ]
 
 
@@ -49,10 +56,19 @@ class Message:
         Payload bytes (at most 9 under kilolib v2).
     type : int
         Message type byte, 0–255 (kilolib's ``msg.type``).
+    crc : int, optional
+        kilolib's 16-bit ``msg.crc``; ``None`` stands for the correct one (:func:`message_crc`).
+        A message whose CRC is wrong goes on the air but every receiver drops it.
+
+    Examples
+    --------
+    >>> Message(bytes(1), 0).crc_ok, Message(bytes(1), 0, crc=0).crc_ok
+    (True, False)
     """
 
     data: bytes = b""
     type: int = 0
+    crc: int | None = None
     # The last Layout.unpack of this message, (layout, record): the medium hands one message
     # object to every receiver, so each transmission is decoded once, not once per receiver.
     _decoded: Any = field(default=None, init=False, repr=False, compare=False)
@@ -62,9 +78,39 @@ class Message:
         """Bytes on the air: payload, type byte and a 2-byte CRC."""
         return len(self.data) + 3
 
+    @property
+    def crc_ok(self) -> bool:
+        """Whether a receiver accepts this message's CRC."""
+        return self.crc is None or self.crc == message_crc(self)
+
     def __reduce__(self) -> tuple:
         # Copies and pickles carry the message, not the decode cache (which holds a Layout).
-        return (Message, (self.data, self.type))
+        return (Message, (self.data, self.type, self.crc))
+
+
+def _crc_ccitt_update(crc: int, byte: int) -> int:
+    """avr-libc's ``_crc_ccitt_update`` (reflected CRC-CCITT, polynomial 0x8408)."""
+    byte ^= crc & 0xFF
+    byte = (byte ^ (byte << 4)) & 0xFF
+    return (((byte << 8) | (crc >> 8)) ^ (byte >> 4) ^ (byte << 3)) & 0xFFFF
+
+
+def message_crc(message: Message) -> int:
+    """kilolib's ``message_crc``: the CRC of the nine data bytes (a shorter payload is padded
+    with zeros, as the C struct always holds nine) and the type byte.
+
+    Examples
+    --------
+    >>> c = 0xFFFF
+    >>> for b in b"123456789":
+    ...     c = _crc_ccitt_update(c, b)
+    >>> hex(c)  # the CRC-16/MCRF4XX check value
+    '0x6f91'
+    """
+    crc = 0xFFFF
+    for byte in message.data.ljust(9, b"\x00")[:9]:
+        crc = _crc_ccitt_update(crc, byte)
+    return _crc_ccitt_update(crc, message.type & 0xFF)
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,9 +1,10 @@
 """Every model parameter in one typed, validated structure.
 
 Parameters live in sections (``medium``, ``ranging``, ``robot``, ``battery``, ``motion``,
-``faults``, plus one section per scenario) and are addressed by dotted keys such as
-``medium.loss_prob``. Each field carries its unit in its name and its valid range in its
-metadata, so a wrong key or an out-of-range value is an error that names the key.
+``faults``, ``placement``, ``light``, ``trace``, plus one section per scenario) and are
+addressed by dotted keys such as ``medium.loss_prob``. Each field carries its unit in its name
+and its valid range in its metadata, so a wrong key or an out-of-range value is an error that
+names the key.
 
 Examples
 --------
@@ -30,6 +31,7 @@ from typing import Any, Literal
 __all__ = [
     "BatteryParams",
     "FaultParams",
+    "LightParams",
     "MediumParams",
     "MotionParams",
     "ParamError",
@@ -56,7 +58,17 @@ class MediumParams:
     """The infrared channel."""
 
     range_mm: float = param(85.0, lo=33.0, hi=1000.0, doc="reception range, centre to centre")
-    line_of_sight: bool = param(True, doc="a robot's disc on the segment blocks a reception")
+    occlusion: Literal["none", "graded", "block"] = param(
+        "none",
+        doc="bodies between sender and receiver: no effect (real-robot data), each weakens "
+        "the link (graded), or cuts it (block)",
+    )
+    occlusion_range_factor: float = param(
+        0.9, lo=0.0, hi=1.0, doc="graded: each body crossed scales the link's reach by this"
+    )
+    occlusion_loss: float = param(
+        0.1, lo=0.0, hi=1.0, doc="graded: each body crossed loses this share of receptions"
+    )
     loss_prob: float = param(0.0, lo=0.0, hi=1.0, doc="independent loss per reception")
     message_format: Literal["kilolib", "thesis"] = param(
         "kilolib", doc="payload limit: kilolib v2 9 bytes, or the thesis's 23 bits"
@@ -66,7 +78,9 @@ class MediumParams:
         0.0, lo=0.0, hi=1.0, doc="airtime of one message; 0 derives it from bitrate and format"
     )
     csma: bool = param(True, doc="sense the carrier and back off while the channel is busy")
-    backoff_max_s: float = param(0.01, lo=0.0, hi=10.0, doc="random back-off is U(0, this)")
+    backoff_max_s: float = param(
+        0.032, lo=0.0, hi=10.0, doc="random back-off is U(0, this), own clock (kilolib: a tick)"
+    )
 
 
 @dataclass(frozen=True)
@@ -81,17 +95,38 @@ class RangingParams:
 
 @dataclass(frozen=True)
 class RobotParams:
-    """The robot runtime (kilolib)."""
+    """The robot runtime (kilolib v2 unless a scenario chooses the thesis's library)."""
 
-    tx_period_s: float = param(0.2, lo=0.001, hi=60.0, doc="one message offer per period")
-    tx_jitter_s: float = param(0.02, lo=0.0, hi=60.0, doc="offer period is period ± U(jitter)")
-    loop_period_s: float = param(1 / 32, lo=0.001, hi=60.0, doc="loop() call period")
-    ticks_per_s: float = param(32.0, lo=1.0, hi=1000.0, doc="kilo_ticks rate")
+    tx_period_s: float = param(
+        0.5, lo=0.001, hi=60.0, doc="one message offer per period, own clock (thesis: 0.2)"
+    )
+    tx_jitter_s: float = param(
+        0.0, lo=0.0, hi=60.0, doc="offer period is period ± U(jitter), own clock"
+    )
+    tx_retry: Literal["tick", "period"] = param(
+        "tick",
+        doc="after message_tx() returns None, ask again at the next tick (kilolib) "
+        "or the next period (the thesis's send buffer)",
+    )
+    loop_ticks: int = param(1, lo=1, hi=10_000, doc="loop() runs once every this many ticks")
+    ticks_per_s: float = param(
+        31.0, lo=1.0, hi=1000.0, doc="nominal kilo_ticks rate (kilolib's TICKS_PER_SEC)"
+    )
+    clock_sd: float = param(
+        0.01, lo=0.0, hi=0.2, doc="per-robot tick-rate error ~ N(0, this); 0: perfect clocks"
+    )
     rx_mode: Literal["callback", "polled"] = param(
         "callback", doc="kilolib v2 message_rx on arrival, or the thesis's polled buffer"
     )
     rx_buffer: int = param(3, lo=1, hi=1000, doc="polled mode: messages kept, oldest dropped")
+    rx_distance: Literal["estimate", "raw"] = param(
+        "estimate",
+        doc="message_rx's distance: the estimate in mm, or the raw DistanceMeasurement",
+    )
     hardware_uids: bool = param(True, doc="kilo_uid available (False: the thesis's premise)")
+    temperature_c: float = param(
+        25.0, lo=-40.0, hi=85.0, doc="air temperature get_temperature() measures"
+    )
 
 
 @dataclass(frozen=True)
@@ -113,13 +148,50 @@ class BatteryParams:
 
 @dataclass(frozen=True)
 class MotionParams:
-    """Vibration-motor motion."""
+    """Vibration-motor motion (see :mod:`kilonet.motion` for the model and its sources)."""
 
-    speed_mm_s: float = param(10.0, lo=0.0, hi=1000.0, doc="forward speed, both motors on")
-    turn_deg_s: float = param(45.0, lo=0.0, hi=3600.0, doc="pivot rate, one motor on")
+    speed_mm_s: float = param(10.0, lo=0.0, hi=1000.0, doc="forward speed at calibrated drive")
+    turn_deg_s: float = param(45.0, lo=0.0, hi=3600.0, doc="one-motor pivot rate, calibrated")
     speed_error: float = param(0.1, lo=0.0, hi=0.9, doc="per-robot relative speed error (sd)")
     turn_error: float = param(0.1, lo=0.0, hi=0.9, doc="per-robot relative turn-rate error (sd)")
+    pivot_radius_mm: float = param(
+        16.5, lo=0.0, hi=100.0, doc="a one-motor turn pivots about a rear leg this far out"
+    )
+    pivot_angle_deg: float = param(
+        125.5, lo=0.0, hi=180.0, doc="angle between heading and that rear leg (Kilombo)"
+    )
+    drift_gain: float = param(
+        0.5, lo=0.0, hi=10.0, doc="both motors: yaw rate per unit of drive difference"
+    )
+    motor_offset: float = param(60.0, lo=0.0, hi=255.0, doc="duty cycle at zero drive")
+    motor_offset_sd: float = param(3.0, lo=0.0, hi=100.0, doc="per-motor offset spread (sd)")
+    motor_gain: float = param(15.0, lo=0.1, hi=255.0, doc="duty cycle per unit of drive")
+    motor_gain_sd: float = param(0.1, lo=0.0, hi=0.9, doc="per-motor relative gain spread (sd)")
+    calibration_sd: float = param(
+        1.0, lo=0.0, hi=50.0, doc="stored calibration values miss the true best ones by N(0, this)"
+    )
+    stall_drive: float = param(0.5, lo=0.0, hi=10.0, doc="a running motor stalls below this")
+    start_drive: float = param(
+        1.2, lo=0.0, hi=10.0, doc="a stopped motor starts at this drive (or after a spin-up)"
+    )
+    max_drive: float = param(2.0, lo=0.1, hi=20.0, doc="drive saturates here")
     step_s: float = param(0.05, lo=0.001, hi=10.0, doc="integration step while moving")
+
+
+@dataclass(frozen=True)
+class LightParams:
+    """The light field ``get_ambientlight()`` reads (one source, plus ambient light)."""
+
+    ambient: float = param(200.0, lo=0.0, hi=1023.0, doc="reading with no source, ADC counts")
+    source_intensity: float = param(
+        0.0, lo=0.0, hi=1e6, doc="the source's reading at its own position above ambient"
+    )
+    source_x_mm: float = param(0.0, doc="source position on the table")
+    source_y_mm: float = param(0.0, doc="source position on the table")
+    falloff_mm: float = param(
+        300.0, lo=1.0, hi=1e6, doc="distance at which the source's share halves"
+    )
+    noise_sd: float = param(10.0, lo=0.0, hi=1023.0, doc="reading noise, ADC counts (sd)")
 
 
 @dataclass(frozen=True)
@@ -175,6 +247,7 @@ class Params:
     motion: MotionParams = field(default_factory=MotionParams)
     faults: FaultParams = field(default_factory=FaultParams)
     placement: PlacementParams = field(default_factory=PlacementParams)
+    light: LightParams = field(default_factory=LightParams)
     trace: TraceParams = field(default_factory=TraceParams)
     scenario: Any = None
 
@@ -188,6 +261,12 @@ class Params:
             )
         if self.ranging.min_mm > self.ranging.max_mm:
             raise ParamError("ranging.min_mm must not exceed ranging.max_mm")
+        m = self.motion
+        if not m.stall_drive <= m.start_drive <= m.max_drive:
+            raise ParamError(
+                "motion.stall_drive <= motion.start_drive <= motion.max_drive must hold, got "
+                f"{m.stall_drive}, {m.start_drive}, {m.max_drive}"
+            )
 
     def _sections(self) -> dict[str, Any]:
         out = {f.name: getattr(self, f.name) for f in fields(self) if _is_section(f.type)}

@@ -11,15 +11,21 @@ A protocol is a subclass of :class:`Kilobot` that overrides the kilolib callback
                 self.on = not self.on
                 self.set_color(3 * self.on, 0, 0)
 
-The simulation calls ``setup()`` once at start, ``loop()`` every ``robot.loop_period_s``,
-``message_tx()`` at every transmit opportunity (about every ``robot.tx_period_s``; return a
+The simulation calls ``setup()`` once at start, ``loop()`` once every ``robot.loop_ticks`` ticks
+of the robot's own clock, ``message_tx()`` at every transmit opportunity (return a
 :class:`~kilonet.message.Message` or ``None``), ``message_tx_success()`` after a message went on
-the air, and ``message_rx(message, distance_mm)`` on every reception in callback mode. In polled
+the air, and ``message_rx(message, distance)`` on every reception in callback mode. In polled
 mode (the thesis's library) receptions wait in a 3-message buffer and the program polls them
 with :meth:`Kilobot.get_message`.
 
-A program knows only what a Kilobot knows: its ticks, its (optional) UID, its battery voltage,
-its own random source and what arrives through the medium. It has no handle on the world.
+**Blocking calls.** kilolib's ``delay(ms)`` blocks the loop while receptions and transmissions
+go on (they run in interrupts). In Python, write ``setup`` or ``loop`` as a generator and
+``yield self.delay(ms)``; such a robot runs as a SimPy process of its own. Plain functions keep
+working and cost less.
+
+A program knows only what a Kilobot knows: its ticks, its UID (if it has one), its calibration
+values, its sensors (battery voltage, ambient light, temperature), its own random sources and
+what arrives through the medium. It has no handle on the world.
 """
 
 from __future__ import annotations
@@ -30,11 +36,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from kilonet.message import Message
+from kilonet.ranging import CalibrationTables, DistanceMeasurement, estimate_distance
 
 if TYPE_CHECKING:
+    from simpy.events import Timeout
+
     from kilonet.simulation import Simulation
 
-__all__ = ["Kilobot", "RobotStopped"]
+__all__ = ["TIMER_COUNTS_PER_S", "Kilobot", "RobotStopped"]
+
+#: kilolib's ``kilo_tx_period`` unit: timer-0 counts, 8 MHz / 1024 = 7812.5 per second.
+TIMER_COUNTS_PER_S = 7812.5
 
 
 class RobotStopped(RuntimeError):
@@ -44,20 +56,26 @@ class RobotStopped(RuntimeError):
 class Kilobot:
     """Base class of robot programs; override the kilolib callbacks you need.
 
-    Attributes provided by the simulation once the robot is attached:
+    Attributes provided by the simulation once the robot is attached (kilolib's globals):
 
     ``kilo_ticks``
-        Clock ticks since start (``robot.ticks_per_s``, 32 per simulated second by default).
+        Ticks of this robot's own clock since the start (nominally ``ticks_per_s``, 31 a
+        second; each robot's oscillator runs a little fast or slow).
     ``kilo_uid``
-        Hardware UID (the robot's index) if ``robot.hardware_uids`` is on.
+        The robot's UID (settable; its index or the placement's ``uid`` column).
+    ``kilo_turn_left``, ``kilo_turn_right``, ``kilo_straight_left``, ``kilo_straight_right``
+        The motor calibration values stored on this robot (duty cycles, about 75).
+    ``kilo_tx_period``
+        The transmit period in kilolib's timer counts (3906 = 0.5 s; settable).
     ``rand``
-        This robot's own :class:`numpy.random.Generator` (kilolib's ``rand_hard``/``rand_soft``).
+        This robot's own :class:`numpy.random.Generator`, for Python programs (a Kilobot has
+        ``rand_hard`` and ``rand_soft``, which are here too).
 
-    The simulation keeps its handles in attributes named ``_sim``, ``_env``, ``_tps``,
-    ``_index``, ``_rx_buffer`` and ``_color``: a program must not use these names.
+    The simulation keeps its handles in attributes whose names start with ``_``; a program
+    must not use names that start with ``_k``.
     """
 
-    # The simulation's handles live in slots inside the object: kilo_ticks reads two of them
+    # The simulation's handles live in slots inside the object: kilo_ticks reads three of them
     # on almost every call into a program, robot after robot in no order, and an object's
     # own slots are the fewest cache lines to touch. Programs keep a __dict__ for their state.
     __slots__ = (
@@ -66,28 +84,33 @@ class Kilobot:
         "_color",
         "_env",
         "_index",
+        "_kdelay",
+        "_kprocess",
+        "_ksoft",
+        "_ktables",
+        "_kuid",
+        "_rate",
         "_rx_buffer",
         "_sim",
-        "_tps",
+        "_theta",
+        "kilo_straight_left",
+        "kilo_straight_right",
+        "kilo_turn_left",
+        "kilo_turn_right",
         "rand",
     )
-
-    # kilolib's motor calibration values; any non-zero value runs a motor.
-    kilo_straight_left = 70
-    kilo_straight_right = 70
-    kilo_turn_left = 70
-    kilo_turn_right = 70
 
     _sim: Simulation
     _index: int
     rand: np.random.Generator
 
     # -- callbacks a program overrides -------------------------------------------------------
-    def setup(self) -> None:
-        """Called once when the robot starts."""
+    def setup(self) -> Any:
+        """Called once when the robot starts (may be a generator that yields delays)."""
 
-    def loop(self) -> None:
-        """Called every ``robot.loop_period_s``; not scheduled at all if not overridden."""
+    def loop(self) -> Any:
+        """Called every ``robot.loop_ticks`` ticks (may be a generator that yields delays);
+        not scheduled at all if not overridden."""
 
     def message_tx(self) -> Message | None:
         """Return the message to offer at this transmit opportunity, or ``None``."""
@@ -96,55 +119,130 @@ class Kilobot:
     def message_tx_success(self) -> None:
         """Called after the offered message went on the air."""
 
-    def message_rx(self, message: Message, distance_mm: int) -> None:
-        """Called on every reception in callback mode, with the estimated distance in mm."""
+    def message_rx(self, message: Message, distance: int | DistanceMeasurement) -> None:
+        """Called on every reception in callback mode: the distance estimate in mm (or the raw
+        :class:`~kilonet.ranging.DistanceMeasurement` with ``robot.rx_distance = "raw"``)."""
 
-    # -- the kilolib API a program calls -----------------------------------------------------
+    # -- attachment (the simulation calls this) ----------------------------------------------
     def _attach(self, sim: Simulation, index: int, rng: np.random.Generator) -> None:
         self._sim = sim
         self._env = sim.env
-        self._tps = sim.params.robot.ticks_per_s
         self._index = index
+        clocks = sim.clocks
+        self._rate = clocks.rate_hz(index)
+        self._theta = float(clocks.phase[index])
         self.rand = rng
         self._rx_buffer: deque[tuple[Message, int]] = deque(maxlen=sim.params.robot.rx_buffer)
         self._color = (0, 0, 0)
+        self._kuid = sim.uids[index] if sim.uids is not None else None
+        self._ksoft = [0xAA, 0]  # rand_soft's seed and accumulator, as kilolib starts them
+        self._kdelay = None  # the delay a generator program has not yielded yet
+        self._kprocess = False  # runs as a SimPy process (a generator setup or loop)
+        self._ktables: CalibrationTables = sim.calibration_tables[index]
+        cal = sim.motion.calibrations[index]
+        self.kilo_turn_left, self.kilo_turn_right = cal.turn_left, cal.turn_right
+        self.kilo_straight_left, self.kilo_straight_right = cal.straight_left, cal.straight_right
 
+    # -- the clock ---------------------------------------------------------------------------
     @property
     def kilo_ticks(self) -> int:
-        """Clock ticks since the robot started."""
-        return int(self._env._now * self._tps)
-
-    @property
-    def polled(self) -> bool:
-        """Whether receptions wait in the polled buffer (the thesis's library) rather than
-        arriving through ``message_rx``; fixed for a run, like a kilolib build option."""
-        return self._sim.params.robot.rx_mode == "polled"
+        """Ticks of this robot's clock since the start."""
+        return int(self._env._now * self._rate + self._theta)
 
     @property
     def ticks_per_s(self) -> float:
-        """kilolib's ``TICKS_PER_SEC`` for this robot (32 by default)."""
+        """kilolib's ``TICKS_PER_SEC`` (31): the nominal rate; this robot's true rate differs
+        by its clock error."""
         return self._sim.params.robot.ticks_per_s
 
+    def delay(self, ms: float) -> Timeout:
+        """kilolib's ``delay(ms)``: in a generator ``setup`` or ``loop``, ``yield
+        self.delay(ms)`` pauses the program for ``ms`` milliseconds of its own clock, while
+        receptions and transmissions go on.
+
+        Raises
+        ------
+        RuntimeError
+            If called from a plain (non-generator) ``setup`` or ``loop``, where nothing can
+            block; or if the previous delay was not yielded.
+        ValueError
+            If ``ms`` is negative.
+        """
+        if not self._kprocess:
+            raise RuntimeError(
+                f"robot {self._index}: delay() blocks only in a generator setup/loop; write "
+                "`yield self.delay(ms)` there"
+            )
+        if self._kdelay is not None:
+            raise RuntimeError(f"robot {self._index}: delay() was called without `yield`")
+        if ms < 0:
+            raise ValueError(f"delay(ms) needs ms >= 0, got {ms}")
+        self._kdelay = self._env.timeout(self._sim.clocks.true_s(self._index, ms / 1000.0))
+        return self._kdelay
+
+    @property
+    def kilo_tx_period(self) -> int:
+        """The transmit period in kilolib's timer counts (3906 for 0.5 s of this robot's clock)."""
+        return round(self._sim.medium.tx_period_own_s(self._index) * TIMER_COUNTS_PER_S)
+
+    @kilo_tx_period.setter
+    def kilo_tx_period(self, counts: int) -> None:
+        if not 0 < counts <= 0xFFFF:
+            raise ValueError(f"kilo_tx_period is a uint16 of timer counts > 0, got {counts}")
+        self._sim.medium.set_tx_period(self._index, counts / TIMER_COUNTS_PER_S)
+
+    # -- identity and randomness -------------------------------------------------------------
     @property
     def kilo_uid(self) -> int:
-        """The hardware UID.
+        """The robot's UID (kilolib reads it from the EEPROM; programs may overwrite it).
 
         Raises
         ------
         AttributeError
-            If the scenario runs without hardware UIDs (``robot.hardware_uids = false``).
+            If the run has no hardware UIDs (``robot.hardware_uids = false``) and the program
+            has not set one.
         """
-        if not self._sim.params.robot.hardware_uids:
+        if self._kuid is None:
             raise AttributeError(
                 "kilo_uid is not available: this run has robot.hardware_uids = false "
                 "(robots must build their own IDs, as in the thesis)"
             )
-        return self._index
+        return self._kuid
+
+    @kilo_uid.setter
+    def kilo_uid(self, uid: int) -> None:
+        if not 0 <= uid <= 0xFFFF:
+            raise ValueError(f"kilo_uid is a uint16, got {uid}")
+        self._kuid = int(uid)
 
     def rand_soft(self) -> int:
-        """A random byte 0–255, like kilolib's ``rand_soft()``."""
+        """kilolib's ``rand_soft()``: a byte from a tiny xorshift generator that starts in
+        the same state on every robot (seed 0xAA), so all robots draw the same sequence
+        unless they call :meth:`rand_seed`.
+
+        Examples
+        --------
+        >>> bot = Kilobot.__new__(Kilobot); bot._ksoft = [0xAA, 0]
+        >>> [bot.rand_soft() for _ in range(4)]
+        [253, 21, 184, 123]
+        """
+        seed, acc = self._ksoft
+        seed ^= (seed << 3) & 0xFF
+        seed ^= seed >> 5
+        seed ^= acc >> 2
+        self._ksoft = [seed, (acc + 1) & 0xFF]
+        return seed
+
+    def rand_seed(self, seed: int) -> None:
+        """kilolib's ``rand_seed(seed)``: set :meth:`rand_soft`'s seed byte."""
+        self._ksoft[0] = int(seed) & 0xFF
+
+    def rand_hard(self) -> int:
+        """kilolib's ``rand_hard()``: a random byte from hardware noise, different on every
+        robot (here: this robot's own generator)."""
         return int(self.rand.integers(256))
 
+    # -- the LED and the motors --------------------------------------------------------------
     def set_color(self, r: int, g: int, b: int) -> None:
         """Set the RGB LED; each channel 0–3 as kilolib's ``RGB(r, g, b)``.
 
@@ -159,7 +257,7 @@ class Kilobot:
         color = (int(r), int(g), int(b))
         if color != self._color:
             self._color = color
-            self._sim.trace.led(self._sim.env.now, self._index, color)
+            self._sim.trace.led(self._env._now, self._index, color)
 
     @property
     def color(self) -> tuple[int, int, int]:
@@ -167,28 +265,72 @@ class Kilobot:
         return self._color
 
     def set_motors(self, left: int, right: int) -> None:
-        """Run the vibration motors (0–255 each; any non-zero value runs a motor).
+        """kilolib's ``set_motors(left, right)``: duty cycles 0–255.
 
-        Both on: forward. Left only: pivot clockwise (turn right). Right only: pivot
-        counter-clockwise (turn left). As on the robot, the resulting speed and turn rate carry
-        this robot's own error.
+        ``set_motors(kilo_turn_left, 0)`` turns left (counter-clockwise, pivoting about the
+        left rear leg), ``set_motors(0, kilo_turn_right)`` right, ``set_motors(kilo_straight_left,
+        kilo_straight_right)`` goes forward. A motor at rest needs :meth:`spinup_motors` (or a
+        high duty) to start; see :mod:`kilonet.motion` for the curve.
+
+        Raises
+        ------
+        ValueError
+            If a value is not an integer 0-255.
         """
         for value in (left, right):
-            if not 0 <= value <= 255:
-                raise ValueError(f"motor values must be 0-255, got ({left}, {right})")
-        self._sim.motion.set_motors(self._index, left > 0, right > 0)
+            if not isinstance(value, int | np.integer) or not 0 <= value <= 255:
+                raise ValueError(f"motor values must be integers 0-255, got ({left}, {right})")
+        self._sim.motion.set_motors(self._index, int(left), int(right))
 
     def spinup_motors(self) -> None:
-        """kilolib's motor spin-up; the simulated motors need none."""
+        """kilolib's ``spinup_motors()``: both motors at full duty, which starts a motor at
+        rest. (kilolib then waits 15 ms; here the next ``set_motors`` follows at once, so the
+        burst moves the robot by nothing instead of about 0.3 mm.)"""
+        self._sim.motion.set_motors(self._index, 255, 255)
 
+    # -- receptions --------------------------------------------------------------------------
     def get_message(self) -> tuple[Message, int] | None:
-        """Polled mode: the oldest buffered ``(message, distance_mm)``, or ``None``."""
+        """Polled mode: the oldest buffered ``(message, distance)``, or ``None``."""
         return self._rx_buffer.popleft() if self._rx_buffer else None
 
-    def get_voltage(self) -> float:
-        """Battery voltage in volts."""
-        return self._sim.battery.voltage(self._index)
+    def estimate_distance(self, distance: int | DistanceMeasurement) -> int:
+        """kilolib's ``estimate_distance(&d)``: centre-to-centre mm from a raw measurement, on
+        this robot's calibration tables (an estimate already in mm is returned unchanged)."""
+        return estimate_distance(distance, self._ktables)
 
+    # -- sensors -----------------------------------------------------------------------------
+    def get_ambientlight(self) -> int:
+        """kilolib's ``get_ambientlight()``: a 10-bit reading of the light where the robot
+        stands, or -1 while a message is arriving (the ADC is busy measuring it)."""
+        sim = self._sim
+        if sim.medium.receiving(self._index):
+            return -1
+        return sim.sensors.ambient_light(self._index)
+
+    def get_voltage(self) -> int:
+        """kilolib's ``get_voltage()``: a 10-bit reading of the battery (about ``169 * V +
+        6``: 547 at 3.2 V, 716 at 4.2 V), or -1 while a message is arriving."""
+        sim = self._sim
+        if sim.medium.receiving(self._index):
+            return -1
+        return sim.sensors.voltage_reading(self._index)
+
+    def get_temperature(self) -> int:
+        """kilolib's ``get_temperature()``: a 10-bit reading of the ATmega328P's temperature
+        sensor against its 1.1 V reference (about 292 at 25 °C), or -1 while a message is
+        arriving."""
+        sim = self._sim
+        if sim.medium.receiving(self._index):
+            return -1
+        return sim.sensors.temperature_reading(self._index)
+
+    # -- the run's record --------------------------------------------------------------------
     def log(self, event: str, **fields: Any) -> None:
         """Record a protocol event (name and fields) in the run's trace."""
-        self._sim.trace.event(self._sim.env.now, self._index, event, fields)
+        self._sim.trace.event(self._env._now, self._index, event, fields)
+
+    @property
+    def polled(self) -> bool:
+        """Whether receptions wait in the polled buffer (the thesis's library) rather than
+        arriving through ``message_rx``; fixed for a run, like a kilolib build option."""
+        return self._sim.params.robot.rx_mode == "polled"

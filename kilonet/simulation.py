@@ -16,30 +16,49 @@ True
 
 from __future__ import annotations
 
+import inspect
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 import simpy
 
 from kilonet.battery import Battery
-from kilonet.clock import LoopRound
+from kilonet.clock import LoopSchedule, RobotClocks
+from kilonet.counters import LOSS_CAUSES
 from kilonet.faults import FaultInjector
-from kilonet.medium import LOSS_CAUSES, InfraredMedium
+from kilonet.medium import InfraredMedium
 from kilonet.message import Message
 from kilonet.motion import Motion
 from kilonet.params import Params
 from kilonet.placement import ROBOT_DIAMETER_MM, validate_positions
+from kilonet.ranging import calibration_tables, measurement_for
 from kilonet.robot import Kilobot
+from kilonet.sensors import Sensors
 from kilonet.trace import Trace
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from kilonet.reception import ReceptionModel
+    from kilonet.visibility import LinkModel
 
 __all__ = ["STREAMS", "Simulation", "World", "stream_for"]
 
 #: Independent random streams of a run, spawned from its seed in this order.
-STREAMS = ("medium", "ranging", "battery", "faults", "motion", "placement", "schedule")
+STREAMS = (
+    "medium",
+    "ranging",
+    "battery",
+    "faults",
+    "motion",
+    "placement",
+    "clock",
+    "sensors",
+    "calibration",
+)
 
 
 def stream_for(seed: int, name: str) -> np.random.Generator:
@@ -57,7 +76,7 @@ def stream_for(seed: int, name: str) -> np.random.Generator:
 
 @dataclass
 class World:
-    """Ground truth: where the robots are. Only the medium, motion and metrics read it."""
+    """Ground truth: where the robots are. Only the medium, motion, sensors and metrics read it."""
 
     positions_mm: np.ndarray
     heading_rad: np.ndarray
@@ -92,11 +111,20 @@ class Simulation:
         All model parameters, including the seed.
     headings_rad : (N,) array-like, optional
         Start headings; drawn uniformly from the ``motion`` stream if omitted.
+    uids : (N,) array-like of int, optional
+        Hardware UIDs (``kilo_uid``); default: each robot's index. Ignored without
+        ``robot.hardware_uids``.
+    links : kilonet.visibility.LinkModel, optional
+        Range and occlusion of the medium (default: from ``params.medium``).
+    reception : kilonet.reception.ReceptionModel, optional
+        The medium's reception model (default: Gaussian ranging, independent losses).
 
     Raises
     ------
     kilonet.placement.PlacementError
         If the positions are not a valid placement (too few robots, overlaps, non-finite).
+    ValueError
+        If ``uids`` does not give one uint16 per robot.
     """
 
     def __init__(
@@ -106,6 +134,9 @@ class Simulation:
         params: Params | None = None,
         *,
         headings_rad: Sequence[float] | None = None,
+        uids: Sequence[int] | None = None,
+        links: LinkModel | None = None,
+        reception: ReceptionModel | None = None,
     ) -> None:
         self.params = params or Params()
         positions = validate_positions(positions_mm, source="positions")
@@ -125,7 +156,12 @@ class Simulation:
         self.world = World(positions.copy(), headings.copy())
         self.initial_positions_mm = positions.copy()
         self.initial_headings_rad = headings.copy()
+        self.uids = _uids(uids, n) if self.params.robot.hardware_uids else None
         self.trace = Trace()
+        rp = self.params.robot
+        self.clocks = RobotClocks.draw(n, rp.ticks_per_s, rp.clock_sd, self.stream("clock"))
+        self.calibration_tables = calibration_tables(n, self.stream("calibration"))
+        self.motion = Motion(self)
         self.robots: list[Kilobot] = []
         build = program if not _is_program_class(program) else (lambda _i: program())
         for i in range(n):
@@ -134,17 +170,15 @@ class Simulation:
                 raise TypeError(f"program({i}) returned {type(robot).__name__}, not a Kilobot")
             robot._attach(self, i, robot_rngs[i])
             self.robots.append(robot)
-        self.medium = InfraredMedium(self)
+        self.medium = InfraredMedium(self, links=links, reception=reception)
         self.battery = Battery(self)
-        self.motion = Motion(self)
+        self.sensors = Sensors(self)
         self.faults = FaultInjector(self)
         self.stop_causes: dict[int, str] = {}
         self.wall_time_s = 0.0
         self._started = False
-        polled = self.params.robot.rx_mode == "polled"
-        self.medium.set_handlers(
-            [self._buffer_push(i) if polled else r.message_rx for i, r in enumerate(self.robots)]
-        )
+        self._handlers = [self._handler(i) for i in range(n)]
+        self.medium.set_handlers(self._handlers)
 
     def stream(self, name: str) -> np.random.Generator:
         """The run's random stream ``name`` (one of :data:`STREAMS`)."""
@@ -152,25 +186,33 @@ class Simulation:
 
     # -- running -------------------------------------------------------------------------------
     def start(self) -> None:
-        """Call every robot's ``setup()`` and schedule its timers (done by :meth:`run`)."""
+        """Call every robot's ``setup()`` and schedule its loop and transmissions (done by
+        :meth:`run`). A robot whose ``setup`` or ``loop`` is a generator runs as a SimPy process
+        of its own; it starts transmitting once its setup has returned, as on kilolib."""
         if self._started:
             return
         self._started = True
         self.faults.start()
         self.battery.start()
-        loop_period = self.params.robot.loop_period_s
-        loop_rng = self.stream("schedule")
-        loops = LoopRound(self.env, loop_period)
+        loops = LoopSchedule(self.env)
+        loop_ticks = self.params.robot.loop_ticks
         for i, robot in enumerate(self.robots):
+            cls = type(robot)
+            has_loop = cls.loop is not Kilobot.loop
+            if inspect.isgeneratorfunction(cls.setup) or inspect.isgeneratorfunction(cls.loop):
+                robot._kprocess = True
+                self.env.process(self._program(i, has_loop))
+                continue
             robot.setup()
             self.medium.start(i)
             # An empty loop() has no effect on a robot; skipping it keeps idle programs cheap.
-            if type(robot).loop is not Kilobot.loop:
-                loops.add(float(loop_rng.uniform(0, loop_period)), self._loop_call(i))
+            if has_loop:
+                period = loop_ticks / self.clocks.rate_hz(i)
+                loops.add(self.clocks.first_mid_tick_s(i), period, self._loop_call(i))
         loops.start()
 
     def _loop_call(self, i: int) -> Callable[[], bool]:
-        """Robot ``i``'s turn in the loop round: its ``loop()`` while it runs."""
+        """Robot ``i``'s turn in the loop schedule: its ``loop()`` while it runs."""
         loop = self.robots[i].loop
         running = self.world.running
 
@@ -181,6 +223,58 @@ class Simulation:
             return False
 
         return call
+
+    def _program(self, i: int, has_loop: bool) -> Generator[Any, Any, None]:
+        """Robot ``i``'s program as a SimPy process: setup, then its loop once every
+        ``robot.loop_ticks`` ticks, each call allowed to block in ``yield self.delay(ms)``."""
+        robot, running = self.robots[i], self.world.running
+        yield from self._blocking(i, robot.setup())
+        if not running[i]:
+            return
+        self.medium.start(i)
+        if not has_loop:
+            return
+        rate, theta = self.clocks.rate_hz(i), float(self.clocks.phase[i])
+        loop_s = self.params.robot.loop_ticks / rate
+        due = self.env.now
+        while True:
+            # The next loop call falls mid-tick, at or after `due`.
+            tick = np.floor(due * rate + theta)
+            at = (tick + 0.5 - theta) / rate
+            if at < due:
+                at += 1.0 / rate
+            yield self.env.timeout(at - self.env.now)
+            if not running[i]:
+                return
+            yield from self._blocking(i, robot.loop())
+            due = max(self.env.now, at + loop_s)
+
+    def _blocking(self, i: int, result: Any) -> Generator[Any, Any, None]:
+        """Run a program call that may be a generator of delays (see :meth:`Kilobot.delay`).
+
+        Raises
+        ------
+        TypeError
+            If the program yields anything but ``self.delay(ms)``.
+        RuntimeError
+            If it called ``delay`` without yielding it.
+        """
+        robot = self.robots[i]
+        if inspect.isgenerator(result):
+            for event in result:
+                if event is None or event is not robot._kdelay:
+                    result.close()
+                    raise TypeError(
+                        f"robot {i}: a program may only yield self.delay(ms), got {event!r}"
+                    )
+                robot._kdelay = None
+                yield event
+                if not self.world.running[i]:
+                    result.close()
+                    return
+        if robot._kdelay is not None:
+            robot._kdelay = None
+            raise RuntimeError(f"robot {i}: delay() was called without `yield`")
 
     def run(
         self, until_s: float | None = None, *, stop_when: Callable[[], bool] | None = None
@@ -201,26 +295,32 @@ class Simulation:
         self.wall_time_s += time.perf_counter() - started
 
     # -- receptions and stops ------------------------------------------------------------------
-    def _buffer_push(self, i: int) -> Callable[[Message, int], None]:
-        buffer = self.robots[i]._rx_buffer
-        size = buffer.maxlen
-        medium = self.medium
+    def _handler(self, i: int) -> Callable[[Message, int], None]:
+        """How a reception reaches robot ``i``: its ``message_rx`` or its polled buffer, with
+        the distance as an estimate or as a raw measurement (``robot.rx_mode``,
+        ``robot.rx_distance``)."""
+        robot = self.robots[i]
+        rp = self.params.robot
+        if rp.rx_mode == "polled":
+            buffer, size, medium = robot._rx_buffer, robot._rx_buffer.maxlen, self.medium
 
-        def push(message: Message, distance_mm: int) -> None:
-            if len(buffer) == size:
-                medium.count_overflow(i)
-            buffer.append((message, distance_mm))
+            def push(message: Message, distance: Any) -> None:
+                if len(buffer) == size:
+                    medium.count_overflow(i)
+                buffer.append((message, distance))
 
-        return push
+            deliver = push
+        else:
+            deliver = robot.message_rx
+        if rp.rx_distance == "estimate":
+            return deliver
+        tables = self.calibration_tables[i]
+        return lambda message, estimate_mm: deliver(message, measurement_for(estimate_mm, tables))
 
     def deliver(self, robot: int, message: Message, distance_mm: int) -> None:
         """Hand a (possibly delayed) reception to ``robot`` as its receive mode says."""
-        if not self.world.running[robot]:
-            return
-        if self.params.robot.rx_mode == "polled":
-            self._buffer_push(robot)(message, distance_mm)
-        else:
-            self.robots[robot].message_rx(message, distance_mm)
+        if self.world.running[robot]:
+            self._handlers[robot](message, distance_mm)
 
     def stop_robot(self, robot: int, cause: str, *, remove: bool = False) -> None:
         """Stop ``robot`` (``cause``: crash, removed, battery); ``remove`` lifts it off the
@@ -237,7 +337,10 @@ class Simulation:
 
     # -- results -------------------------------------------------------------------------------
     def robots_frame(self) -> pd.DataFrame:
-        """One row per robot: start and final pose, state, LED, battery and message counters."""
+        """One row per robot: start and final pose, clock, state, LED, battery and message
+        counters."""
+        import pandas as pd
+
         w = self.world
         frame = pd.DataFrame(
             {
@@ -247,6 +350,7 @@ class Simulation:
                 "x_mm": w.positions_mm[:, 0],
                 "y_mm": w.positions_mm[:, 1],
                 "heading_rad": w.heading_rad,
+                "clock_factor": self.clocks.factor,
                 "running": w.running,
                 "present": w.present,
                 "stop_cause": [self.stop_causes.get(i, "") for i in range(self.n_robots)],
@@ -270,7 +374,6 @@ class Simulation:
             "seed": self.params.seed,
             "sim_time_s": float(self.env.now),
             "wall_time_s": round(self.wall_time_s, 3),
-            "messages_offered": c["offered"],
             "messages_sent": c["sent"],
             "backoffs": c["backoffs"],
             "bytes_sent": c["bytes_sent"],
@@ -282,3 +385,12 @@ class Simulation:
 
 def _is_program_class(program: object) -> bool:
     return isinstance(program, type) and issubclass(program, Kilobot)
+
+
+def _uids(uids: Sequence[int] | None, n: int) -> list[int]:
+    if uids is None:
+        return list(range(n))
+    out = [int(u) for u in uids]
+    if len(out) != n or any(not 0 <= u <= 0xFFFF for u in out):
+        raise ValueError(f"uids must give one integer 0-65535 per robot ({n}), got {uids!r}")
+    return out

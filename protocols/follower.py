@@ -90,6 +90,7 @@ __all__ = [
     "FRAME_BYTE",
     "FRAME_WIDE",
     "ORIGIN",
+    "PIVOT_LEG_MM",
     "THIRD",
     "X_AXIS",
     "Follower",
@@ -102,6 +103,7 @@ __all__ = [
     "decode",
     "encode",
     "frame_direction",
+    "pivot_displacement",
     "plan_direction",
     "reachable_goal",
     "rotate",
@@ -137,6 +139,11 @@ FRAME_WIDE = Layout(
 )
 
 Point = tuple[float, float]
+
+#: The Kilobot's left rear leg in its body frame (forward, left), mm: 16.5 mm out at 125.5° from
+#: the heading (Kilombo, from the PCB design files). A one-motor turn pivots about the rear leg
+#: on the side it turns to, which a program has to know to aim (:func:`pivot_displacement`).
+PIVOT_LEG_MM = (16.5 * math.cos(math.radians(125.5)), 16.5 * math.sin(math.radians(125.5)))
 
 #: Physical turns (counter-clockwise positive, rad) of successive escapes from a body the
 #: robot is stuck against: round first, then sideways.
@@ -254,7 +261,7 @@ def turn_angle(u: Point, v: Point) -> float:
 
 def frame_direction(alpha_rad: float, mirrored: bool) -> int:
     """Which way to pivot for a turn of ``alpha_rad`` in the frame: +1 counter-clockwise (left,
-    right motor only), −1 clockwise (right, left motor only), 0 for no turn.
+    kilolib's ``set_motors(kilo_turn_left, 0)``), −1 clockwise (right), 0 for no turn.
 
     In a frame that is a mirror image of the floor, counter-clockwise in the frame is clockwise
     on the floor.
@@ -266,6 +273,42 @@ def frame_direction(alpha_rad: float, mirrored: bool) -> int:
         return 0
     side = 1 if alpha_rad > 0 else -1
     return -side if mirrored else side
+
+
+def pivot_displacement(heading: Point, turn_rad: float, leg_mm: Point = None) -> Point:
+    """How far a turn moves the robot's centre, in the frame's axes (mm).
+
+    A Kilobot turning on one motor pivots about its rear leg on the side it turns to
+    (:data:`PIVOT_LEG_MM`), so its centre swings round that leg. Seen in a frame, mirrored or
+    not, the robot turns ``turn_rad`` about the leg on the side it turns toward: a physical
+    left turn in a mirrored frame is a frame right turn about the frame's right-hand leg.
+
+    Parameters
+    ----------
+    heading : (float, float)
+        Unit heading before the turn, frame axes.
+    turn_rad : float
+        The turn as the frame sees it (counter-clockwise positive).
+    leg_mm : (float, float), optional
+        The left rear leg in the body frame (forward, left), mm; default the Kilobot's.
+
+    Examples
+    --------
+    A quarter turn left, heading along +x, about a leg 10 mm back and 10 mm left:
+
+    >>> [round(c, 9) for c in pivot_displacement((1.0, 0.0), math.pi / 2, (-10.0, 10.0))]
+    [0.0, 20.0]
+    >>> pivot_displacement((1.0, 0.0), 0.0)
+    (0.0, 0.0)
+    """
+    if turn_rad == 0:
+        return (0.0, 0.0)
+    forward, left = leg_mm or PIVOT_LEG_MM
+    side = 1.0 if turn_rad > 0 else -1.0
+    ux, uy = heading
+    ox, oy = forward * ux - side * left * uy, forward * uy + side * left * ux
+    rx, ry = rotate((ox, oy), turn_rad)
+    return (ox - rx, oy - ry)
 
 
 def rotate(u: Point, angle_rad: float) -> Point:
@@ -660,6 +703,10 @@ class Follower(Kilobot):
         self._last_step_mm = 0.0
         self._last_step_ticks = 0
         self._last_mode = ""
+        # A turn pivots the body about a leg and may push it along another body: the follower
+        # takes a fix between turn and step, so each step it learns from is a straight one.
+        self._step_pending = False
+        self._fixed_after_turn = False
         self._votes = {False: 0, True: 0}
         self._side = 0  # detour side memory of the planner
         self._blocked_steps = 0  # consecutive steps that did not move the robot
@@ -691,7 +738,9 @@ class Follower(Kilobot):
             return
         now = self.kilo_ticks
         if self.phase == "turn" and now >= self.phase_end_tick:
-            self._start_step(now)
+            self.set_motors(0, 0)
+            self._step_pending = True
+            self._start_listening(now)
         elif self.phase == "step" and now >= self.phase_end_tick:
             self.set_motors(0, 0)
             self._start_listening(now)
@@ -718,12 +767,35 @@ class Follower(Kilobot):
         if self.frame is None or not (full or timed_out):
             return
         distances = {k: self._average(r) for k, r in self._readings.items()}
+        if self._step_pending:
+            self._fix_after_turn(distances)
+            self._start_step(now)
+            return
         if self._act(distances):
             return
         # Nothing to act on yet: a fresh window, but keep counting the silence.
         self._listen_started_tick = now
         for readings in self._readings.values():
             readings.clear()
+
+    def _fix_after_turn(self, distances: dict[int, float | None]) -> None:
+        """Where the turn left the robot: a fix if the readings allow, else dead reckoning."""
+        self._step_pending = False
+        fix = self._locate(distances)
+        if fix is None:
+            predicted = self._predicted_position()
+            if predicted is not None and self._heading is not None:
+                step = self._last_step_ticks / self.ticks_per_s * self.speed_mm_s
+                heading = self._heading_after_turn()
+                # The prediction covers turn and step; before the step, take the turn alone.
+                predicted = (predicted[0] - step * heading[0], predicted[1] - step * heading[1])
+            self._fixed_after_turn = False
+            if predicted is not None:
+                self.position = predicted
+            return
+        self.position, kind = fix
+        self._fixed_after_turn = True
+        self.log("fix", x_mm=self.position[0], y_mm=self.position[1], kind=kind, after="turn")
 
     def _average(self, readings: list[int]) -> float | None:
         """Mean reading in mm; ``None`` if unheard, ``inf`` if at the sensor's ceiling."""
@@ -775,15 +847,22 @@ class Follower(Kilobot):
         heading = self._heading_after_turn()
         if heading is None:
             return self.position
+        dx, dy = pivot_displacement(self._heading, self._frame_turn(self.mirrored))
         step = self._last_step_ticks / self.ticks_per_s * self.speed_mm_s
-        return (self.position[0] + step * heading[0], self.position[1] + step * heading[1])
+        return (
+            self.position[0] + dx + step * heading[0],
+            self.position[1] + dy + step * heading[1],
+        )
+
+    def _frame_turn(self, mirrored: bool) -> float:
+        """The last physical turn as a frame of the given handedness sees it."""
+        return -self._last_turn_rad if mirrored else self._last_turn_rad
 
     def _heading_after_turn(self) -> Point | None:
         """The heading before the last turn rotated by that turn, as the frame sees it."""
         if self._heading is None:
             return None
-        turned = self._last_turn_rad
-        return rotate(self._heading, -turned if self.mirrored else turned)
+        return rotate(self._heading, self._frame_turn(self.mirrored))
 
     # -- deciding the next move --------------------------------------------------------------
     def _act(self, distances: dict[int, float | None]) -> bool:
@@ -848,6 +927,16 @@ class Follower(Kilobot):
             position, target, obstacles, radius, step, self._side
         )
         alpha = turn_angle(heading, direction)
+        for _ in range(3):
+            # The pivot moves the centre: aim from where the turn will leave the robot.
+            dx, dy = pivot_displacement(heading, alpha)
+            start = (position[0] + dx, position[1] + dy)
+            to_target = _dist(start, target)
+            step = min(max(self.config.step_mm, self.config.step_fraction * to_target), to_target)
+            direction, self._side = plan_direction(
+                start, target, obstacles, radius, step, self._side
+            )
+            alpha = turn_angle(heading, direction)
         mode = "goal"
         if not self.handedness_settled:
             # Handedness not settled: make this turn big enough to tell, and the step short.
@@ -904,13 +993,25 @@ class Follower(Kilobot):
             self._heading, self._heading_measured = None, False
             return
         dx, dy = position[0] - self.position[0], position[1] - self.position[1]
+        if self._fixed_after_turn:
+            self._fixed_after_turn = False
+            if self._heading is not None and self._heading_measured and self._last_turn_rad:
+                seen = _turn_seen(self._heading, (dx, dy))  # a straight step after the turn
+                self._vote(seen, seen)
+        elif self._heading is not None and self._last_turn_rad:
+            # Under each handedness the turn moved the centre differently before the step.
+            steps = {}
+            for mirrored in (False, True):
+                px, py = pivot_displacement(self._heading, self._frame_turn(mirrored))
+                steps[mirrored] = (dx - px, dy - py)
+            if self._heading_measured:
+                self._vote(*(_turn_seen(self._heading, steps[m]) for m in (False, True)))
+            dx, dy = steps[self.mirrored]
         moved = math.hypot(dx, dy)
         step_s = self._last_step_ticks / self.ticks_per_s
         expected = self._last_step_mm
         if moved >= max(3.0, 0.4 * expected):
             measured = (dx / moved, dy / moved)
-            if self._heading is not None and self._heading_measured and self._last_turn_rad:
-                self._vote(turn_angle(self._heading, measured))
             if moved >= 0.7 * expected and step_s > 0:
                 self._speed_samples.append((moved, step_s))
                 total_mm = sum(m for m, _ in self._speed_samples)
@@ -926,13 +1027,17 @@ class Follower(Kilobot):
             self._heading = self._heading_after_turn() if trusted else None
             self._heading_measured = False
 
-    def _vote(self, observed_rad: float) -> None:
-        """Compare the rotation seen in the frame with the physical turn commanded."""
+    def _vote(self, observed_floor_rad: float | None, observed_mirror_rad: float | None) -> None:
+        """Compare the rotation seen in the frame with the physical turn commanded, under each
+        handedness (whose pivot displacement differs; ``None`` where the step was too short)."""
         commanded = self._last_turn_rad
+        if observed_floor_rad is None or observed_mirror_rad is None:
+            return
+        observed_rad = observed_mirror_rad if self.mirrored else observed_floor_rad
         if abs(commanded) < math.radians(25) or abs(observed_rad) > math.radians(165):
             return
-        floor_err = abs(wrap_angle(observed_rad - commanded))
-        mirror_err = abs(wrap_angle(observed_rad + commanded))
+        floor_err = abs(wrap_angle(observed_floor_rad - commanded))
+        mirror_err = abs(wrap_angle(observed_mirror_rad + commanded))
         if abs(floor_err - mirror_err) < math.radians(20):
             return
         verdict = mirror_err < floor_err
@@ -991,10 +1096,11 @@ class Follower(Kilobot):
         if turn_ticks:
             self.phase = "turn"
             self.phase_end_tick = now + turn_ticks
+            self.spinup_motors()  # kilolib: a motor at rest needs the burst to start
             if physical_turn_rad > 0:
-                self.set_motors(0, self.kilo_turn_right)  # right motor only: left turn
+                self.set_motors(self.kilo_turn_left, 0)  # kilolib: left motor turns left
             else:
-                self.set_motors(self.kilo_turn_left, 0)  # left motor only: right turn
+                self.set_motors(0, self.kilo_turn_right)
         else:
             self._start_step(now)
 
@@ -1002,6 +1108,7 @@ class Follower(Kilobot):
         self.phase = "step"
         self.phase_end_tick = now + self._last_step_ticks
         self.steps += 1
+        self.spinup_motors()
         self.set_motors(self.kilo_straight_left, self.kilo_straight_right)
 
     def _goal(self) -> Point:
@@ -1018,3 +1125,11 @@ class Follower(Kilobot):
 
 def _dist(a: Point, b: Point) -> float:
     return math.hypot(a[0] - b[0], a[1] - b[1])
+
+
+def _turn_seen(heading: Point, step: Point) -> float | None:
+    """The rotation from ``heading`` to the direction of ``step``; ``None`` for a step under
+    3 mm, whose direction says nothing."""
+    if math.hypot(*step) < 3.0:
+        return None
+    return turn_angle(heading, step)

@@ -132,7 +132,8 @@ class TimedTurns(Kilobot):
             self.turning = True
             self.start_tick = now
             self.next_tick = now + max(1, round(self.durations_s[self.index] * self.ticks_per_s))
-            self.set_motors(0, self.kilo_turn_right)  # right motor only: counter-clockwise
+            self.spinup_motors()
+            self.set_motors(self.kilo_turn_left, 0)  # kilolib: the left motor turns left
             return
         self.set_motors(0, 0)
         self.turning = False

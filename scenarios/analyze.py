@@ -83,7 +83,8 @@ def _cmd(args: argparse.Namespace) -> int:
         raise UsageError(
             f"{args.placement}: no such placement file or named placement (named: {named})"
         )
-    report = predict(positions, seed=args.seed)
+    named = args.placement in NAMED_PLACEMENTS  # a name brings the thesis's premise along
+    report = predict(args.placement if named else positions, seed=args.seed)
     figure = Path(args.figure or default_figure)
     _figure(positions, report, figure)
     if args.json:

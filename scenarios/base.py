@@ -24,7 +24,7 @@ from kilonet.params import ParamError, Params
 from kilonet.placement import hex_lattice, line, load_csv, random_uniform
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation, stream_for
-from scenarios.thesis_placements import NAMED_PLACEMENTS
+from scenarios.thesis_placements import NAMED_PLACEMENTS, PREMISE
 
 __all__ = [
     "RunResult",
@@ -174,6 +174,8 @@ def run(
     progress : bool
         Show a progress bar on stderr (simulated seconds).
     """
+    if isinstance(placement, str) and placement in NAMED_PLACEMENTS:
+        overrides = {**PREMISE, **(overrides or {})}  # the thesis's cases assume it
     params = build_params(scenario, overrides, seed=seed)
     positions = place(scenario, params, placement)
     sim = Simulation(positions, scenario.program(params, positions), params)

@@ -3,8 +3,9 @@ centroid (the seed ``trilateration-with-kilobots``).
 
 Four robots in role order: row 0 the origin (ID 1), row 1 the x-axis robot (ID 2), row 2 the
 third robot (ID 3), row 3 the follower (ID 4); a placement file must have exactly these four
-rows. The follower needs messages from all three, so a placement is refused unless the follower
-hears all three at the start and the frame robots hear each other (range and line of sight).
+rows. A placement is refused when the robots stand beyond range of each other; a link that
+occlusion weakens or blocks (``medium.occlusion``) is the follower's to deal with, as on the
+robots: it listens, makes its small first move and listens again for fresh messages.
 
 The generated placements draw the frame's sides from ``[side_min_mm, side_max_mm]``, put robot 3
 on the ``handedness`` side of the 1→2 axis (``right`` makes the follower's frame a mirror image
@@ -45,7 +46,7 @@ from matplotlib.patches import Circle
 from kilonet.params import BatteryParams, MotionParams, ParamError, Params, RobotParams, param
 from kilonet.placement import ROBOT_DIAMETER_MM
 from kilonet.simulation import Simulation, stream_for
-from kilonet.visibility import visible_pairs
+from kilonet.visibility import LinkModel
 from protocols.follower import (
     Follower,
     FollowerConfig,
@@ -200,7 +201,7 @@ def _calibrate(
     angles = np.asarray(turned) + reading
     return CalibrationRun(
         calibration=TurnCalibration.fit(angles, motor_s),
-        true_deg_s=float(np.degrees(sim.motion.turn_rad_s[0])),
+        true_deg_s=math.degrees(sim.motion.pivot_rate_rad_s(0, 0, sim.robots[0].kilo_turn_left)),
         angles_rad=tuple(float(a) for a in angles),
         times_s=tuple(float(t) for t in motor_s),
     )
@@ -222,9 +223,9 @@ def check_placement(positions: np.ndarray, params: Params) -> None:
     Raises
     ------
     ScenarioError
-        If there are not exactly four robots, robots 1–3 are (nearly) collinear, a frame robot
-        does not hear the ones it needs, the follower does not hear all three, or a frame side
-        is too long for the byte message.
+        If there are not exactly four robots, robots 1–3 are (nearly) collinear, two of them
+        stand beyond ``medium.range_mm`` of each other, or a frame side is too long for the byte
+        message.
     """
     pos = np.asarray(positions, dtype=float)
     if pos.shape != (4, 2):
@@ -239,20 +240,13 @@ def check_placement(positions: np.ndarray, params: Params) -> None:
             f"the line 1->2, need >= {_MIN_FRAME_HEIGHT_MM:g} mm): they form no frame"
         )
     m = params.medium
-    i, j, _ = visible_pairs(pos, m.range_mm, line_of_sight=m.line_of_sight)
-    linked = set(zip(i.tolist(), j.tolist(), strict=True))
     for a, b in ((0, 1), (0, 2), (1, 2), (0, 3), (1, 3), (2, 3)):
-        if (a, b) not in linked:
-            d = float(np.linalg.norm(pos[a] - pos[b]))
-            why = (
-                f"{d:.1f} mm apart, beyond medium.range_mm = {m.range_mm:g}"
-                if d > m.range_mm
-                else "line of sight blocked by another robot"
-            )
+        d = float(np.linalg.norm(pos[a] - pos[b]))
+        if d > m.range_mm:
             who = "the follower" if b == 3 else f"robot {b + 1}"
             raise ScenarioError(
-                f"follower: {who} does not hear robot {a + 1} at the start ({why}); the "
-                "follower needs messages from all three frame robots"
+                f"follower: {who} stands {d:.1f} mm from robot {a + 1}, beyond medium.range_mm "
+                f"= {m.range_mm:g}; the follower needs messages from all three frame robots"
             )
     if params.scenario.message == "byte":
         side = max(float(np.linalg.norm(pos[a] - pos[b])) for a, b in ((0, 1), (0, 2), (1, 2)))
@@ -298,7 +292,7 @@ def _generate(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
             gaps = np.linalg.norm(frame - start, axis=1)
             if gaps.min() < ROBOT_DIAMETER_MM + 1.0 or gaps.max() > m.range_mm:
                 continue  # touching or out of range: the cheap tests first
-            if not _hears_all(pos, m.range_mm, m.line_of_sight):
+            if not _hears_all(pos, m):
                 continue
             if f.direct_start and not _passable(start, target, frame, radius, m):
                 continue
@@ -314,16 +308,15 @@ def _generate(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
     )
 
 
-def _hears_all(pos: np.ndarray, range_mm: float, line_of_sight: bool) -> bool:
-    """Whether all four robots hear each other."""
-    i, _, _ = visible_pairs(pos, range_mm, line_of_sight=line_of_sight)
-    return len(i) == 6
+def _hears_all(pos: np.ndarray, medium) -> bool:
+    """Whether all four robots hear each other (range and occlusion)."""
+    return len(LinkModel.from_params(medium).links(pos)) == 6
 
 
-def _follower_hears(pos: np.ndarray, range_mm: float, line_of_sight: bool) -> bool:
+def _follower_hears(pos: np.ndarray, medium) -> bool:
     """Whether the follower (row 3) hears all three frame robots."""
-    _, j, _ = visible_pairs(pos, range_mm, line_of_sight=line_of_sight)
-    return int((j == FOLLOWER_INDEX).sum()) == 3
+    links = LinkModel.from_params(medium).links(pos)
+    return int((links.j == FOLLOWER_INDEX).sum()) == 3
 
 
 def _passable(start: np.ndarray, target: np.ndarray, frame: np.ndarray, radius: float, m) -> bool:
@@ -339,7 +332,7 @@ def _passable(start: np.ndarray, target: np.ndarray, frame: np.ndarray, radius: 
     if (np.linalg.norm(closest - frame, axis=1) < radius + 0.5).any():
         return False
     for s in np.arange(0.0, length, 5.0):
-        if not _follower_hears(np.vstack([frame, start + s * u]), m.range_mm, m.line_of_sight):
+        if not _follower_hears(np.vstack([frame, start + s * u]), m):
             return False
     return True
 
@@ -495,7 +488,14 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
         "handedness_settled": bool(follower.handedness_settled),
         "final_estimate_error_mm": None if estimate_error is None else round(estimate_error, 3),
         "calibration_deg_s": round(follower.calibration.deg_per_s, 3),
-        "follower_turn_deg_s": round(float(np.degrees(sim.motion.turn_rad_s[FOLLOWER_INDEX])), 3),
+        "follower_turn_deg_s": round(
+            math.degrees(
+                sim.motion.pivot_rate_rad_s(
+                    FOLLOWER_INDEX, 0, sim.robots[FOLLOWER_INDEX].kilo_turn_left
+                )
+            ),
+            3,
+        ),
         "follower_turn_gain": round(follower.turn_gain, 3),
     }
 

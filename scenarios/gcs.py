@@ -40,7 +40,7 @@ from kilonet.alignment import procrustes_rmse
 from kilonet.geometry import crlb_rmse_mm
 from kilonet.simulation import Simulation
 from kilonet.topology import failure_cases, rigidity_facts
-from kilonet.visibility import communication_graph, visible_pairs
+from kilonet.visibility import LinkModel
 from protocols.gcs import GcsRobot, phase_windows_s
 from protocols.gcs_base import GcsParams
 from scenarios.base import RunResult, Scenario
@@ -153,10 +153,7 @@ def _failures(sim: Simulation) -> dict[str, Any]:
         (seeds[a], seeds[b]) for r in sim.robots for a, b in r.groups if a in seeds and b in seeds
     ]
     cases = failure_cases(range(sim.n_robots), located, sorted(seeds.values()), groups)
-    p = sim.params.medium
-    facts = rigidity_facts(
-        communication_graph(sim.world.positions_mm, p.range_mm, line_of_sight=p.line_of_sight)
-    )
+    facts = rigidity_facts(sim.medium.graph())
     return {
         "unlocalizable": cases["unlocalizable"],
         "isolated_seeds": cases["isolated_seeds"],
@@ -173,9 +170,8 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
     truth = sim.world.positions_mm
     events = sim.trace.events_frame()
     counts = events["event"].value_counts().to_dict() if len(events) else {}
-    i, j, _ = visible_pairs(
-        truth, sim.params.medium.range_mm, line_of_sight=sim.params.medium.line_of_sight
-    )
+    links = LinkModel.from_params(sim.params.medium, sim.world.radius_mm).links(truth)
+    i, j = links.i, links.j
     uids = np.array([r.uid for r in robots])
     # Two robots with one ID seen by a common neighbour, or neighbours sharing an ID.
     duplicates = int(np.sum(uids[i] == uids[j]))
@@ -313,7 +309,13 @@ SCENARIO = Scenario(
     defaults={
         "duration_s": 3600.0,
         "robot.hardware_uids": False,
-        "robot.loop_period_s": 0.0625,
+        # The thesis's library: a message every 200 ms with jitter, CSMA/CA back-off, a send
+        # buffer that is sampled once a period; its loop only needs to run every other tick.
+        "robot.tx_period_s": 0.2,
+        "robot.tx_jitter_s": 0.02,
+        "robot.tx_retry": "period",
+        "medium.backoff_max_s": 0.01,
+        "robot.loop_ticks": 2,
         "placement.jitter_mm": 2.0,
     },
     metrics=_metrics,

@@ -20,7 +20,6 @@ import numpy as np
 
 from kilonet.params import param
 from kilonet.simulation import Simulation
-from kilonet.visibility import communication_graph
 from protocols.gradient import UNKNOWN, Gradient
 from scenarios.base import RunResult, Scenario
 
@@ -37,14 +36,8 @@ class GradientParams:
 
 
 def hop_distances(sim: Simulation, source: int) -> dict[int, int]:
-    """Hops from ``source`` in the line-of-sight communication graph of the present robots."""
-    p = sim.params.medium
-    graph = communication_graph(
-        sim.world.positions_mm,
-        p.range_mm,
-        radius_mm=sim.world.radius_mm,
-        line_of_sight=p.line_of_sight,
-    )
+    """Hops from ``source`` in the medium's own communication graph of the running robots."""
+    graph = sim.medium.graph()
     graph.remove_nodes_from(np.flatnonzero(~sim.world.running).tolist())
     if source not in graph:
         return {}

@@ -28,7 +28,7 @@ from kilonet.geometry import (
 )
 from kilonet.params import Params
 from kilonet.topology import failure_cases, rigidity_facts
-from kilonet.visibility import communication_graph
+from kilonet.visibility import LinkModel, communication_graph
 from protocols.merging_groups import find_groups
 
 __all__ = ["predict_from_seeds"]
@@ -69,7 +69,7 @@ def predict_from_seeds(
     """
     p = params
     n = len(pos)
-    graph = communication_graph(pos, p.medium.range_mm, line_of_sight=p.medium.line_of_sight)
+    graph = communication_graph(pos, LinkModel.from_params(p.medium))
     rule = (
         choose_references_max_angle
         if p.scenario.reference_rule == "max_angle"

@@ -4,8 +4,11 @@ Kaiser names three topologies in which Rubenstein's algorithm cannot build one g
 coordinate system although every non-seed sees two seeds and every seed another seed. Only the
 figure's caption and the text describing it survive, so each placement here is a
 reconstruction: a small swarm (centres in mm) in which the described situation arises with the
-simulator's defaults — 33 mm bodies, 85 mm range centre to centre, bodies blocking the line of
-sight, the thesis's ``max_angle`` reference rule. Run one by name::
+simulator's defaults — 33 mm bodies, 85 mm range centre to centre, the thesis's ``max_angle``
+reference rule — and the thesis's premise that a body between two robots blocks their link
+(:data:`PREMISE`; kilonet's default model, from real-robot data, has no occlusion). A run of a
+named placement applies the premise unless the user sets ``medium.occlusion``. Run one by
+name::
 
     kilonet run gcs --placement thesis-7.1c --set gcs.until=groups --json
 
@@ -38,11 +41,16 @@ __all__ = [
     "LEFT_GROUP_7_1C",
     "NAMED_PLACEMENTS",
     "OUTER_LEFT_7_1A",
+    "PREMISE",
     "RIGHT_GROUP_7_1C",
     "thesis_7_1a",
     "thesis_7_1b",
     "thesis_7_1c",
 ]
+
+#: The parameters the constructions assume: messages are "received within a radius of at least
+#: 7 cm, provided that there are no objects between sender and receiver" (the thesis, §5).
+PREMISE = {"medium.occlusion": "block"}
 
 _OUTER_LEFT_MM = [(-55.0, 45.0), (-55.0, -45.0)]
 # Columns 39 mm apart of a lattice with 45 mm between neighbours (rows in a column 45 mm apart,
@@ -115,8 +123,8 @@ def thesis_7_1a() -> np.ndarray:
 
     Examples
     --------
-    >>> from kilonet.visibility import communication_graph
-    >>> g = communication_graph(thesis_7_1a(), 85.0)
+    >>> from kilonet.visibility import LinkModel, communication_graph
+    >>> g = communication_graph(thesis_7_1a(), LinkModel(85.0, "block"))
     >>> [sorted(g[robot]) for robot in OUTER_LEFT_7_1A]
     [[2, 3], [3, 4]]
     >>> g.has_edge(2, 3) or g.has_edge(3, 4)
@@ -158,8 +166,8 @@ def thesis_7_1b() -> np.ndarray:
 
     Examples
     --------
-    >>> from kilonet.visibility import communication_graph
-    >>> g = communication_graph(thesis_7_1b(), 85.0)
+    >>> from kilonet.visibility import LinkModel, communication_graph
+    >>> g = communication_graph(thesis_7_1b(), LinkModel(85.0, "block"))
     >>> b, c = sorted(g[BLUE_SEED_7_1B])
     >>> thesis_7_1b()[[b, c]].round(1).tolist(), g.has_edge(b, c)
     ([[-60.0, -34.6], [-80.0, 0.0]], True)
@@ -197,8 +205,8 @@ def thesis_7_1c() -> np.ndarray:
 
     Examples
     --------
-    >>> from kilonet.visibility import communication_graph
-    >>> g = communication_graph(thesis_7_1c(), 85.0)
+    >>> from kilonet.visibility import LinkModel, communication_graph
+    >>> g = communication_graph(thesis_7_1c(), LinkModel(85.0, "block"))
     >>> sorted((i, j) for i, j in g.edges if (i < 4) != (j < 4))
     [(1, 4), (3, 6)]
     """

@@ -22,6 +22,12 @@ def battery_params(overrides: dict | None = None, *, seed: int = 1) -> Params:
             "battery.motor_drain_v_per_h": 0.0,
             "motion.speed_error": 0.0,
             "motion.turn_error": 0.0,
+            "motion.motor_offset_sd": 0.0,
+            "motion.motor_gain_sd": 0.0,
+            "motion.calibration_sd": 0.0,
+            "robot.clock_sd": 0.0,
+            "robot.tx_period_s": 0.2,
+            "robot.tx_jitter_s": 0.02,
             **(overrides or {}),
         }
     )
@@ -36,6 +42,8 @@ class Meter(Kilobot):
 
     def loop(self) -> None:
         self.journal.append(("volts", self.kilo_uid, self._sim.env.now, self.get_voltage()))
+
+    # kilolib's get_voltage() is a raw ADC reading: about 169 counts per volt.
 
     def message_tx(self) -> Message | None:
         return Message(b"\x01") if self.send else None
@@ -54,14 +62,15 @@ def test_degradation_level():
 
 def test_voltage_falls_linearly_with_time():
     log: list = []
-    params = battery_params({"battery.idle_drain_v_per_h": 36.0, "robot.loop_period_s": 0.5})
-    sim = Simulation([[0, 0], [50, 0]], lambda i: Meter(log), params)
+    params = battery_params({"battery.idle_drain_v_per_h": 36.0, "robot.loop_ticks": 16})
+    sim = Simulation([[0, 0], [500, 0]], lambda i: Meter(log), params)
     sim.run(10.0)
     for robot in (0, 1):
         readings = [(t, v) for name, r, t, v in log if name == "volts" and r == robot]
-        assert len(readings) == 20
+        assert len(readings) == 20  # every 16 of 31 ticks a second
         for t, v in readings:
-            assert v == pytest.approx(4.2 - 0.01 * t, abs=1e-12)  # 36 V/h = 0.01 V/s
+            volts = 4.2 - 0.01 * t  # 36 V/h = 0.01 V/s
+            assert v == round(169 * volts + 6)  # kilolib's reading: 716 at 4.2 V, 547 at 3.2 V
     assert sim.battery.voltage(0) == pytest.approx(4.1, abs=1e-12)
     np.testing.assert_allclose(sim.robots_frame()["voltage_v"], [4.1, 4.1], atol=1e-12)
 
@@ -72,8 +81,10 @@ def test_voltage_falls_faster_with_motors_running():
     )
     sim = Simulation([[0, 0], [300, 0], [0, 300]], Kilobot, params, headings_rad=[0, 0, 0])
     sim.start()
-    sim.robots[1].set_motors(255, 255)  # two motors: 2 x 0.01 V/s extra
-    sim.robots[2].set_motors(0, 255)  # one motor (pivoting): 0.01 V/s extra
+    sim.robots[1].spinup_motors()
+    sim.robots[1].set_motors(75, 75)  # two motors: 2 x 0.01 V/s extra
+    sim.robots[2].spinup_motors()
+    sim.robots[2].set_motors(0, 75)  # one motor (pivoting): 0.01 V/s extra
     sim.run(5.0)
     sim.robots[1].set_motors(0, 0)
     sim.robots[2].set_motors(0, 0)
@@ -132,7 +143,8 @@ def test_low_battery_slows_the_motors():
     params = battery_params({"battery.initial_v": 3.4, "battery.idle_drain_v_per_h": 0.0})
     sim = Simulation([[0, 0], [300, 0]], Kilobot, params, headings_rad=[0.0, 0.0])
     sim.start()
-    sim.robots[0].set_motors(255, 255)
+    sim.robots[0].spinup_motors()
+    sim.robots[0].set_motors(75, 75)
     sim.run(2.0)
     sim.robots[0].set_motors(0, 0)
     assert sim.world.positions_mm[0].tolist() == pytest.approx([15.0, 0.0], abs=1e-9)

@@ -1,18 +1,21 @@
-"""Tests for kilonet.clock: reusable timers and the loop round that stands in for one timer
-per robot loop."""
+"""Tests for kilonet.clock: robot clocks, reusable timers, and the loop schedule that stands in
+for one timer per robot loop."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import simpy
 from hypothesis import given
 from hypothesis import strategies as st
 
-from kilonet.clock import LoopRound, Timer
+from kilonet.clock import LoopSchedule, RobotClocks, Timer
 
 # Coarse values on purpose: loops and other events often fall due at the very same time, where
 # only the insertion order SimPy keeps decides which runs first.
 _PERIOD_S = st.sampled_from([0.25, 0.5, 1.0, 0.3])
+# Each loop's own period: robots' clocks differ, so their loops drift past each other.
+_PERIODS_S = st.lists(st.sampled_from([0.25, 0.5, 0.3, 0.31, 0.75]), min_size=8, max_size=8)
 _FIRST_S = st.lists(st.sampled_from([0.0, 0.1, 0.2, 0.05]), min_size=1, max_size=8)
 _EVENT_TIMES = st.lists(st.sampled_from([0.0, 0.1, 0.25, 0.5, 0.6, 1.0, 1.3, 2.0]), max_size=12)
 _CHUNK_S = st.sampled_from([3.0, 1.0, 0.5, 0.25, 0.7])
@@ -23,10 +26,11 @@ class Boom(RuntimeError):
     """What a loop raises in these tests."""
 
 
-def _journal(period_s, first_s, event_times, chunk_s, *, round_of_loops, stops=None, raises=None):
+def _journal(periods_s, first_s, event_times, chunk_s, *, round_of_loops, stops=None, raises=None):
     """(what, simulated time) of every loop call and every other event in a 3 s run, with the
-    loops on one Timer each or in a LoopRound, added in turn with the other events (as the
-    simulation adds a robot's loop after its first transmit opportunity).
+    loops on one Timer each or in a LoopSchedule (loop k recurring every ``periods_s[k]``),
+    added in turn with the other events (as the simulation adds a robot's loop after its first
+    transmit opportunity).
 
     The run goes in chunks of ``chunk_s`` (as a progress bar runs it). Every loop call queues
     events of its own: one half a period ahead, one a whole period ahead (due with the loop's
@@ -40,6 +44,8 @@ def _journal(period_s, first_s, event_times, chunk_s, *, round_of_loops, stops=N
         return Timer(env, lambda _timer: journal.append((name, env.now)), None)
 
     def loop_call(k):
+        period_s = periods_s[k]
+
         def call():
             if env.now >= stops.get(k, float("inf")):
                 return False
@@ -55,17 +61,17 @@ def _journal(period_s, first_s, event_times, chunk_s, *, round_of_loops, stops=N
 
         return call
 
-    loops = LoopRound(env, period_s)
+    loops = LoopSchedule(env)
     for k, first in enumerate(first_s):
         for j, t in enumerate(event_times[k :: len(first_s)]):
             event(f"event {k}.{j}").schedule(t)
         call = loop_call(k)
         if round_of_loops:
-            loops.add(first, call)
+            loops.add(first, periods_s[k], call)
         else:
-            Timer(env, lambda timer, call=call: call() and timer.schedule(period_s), k).schedule(
-                first
-            )
+            Timer(
+                env, lambda timer, call=call, p=periods_s[k]: call() and timer.schedule(p), k
+            ).schedule(first)
     loops.start()
     while env.now < 3.0:
         try:
@@ -75,25 +81,34 @@ def _journal(period_s, first_s, event_times, chunk_s, *, round_of_loops, stops=N
     return journal
 
 
-@given(_PERIOD_S, _FIRST_S, _EVENT_TIMES, _CHUNK_S)
-def test_a_loop_round_runs_loops_when_and_in_the_order_one_timer_each_would(
-    period_s, first_s, event_times, chunk_s
+@given(_PERIODS_S, _FIRST_S, _EVENT_TIMES, _CHUNK_S)
+def test_a_loop_schedule_runs_loops_when_and_in_the_order_one_timer_each_would(
+    periods_s, first_s, event_times, chunk_s
 ):
-    separate = _journal(period_s, first_s, event_times, chunk_s, round_of_loops=False)
-    joint = _journal(period_s, first_s, event_times, chunk_s, round_of_loops=True)
+    separate = _journal(periods_s, first_s, event_times, chunk_s, round_of_loops=False)
+    joint = _journal(periods_s, first_s, event_times, chunk_s, round_of_loops=True)
     assert joint == separate
-    assert sum(what.startswith("loop") for what, _ in joint) >= len(first_s) * (3.0 // period_s)
+    for k, first in enumerate(first_s):
+        calls = [t for what, t in joint if what == f"loop {k}"]
+        assert len(calls) == pytest.approx((3.0 - first) / periods_s[k], abs=1.01)
 
 
-@given(_PERIOD_S, _FIRST_S, _EVENT_TIMES, _CHUNK_S, st.data())
-def test_a_loop_that_stops_or_raises_leaves_the_round_and_the_others_go_on(
-    period_s, first_s, event_times, chunk_s, data
+@given(_PERIOD_S, _FIRST_S, _EVENT_TIMES, _CHUNK_S)
+def test_loops_of_one_period_run_as_one_timer_each_would(period_s, first_s, event_times, chunk_s):
+    periods = [period_s] * 8
+    separate = _journal(periods, first_s, event_times, chunk_s, round_of_loops=False)
+    assert _journal(periods, first_s, event_times, chunk_s, round_of_loops=True) == separate
+
+
+@given(_PERIODS_S, _FIRST_S, _EVENT_TIMES, _CHUNK_S, st.data())
+def test_a_loop_that_stops_or_raises_leaves_the_schedule_and_the_others_go_on(
+    periods_s, first_s, event_times, chunk_s, data
 ):
     stops = {k: data.draw(_WHEN) for k in range(len(first_s))}
     raises = {k: data.draw(_WHEN) for k in range(len(first_s))}
     kwargs = {"stops": stops, "raises": raises}
-    separate = _journal(period_s, first_s, event_times, chunk_s, round_of_loops=False, **kwargs)
-    joint = _journal(period_s, first_s, event_times, chunk_s, round_of_loops=True, **kwargs)
+    separate = _journal(periods_s, first_s, event_times, chunk_s, round_of_loops=False, **kwargs)
+    joint = _journal(periods_s, first_s, event_times, chunk_s, round_of_loops=True, **kwargs)
     assert joint == separate
     for k in range(len(first_s)):
         calls = [t for what, t in joint if what == f"loop {k}"]
@@ -101,7 +116,7 @@ def test_a_loop_that_stops_or_raises_leaves_the_round_and_the_others_go_on(
         assert sum(t >= raises[k] for t in calls) <= 1  # the call that raised is its last
 
 
-def test_a_round_whose_loops_all_stopped_leaves_the_queue_empty():
+def test_a_schedule_whose_loops_all_stopped_leaves_the_queue_empty():
     env = simpy.Environment()
     calls = []
 
@@ -109,23 +124,57 @@ def test_a_round_whose_loops_all_stopped_leaves_the_queue_empty():
         calls.append(round(env.now, 9))
         return env.now < 1.0
 
-    loops = LoopRound(env, 0.25)
-    loops.add(0.1, call)
+    loops = LoopSchedule(env)
+    loops.add(0.1, 0.25, call)
     loops.start()
     env.run()  # without `until`: returns only once nothing is queued
     assert calls == [0.1, 0.35, 0.6, 0.85, 1.1]
 
 
-def test_a_first_time_outside_the_period_is_refused():
-    with pytest.raises(ValueError, match=r"0.5 s is outside \[0, 0.5\) s"):
-        LoopRound(simpy.Environment(), 0.5).add(0.5, lambda: True)
+@pytest.mark.parametrize(("first_s", "period_s"), [(-0.1, 0.5), (0.0, 0.0), (0.1, -1.0)])
+def test_a_negative_first_time_or_a_period_not_above_zero_is_refused(first_s, period_s):
+    with pytest.raises(ValueError, match="first_s >= 0 and period_s > 0"):
+        LoopSchedule(simpy.Environment()).add(first_s, period_s, lambda: True)
 
 
-def test_a_round_takes_loops_only_before_it_starts_and_starts_once():
-    loops = LoopRound(simpy.Environment(), 0.5)
-    loops.add(0.1, lambda: True)
+def test_a_schedule_takes_loops_only_before_it_starts_and_starts_once():
+    loops = LoopSchedule(simpy.Environment())
+    loops.add(0.1, 0.5, lambda: True)
     loops.start()
     with pytest.raises(RuntimeError, match="before it starts"):
-        loops.add(0.2, lambda: True)
+        loops.add(0.2, 0.5, lambda: True)
     with pytest.raises(RuntimeError, match="starts only once"):
         loops.start()
+
+
+# ------------------------------------------------------------------------------ robot clocks
+
+
+def test_perfect_clocks_tick_at_the_nominal_rate_in_phase():
+    clocks = RobotClocks.draw(5, 31.0, 0.0, np.random.default_rng(1))
+    assert clocks.factor.tolist() == [1.0] * 5 and clocks.phase.tolist() == [0.0] * 5
+    assert [clocks.ticks_at(0, t) for t in (0.0, 0.03, 1.0, 10.0)] == [0, 0, 31, 310]
+
+
+def test_clock_rates_spread_with_clock_sd_and_phases_are_uniform():
+    clocks = RobotClocks.draw(20_000, 31.0, 0.01, np.random.default_rng(2))
+    assert np.std(clocks.factor - 1) == pytest.approx(0.01, rel=0.03)
+    assert abs(np.mean(clocks.factor - 1)) < 3e-4
+    assert np.max(np.abs(clocks.factor - 1)) <= 0.05 + 1e-12  # clipped at 5 sd
+    assert clocks.phase.min() >= 0 and clocks.phase.max() < 1
+    assert np.mean(clocks.phase) == pytest.approx(0.5, abs=0.01)
+
+
+def test_a_fast_clock_counts_more_ticks_and_shortens_its_own_seconds():
+    clocks = RobotClocks(31.0, np.array([1.0, 1.02]), np.array([0.0, 0.25]))
+    assert clocks.ticks_at(1, 100.0) == int(100 * 31 * 1.02 + 0.25) == 3162
+    assert clocks.true_s(1, 1.02) == pytest.approx(1.0)
+    assert clocks.rate_hz(1) == pytest.approx(31.62)
+
+
+@given(st.floats(0.0, 0.999), st.floats(0.9, 1.1))
+def test_the_first_loop_falls_mid_tick_of_tick_zero_or_one(phase, factor):
+    clocks = RobotClocks(31.0, np.array([factor]), np.array([phase]))
+    t = clocks.first_mid_tick_s(0)
+    assert 0 <= t < 1 / clocks.rate_hz(0)
+    assert (t * clocks.rate_hz(0) + phase) % 1 == pytest.approx(0.5, abs=1e-9)

@@ -15,8 +15,16 @@ from kilonet.simulation import Simulation
 
 
 def quiet_params(overrides: dict | None = None, *, seed: int = 1) -> Params:
-    """Parameters without a battery model, plus overrides."""
-    return Params(seed=seed).with_overrides({"battery.enabled": False, **(overrides or {})})
+    """No battery model, perfect clocks and the thesis's 200 ms timing, plus overrides."""
+    return Params(seed=seed).with_overrides(
+        {
+            "battery.enabled": False,
+            "robot.clock_sd": 0.0,
+            "robot.tx_period_s": 0.2,
+            "robot.tx_jitter_s": 0.02,
+            **(overrides or {}),
+        }
+    )
 
 
 class Numbered(Kilobot):
@@ -98,7 +106,8 @@ def test_message_on_the_air_is_not_delivered_to_a_robot_that_crashed_meanwhile()
 
 
 def test_crashed_robot_still_blocks_line_of_sight():
-    sim, log = _sender_and_listeners([[0, 0], [40, 0], [80, 0]])
+    params = quiet_params({"medium.occlusion": "block"})
+    sim, log = _sender_and_listeners([[0, 0], [40, 0], [80, 0]], params)
     sim.faults.crash_at(1, 1.0)
     sim.run(6.0)
     assert times(log, "rx", 2) == []
@@ -106,7 +115,8 @@ def test_crashed_robot_still_blocks_line_of_sight():
 
 
 def test_removed_robot_no_longer_blocks():
-    sim, log = _sender_and_listeners([[0, 0], [40, 0], [80, 0]])
+    params = quiet_params({"medium.occlusion": "block"})
+    sim, log = _sender_and_listeners([[0, 0], [40, 0], [80, 0]], params)
     sim.faults.remove_at(1, 2.0)
     sim.run(6.0)
     heard = times(log, "rx", 2)

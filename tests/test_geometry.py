@@ -26,7 +26,7 @@ from kilonet.geometry import (
     trilaterate_linear,
 )
 from kilonet.placement import hex_lattice
-from kilonet.visibility import visible_pairs
+from kilonet.visibility import pairs_in_range
 
 coord = st.floats(-200.0, 200.0, allow_nan=False)
 point = st.tuples(coord, coord)
@@ -194,7 +194,7 @@ def test_best_conditioned_frames_localise_a_noisy_neighbourhood_better():
     """The seed in a hex lattice (40 mm, range 85 mm, σ = 1 mm) builds its frame by each rule
     and locates its neighbours from A, B, C; error after alignment, averaged over draws."""
     pos = hex_lattice(61)
-    i, j, _ = visible_pairs(pos, 85.0)
+    i, j, _ = pairs_in_range(pos, 85.0)
     sees = {(int(a), int(b)) for a, b in zip(i, j, strict=True)}
     sees |= {(b, a) for a, b in sees}
     seed = int(np.argmin(np.hypot(*(pos - pos.mean(axis=0)).T)))
@@ -451,7 +451,7 @@ def test_crlb_of_a_rigid_triangle_is_sigma_sqrt5_over_3():
 @given(st.floats(0.01, 10.0), st.floats(0.0, 2 * math.pi), point, st.booleans())
 def test_crlb_scales_with_sigma_and_ignores_rigid_motions(sigma, turn, shift, mirror):
     pos = hex_lattice(12, jitter_mm=3.0, rng=np.random.default_rng(0))
-    i, j, _ = visible_pairs(pos, 85.0)
+    i, j, _ = pairs_in_range(pos, 85.0)
     edges = np.column_stack([i, j])
     base = crlb_rmse_mm(pos, edges, 1.0)
     rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
@@ -461,7 +461,7 @@ def test_crlb_scales_with_sigma_and_ignores_rigid_motions(sigma, turn, shift, mi
 
 def test_crlb_matches_the_pseudo_inverse_definition():
     pos = hex_lattice(19, jitter_mm=3.0, rng=np.random.default_rng(1))
-    i, j, _ = visible_pairs(pos, 85.0)
+    i, j, _ = pairs_in_range(pos, 85.0)
     edges = np.column_stack([i, j])
     assert crlb_rmse_mm(pos, edges, 1.5) == pytest.approx(_crlb_by_pinv(pos, edges, 1.5))
     # Disconnected (two triangles) and flexible (a square without diagonals) graphs take the
@@ -480,7 +480,7 @@ def test_crlb_matches_the_pseudo_inverse_definition():
 
 def test_crlb_decreases_when_edges_are_added():
     pos = hex_lattice(37, jitter_mm=3.0, rng=np.random.default_rng(2))
-    i, j, _ = visible_pairs(pos, 85.0)
+    i, j, _ = pairs_in_range(pos, 85.0)
     edges = np.column_stack([i, j])
     near = edges[np.hypot(*(pos[i] - pos[j]).T) < 50.0]  # first neighbours: rigid already
     previous = crlb_rmse_mm(pos, near, 1.0)
@@ -502,7 +502,7 @@ def test_crlb_of_lattices_against_a_bare_triangle():
 
     def bound(n, range_mm):
         pos = hex_lattice(n)
-        i, j, _ = visible_pairs(pos, range_mm)
+        i, j, _ = pairs_in_range(pos, range_mm)
         return crlb_rmse_mm(pos, np.column_stack([i, j]), 1.0)
 
     triangle = crlb_rmse_mm(_EQUILATERAL, _SIDES, 1.0)

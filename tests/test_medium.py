@@ -7,25 +7,40 @@ list and the tests assert on exact times and counts. Programs read the true cloc
 Controlling when a robot transmits: with ``robot.tx_period_s`` tiny (1 ms) and no jitter, a
 robot gets a transmit opportunity every millisecond, so a program that offers its message only
 once ``now >= t`` starts transmitting in ``[t, t + 1 ms)``.
+
+The exact timelines use perfect clocks and the thesis library's timing (200 ms ± 20 ms, back-off
+U(0, 10 ms), a robot with nothing to send asked again a period later); the kilolib defaults and
+the robots' own clocks have tests of their own at the end.
 """
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numpy as np
 import pytest
 
-from kilonet.message import Message, PayloadError
+from kilonet.message import Message, PayloadError, message_crc
 from kilonet.params import Params
+from kilonet.reception import GaussianRanging
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
 
+THESIS_TIMING = {
+    "robot.clock_sd": 0.0,
+    "robot.tx_period_s": 0.2,
+    "robot.tx_jitter_s": 0.02,
+    "robot.tx_retry": "period",
+    "medium.backoff_max_s": 0.01,
+}
+
 
 def quiet_params(overrides: dict | None = None, *, seed: int = 1) -> Params:
-    """Parameters without a battery model (no drain, no periodic updates), plus overrides."""
-    return Params(seed=seed).with_overrides({"battery.enabled": False, **(overrides or {})})
+    """No battery model (no drain, no periodic updates), perfect clocks and the thesis's
+    timing, plus overrides."""
+    return Params(seed=seed).with_overrides(
+        {"battery.enabled": False, **THESIS_TIMING, **(overrides or {})}
+    )
 
 
 class Radio(Kilobot):
@@ -150,7 +165,8 @@ def test_range_default_is_85_mm():
 )
 def test_line_of_sight_third_disc_blocks(blocker, blocked):
     log: list = []
-    sim = build([[0, 0], [80, 0], blocker], quiet_params(), log, r0={})
+    params = quiet_params({"medium.occlusion": "block"})
+    sim = build([[0, 0], [80, 0], blocker], params, log, r0={})
     run_and_drain(sim, 5.0)
     sent = sim.medium.counters["sent"][0]
     assert sent > 20
@@ -158,13 +174,40 @@ def test_line_of_sight_third_disc_blocks(blocker, blocked):
     assert len(rx_times(log, 2)) == sent  # the third robot itself hears the sender
 
 
-def test_line_of_sight_off_disables_blocking():
+def test_bodies_block_nothing_by_default():
     log: list = []
-    params = quiet_params({"medium.line_of_sight": False})
-    sim = build([[0, 0], [80, 0], [40, 0]], params, log, r0={})
+    sim = build([[0, 0], [80, 0], [40, 0]], quiet_params(), log, r0={})
     run_and_drain(sim, 5.0)
     sent = sim.medium.counters["sent"][0]
     assert len(rx_times(log, 1)) == sent > 20
+    assert sim.medium.counters["lost_occlusion"] == [0, 0, 0]
+
+
+def test_graded_occlusion_loses_its_share_of_receptions_through_a_body():
+    log: list = []
+    params = quiet_params(
+        {
+            "medium.occlusion": "graded",
+            "medium.occlusion_loss": 0.3,
+            "medium.occlusion_range_factor": 0.95,
+        }
+    )
+    sim = build([[0, 0], [80, 0], [40, 0], [0, 60]], params, log, r0={})
+    run_and_drain(sim, 200.0)
+    c = sim.medium.counters
+    sent = c["sent"][0]
+    assert c["received"][1] + c["lost_occlusion"][1] == sent > 900
+    assert c["lost_occlusion"][1] / sent == pytest.approx(0.3, abs=4 * math.sqrt(0.21 / sent))
+    assert c["lost_occlusion"][2] == c["lost_occlusion"][3] == 0  # clear links lose nothing
+    assert c["received"][2] == c["received"][3] == sent
+
+
+def test_graded_occlusion_shortens_the_reach_through_a_body():
+    log: list = []
+    params = quiet_params({"medium.occlusion": "graded", "medium.occlusion_range_factor": 0.9})
+    sim = build([[0, 0], [80, 0], [40, 0]], params, log, r0={})  # 80 mm > 0.9 * 85 mm
+    run_and_drain(sim, 5.0)
+    assert len(rx_times(log, 1)) == 0 and len(rx_times(log, 2)) > 20
 
 
 # ------------------------------------------------------------------------------------ offers
@@ -184,7 +227,7 @@ def test_offer_rate_and_jitter_bounds():
     # 60 s / 0.2 s = 300 offers; 4 sd of the mean gap (0.02/sqrt(3)/sqrt(300)) is ~1.3 %.
     assert 294 <= len(offers) <= 306
     c = sim.medium.counters
-    assert c["offered"][0] == c["sent"][0] == len(offers) == len(entries(log, "tx", 0))
+    assert c["sent"][0] == len(offers) == len(entries(log, "tx", 0))
 
 
 def test_offers_without_jitter_are_exactly_periodic():
@@ -204,7 +247,7 @@ def test_message_tx_none_sends_nothing():
     sim.run(20.0)
     c = sim.medium.counters
     assert len(entries(log, "offer", 0)) > 90  # opportunities keep coming
-    assert c["offered"][0] == c["sent"][0] == c["bytes_sent"][0] == 0
+    assert c["sent"][0] == c["bytes_sent"][0] == 0
     assert entries(log, "tx") == [] and entries(log, "rx") == []
 
 
@@ -226,7 +269,7 @@ def test_only_non_none_offers_are_sent_and_counted():
     sim.run(20.0)
     c = sim.medium.counters
     calls = sim.robots[0].calls
-    assert c["offered"][0] == c["sent"][0] == calls // 2
+    assert c["sent"][0] == calls // 2
     assert c["bytes_sent"][0] == 6 * (calls // 2)  # 3 data bytes + type + 2-byte CRC
 
 
@@ -242,7 +285,7 @@ def test_tx_success_once_per_message_sent_under_contention():
         tx = entries(log, "tx", r)
         assert len(tx) == c["sent"][r] > 0
         assert [seq for _, _, seq in tx] == list(range(len(tx)))  # one call per message
-        assert c["offered"][r] == c["sent"][r] + c["backoffs"][r]
+        assert len(entries(log, "offer", r)) == c["sent"][r]  # asked only when the air is free
 
 
 # --------------------------------------------------------------------------------- CSMA/CA
@@ -278,26 +321,22 @@ def test_csma_backs_off_and_avoids_collisions():
     assert np.diff(starts).min() >= 0.05 - 1e-12
 
 
-def test_csma_backs_off_exactly_while_the_other_is_on_the_air():
+def test_csma_asks_for_a_message_only_while_the_other_is_off_the_air():
     sim, log = _contention(csma=True)
-    airtime, backoff_max = 0.05, 0.01
+    airtime = 0.05
     for me, other in ((0, 1), (1, 0)):
         other_tx = np.array([t for _, t, _ in entries(log, "tx", other)])
-        my_tx = {t for _, t, _ in entries(log, "tx", me)}
         offers = [t for _, t in entries(log, "offer", me) if t < 60.0]  # not while draining
 
         def on_air(t: float, other_tx=other_tx) -> bool:
             k = np.searchsorted(other_tx, t, side="left") - 1
             return k >= 0 and t < other_tx[k] + airtime
 
-        backed_off = [t for t in offers if t not in my_tx]
-        assert len(backed_off) == sim.medium.counters["backoffs"][me] > 0
-        assert all(on_air(t) for t in backed_off)
-        assert not any(on_air(t) for t in my_tx)
-        # After a back-off the next opportunity comes within U(0, backoff_max_s).
-        for t, nxt in itertools.pairwise(offers):
-            if t not in my_tx:
-                assert 0.0 <= nxt - t <= backoff_max + 1e-12
+        # Carrier sense comes first, as in kilolib: a robot that senses the other on the air
+        # backs off without calling message_tx(), and sends whenever it is called.
+        assert sim.medium.counters["backoffs"][me] > 20
+        assert not any(on_air(t) for t in offers)
+        assert len(offers) == len(entries(log, "tx", me))
 
 
 def test_without_csma_overlapping_transmissions_collide():
@@ -367,7 +406,8 @@ def test_hidden_terminals_collide_at_the_common_receiver():
     sim, log = _hidden_terminal(c_after_s=0.2)  # C starts while A is still on the air
     c = sim.medium.counters
     assert c["sent"][0] == c["sent"][2] == 1
-    assert c["backoffs"] == [0, 0, 0, 0]  # neither senses the other
+    [(_, start_a, _)], [(_, start_c, _)] = entries(log, "tx", 0), entries(log, "tx", 2)
+    assert start_a < start_c < start_a + 0.5  # C cannot sense A: it starts while A is on air
     assert entries(log, "rx", 1) == []
     assert c["lost_collision"][1] == 2 and c["received"][1] == 0
     [(_, t, sender, seq, _)] = entries(log, "rx", 3)  # D hears only A, cleanly
@@ -596,7 +636,7 @@ def test_per_robot_bias_shifts_one_receivers_estimates_consistently():
     sim = build(positions, params, log, r0={}, r1={})
     sim.run(60.0)
     pos = np.array(positions, dtype=float)
-    bias = sim.medium.bias_mm
+    bias = sim.medium.reception.bias_mm
     mean_errors = []
     for r in (2, 3, 4):
         per_sender = []
@@ -615,11 +655,11 @@ def test_per_robot_bias_shifts_one_receivers_estimates_consistently():
 def test_per_robot_bias_is_drawn_with_bias_sigma():
     params = quiet_params({"ranging.bias_sigma_mm": 5.0})
     sim = Simulation([[40.0 * k, 0.0] for k in range(80)], Kilobot, params)
-    assert sim.medium.bias_mm.std() == pytest.approx(5.0, rel=0.3)
-    assert abs(sim.medium.bias_mm.mean()) <= 4 * 5.0 / math.sqrt(80)
+    assert sim.medium.reception.bias_mm.std() == pytest.approx(5.0, rel=0.3)
+    assert abs(sim.medium.reception.bias_mm.mean()) <= 4 * 5.0 / math.sqrt(80)
     assert not quiet_params().ranging.bias_sigma_mm  # no bias by default
     np.testing.assert_array_equal(
-        Simulation([[0, 0], [50, 0]], Kilobot, quiet_params()).medium.bias_mm, [0.0, 0.0]
+        Simulation([[0, 0], [50, 0]], Kilobot, quiet_params()).medium.reception.bias_mm, [0.0, 0.0]
     )
 
 
@@ -724,3 +764,134 @@ def test_message_trace_is_off_by_default():
     sim = build([[0, 0], [50, 0]], quiet_params(), log, r0={})
     sim.run(2.0)
     assert sim.trace.messages_frame().empty
+
+
+# ------------------------------------------------- kilolib's timing on each robot's own clock
+
+
+def kilolib_params(overrides: dict | None = None) -> Params:
+    """kilolib v2 defaults (0.5 s period, no jitter, asked again a tick after None), no
+    battery."""
+    return Params(seed=3).with_overrides({"battery.enabled": False, **(overrides or {})})
+
+
+def test_kilolib_offers_every_half_second_of_each_robots_own_clock():
+    log: list = []
+    sim = build([[0, 0], [500, 0]], kilolib_params(), log, r0={}, r1={})
+    sim.run(60.0)
+    for robot in (0, 1):
+        offers = np.array([t for _, t in entries(log, "offer", robot)])
+        factor = sim.clocks.factor[robot]
+        np.testing.assert_allclose(np.diff(offers), 0.5 / factor, rtol=1e-9)
+        assert 0.0 <= offers[0] <= 0.5 / factor
+    assert sim.clocks.factor[0] != sim.clocks.factor[1]
+
+
+def test_kilolib_asks_again_at_the_next_tick_when_there_is_nothing_to_send():
+    log: list = []
+    sim = build([[0, 0], [500, 0]], kilolib_params(), log, r0={"after_s": 2.0})
+    sim.run(4.0)
+    offers = np.array([t for _, t in entries(log, "offer", 0)])
+    tick = 1 / sim.clocks.rate_hz(0)
+    asked = offers[offers < 2.0]
+    np.testing.assert_allclose(np.diff(asked), tick, rtol=1e-9)  # about 31 times a second
+    assert len(asked) == pytest.approx((2.0 - asked[0]) / tick, abs=1.01)
+    [(_, first, _), *_] = entries(log, "tx", 0)
+    assert 2.0 <= first < 2.0 + tick + 1e-12  # sent at the first tick it has something
+
+
+def test_kilo_tx_period_is_kilolibs_setting_in_timer_counts():
+    log: list = []
+    sim = build([[0, 0], [500, 0]], kilolib_params(), log, r0={})
+    bot = sim.robots[0]
+    assert bot.kilo_tx_period == 3906  # 0.5 s at 7812.5 counts a second
+    sim.start()
+    bot.kilo_tx_period = 1953  # a quarter second
+    sim.run(20.0)
+    offers = np.array([t for _, t in entries(log, "offer", 0)])
+    own_s = 1953 / 7812.5
+    np.testing.assert_allclose(np.diff(offers)[2:], own_s / sim.clocks.factor[0], rtol=1e-9)
+    with pytest.raises(ValueError, match="uint16"):
+        bot.kilo_tx_period = 0
+
+
+class Crc(Radio):
+    """Sends its numbered message with a fixed ``crc`` value (``None``: the correct one)."""
+
+    def __init__(self, log: list, crc: int | str | None) -> None:
+        super().__init__(log)
+        self.crc = crc
+
+    def message_tx(self) -> Message | None:
+        message = super().message_tx()
+        if message is None or self.crc is None:
+            return message
+        crc = message_crc(message) if self.crc == "computed" else self.crc
+        return Message(message.data, message.type, crc=crc)
+
+
+@pytest.mark.parametrize(("crc", "accepted"), [(None, True), ("computed", True), (0, False)])
+def test_a_receiver_drops_a_message_whose_crc_does_not_match(crc, accepted):
+    log: list = []
+    sim = Simulation(
+        [[0, 0], [50, 0], [0, 50]],
+        lambda i: Crc(log, crc) if i == 0 else Radio(log, send=False),
+        quiet_params(),
+    )
+    run_and_drain(sim, 10.0)
+    c = sim.medium.counters
+    sent = c["sent"][0]
+    assert sent > 40  # on the air either way: it occupies the channel
+    for r in (1, 2):
+        assert c["received"][r] == (sent if accepted else 0)
+        assert c["lost_crc"][r] == (0 if accepted else sent)
+        assert len(rx_times(log, r)) == c["received"][r]
+
+
+def test_message_crc_is_kilolibs_crc_ccitt_over_nine_data_bytes_and_the_type():
+    assert message_crc(Message(bytes(9), 0)) == 0x9C87  # all zero, the research helper's vector
+    assert message_crc(Message(b"", 0)) == message_crc(Message(bytes(9), 0))  # padded to nine
+    assert message_crc(Message(b"\x01", 0)) != message_crc(Message(b"\x00\x01", 0))
+    assert message_crc(Message(bytes(9), 1)) != message_crc(Message(bytes(9), 0))
+
+
+# --------------------------------------------------------------- the reception model is a seam
+
+
+class DistanceLoss(GaussianRanging):
+    """Loses receptions with probability (d / 100 mm)^2: farther links fail more often."""
+
+    def loss_probability(self, shares, distance_mm):
+        thresholds = super().loss_probability(shares, distance_mm)
+        return thresholds + ((distance_mm / 100.0) ** 2)[None, :]
+
+
+def test_a_swapped_in_reception_model_decides_the_losses():
+    log: list = []
+    params = quiet_params()
+    positions = [[0, 0], [20 + 13, 0], [0, 50], [-80, 0]]
+
+    def make(model):
+        sim = Simulation(
+            positions,
+            lambda i: Radio(log, send=i == 0),
+            params,
+            reception=model(params, len(positions)) if model else None,
+        )
+        run_and_drain(sim, 120.0)
+        return sim.medium.counters
+
+    def distance_loss(p, n):
+        # The model draws from streams of its own, so the medium's are untouched.
+        rng = np.random.default_rng(7)
+        return DistanceLoss(p, n, rng, np.random.default_rng(8))
+
+    plain, lossy = make(None), make(distance_loss)
+    sent = lossy["sent"][0]
+    assert plain["lost_random"] == [0, 0, 0, 0]
+    for r, d in ((1, 33.0), (2, 50.0), (3, 80.0)):
+        expected = (d / 100) ** 2
+        assert lossy["lost_random"][r] / sent == pytest.approx(
+            expected, abs=4 * math.sqrt(expected * (1 - expected) / sent)
+        )
+        assert lossy["received"][r] + lossy["lost_random"][r] == sent

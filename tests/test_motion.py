@@ -7,70 +7,167 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.distance import pdist
 
 from kilonet.message import Message
+from kilonet.motion import motor_drive
 from kilonet.params import Params
+from kilonet.placement import hex_lattice
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
 
 
 def exact_params(overrides: dict | None = None, *, seed: int = 1) -> Params:
-    """No battery, no speed or turn-rate errors, unless the test sets them."""
+    """No battery, no per-robot speed, turn-rate, motor-curve or calibration errors, unless the
+    test sets them: every motor's curve is duty = 60 + 15 * drive, stored values 75."""
     return Params(seed=seed).with_overrides(
         {
             "battery.enabled": False,
             "motion.speed_error": 0.0,
             "motion.turn_error": 0.0,
+            "motion.motor_offset_sd": 0.0,
+            "motion.motor_gain_sd": 0.0,
+            "motion.calibration_sd": 0.0,
             **(overrides or {}),
         }
     )
 
 
 def drive(sim: Simulation, motors: dict[int, tuple[int, int]], seconds: float) -> None:
-    """Run the given robots' motors for ``seconds`` from now, then switch them off."""
+    """Spin up, then run the given robots' motors for ``seconds`` from now, then stop them."""
     sim.start()
     for robot, (left, right) in motors.items():
+        sim.robots[robot].spinup_motors()
         sim.robots[robot].set_motors(left, right)
     sim.run(sim.env.now + seconds)
     for robot in motors:
         sim.robots[robot].set_motors(0, 0)
 
 
-# -------------------------------------------------------------------- speed and turn rate
+STRAIGHT, LEFT, RIGHT = (75, 75), (75, 0), (0, 75)
+#: The rear legs in the body frame (forward, left), mm: 16.5 mm out at 125.5 degrees.
+LEG = (16.5 * math.cos(math.radians(125.5)), 16.5 * math.sin(math.radians(125.5)))
 
 
-@pytest.mark.parametrize("heading", [0.0, math.pi / 2, 2.5])
-def test_forward_at_nominal_speed(heading):
-    sim = Simulation([[0, 0], [500, 500]], Kilobot, exact_params(), headings_rad=[heading, 0])
-    drive(sim, {0: (255, 255)}, 2.0)
-    expected = [20 * math.cos(heading), 20 * math.sin(heading)]
-    assert sim.world.positions_mm[0].tolist() == pytest.approx(expected, abs=1e-9)
+def rotate(v, angle):
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
+
+
+# ------------------------------------------------------------- the motor curve, kilolib's API
+
+
+def test_calibrated_values_are_the_true_best_ones_without_calibration_error():
+    sim = Simulation([[0, 0], [500, 0]], Kilobot, exact_params())
+    bot = sim.robots[0]
+    assert (bot.kilo_turn_left, bot.kilo_turn_right) == (75, 75)
+    assert (bot.kilo_straight_left, bot.kilo_straight_right) == (75, 75)
+
+
+def test_each_robot_stores_calibration_values_that_miss_its_true_best_ones():
+    n = 400
+    params = exact_params({"motion.motor_offset_sd": 3.0, "motion.calibration_sd": 2.0})
+    sim = Simulation([[50.0 * k, 0.0] for k in range(n)], Kilobot, params)
+    best = sim.motion.offset + sim.motion.gain  # duty at drive 1, per robot and motor
+    stored = np.array([[r.kilo_turn_left, r.kilo_turn_right] for r in sim.robots])
+    straight = np.array([[r.kilo_straight_left, r.kilo_straight_right] for r in sim.robots])
+    assert np.std(best[:, 0]) == pytest.approx(3.0, rel=0.15)  # the robots differ ...
+    miss = np.concatenate([(stored - best).ravel(), (straight - best).ravel()])
+    assert np.std(miss) == pytest.approx(np.hypot(2.0, 1 / np.sqrt(12)), rel=0.1)  # ... and so
+    assert abs(np.mean(miss)) < 0.15  # do their stored values, by calibration error and rounding
+    assert (stored != straight).any()
+
+
+def test_motor_drive_follows_the_curve_with_stall_and_start_thresholds():
+    p = exact_params().motion
+    assert motor_drive(90, 60.0, 15.0, True, p) == (2.0, True)
+    assert motor_drive(150, 60.0, 15.0, True, p) == (2.0, True)  # saturates at max_drive
+    assert motor_drive(69, 60.0, 15.0, True, p) == (0.6, True)
+    assert motor_drive(67, 60.0, 15.0, True, p) == (0.0, False)  # stalls below 0.5
+    assert motor_drive(75, 60.0, 15.0, False, p) == (0.0, False)  # at rest: needs 1.2 to start
+    assert motor_drive(78, 60.0, 15.0, False, p) == (1.2, True)
+    assert motor_drive(0, 60.0, 15.0, True, p) == (0.0, False)
+
+
+def test_a_motor_at_rest_needs_a_spin_up_at_its_calibrated_value():
+    sim = Simulation([[0, 0], [500, 0]], Kilobot, exact_params(), headings_rad=[0, 0])
+    sim.start()
+    bot = sim.robots[0]
+    bot.set_motors(bot.kilo_straight_left, bot.kilo_straight_right)
+    sim.run(2.0)
+    assert sim.world.positions_mm[0].tolist() == [0.0, 0.0]  # static friction holds it
+    bot.spinup_motors()
+    bot.set_motors(bot.kilo_straight_left, bot.kilo_straight_right)
+    sim.run(4.0)
+    assert sim.world.positions_mm[0].tolist() == pytest.approx([20.0, 0.0], abs=1e-9)
+    bot.set_motors(66, 66)  # drive 0.4: below the stall threshold, the motors stop
+    sim.run(6.0)
+    assert sim.world.positions_mm[0].tolist() == pytest.approx([20.0, 0.0], abs=1e-9)
+
+
+@pytest.mark.parametrize(("duty", "speed_mm_s"), [(75, 10.0), (69, 6.0), (90, 20.0), (255, 20.0)])
+def test_forward_speed_follows_the_drive(duty, speed_mm_s):
+    sim = Simulation([[0, 0], [500, 500]], Kilobot, exact_params(), headings_rad=[0.5, 0])
+    drive(sim, {0: (duty, duty)}, 2.0)
+    expected = 2 * speed_mm_s * np.array([math.cos(0.5), math.sin(0.5)])
+    assert sim.world.positions_mm[0].tolist() == pytest.approx(expected.tolist(), abs=1e-9)
+    assert sim.world.heading_rad[0] == pytest.approx(0.5, abs=1e-12)
     assert sim.world.positions_mm[1].tolist() == [500.0, 500.0]
-    assert sim.world.heading_rad[0] == pytest.approx(heading, abs=1e-12)
 
 
 def test_speed_parameter():
     params = exact_params({"motion.speed_mm_s": 4.0})
     sim = Simulation([[0, 0], [500, 0]], Kilobot, params, headings_rad=[0, 0])
-    drive(sim, {0: (255, 255)}, 5.0)
+    drive(sim, {0: STRAIGHT}, 5.0)
     assert sim.world.positions_mm[0].tolist() == pytest.approx([20.0, 0.0], abs=1e-9)
 
 
-@pytest.mark.parametrize(
-    ("motors", "turn_rad"),
-    [((0, 255), math.pi / 4), ((255, 0), -math.pi / 4)],  # right only: left turn; left only: right
-)
-def test_pivot_at_nominal_rate(motors, turn_rad):
-    sim = Simulation([[0, 0], [500, 0]], Kilobot, exact_params(), headings_rad=[1.0, 0])
+@pytest.mark.parametrize(("motors", "sign"), [(LEFT, 1.0), (RIGHT, -1.0)])
+def test_one_motor_pivots_about_its_rear_leg_as_kilolib_turns(motors, sign):
+    # kilolib: set_motors(kilo_turn_left, 0) turns left, counter-clockwise, at 45 deg/s.
+    heading = 1.0
+    sim = Simulation([[0, 0], [500, 0]], Kilobot, exact_params(), headings_rad=[heading, 0])
     drive(sim, {0: motors}, 1.0)
-    assert sim.world.heading_rad[0] == pytest.approx(1.0 + turn_rad, abs=1e-12)
-    assert sim.world.positions_mm[0].tolist() == [0.0, 0.0]  # pivoting does not translate
+    assert sim.world.heading_rad[0] == pytest.approx(heading + sign * math.pi / 4, abs=1e-12)
+    leg = rotate((LEG[0], sign * LEG[1]), heading)  # the leg on the turning side stays put
+    expected = leg + rotate(-leg, sign * math.pi / 4)
+    assert sim.world.positions_mm[0].tolist() == pytest.approx(expected.tolist(), abs=1e-9)
+    moved = float(np.hypot(*sim.world.positions_mm[0]))
+    assert moved == pytest.approx(2 * 16.5 * math.sin(math.pi / 8), abs=1e-9)  # a chord, 12.6 mm
+
+
+def test_a_full_turn_on_one_motor_brings_the_centre_back_along_a_circle():
+    sim = Simulation([[0, 0], [500, 0]], Kilobot, exact_params(), headings_rad=[0.0, 0])
+    sim.start()
+    bot = sim.robots[0]
+    bot.spinup_motors()
+    bot.set_motors(bot.kilo_turn_left, 0)
+    leg = np.array(LEG)
+    gaps = []
+    for _ in range(16):
+        sim.run(sim.env.now + 0.5)
+        sim.motion.set_motors(0, *sim.motion.motors[0].duty)  # integrate up to now
+        gaps.append(float(np.hypot(*(sim.world.positions_mm[0] - leg))))
+    assert gaps == pytest.approx([16.5] * 16, abs=1e-9)
+    assert sim.world.positions_mm[0].tolist() == pytest.approx([0.0, 0.0], abs=1e-9)  # 8 s, 360°
+
+
+def test_stronger_left_motor_curves_the_robot_left():
+    sim = Simulation([[0, 0], [500, 0]], Kilobot, exact_params(), headings_rad=[0.0, 0])
+    drive(sim, {0: (78, 72)}, 2.0)  # drives 1.2 and 0.8: yaw 0.5 * 45 deg/s * 0.4 = 9 deg/s
+    assert math.degrees(sim.world.heading_rad[0]) == pytest.approx(18.0, abs=1e-9)
+    x, y = sim.world.positions_mm[0]
+    radius = 10.0 / math.radians(9.0)  # 10 mm/s on a circle: the chord of 18 degrees
+    assert (x, y) == pytest.approx(
+        (radius * math.sin(math.radians(18)), radius * (1 - math.cos(math.radians(18)))), abs=1e-9
+    )
 
 
 def test_heading_wraps_to_0_2pi():
     sim = Simulation([[0, 0], [500, 0]], Kilobot, exact_params(), headings_rad=[0.1, 0])
-    drive(sim, {0: (255, 0)}, 1.0)
+    drive(sim, {0: RIGHT}, 1.0)
     assert sim.world.heading_rad[0] == pytest.approx(0.1 - math.pi / 4 + 2 * math.pi, abs=1e-12)
 
 
@@ -85,64 +182,83 @@ def test_per_robot_speed_and_turn_errors():
     assert np.std(speeds) == pytest.approx(2.0, rel=0.4)
     assert np.std(np.degrees(turns)) == pytest.approx(9.0, rel=0.4)
     assert np.mean(speeds) == pytest.approx(10.0, abs=4 * 2.0 / math.sqrt(n))
-    drive(sim, dict.fromkeys(range(n), (255, 255)), 1.0)
+    drive(sim, dict.fromkeys(range(n), STRAIGHT), 1.0)
     travelled = sim.world.positions_mm[:, 1]
     np.testing.assert_allclose(travelled, speeds, atol=1e-9)
     np.testing.assert_allclose(
         sim.world.positions_mm[:, 0], [100.0 * k for k in range(n)], atol=1e-9
     )
-    drive(sim, dict.fromkeys(range(n), (0, 255)), 1.0)
+    drive(sim, dict.fromkeys(range(n), LEFT), 1.0)
     np.testing.assert_allclose(sim.world.heading_rad, math.pi / 2 + turns, atol=1e-9)
     # Same seed, same robots: the errors are part of the reproducible run.
     again = Simulation(positions, Kilobot, params, headings_rad=[math.pi / 2] * n)
     np.testing.assert_array_equal(again.motion.speed_mm_s, speeds)
 
 
-# ---------------------------------------------------------------------------- no overlaps
+@pytest.mark.parametrize("bad", [(-1, 0), (0, 256), (1.5, 0)])
+def test_set_motors_refuses_values_outside_a_byte(bad):
+    sim = Simulation([[0, 0], [500, 0]], Kilobot, exact_params())
+    with pytest.raises(ValueError, match="0-255"):
+        sim.robots[0].set_motors(*bad)
+
+
+# ------------------------------------------------------------------------ bodies slide along
 
 
 def _min_distance_while_driving(sim, motors, seconds, dt=0.02) -> float:
     """Drive and return the smallest centre distance seen at every ``dt``."""
     sim.start()
     for robot, (left, right) in motors.items():
+        sim.robots[robot].spinup_motors()
         sim.robots[robot].set_motors(left, right)
     closest = math.inf
     end = sim.env.now + seconds
     while sim.env.now < end - 1e-9:
         sim.run(sim.env.now + dt)
         for robot in motors:  # integrate the poses up to now before looking
-            sim.motion.set_motors(robot, *sim.motion.motors[robot])
+            sim.motion.set_motors(robot, *sim.motion.motors[robot].duty)
         closest = min(closest, float(pdist(sim.world.positions_mm).min()))
     return closest
 
 
-def test_blocked_move_stops_at_contact():
+def test_a_head_on_move_stops_at_contact():
     sim = Simulation([[0, 0], [50, 0]], Kilobot, exact_params(), headings_rad=[0, 0])
-    closest = _min_distance_while_driving(sim, {0: (255, 255)}, 3.0)
+    closest = _min_distance_while_driving(sim, {0: STRAIGHT}, 3.0)
     assert closest >= 33.0 - 1e-9
     assert sim.world.positions_mm[0].tolist() == pytest.approx([17.0, 0.0], abs=1e-9)
     assert sim.motion.blocked_count[0] > 0
     poses = sim.trace.poses_frame()
-    gaps = np.hypot(poses["x_mm"] - 50.0, poses["y_mm"])
-    assert gaps.min() >= 33.0 - 1e-9
+    assert np.hypot(poses["x_mm"] - 50.0, poses["y_mm"]).min() >= 33.0 - 1e-9
 
 
 def test_head_on_robots_stop_at_contact():
     sim = Simulation([[0, 0], [60, 0]], Kilobot, exact_params(), headings_rad=[0, math.pi])
-    closest = _min_distance_while_driving(sim, {0: (255, 255), 1: (255, 255)}, 3.0)
+    closest = _min_distance_while_driving(sim, {0: STRAIGHT, 1: STRAIGHT}, 3.0)
     assert closest >= 33.0 - 1e-9
     assert float(pdist(sim.world.positions_mm)[0]) == pytest.approx(33.0, abs=1e-9)
 
 
-def test_glancing_move_stops_at_contact():
-    # Robot 0 drives along y = 20 past robot 1 at (60, 0): their discs meet off-centre.
-    positions = [[0, 20], [60, 0], [0, -60], [120, 40]]
-    sim = Simulation(positions, Kilobot, exact_params(), headings_rad=[0, 0, 0.3, math.pi])
-    motors = {0: (255, 255), 2: (255, 255), 3: (255, 255)}
-    closest = _min_distance_while_driving(sim, motors, 4.0)
+def test_a_glancing_move_slides_along_the_other_body_and_goes_on():
+    # Robot 0 drives along y = 20 at robot 1 at (60, 0): their discs meet off-centre, and it
+    # slides round robot 1 instead of sticking there.
+    sim = Simulation([[0, 20], [60, 0]], Kilobot, exact_params(), headings_rad=[0, 0])
+    closest = _min_distance_while_driving(sim, {0: STRAIGHT}, 12.0)
     assert closest >= 33.0 - 1e-9
-    x_contact = 60 - math.sqrt(33.0**2 - 20.0**2)  # 33.75 mm
-    assert sim.world.positions_mm[0].tolist() == pytest.approx([x_contact, 20.0], abs=1e-9)
+    x, y = sim.world.positions_mm[0]
+    assert x > 60.0 + 33.0  # past robot 1, 120 mm of driving less what the slide cost
+    assert y >= 33.0 - 1e-6  # pushed out to the side of robot 1's body
+    assert sim.motion.blocked_count[0] > 0
+    assert sim.world.positions_mm[1].tolist() == [60.0, 0.0]  # the other body does not move
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**16), st.lists(st.sampled_from([STRAIGHT, LEFT, RIGHT]), min_size=6,
+                                         max_size=6))  # fmt: skip
+def test_a_crowd_driving_at_random_never_overlaps(seed, motors):
+    positions = hex_lattice(6, spacing_mm=36.0, jitter_mm=1.0, rng=np.random.default_rng(seed))
+    sim = Simulation(positions, Kilobot, exact_params(seed=seed))
+    closest = _min_distance_while_driving(sim, dict(enumerate(motors)), 4.0, dt=0.1)
+    assert closest >= 33.0 - 1e-6
 
 
 # ------------------------------------------------------------- the medium follows motion
@@ -167,9 +283,9 @@ class Talker(Kilobot):
 def test_robot_driving_out_of_range_stops_being_heard():
     # The talker drives away from 50 mm at 10 mm/s and leaves the 85 mm range at 3.5 s.
     log: list = []
-    params = exact_params({"ranging.sigma_mm": 0.0})
+    params = exact_params({"ranging.sigma_mm": 0.0, "robot.tx_period_s": 0.2})
     sim = Simulation([[0, 0], [50, 0]], lambda i: Talker(log), params, headings_rad=[0, 0])
-    drive(sim, {1: (255, 255)}, 6.0)
+    drive(sim, {1: STRAIGHT}, 6.0)
     rx = [(t, d) for name, _, t, *rest in log if name == "rx" for d in rest]
     last = max(t for t, _ in rx)
     assert 3.2 <= last <= 3.5 + 0.05 + 0.0032 + 1e-9
@@ -187,7 +303,7 @@ def test_robot_driving_into_range_starts_being_heard():
     log: list = []
     params = exact_params({"ranging.sigma_mm": 0.0})
     sim = Simulation([[0, 0], [150, 0]], lambda i: Talker(log), params, headings_rad=[0, math.pi])
-    drive(sim, {1: (255, 255)}, 15.0)
+    drive(sim, {1: STRAIGHT}, 15.0)
     rx = [t for name, _, t, *_ in log if name == "rx"]
     assert 6.5 - 0.05 <= min(rx) <= 6.5 + 0.25
     assert sim.world.positions_mm[1].tolist() == pytest.approx([33.0, 0.0], abs=1e-9)
@@ -198,14 +314,14 @@ def test_line_of_sight_follows_a_moving_blocker():
     # A blocker drives across the line between talker and listener and out again.
     log: list = []
     positions = [[0, 0], [80, 0], [40, -40]]
-    params = exact_params({"motion.speed_mm_s": 10.0})
+    params = exact_params({"motion.speed_mm_s": 10.0, "medium.occlusion": "block"})
     sim = Simulation(
         positions,
         lambda i: Talker(log) if i < 2 else Kilobot(),
         params,
         headings_rad=[0, 0, math.pi / 2],
     )
-    drive(sim, {2: (255, 255)}, 8.0)  # y from -40 to +40: blocks while |y| < 16.5
+    drive(sim, {2: STRAIGHT}, 8.0)  # y from -40 to +40: blocks while |y| < 16.5
     rx = [t for name, r, t, *_ in log if name == "rx" and r == 0]
     blocked = [t for t in rx if 2.35 + 0.06 < t < 5.65 - 0.01]
     assert blocked == []
@@ -241,10 +357,12 @@ def test_crashed_robot_stops_moving():
     sim = Simulation([[0, 0], [300, 0]], Kilobot, exact_params(), headings_rad=[0, 0])
     sim.faults.crash_at(0, 1.0)
     sim.start()
-    sim.robots[0].set_motors(255, 255)
+    sim.robots[0].spinup_motors()
+    sim.robots[0].set_motors(*STRAIGHT)
     sim.run(3.0)
     assert sim.world.positions_mm[0].tolist() == pytest.approx([10.0, 0.0], abs=1e-9)
-    sim.robots[0].set_motors(255, 255)  # a stopped robot ignores its motors
+    sim.robots[0].spinup_motors()  # a stopped robot ignores its motors
+    sim.robots[0].set_motors(*STRAIGHT)
     sim.run(4.0)
     assert sim.world.positions_mm[0].tolist() == pytest.approx([10.0, 0.0], abs=1e-9)
 
@@ -252,6 +370,6 @@ def test_crashed_robot_stops_moving():
 def test_removed_robot_is_no_obstacle():
     sim = Simulation([[0, 0], [50, 0]], Kilobot, exact_params(), headings_rad=[0, 0])
     sim.faults.remove_at(1, 0.5)
-    drive(sim, {0: (255, 255)}, 8.0)
+    drive(sim, {0: STRAIGHT}, 8.0)
     assert sim.world.positions_mm[0].tolist() == pytest.approx([80.0, 0.0], abs=1e-9)
     assert sim.motion.blocked_count[0] == 0

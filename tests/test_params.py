@@ -12,13 +12,20 @@ from kilonet.params import MediumParams, ParamError, Params, describe
 def test_defaults_match_the_kilobot_model():
     p = Params()
     assert p.medium.range_mm == 85.0
-    assert p.medium.line_of_sight is True
+    assert p.medium.occlusion == "none"  # real-robot data show no effect of a body between
     assert p.medium.csma is True
     assert p.medium.message_format == "kilolib"
-    assert p.robot.tx_period_s == 0.2
+    assert p.medium.backoff_max_s == 0.032  # kilolib: a later timer interrupt, up to a tick
+    assert p.robot.tx_period_s == 0.5  # kilolib v2: kilo_tx_period = 3906 timer counts
+    assert p.robot.tx_jitter_s == 0.0
+    assert p.robot.tx_retry == "tick"
     assert p.robot.rx_mode == "callback"
     assert p.robot.rx_buffer == 3
-    assert p.robot.ticks_per_s == 32.0
+    assert p.robot.ticks_per_s == 31.0  # kilolib's TICKS_PER_SEC
+    assert p.robot.clock_sd == 0.01  # the ATmega328P's calibrated RC oscillator: about ±1 %
+    assert p.robot.loop_ticks == 1
+    assert (p.motion.pivot_radius_mm, p.motion.pivot_angle_deg) == (16.5, 125.5)  # Kilombo
+    assert (p.motion.motor_offset, p.motion.motor_gain) == (60.0, 15.0)  # Kilombo's curve
     assert p.ranging.sigma_mm == 1.0
     assert p.ranging.bias_sigma_mm == 0.0
 
@@ -29,7 +36,7 @@ def test_overrides_parse_strings_to_field_types():
             "seed": "42",
             "duration_s": "12.5",
             "medium.loss_prob": "0.25",
-            "medium.line_of_sight": "false",
+            "medium.occlusion": "block",
             "medium.csma": "on",
             "robot.rx_mode": "polled",
             "robot.rx_buffer": "0x10",
@@ -39,7 +46,7 @@ def test_overrides_parse_strings_to_field_types():
     assert p.seed == 42 and isinstance(p.seed, int)
     assert p.duration_s == 12.5
     assert p.medium.loss_prob == 0.25
-    assert p.medium.line_of_sight is False
+    assert p.medium.occlusion == "block"
     assert p.medium.csma is True
     assert p.robot.rx_mode == "polled"
     assert p.robot.rx_buffer == 16
@@ -129,7 +136,7 @@ def test_read_toml(tmp_path):
         "duration_s = 30\n"
         "[medium]\n"
         "loss_prob = 0.3\n"
-        "line_of_sight = false\n"
+        'occlusion = "graded"\n'
         "[robot]\n"
         'rx_mode = "polled"\n'
         "rx_buffer = 5\n"
@@ -140,14 +147,14 @@ def test_read_toml(tmp_path):
         "seed": 7,
         "duration_s": 30,
         "medium.loss_prob": 0.3,
-        "medium.line_of_sight": False,
+        "medium.occlusion": "graded",
         "robot.rx_mode": "polled",
         "robot.rx_buffer": 5,
     }
     p = Params().with_overrides(flat)
     assert (p.seed, p.duration_s, p.medium.loss_prob) == (7, 30.0, 0.3)
     assert isinstance(p.duration_s, float)
-    assert (p.medium.line_of_sight, p.robot.rx_mode, p.robot.rx_buffer) == (False, "polled", 5)
+    assert (p.medium.occlusion, p.robot.rx_mode, p.robot.rx_buffer) == ("graded", "polled", 5)
 
 
 def test_read_toml_without_scenario(tmp_path):

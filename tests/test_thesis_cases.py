@@ -17,7 +17,7 @@ import pytest
 import scenarios
 from kilonet.cli import main
 from kilonet.placement import validate_positions
-from kilonet.visibility import communication_graph
+from kilonet.visibility import LinkModel, communication_graph
 from scenarios.analyze import predict
 from scenarios.base import build_params, place
 from scenarios.gcs import estimates_frame
@@ -33,6 +33,8 @@ from scenarios.thesis_placements import (
 )
 
 GCS = scenarios.get("gcs")
+#: The thesis's premise the constructions rely on: bodies block links.
+THESIS_LINKS = LinkModel(85.0, "block")
 
 
 def observe(name: str, seed: int = 1) -> tuple[dict, list[int]]:
@@ -57,7 +59,7 @@ def test_place_resolves_a_name_before_a_path():
 
 
 def test_7_1a_outer_robots_see_two_robots_that_do_not_see_each_other():
-    graph = communication_graph(thesis_7_1a(), 85.0)
+    graph = communication_graph(thesis_7_1a(), THESIS_LINKS)
     for robot in OUTER_LEFT_7_1A:
         b, c = sorted(graph[robot])
         assert not graph.has_edge(b, c)
@@ -67,7 +69,7 @@ def test_7_1a_outer_robots_are_predicted_and_observed_unlocalizable():
     outer = list(OUTER_LEFT_7_1A)
     report = predict("thesis-7.1a", seed=1)
     assert report["unlocalizable"] == outer
-    graph = communication_graph(thesis_7_1a(), 85.0)
+    graph = communication_graph(thesis_7_1a(), THESIS_LINKS)
     for robot in outer:  # the two robots each one sees are located, as in the figure
         assert all(report["located_in"][n] for n in graph[robot])
     # An elected outer robot has no pair of references: a seed without a frame, isolated too.
@@ -108,7 +110,7 @@ def test_7_1b_blue_seed_is_predicted_and_observed_isolated():
 
 
 def test_7_1c_no_robot_sees_two_robots_of_the_other_group():
-    graph = communication_graph(thesis_7_1c(), 85.0)
+    graph = communication_graph(thesis_7_1c(), THESIS_LINKS)
     left = set(LEFT_GROUP_7_1C)
     across = [(i, j) for i, j in graph.edges if (i in left) != (j in left)]
     ends = [robot for edge in across for robot in edge]
@@ -207,6 +209,7 @@ def test_recovery_joins_a_split_that_edge_seeds_can_bridge():
         "placement.robots": 30,
         "placement.density_per_m2": 350,
         "medium.range_mm": 125,
+        "medium.occlusion": "block",  # as in the sweep that found it
     }
     without = scenarios.run(GCS, {**settings, "gcs.recoveries": 0}, seed=6).summary
     assert without["frames"] == 2
