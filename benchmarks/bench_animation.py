@@ -127,7 +127,7 @@ def synthetic_run(
         "seed": seed,
         "duration_s": sim_s,
         "medium.range_mm": 85.0,
-        "medium.line_of_sight": True,
+        "medium.occlusion": "block",
         "robot.tx_period_s": 0.2,
         "motion.step_s": 0.05,
         "trace.messages": messages,
