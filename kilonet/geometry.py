@@ -19,6 +19,7 @@ Why these are hand-written rather than scipy calls, and what each costs: ``docs/
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Hashable, Mapping
 from dataclasses import dataclass
@@ -90,16 +91,71 @@ def collinear(points_mm: np.ndarray, *, min_width_mm: float) -> bool:
         raise ValueError(f"min_width_mm must be non-negative; got {min_width_mm}")
     if len(pts) < 3:
         return True
-    centre, axes = _principal_axes(pts)
-    across = (pts - centre) @ axes[1:].T  # components off the line, (k, dimensions − 1)
-    return bool(np.sqrt((across * across).sum(axis=1)).max() < min_width_mm)
+    return _best_fit_line(pts.tolist())[1] < min_width_mm
 
 
-def _principal_axes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Centroid of (k, d) points and their principal axes as rows, the line's direction first."""
-    centre = points.mean(axis=0)
-    _, _, axes = np.linalg.svd(points - centre)
-    return centre, axes
+def _best_fit_line(points: list[list[float]]) -> tuple[tuple[float, ...], float]:
+    """The total-least-squares line of k ≥ 1 points of 2 or 3 coordinates, mm.
+
+    It passes through the centroid. Returns its unit direction (the principal axis: the
+    eigenvector of the largest eigenvalue of the scatter matrix) and the points' width (the
+    largest distance from the line, mm). Plain floats in closed form, because a merging-group member
+    checks both frames of every answer (``docs/math.md``); the tests check it against NumPy's
+    SVD. In 2-D the axis angle is ``atan2(2 sxy, sxx − syy) / 2``.
+    In 3-D the largest eigenvalue λ comes from the trigonometric solution of the cubic and
+    the axis from the largest cross product of two rows of ``S − λ I`` (all rows are
+    orthogonal to it). Without a unique axis (all directions, or a plane of them, equally
+    spread) any axis is a best-fit line; the x axis, or the one the rounding picks, is used.
+    """
+    k = len(points)
+    if len(points[0]) == 2:
+        cx, cy = sum(p[0] for p in points) / k, sum(p[1] for p in points) / k
+        centred = [(x - cx, y - cy) for x, y in points]
+        sxx = sum(x * x for x, _ in centred)
+        sxy = sum(x * y for x, y in centred)
+        syy = sum(y * y for _, y in centred)
+        angle = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+        ux, uy = math.cos(angle), math.sin(angle)
+        return (ux, uy), max(abs(ux * y - uy * x) for x, y in centred)
+    cx, cy, cz = (sum(p[i] for p in points) / k for i in range(3))
+    centred = [(x - cx, y - cy, z - cz) for x, y, z in points]
+    sxx = sum(x * x for x, _, _ in centred)
+    syy = sum(y * y for _, y, _ in centred)
+    szz = sum(z * z for _, _, z in centred)
+    sxy = sum(x * y for x, y, _ in centred)
+    sxz = sum(x * z for x, _, z in centred)
+    syz = sum(y * z for _, y, z in centred)
+    mean = (sxx + syy + szz) / 3.0
+    spread_sq = (sxx - mean) ** 2 + (syy - mean) ** 2 + (szz - mean) ** 2
+    spread_sq += 2.0 * (sxy * sxy + sxz * sxz + syz * syz)
+    axis = (1.0, 0.0, 0.0)
+    if spread_sq > 0.0:
+        # The eigenvalues are mean + 2 p cos((acos(det B / 2) + 2πj) / 3), B = (S − mean I) / p.
+        p = math.sqrt(spread_sq / 6.0)
+        bxx, byy, bzz = (sxx - mean) / p, (syy - mean) / p, (szz - mean) / p
+        bxy, bxz, byz = sxy / p, sxz / p, syz / p
+        det = bxx * (byy * bzz - byz * byz) - bxy * (bxy * bzz - byz * bxz)
+        det += bxz * (bxy * byz - byy * bxz)
+        largest = mean + 2.0 * p * math.cos(math.acos(min(1.0, max(-1.0, det / 2.0))) / 3.0)
+        rows = (
+            (sxx - largest, sxy, sxz),
+            (sxy, syy - largest, syz),
+            (sxz, syz, szz - largest),
+        )
+        best = 0.0
+        for (a0, a1, a2), (b0, b1, b2) in itertools.combinations(rows, 2):
+            cross = (a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
+            norm_sq = cross[0] ** 2 + cross[1] ** 2 + cross[2] ** 2
+            if norm_sq > best:
+                best, axis = norm_sq, cross
+        norm = math.sqrt(best) if best > 0.0 else 1.0
+        axis = (axis[0] / norm, axis[1] / norm, axis[2] / norm)
+    ux, uy, uz = axis
+    width = max(
+        math.sqrt((uy * z - uz * y) ** 2 + (uz * x - ux * z) ** 2 + (ux * y - uy * x) ** 2)
+        for x, y, z in centred
+    )
+    return axis, width
 
 
 def trilaterate_linear(
@@ -564,7 +620,9 @@ def multilaterate(
         return reject("too_few_anchors")
     if collinear(anchors, min_width_mm=min_width):
         return reject("collinear_anchors")
-    centre, (_, normal) = _principal_axes(anchors)  # normal of the line collinear() fits
+    centre = anchors.mean(axis=0)
+    (ux, uy), _ = _best_fit_line(anchors.tolist())  # the line collinear() measured
+    normal = np.array([-uy, ux])
 
     scale = 1.0 + float(np.abs(anchors).max()) + float(ranges.max())
     tol = 1e-9 * scale

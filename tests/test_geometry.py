@@ -59,6 +59,15 @@ def test_collinear_measures_the_width_across_the_best_fit_line():
     width = math.hypot(0.2, 2.0 / 3.0)  # off the line through (x, 0.1, 1/3)
     assert collinear(tilted, min_width_mm=width + 1e-9)
     assert not collinear(tilted, min_width_mm=width - 1e-9)
+    # No unique best-fit line (a plane of directions, or all, equally spread): any is one, and
+    # the width from it lies between the smallest and the largest possible, 0.87 R and R.
+    turn = np.array([0.0, 2.0 * math.pi / 3.0, 4.0 * math.pi / 3.0])
+    equilateral = np.column_stack([40.0 * np.cos(turn), 40.0 * np.sin(turn), np.full(3, 7.0)])
+    assert not collinear(equilateral, min_width_mm=0.86 * 40.0)
+    assert collinear(equilateral, min_width_mm=40.0 + 1e-9)
+    octahedron = np.vstack([np.eye(3), -np.eye(3)]) * 25.0
+    assert not collinear(octahedron, min_width_mm=24.9)
+    assert collinear(octahedron, min_width_mm=25.0 + 1e-9)
 
 
 def test_collinear_refuses_malformed_input():
@@ -70,27 +79,37 @@ def test_collinear_refuses_malformed_input():
         collinear(_TRIANGLE, min_width_mm=-1.0)
 
 
-@settings(max_examples=60, deadline=None)
-@given(
-    st.lists(st.floats(-150.0, 150.0), min_size=3, max_size=8),
-    st.lists(st.floats(-5.0, 5.0), min_size=8, max_size=8),
-    st.floats(0.0, 2.0 * math.pi),
-    point,
-)
-def test_collinear_is_the_largest_offset_from_the_principal_axis(along, across, turn, shift):
-    """Points scattered across a line: the width is the largest offset from their
-    principal axis (computed here with numpy's eigen-decomposition), whatever the rigid
-    motion."""
-    local = np.column_stack([along, across[: len(along)]])
-    assume(np.ptp(local[:, 0]) > 4.0 * np.ptp(local[:, 1]) + 1.0)
-    rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
-    points = local @ rot.T + shift
+def _svd_width(points: np.ndarray) -> float:
+    """The oracle: the largest distance from the principal axis numpy's SVD finds, mm."""
     centred = points - points.mean(axis=0)
-    _, vectors = np.linalg.eigh(centred.T @ centred)
-    width = float(np.abs(centred @ vectors[:, 0]).max())  # smallest eigenvalue: across
-    assume(width > 1e-3)
-    assert collinear(points, min_width_mm=width * (1 + 1e-9))
-    assert not collinear(points, min_width_mm=width * (1 - 1e-9))
+    _, _, axes = np.linalg.svd(centred)
+    across = centred @ axes[1:].T
+    return float(np.sqrt((across * across).sum(axis=1)).max())
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.integers(3, 8),
+    st.sampled_from([2, 3]),
+    st.floats(-6.0, 2.0),
+    st.booleans(),
+    st.integers(0, 2**32 - 1),
+)
+def test_collinear_measures_the_width_numpys_svd_finds(k, dims, log_noise, along_line, seed):
+    """Random points, or points scattered across a line by 1e-6 to 100 mm, in 2-D and 3-D:
+    the closed-form width agrees with the SVD's to 1e-9 of the points' scale."""
+    rng = np.random.default_rng(seed)
+    if along_line:
+        direction = rng.normal(size=dims)
+        direction /= np.linalg.norm(direction)
+        points = np.outer(rng.uniform(-300.0, 300.0, k), direction)
+        points += rng.normal(0.0, 10.0**log_noise, (k, dims)) + rng.uniform(-300.0, 300.0, dims)
+    else:
+        points = rng.uniform(-300.0, 300.0, (k, dims))
+    width = _svd_width(points)
+    tol = 1e-9 * (1.0 + np.abs(points).max())
+    assert collinear(points, min_width_mm=width + tol)
+    assert not collinear(points, min_width_mm=max(width - tol, 0.0)) or width <= tol
 
 
 # ------------------------------------------------------------------- the seeds' closed forms
