@@ -2,12 +2,14 @@
 the packed quaternion is, and how often a gcs run calls each function.
 
 Prints a stamp (date, machine, library versions), then one row per function: its CPU time per
-call (``time.process_time``, the best of ``--repeat`` rounds) and that of the scipy route it
-stands for; the quaternion encoding's largest round-trip error, and the plainer encoding's;
+call (``time.process_time``, the best of ``--repeat`` rounds) and that of the scipy or numpy
+route it stands for; the quaternion encoding's largest round-trip error, and the plainer encoding's;
 the Cramér–Rao bound's two paths at ``--crlb-robots`` robots. With ``--calls``, also runs
 ``kilonet run gcs --seed 1`` under cProfile and prints how many times each function ran.
 
-    python benchmarks/bench_math.py [--repeat 5] [--crlb-robots 1000] [--calls]
+Run it with one BLAS thread: OpenBLAS's idle threads spin, and ``process_time`` counts them.
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_math.py [--repeat 5] [--crlb-robots N] [--calls]
 """
 
 from __future__ import annotations
@@ -95,6 +97,15 @@ def scipy_multilaterate(anchors: np.ndarray, ranges: np.ndarray, start: np.ndarr
     return least_squares(residuals, start, method="lm").x
 
 
+def svd_width(points: np.ndarray) -> float:
+    """collinear's width through numpy: the largest distance from the SVD's principal axis."""
+    points = np.asarray(points, dtype=float)
+    centred = points - points.mean(axis=0)
+    _, _, axes = np.linalg.svd(centred)
+    across = centred @ axes[1:].T
+    return float(np.sqrt((across * across).sum(axis=1)).max())
+
+
 def plain_quaternion_error(rotations: Rotation) -> float:
     """Largest round-trip angle of the plainer encoding: x, y, z as int16, w ≥ 0 recomputed."""
     worst = 0.0
@@ -160,14 +171,17 @@ def costs(repeat: int) -> list[tuple[str, float, float | None]]:
             None,
         )
     )
-    points = np.array(frame)
-    rows.append(
-        (
-            "collinear (3 points)",
-            cpu_us(lambda: collinear(points, min_width_mm=1.0), repeat, 5000),
-            None,
+    for name, points in (
+        ("collinear (3 points, 2-D)", np.array(frame)),
+        ("collinear (3-D)", group),
+    ):
+        rows.append(
+            (
+                name,
+                cpu_us(lambda p=points: collinear(p, min_width_mm=1.0), repeat, 5000),
+                cpu_us(lambda p=points: svd_width(p) < 1.0, repeat, 5000),
+            )
         )
-    )
     return rows
 
 
@@ -193,7 +207,8 @@ def gcs_calls() -> dict[str, int]:
     from kilonet.cli import main
 
     profile = cProfile.Profile()
-    with tempfile.TemporaryDirectory() as out, contextlib.redirect_stdout(io.StringIO()):
+    quiet = contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO())
+    with tempfile.TemporaryDirectory() as out, quiet[0], quiet[1]:
         profile.runcall(main, ["run", "gcs", "--seed", "1", "--out", out])
     return {
         name: calls
@@ -214,7 +229,7 @@ def main() -> None:
         f"{platform.processor() or platform.machine()}, Python {platform.python_version()}, "
         f"numpy {np.__version__}, scipy {scipy.__version__}; CPU time (process_time)"
     )
-    print(f"{'function':28s} {'fast us':>10s} {'scipy us':>10s} {'ratio':>7s}")
+    print(f"{'function':28s} {'fast us':>10s} {'library us':>10s} {'ratio':>7s}")
     for name, fast, slow in costs(args.repeat):
         ratio = f"{slow / fast:7.1f}" if slow else f"{'':7s}"
         slow_text = f"{slow:10.1f}" if slow else f"{'':10s}"

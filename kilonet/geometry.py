@@ -763,8 +763,8 @@ def crlb_rmse_mm(
     Notes
     -----
     O(N³) time and O(N²) memory: J is a dense 2N × 2N matrix. A rigid connected graph is
-    handled by one Cholesky factorisation (about a second for N = 1,000 on one core); other
-    graphs by the eigen-decomposition, several times slower.
+    handled by one Cholesky factorisation, other graphs by the slower eigen-decomposition
+    (``docs/math.md`` gives both at N = 1,000).
 
     Examples
     --------
@@ -824,8 +824,8 @@ def _gauge_fixed_trace(info: np.ndarray, pos: np.ndarray, pairs: np.ndarray) -> 
 
     With G an orthonormal basis of the rigid motions (the null space of a rigid connected
     graph's J) and c > 0, ``(J + c G Gᵀ)⁻¹ = pinv(J) + G Gᵀ / c``, so the trace follows from
-    one Cholesky factor and a triangular inverse: about four times faster than the full
-    eigen-decomposition. Returns None (use the eigenvalues) when the graph is disconnected,
+    one Cholesky factor and a triangular inverse, cheaper than the full eigen-decomposition.
+    Returns None (use the eigenvalues) when the graph is disconnected,
     when the factorisation fails (another null direction: a flexible graph) or when the
     result shows an eigenvalue the eigenvalue path would count as null.
     """
