@@ -1,21 +1,26 @@
-"""Rigid transforms between robot frames: estimating, halving, composing, packing them.
+"""Rigid transforms between robot frames: the merging step, levelling, packing, Procrustes.
 
-The math of phase 6 (frame merging) and of the position metrics. A frame transform is a pair
-``(rotation, shift)``: a :class:`scipy.spatial.transform.Rotation` in 3-D and a shift vector of
-3 millimetres, acting as ``x_global = R x_local + v`` on points of the table embedded at
-z = 0. The thesis writes a seed's transform as ``R (x − v_thesis)``; the two forms are the
-same transform with ``v = −R v_thesis``.
+The math of phase 6 (frame merging, :mod:`protocols.frame_merging`) and of the position
+metrics. A frame transform acts as ``x_global = R x_local + v`` on points of the table
+embedded at z = 0, with R a 3-D rotation (a :class:`scipy.spatial.transform.Rotation` where a
+rotation is handed over) and v a shift of 3 millimetres. The thesis writes a seed's transform
+as ``R (x − v_thesis)``; the two forms are the same transform with ``v = −R v_thesis``.
 
 Why 3-D: a local frame may be the mirror image of another (each seed takes its C with y > 0).
 No plane rotation turns one into the other, but a 180° rotation about an axis in the plane
 does, and rotations interpolate (SLERP), so seeds can move halfway towards each other round
-after round. While frames converge they may tilt out of the table's plane; :func:`level`
-turns a converged transform back into plane coordinates.
+after round. While frames converge they may tilt out of the table's plane; :func:`level_matrix`
+lays the common plane flat again.
 
-- Estimating: :func:`rotation_between_frames` (Kabsch), :func:`procrustes_rmse` (metrics).
-- Moving: :func:`half_map` (a merging step), :func:`half_step`, :func:`compose`,
-  :func:`invert`, :func:`apply_3d`, :func:`apply_2d`, :func:`level`, :func:`transform_distance`.
-- Messages: :func:`pack_quaternion`, :func:`unpack_quaternion` (three int16 words).
+- The merging step: :func:`half_map`.
+- Reading a tilted plane: :func:`level_matrix`.
+- Messages: :func:`pack_quaternion`, :func:`unpack_quaternion`, :func:`words_matrix` (three
+  int16 words).
+- Metrics: :func:`procrustes_rmse`.
+
+Robots call the first three on every query, transform heard and message, so they are written
+on plain floats; the tests check them against scipy's ``Rotation``, ``Slerp`` and
+``Rotation.align_vectors``. ``docs/math.md`` says what that saves.
 """
 
 from __future__ import annotations
@@ -25,23 +30,14 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from kilonet.geometry import GeometryError
+from kilonet.geometry import GeometryError, collinear
 
 __all__ = [
     "QUATERNION_MAX_ANGLE_ERROR_RAD",
-    "apply_2d",
-    "apply_3d",
-    "compose",
     "half_map",
-    "half_step",
-    "invert",
-    "level",
     "level_matrix",
-    "level_turn",
     "pack_quaternion",
     "procrustes_rmse",
-    "rotation_between_frames",
-    "transform_distance",
     "unpack_quaternion",
     "words_matrix",
 ]
@@ -55,106 +51,6 @@ def _points3(points_mm: np.ndarray, name: str) -> np.ndarray:
     if pts.shape[1] == 2:
         pts = np.column_stack([pts, np.zeros(len(pts))])
     return pts
-
-
-def _shift3(shift_mm: np.ndarray) -> np.ndarray:
-    v = np.asarray(shift_mm, dtype=float).ravel()
-    if v.shape not in ((2,), (3,)):
-        raise ValueError(f"shift must have 2 or 3 components; got shape {v.shape}")
-    return np.append(v, 0.0) if len(v) == 2 else v
-
-
-def _width_across_line(points: np.ndarray) -> float:
-    """Largest distance of the points from their best-fit line, mm."""
-    centred = points - points.mean(axis=0)
-    _, axes = np.linalg.eigh(centred.T @ centred)
-    along = centred @ axes[:, -1]  # the principal direction: largest eigenvalue
-    return float(np.sqrt(((centred - np.outer(along, axes[:, -1])) ** 2).sum(axis=1)).max())
-
-
-# --------------------------------------------------------------------------------- estimate
-
-
-def rotation_between_frames(
-    points_a: np.ndarray, points_b: np.ndarray, *, min_width_mm: float = 1e-6
-) -> tuple[Rotation, np.ndarray]:
-    """The rigid 3-D transform that maps frame-a coordinates of robots onto their frame-b ones.
-
-    Finds ``(R, v)`` minimising ``Σ |R aᵢ + v − bᵢ|²`` over proper rotations (Kabsch, with
-    :meth:`Rotation.align_vectors` on the centred points) and ``v = b̄ − R ā``. Plane points
-    are embedded at z = 0; because ``R`` is a 3-D rotation, frames that are mirror images of
-    each other are matched too, by a 180° rotation about an axis in the plane.
-
-    The thesis proposes TRIAD instead: build an orthonormal triad from two of the three
-    members' difference vectors in each frame and take the rotation between the triads. It
-    uses only two directions and trusts the first exactly; Kabsch weighs all k points and is
-    the least-squares optimum, and equals TRIAD for noiseless points.
-
-    Parameters
-    ----------
-    points_a, points_b : (k, 2) or (k, 3) arrays
-        The same k ≥ 3 robots in frame a and in frame b, mm (3-D when the frames are already
-        tilted by earlier merging rounds).
-    min_width_mm : float
-        The points of either frame must stray at least this far from a line, mm; collinear
-        points leave the rotation about that line undetermined.
-
-    Returns
-    -------
-    rotation : scipy.spatial.transform.Rotation
-    shift : (3,) array
-        mm; ``points_b ≈ rotation.apply(points_a) + shift``.
-
-    Raises
-    ------
-    GeometryError
-        If fewer than 3 points are given or the points of a frame are collinear.
-    ValueError
-        If the arrays' shapes differ or are not (k, 2) / (k, 3).
-
-    Examples
-    --------
-    Frame b is frame a turned by 90° and shifted by (5, 0):
-
-    >>> a = np.array([[0.0, 0.0], [40.0, 0.0], [0.0, 30.0]])
-    >>> b = a @ np.array([[0.0, 1.0], [-1.0, 0.0]]) + [5.0, 0.0]
-    >>> rot, shift = rotation_between_frames(a, b)
-    >>> round(float(np.degrees(rot.magnitude())), 6), (shift.round(6) + 0.0).tolist()
-    (90.0, [5.0, 0.0, 0.0])
-
-    A mirror image (y → −y) is turned over about the x axis:
-
-    >>> rot, shift = rotation_between_frames(a, a * [1.0, -1.0])
-    >>> (rot.as_rotvec().round(6) + 0.0).tolist()
-    [3.141593, 0.0, 0.0]
-    """
-    a, b = _points3(points_a, "points_a"), _points3(points_b, "points_b")
-    if a.shape != b.shape:
-        raise ValueError(f"points_a and points_b differ in shape: {a.shape} vs {b.shape}")
-    if len(a) < 3:
-        raise GeometryError(f"{len(a)} points cannot fix a rotation (need at least 3)")
-    for name, pts in (("a", a), ("b", b)):
-        width = _width_across_line(pts)
-        if width < min_width_mm:
-            raise GeometryError(
-                f"the points of frame {name} are collinear (within {width:.3g} mm of a line; "
-                f"need {min_width_mm} mm): the rotation about that line is undetermined"
-            )
-    centre_a, centre_b = a.mean(axis=0), b.mean(axis=0)
-    rotation = _horn_rotation(a - centre_a, b - centre_b)
-    return rotation, centre_b - rotation.apply(centre_a)
-
-
-def _horn_rotation(a: np.ndarray, b: np.ndarray) -> Rotation:
-    """The proper rotation R minimising ``Σ |R aᵢ − bᵢ|²`` for centred (k, 3) points.
-
-    Horn's closed form (J. Opt. Soc. Am. A 4, 1987): the best unit quaternion is the top
-    eigenvector of a symmetric 4×4 matrix built from ``Σ aᵢ bᵢᵀ``. Same optimum as Kabsch
-    (``Rotation.align_vectors``) at a tenth of its cost, which matters because every merging
-    round computes one.
-    """
-    w, x, y, z = _horn_quaternion((a.T @ b).tolist())
-    return Rotation.from_quat([x, y, z, w])
 
 
 def _horn_quaternion(s: list[list[float]]) -> tuple[float, float, float, float]:
@@ -184,7 +80,9 @@ def _quaternion_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
     )
 
 
-_MIN_WIDTH_MM = 1e-6  # half_map's collinearity threshold, as rotation_between_frames's default
+#: half_map's collinearity threshold, mm: a guard against rounding only, since merging
+#: groups are chosen wide in the first place (``gcs.min_group_width_mm``).
+_MIN_WIDTH_MM = 1e-6
 
 
 def _dot(u: list[float], v: list[float]) -> float:
@@ -199,31 +97,27 @@ def _centred(points: list[list[float]], centre: list[float]) -> list[list[float]
     return [[c - m for c, m in zip(p, centre, strict=True)] for p in points]
 
 
-def _width_across_centroid_line(centred: list[list[float]]) -> float:
-    """The largest distance of centred points from the line through the centroid and the
-    farthest point, mm: zero exactly when all lie on one line."""
-    far = max(centred, key=lambda p: _dot(p, p))
-    far_sq = _dot(far, far)
-    if far_sq == 0.0:
-        return 0.0
-    fx, fy, fz = far
-    cross_sq = max(
-        (y * fz - z * fy) ** 2 + (z * fx - x * fz) ** 2 + (x * fy - y * fx) ** 2
-        for x, y, z in centred
-    )
-    return math.sqrt(cross_sq / far_sq)
-
-
 def half_map(
     points_i: np.ndarray, points_k: np.ndarray, fraction: float = 0.5
 ) -> tuple[Rotation, np.ndarray, float]:
     """A fraction (default half) of the rigid map taking points in frame I onto the same
     robots in frame K: the merging step of phase 6.
 
-    The same as :func:`half_step` of :func:`rotation_between_frames`, turning about the
-    points' centroid in frame I, but computed on the quaternion directly: a merging-group
-    member computes one per query, and this is a tenth of the cost of going through
-    ``Rotation`` objects.
+    The full map M is the least-squares rigid transform: the proper rotation ``R_M``
+    minimising ``Σ |R (pᵢ − c_I) − (qᵢ − c_K)|²`` over the centred points (Kabsch's optimum,
+    found with Horn's quaternion, J. Opt. Soc. Am. A 4, 1987), then ``x ↦ R_M (x − c_I) +
+    c_K``. Because R is a 3-D rotation, frames that are mirror images of each other are
+    matched too, by a 180° turn about an axis in the plane. The thesis proposes TRIAD
+    instead, which uses only two of the members' difference vectors and trusts the first
+    exactly; the least-squares rotation weighs all k points and equals TRIAD's for noiseless
+    points.
+
+    The step applied is ``fraction`` of M, turning about the centroid c_I so that distant
+    frames do not swing about a far-away origin: ``R_H`` is the SLERP from the identity to
+    ``R_M`` at ``fraction`` (the same axis, that share of the angle, along the shorter arc),
+    and ``t_H = c_I + fraction · (c_K − c_I) − R_H c_I`` moves the centroid that share of the
+    way. Applying all of M at once would make I and K swap places round after round, since K
+    moves towards I at the same time.
 
     Parameters
     ----------
@@ -234,17 +128,22 @@ def half_map(
 
     Returns
     -------
-    rotation, shift, disagreement_mm
-        ``R_H`` (the fraction of the rotation, SLERP from the identity), ``t_H`` moving the
-        centroid by the same fraction, and the disagreement of the two transforms: the
-        farthest the full rigid map moves one of the robots. (Not the largest distance between
-        a robot's two positions: that also holds the members' own position errors, which no
-        transform removes, so it would never fall below them.)
+    rotation : Rotation
+        ``R_H``.
+    shift : (3,) array
+        ``t_H``, mm.
+    disagreement_mm : float
+        How far apart the two transforms are: the farthest the full map M moves one of the
+        robots, mm. (Not the largest distance between a robot's two positions: that also
+        holds the members' own position errors, which no transform removes, so it would never
+        fall below them.)
 
     Raises
     ------
     GeometryError
-        If fewer than 3 points are given or the points of a frame are collinear.
+        If fewer than 3 points are given or the points of a frame are collinear (within
+        1e-6 mm of a line, :func:`kilonet.geometry.collinear`: the rotation about that line
+        is undetermined).
     ValueError
         If the arrays' shapes differ or are not (k, 2) / (k, 3), or ``fraction`` is outside
         [0, 1].
@@ -259,6 +158,17 @@ def half_map(
     >>> r_h, t_h, err = half_map(p_i, p_k)
     >>> round(float(np.degrees(r_h.magnitude())), 6), round(err, 3)
     (45.0, 50.0)
+
+    A mirror image (y → −y) is turned over about the x axis (one way or the other: both are
+    shortest); half of that stands it on edge, its y axis along ±z:
+
+    >>> mirrored = p_i * [1.0, -1.0, 1.0]
+    >>> full, _, _ = half_map(p_i, mirrored, 1.0)
+    >>> (np.abs(full.as_rotvec()).round(6) + 0.0).tolist()
+    [3.141593, 0.0, 0.0]
+    >>> half, _, _ = half_map(p_i, mirrored)
+    >>> (np.abs(half.apply([0.0, 1.0, 0.0])).round(6) + 0.0).tolist()
+    [0.0, 0.0, 1.0]
     """
     if not 0.0 <= fraction <= 1.0:
         raise ValueError(f"fraction must be in [0, 1]; got {fraction}")
@@ -267,16 +177,15 @@ def half_map(
         raise ValueError(f"points_i and points_k differ in shape: {a.shape} vs {b.shape}")
     if len(a) < 3:
         raise GeometryError(f"{len(a)} points cannot fix a rotation (need at least 3)")
+    for name, pts in (("I", a), ("K", b)):
+        if collinear(pts, min_width_mm=_MIN_WIDTH_MM):
+            raise GeometryError(
+                f"the points of frame {name} are collinear (within {_MIN_WIDTH_MM} mm of a line)"
+            )
     # A handful of points: plain floats cost a fraction of NumPy's per-call overhead.
     pa, pb = a.tolist(), b.tolist()
     centre_a, centre_b = _centroid(pa), _centroid(pb)
     ac, bc = _centred(pa, centre_a), _centred(pb, centre_b)
-    for name, pts in (("I", ac), ("K", bc)):
-        width = _width_across_centroid_line(pts)
-        if width < _MIN_WIDTH_MM:
-            raise GeometryError(
-                f"the points of frame {name} are collinear (within {width:.3g} mm of a line)"
-            )
     corr = [
         [sum(p[r] * q[c] for p, q in zip(ac, bc, strict=True)) for c in range(3)] for r in range(3)
     ]
@@ -364,230 +273,44 @@ def procrustes_rmse(
     return float(np.sqrt((dist**2).mean())), float(dist.max()), aligned
 
 
-# ------------------------------------------------------------------------------------- move
+# ---------------------------------------------------------------------------- levelling
 
-
-def half_step(
-    rotation: Rotation,
-    shift_mm: np.ndarray,
-    fraction: float = 0.5,
-    *,
-    about_mm: np.ndarray | None = None,
-) -> tuple[Rotation, np.ndarray]:
-    """A fraction of a rigid transform: SLERP from the identity and the same share of the move.
-
-    The thesis's merging step. A merging-group member measures the correction ``(D, d)``
-    that maps seed I's global coordinates of its group onto seed K's
-    (:func:`rotation_between_frames` on the members' positions through both seeds'
-    transforms). Applying all of it would make I and K swap places round after round, since
-    K moves towards I at the same time; instead I applies ``(S, s) = half_step(D, d)``
-    after its own transform::
-
-        R_I, v_I = compose(S, s, R_I, v_I)   # x_global = S (R_I x_local + v_I) + s
-
-    ``S`` is the rotation a ``fraction`` of the way from the identity to ``D`` along the
-    shortest arc (:class:`scipy.spatial.transform.Slerp`), so its angle is ``fraction``
-    times D's. With ``about_mm=None`` the shift is ``fraction · d`` — the thesis's
-    ``v_shift / 2`` — and S turns about the global origin. With ``about_mm = c`` (say the
-    centroid of the group's points in I's global coordinates) S turns about c instead and c
-    moves exactly ``fraction`` of the way to its image ``D c + d``: ``s = c + fraction ·
-    (D c + d − c) − S c``. Turning about the group avoids swinging distant frames about a
-    far-away origin. Either way ``fraction = 1`` gives ``(D, d)`` and ``0`` the identity.
-
-    Parameters
-    ----------
-    rotation : Rotation
-        The full rotation D.
-    shift_mm : (2,) or (3,) array
-        The full shift d, mm.
-    fraction : float
-        Share of the transform to apply, in [0, 1].
-    about_mm : (2,) or (3,) array, optional
-        Point to turn about, mm; default the origin.
-
-    Returns
-    -------
-    rotation : Rotation
-    shift : (3,) array
-        mm.
-
-    Raises
-    ------
-    ValueError
-        If ``fraction`` is outside [0, 1] or a vector has the wrong length.
-
-    Examples
-    --------
-    >>> rot, shift = half_step(Rotation.from_euler("z", 90, degrees=True), [10.0, 0.0])
-    >>> round(float(np.degrees(rot.magnitude())), 6), shift.tolist()
-    (45.0, [5.0, 0.0, 0.0])
-
-    Half of turning a mirror image over (180° about the x axis) stands the frame on edge:
-
-    >>> rot, _ = half_step(Rotation.from_rotvec([np.pi, 0.0, 0.0]), [0.0, 0.0])
-    >>> rot.apply([0.0, 1.0, 0.0]).round(6).tolist()
-    [0.0, 0.0, 1.0]
-    """
-    if not 0.0 <= fraction <= 1.0:
-        raise ValueError(f"fraction must be in [0, 1]; got {fraction}")
-    full_shift = _shift3(shift_mm)
-    # Slerp from the identity to D, evaluated at `fraction`: the same turn about D's axis by
-    # `fraction` of D's angle (shortest arc; tested against scipy's Slerp). Scaling the
-    # rotation vector costs a fiftieth of building a Slerp, and merging does it every round.
-    partial = Rotation.from_rotvec(fraction * rotation.as_rotvec())
-    if about_mm is None:
-        return partial, fraction * full_shift
-    centre = _shift3(about_mm)
-    target = rotation.as_matrix() @ centre + full_shift
-    return partial, centre + fraction * (target - centre) - partial.as_matrix() @ centre
-
-
-def compose(
-    rotation_1: Rotation, shift_1: np.ndarray, rotation_2: Rotation, shift_2: np.ndarray
-) -> tuple[Rotation, np.ndarray]:
-    """Transform 2 followed by transform 1: ``x ↦ R₁ (R₂ x + v₂) + v₁``.
-
-    The same order as ``rotation_1 * rotation_2`` in scipy (the right one acts first).
-
-    Returns
-    -------
-    rotation : Rotation
-        ``R₁ R₂``.
-    shift : (3,) array
-        ``R₁ v₂ + v₁``, mm.
-
-    Examples
-    --------
-    >>> quarter = Rotation.from_euler("z", 90, degrees=True)
-    >>> rot, shift = compose(quarter, [0.0, 0.0], Rotation.identity(), [10.0, 0.0])
-    >>> shift.round(9).tolist()
-    [0.0, 10.0, 0.0]
-    """
-    return rotation_1 * rotation_2, rotation_1.apply(_shift3(shift_2)) + _shift3(shift_1)
-
-
-def invert(rotation: Rotation, shift_mm: np.ndarray) -> tuple[Rotation, np.ndarray]:
-    """The inverse transform: ``x ↦ R⁻¹ (x − v)``.
-
-    Examples
-    --------
-    >>> rot = Rotation.from_euler("z", 30, degrees=True)
-    >>> back, back_shift = invert(rot, [3.0, 4.0])
-    >>> apply_2d(back, back_shift, apply_2d(rot, [3.0, 4.0], [[1.0, 1.0]])).round(9).tolist()
-    [[1.0, 1.0]]
-    """
-    inverse = rotation.inv()
-    return inverse, -inverse.apply(_shift3(shift_mm))
-
-
-def apply_3d(rotation: Rotation, shift_mm: np.ndarray, points_mm: np.ndarray) -> np.ndarray:
-    """Transform points: ``R p + v``, plane points embedded at z = 0.
-
-    Parameters
-    ----------
-    rotation : Rotation
-    shift_mm : (2,) or (3,) array
-        mm.
-    points_mm : (k, 2) or (k, 3) array
-        mm.
-
-    Returns
-    -------
-    (k, 3) array
-        mm.
-
-    Examples
-    --------
-    >>> quarter_about_x = Rotation.from_rotvec([np.pi / 2, 0.0, 0.0])
-    >>> (apply_3d(quarter_about_x, [0.0, 0.0], [[0.0, 10.0]]).round(9) + 0.0).tolist()
-    [[0.0, 0.0, 10.0]]
-    """
-    return rotation.apply(_points3(points_mm, "points_mm")) + _shift3(shift_mm)
-
-
-def apply_2d(
-    rotation: Rotation,
-    shift_mm: np.ndarray,
-    points_mm: np.ndarray,
-    *,
-    z_tol_mm: float | None = 1e-6,
-) -> np.ndarray:
-    """Transform plane points and return their x, y; refuse if they leave the plane.
-
-    Parameters
-    ----------
-    rotation : Rotation
-    shift_mm : (2,) or (3,) array
-        mm.
-    points_mm : (k, 2) or (k, 3) array
-        mm.
-    z_tol_mm : float or None
-        Largest accepted |z| of a transformed point, mm; ``None`` drops z unchecked (use
-        :func:`apply_3d` to keep it, :func:`level` to bring a tilted frame back down).
-
-    Returns
-    -------
-    (k, 2) array
-        mm.
-
-    Raises
-    ------
-    GeometryError
-        If a transformed point lies more than ``z_tol_mm`` off the plane z = 0.
-
-    Examples
-    --------
-    >>> quarter = Rotation.from_euler("z", 90, degrees=True)
-    >>> apply_2d(quarter, [1.0, 0.0], [[10.0, 0.0]]).round(9).tolist()
-    [[1.0, 10.0]]
-    >>> apply_2d(Rotation.from_euler("x", 90, degrees=True), [0.0, 0.0], [[0.0, 10.0]])
-    Traceback (most recent call last):
-    ...
-    kilonet.geometry.GeometryError: transformed points leave the plane: |z| up to 10 mm ...
-    """
-    moved = apply_3d(rotation, shift_mm, points_mm)
-    if z_tol_mm is not None and len(moved):
-        worst = float(np.abs(moved[:, 2]).max())
-        if worst > z_tol_mm:
-            raise GeometryError(
-                f"transformed points leave the plane: |z| up to {worst:.3g} mm "
-                f"(tolerance {z_tol_mm} mm)"
-            )
-    return moved[:, :2]
-
-
-#: Reference direction for :func:`level`'s choice of which side of a plane is up. Generic on
-#: purpose: merged mirror-image frames end standing on edge, with normals in the table's
-#: plane, and a normal perpendicular to the reference would make the choice ill-defined.
+#: Reference direction for :func:`level_matrix`'s choice of which side of a plane is up.
+#: Generic on purpose: merged mirror-image frames end standing on edge, with normals in the
+#: table's plane, and a normal perpendicular to the reference would make the choice
+#: ill-defined.
 _LEVEL_UP = np.array([0.26726124191242440, 0.53452248382484879, 0.80178372573727319])
 
 
-def level_turn(rotation: Rotation) -> Rotation:
-    """The turn Q of :func:`level`: the shortest rotation taking the normal of the plane that
-    ``rotation`` maps z = 0 onto, on the side of a fixed generic direction, to +z.
-
-    Global coordinates ``g`` read in the plane laid flat are ``(Q g)[:2]`` (up to the plane's
-    height in ``(Q g)[2]``). :func:`level_matrix` gives Q's matrix from ``rotation``'s.
-
-    Examples
-    --------
-    >>> q = level_turn(Rotation.from_euler("x", -90, degrees=True))
-    >>> q.apply([0.0, 1.0, 0.0]).round(9).tolist()  # the tilted plane's normal, laid upright
-    [0.0, 0.0, 1.0]
-    """
-    return Rotation.from_matrix(level_matrix(rotation.as_matrix()))
-
-
 def level_matrix(matrix: np.ndarray) -> np.ndarray:
-    """The 3×3 matrix of :func:`level_turn` for the rotation with 3×3 ``matrix``.
+    """The turn Q that lays the plane a frame transform maps the table onto back flat.
 
-    Plain floats (Rodrigues' formula about ``n × e_z``): robots lay their estimate flat for
-    every transform they hear, and this takes 5 µs against 116 µs through ``Rotation`` (timeit).
+    Merging rounds turn frames out of the table's plane; once they agree, every frame maps
+    the table onto one common plane, though not necessarily z = 0. Q is the shortest
+    rotation taking that plane's normal to +z, where of the normals ``±R e_z`` the one on the
+    side of a fixed generic direction is used. Q therefore depends on the plane only, not on
+    which side the frame faces, so frames that agree on the plane (mirror-image frames
+    included, whose normals are opposite) read the same plane coordinates: global
+    coordinates ``g`` in the plane laid flat are ``(Q g)[:2]``, up to the plane's height
+    ``(Q g)[2]``. Computed with Rodrigues' formula about ``n × e_z`` on plain floats: robots
+    lay flat every transform they hear.
+
+    Parameters
+    ----------
+    matrix : (3, 3) array
+        The frame transform's rotation matrix R.
+
+    Returns
+    -------
+    (3, 3) array
+        Q's matrix.
 
     Examples
     --------
+    A frame stood on edge (turned by −90° about x: its plane is y = const):
+
     >>> m = Rotation.from_euler("x", -90, degrees=True).as_matrix()
-    >>> (level_matrix(m) @ m[:, 2]).round(9).tolist()
+    >>> (level_matrix(m) @ m[:, 2]).round(9).tolist()  # the plane's normal, laid upright
     [0.0, 0.0, 1.0]
     """
     nx, ny, nz = matrix[:, 2].tolist()  # the plane's normal: where z goes
@@ -608,75 +331,6 @@ def level_matrix(matrix: np.ndarray) -> np.ndarray:
             [-sin * ky, sin * kx, cos],
         ]
     )
-
-
-def level(rotation: Rotation, shift_mm: np.ndarray) -> tuple[Rotation, np.ndarray]:
-    """Lay a (possibly tilted) frame transform back onto the table plane z = 0.
-
-    Merging rounds turn frames out of the plane; when they have converged, every frame maps
-    onto one common plane, though not necessarily z = 0. This composes the transform with
-    the shortest rotation Q that takes that plane's normal to +z (and drops the plane's
-    height), so plane coordinates can be read with :func:`apply_2d`. Q depends on the
-    plane only, not on which side the frame faces: of the normals ``±R e_z`` the one on the
-    side of a fixed generic direction is used. Frames that agree on the plane therefore get
-    the same Q and keep agreeing (mirror-image frames included, whose normals are opposite).
-    The result maps the plane z = 0 onto itself: ``R' e_z = ±e_z``.
-
-    Parameters
-    ----------
-    rotation : Rotation
-    shift_mm : (2,) or (3,) array
-        mm.
-
-    Returns
-    -------
-    rotation : Rotation
-    shift : (3,) array
-        mm, with z = 0.
-
-    Examples
-    --------
-    A frame stood on edge (turned by −90° about x and shifted: it lies in the plane y = 2)
-    comes back flat, distances kept:
-
-    >>> tilted = Rotation.from_euler("x", -90, degrees=True)
-    >>> rot, shift = level(tilted, [1.0, 2.0, 7.0])
-    >>> apply_2d(rot, shift, [[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]]).round(9).tolist()
-    [[1.0, -7.0], [11.0, -7.0], [1.0, 3.0]]
-    """
-    flat_rotation, flat_shift = compose(level_turn(rotation), np.zeros(3), rotation, shift_mm)
-    flat_shift[2] = 0.0
-    return flat_rotation, flat_shift
-
-
-def transform_distance(
-    rotation_1: Rotation, shift_1: np.ndarray, rotation_2: Rotation, shift_2: np.ndarray
-) -> tuple[float, float]:
-    """How far apart two transforms are: the angle between the rotations and between shifts.
-
-    For a convergence test of frame merging compare what should agree: the correction
-    between two frames (from :func:`rotation_between_frames` on shared robots' global
-    coordinates) against the identity. Comparing two seeds' own transforms is meaningless
-    for mirror-image frames, which differ by a 180° turn even when fully merged. The shift
-    part depends on where the origin is; it is the displacement of the origin.
-
-    Returns
-    -------
-    angle_rad : float
-        Angle of ``R₁⁻¹ R₂``, radians in [0, π].
-    shift_mm : float
-        ``|v₁ − v₂|``, mm.
-
-    Examples
-    --------
-    >>> r1 = Rotation.from_euler("z", 10, degrees=True)
-    >>> r2 = Rotation.from_euler("z", 40, degrees=True)
-    >>> angle, shift = transform_distance(r1, [0.0, 0.0], r2, [3.0, 4.0])
-    >>> round(float(np.degrees(angle)), 9), shift
-    (30.0, 5.0)
-    """
-    angle = float((rotation_1.inv() * rotation_2).magnitude())
-    return angle, float(np.linalg.norm(_shift3(shift_1) - _shift3(shift_2)))
 
 
 # -------------------------------------------------------------------------------- messages
@@ -705,10 +359,9 @@ def pack_quaternion(rotation: Rotation) -> tuple[int, int, int]:
     words fit 6 bytes of a message (struct code ``"hhh"``), leaving 3 for other fields.
 
     Precision: at most :data:`QUATERNION_MAX_ANGLE_ERROR_RAD` (1.5e-4 rad, 0.0086°) for every
-    rotation (measured: 1.2e-4 rad over 20,000 random rotations). The plainer encoding —
-    x, y, z as int16 and w ≥ 0 recomputed — loses up to 0.8° near 180° turns (where w ≈ 0
-    is recomputed as the root of a small difference), and 180° turns are exactly how
-    mirror-image frames are merged.
+    rotation. The plainer encoding — x, y, z as int16 and w ≥ 0 recomputed — is worst near
+    180° turns, where w ≈ 0 is recomputed as the root of a small difference, and 180° turns
+    are exactly how mirror-image frames are merged (``docs/math.md`` compares the two).
 
     Parameters
     ----------
@@ -734,7 +387,7 @@ def pack_quaternion(rotation: Rotation) -> tuple[int, int, int]:
     quat = np.asarray(rotation.as_quat(), dtype=float)
     if quat.shape != (4,):
         raise ValueError(f"pack_quaternion takes a single rotation; got shape {quat.shape}")
-    q = quat.tolist()  # four numbers: plain floats are several times faster than NumPy here
+    q = quat.tolist()  # four numbers: plain floats, not NumPy (seeds pack at every TF_ROT)
     dropped = max(range(4), key=lambda i: abs(q[i]))  # the first largest, as np.argmax
     sign = -1.0 if q[dropped] < 0 else 1.0
     kept = [sign * c for i, c in enumerate(q) if i != dropped]
@@ -764,7 +417,7 @@ def unpack_quaternion(words: tuple[int, int, int]) -> Rotation:
 
 def words_matrix(words: tuple[int, int, int]) -> np.ndarray:
     """The 3×3 matrix of :func:`unpack_quaternion`'s rotation, without building a
-    ``Rotation`` (robots turn every transform they hear into a matrix: 8 µs against 34 µs).
+    ``Rotation``: robots turn every transform they hear into a matrix.
 
     Raises
     ------

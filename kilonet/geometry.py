@@ -3,18 +3,23 @@
 Pure functions on millimetres. Robots call them on their measured distances; metrics call
 them on ground truth. Degenerate inputs are reported, never silently accepted.
 
-- Frames: :func:`angle_at` (law of cosines), :func:`place_references` (the thesis's phase-3
-  placement of the references B and C), :func:`frame_of_three`.
+- Frames: :func:`place_references` (the frame of three robots: the thesis's phase 3 and the
+  follower seed's frame) and :func:`angle_at` (law of cosines).
 - Choosing the references: :func:`choose_references_max_angle` (the thesis's rule) and
   :func:`choose_references_best_conditioned` (the widest triangle).
-- Positions from ranges: :func:`trilaterate_in_frame`, :func:`trilaterate_linear` (the seeds'
-  closed forms) and :func:`multilaterate` (least squares that says why it rejects a fix).
+- Degeneracy: :func:`collinear` (do points lie too close to one line?).
+- Positions from ranges: :func:`trilaterate_linear` (the seeds' closed form for three
+  anchors) and :func:`multilaterate` (least squares over k anchors that says why it rejects a
+  fix).
 - What is achievable: :func:`crlb_rmse_mm`, the anchor-free Cramér–Rao bound of a measurement
   graph.
+
+Why these are hand-written rather than scipy calls, and what each costs: ``docs/math.md``.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Hashable, Mapping
 from dataclasses import dataclass
@@ -28,11 +33,10 @@ __all__ = [
     "angle_at",
     "choose_references_best_conditioned",
     "choose_references_max_angle",
+    "collinear",
     "crlb_rmse_mm",
-    "frame_of_three",
     "multilaterate",
     "place_references",
-    "trilaterate_in_frame",
     "trilaterate_linear",
 ]
 
@@ -41,75 +45,155 @@ class GeometryError(ValueError):
     """The distances or anchors do not determine a position (degenerate or inconsistent)."""
 
 
-def frame_of_three(d12_mm: float, d13_mm: float, d23_mm: float) -> tuple[float, float]:
-    """Coordinates of robot 3 in the frame with robot 1 at the origin and robot 2 on +x.
+def collinear(points_mm: np.ndarray, *, min_width_mm: float) -> bool:
+    """Whether all points lie within ``min_width_mm`` of one line.
 
-    ``x3 = (d13² − d23² + d12²) / (2 d12)``, ``y3 = √(d13² − x3²)`` (taken positive, so the
-    frame may be a mirror image of the floor).
+    The line is the points' total-least-squares line: through their centroid along their
+    first principal axis. The points' width is the largest distance of one of them from it.
+    Every fix from ranges and every rotation fitted between frames needs points that are not
+    collinear: ranges to anchors on one line cannot tell its two sides apart, and points on
+    one line leave the rotation about it undetermined. Which width is too small is the
+    caller's decision: a guard against dividing by rounding noise (1e-6 mm) or a bound set
+    by the measurement noise (a range's standard deviation).
+
+    Parameters
+    ----------
+    points_mm : (k, 2) or (k, 3) array
+        Points, mm.
+    min_width_mm : float
+        Points whose width is below this count as collinear, mm (non-negative).
+
+    Returns
+    -------
+    bool
+        True when the width is below ``min_width_mm``; always True for fewer than three points.
 
     Raises
     ------
-    GeometryError
-        If ``d12`` is zero, or the three distances violate the triangle inequality beyond
-        rounding (``d13² < x3²`` by more than 1 mm²).
+    ValueError
+        If ``points_mm`` is not a (k, 2) or (k, 3) array of finite values, or
+        ``min_width_mm`` is negative.
 
     Examples
     --------
-    >>> frame_of_three(40.0, 40.0, 40.0)
-    (20.0, 34.64101615137755)
+    The best-fit line of this bend is y = 1/3 mm, and the middle point is 2/3 mm off it:
+
+    >>> bend = np.array([[0.0, 0.0], [40.0, 1.0], [80.0, 0.0]])
+    >>> collinear(bend, min_width_mm=1.0), collinear(bend, min_width_mm=0.5)
+    (True, False)
     """
-    if d12_mm <= 0:
-        raise GeometryError(f"d12 = {d12_mm} mm: robots 1 and 2 coincide")
-    x3 = (d13_mm**2 - d23_mm**2 + d12_mm**2) / (2 * d12_mm)
-    y3_sq = d13_mm**2 - x3**2
-    if y3_sq < -1.0:
-        raise GeometryError(
-            f"distances d12={d12_mm}, d13={d13_mm}, d23={d23_mm} mm form no triangle"
+    pts = np.asarray(points_mm, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] not in (2, 3) or not np.isfinite(pts).all():
+        raise ValueError(
+            f"points_mm must be a finite (k, 2) or (k, 3) array; got shape {pts.shape}"
         )
-    return float(x3), math.sqrt(max(0.0, y3_sq))
+    if not min_width_mm >= 0:
+        raise ValueError(f"min_width_mm must be non-negative; got {min_width_mm}")
+    if len(pts) < 3:
+        return True
+    return _best_fit_line(pts.tolist())[1] < min_width_mm
 
 
-def trilaterate_in_frame(
-    d1_mm: float, d2_mm: float, d3_mm: float, d12_mm: float, x3_mm: float, y3_mm: float
-) -> tuple[float, float]:
-    """Position of a fourth robot from its distances to robots 1, 2, 3 of a frame of three.
+def _best_fit_line(points: list[list[float]]) -> tuple[tuple[float, ...], float]:
+    """The total-least-squares line of k ≥ 1 points of 2 or 3 coordinates, mm.
 
-    ``x4 = (d1² − d2² + d12²) / (2 d12)``,
-    ``y4 = (d1² − d3² + x3² + y3²) / (2 y3) − x3 x4 / y3``.
-
-    Raises
-    ------
-    GeometryError
-        If ``d12`` or ``y3`` is zero (robots 1, 2, 3 collinear: no frame).
-
-    Examples
-    --------
-    >>> x3, y3 = frame_of_three(40.0, 40.0, 40.0)
-    >>> frame = np.array([[0.0, 0.0], [40.0, 0.0], [x3, y3]])
-    >>> d1, d2, d3 = np.hypot(*(frame - [25.0, 10.0]).T)
-    >>> [round(v, 9) for v in trilaterate_in_frame(d1, d2, d3, 40.0, x3, y3)]
-    [25.0, 10.0]
+    It passes through the centroid. Returns its unit direction (the principal axis: the
+    eigenvector of the largest eigenvalue of the scatter matrix) and the points' width (the
+    largest distance from the line, mm). Plain floats in closed form, because a merging-group member
+    checks both frames of every answer (``docs/math.md``); the tests check it against NumPy's
+    SVD. In 2-D the axis angle is ``atan2(2 sxy, sxx − syy) / 2``.
+    In 3-D the largest eigenvalue λ comes from the trigonometric solution of the cubic and
+    the axis from the largest cross product of two rows of ``S − λ I`` (all rows are
+    orthogonal to it). Without a unique axis (all directions, or a plane of them, equally
+    spread) any axis is a best-fit line; the x axis, or the one the rounding picks, is used.
     """
-    if d12_mm <= 0:
-        raise GeometryError(f"d12 = {d12_mm} mm: robots 1 and 2 coincide")
-    if abs(y3_mm) < 1e-9:
-        raise GeometryError("robots 1, 2 and 3 are collinear (y3 = 0): no frame")
-    x4 = (d1_mm**2 - d2_mm**2 + d12_mm**2) / (2 * d12_mm)
-    y4 = (d1_mm**2 - d3_mm**2 + x3_mm**2 + y3_mm**2) / (2 * y3_mm) - x3_mm * x4 / y3_mm
-    return float(x4), float(y4)
+    k = len(points)
+    if len(points[0]) == 2:
+        cx, cy = sum(p[0] for p in points) / k, sum(p[1] for p in points) / k
+        centred = [(x - cx, y - cy) for x, y in points]
+        sxx = sum(x * x for x, _ in centred)
+        sxy = sum(x * y for x, y in centred)
+        syy = sum(y * y for _, y in centred)
+        angle = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+        ux, uy = math.cos(angle), math.sin(angle)
+        return (ux, uy), max(abs(ux * y - uy * x) for x, y in centred)
+    cx, cy, cz = (sum(p[i] for p in points) / k for i in range(3))
+    centred = [(x - cx, y - cy, z - cz) for x, y, z in points]
+    sxx = sum(x * x for x, _, _ in centred)
+    syy = sum(y * y for _, y, _ in centred)
+    szz = sum(z * z for _, _, z in centred)
+    sxy = sum(x * y for x, y, _ in centred)
+    sxz = sum(x * z for x, _, z in centred)
+    syz = sum(y * z for _, y, z in centred)
+    mean = (sxx + syy + szz) / 3.0
+    spread_sq = (sxx - mean) ** 2 + (syy - mean) ** 2 + (szz - mean) ** 2
+    spread_sq += 2.0 * (sxy * sxy + sxz * sxz + syz * syz)
+    axis = (1.0, 0.0, 0.0)
+    if spread_sq > 0.0:
+        # The eigenvalues are mean + 2 p cos((acos(det B / 2) + 2πj) / 3), B = (S − mean I) / p.
+        p = math.sqrt(spread_sq / 6.0)
+        bxx, byy, bzz = (sxx - mean) / p, (syy - mean) / p, (szz - mean) / p
+        bxy, bxz, byz = sxy / p, sxz / p, syz / p
+        det = bxx * (byy * bzz - byz * byz) - bxy * (bxy * bzz - byz * bxz)
+        det += bxz * (bxy * byz - byy * bxz)
+        largest = mean + 2.0 * p * math.cos(math.acos(min(1.0, max(-1.0, det / 2.0))) / 3.0)
+        rows = (
+            (sxx - largest, sxy, sxz),
+            (sxy, syy - largest, syz),
+            (sxz, syz, szz - largest),
+        )
+        best = 0.0
+        for (a0, a1, a2), (b0, b1, b2) in itertools.combinations(rows, 2):
+            cross = (a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
+            norm_sq = cross[0] ** 2 + cross[1] ** 2 + cross[2] ** 2
+            if norm_sq > best:
+                best, axis = norm_sq, cross
+        norm = math.sqrt(best) if best > 0.0 else 1.0
+        axis = (axis[0] / norm, axis[1] / norm, axis[2] / norm)
+    ux, uy, uz = axis
+    width = max(
+        math.sqrt((uy * z - uz * y) ** 2 + (uz * x - ux * z) ** 2 + (ux * y - uy * x) ** 2)
+        for x, y, z in centred
+    )
+    return axis, width
 
 
-def trilaterate_linear(anchors_mm: np.ndarray, ranges_mm: np.ndarray) -> tuple[float, float]:
-    """Position from three anchors at known points and the ranges to them (linear form).
+def trilaterate_linear(
+    anchors_mm: np.ndarray, ranges_mm: np.ndarray, *, min_width_mm: float = 1e-6
+) -> tuple[float, float]:
+    """Position from three anchors and the ranges to them, in closed form (the seeds' formula).
 
-    With anchors (xᵢ, yᵢ) and ranges rᵢ: A = 2(x₂−x₁), B = 2(y₂−y₁),
-    C = r₁² − r₂² − x₁² + x₂² − y₁² + y₂², D = 2(x₃−x₂), E = 2(y₃−y₂),
-    F = r₂² − r₃² − x₂² + x₃² − y₂² + y₃²; x = (CE − FB)/(EA − BD), y = (CD − AF)/(BD − AE).
+    Subtracting two range equations ``|p − aᵢ|² = rᵢ²`` leaves a line; the point where these
+    lines meet is the answer. It is computed in the frame of the first two anchors (anchor 1
+    at the origin, anchor 2 at (d₁₂, 0), anchor 3 at (u₃, v₃)), the follower seed's form:
+
+    ``x = (r₁² − r₂² + d₁₂²) / (2 d₁₂)``, ``y = (r₁² − r₃² + u₃² + v₃²) / (2 v₃) − u₃ x / v₃``,
+
+    then turned and shifted back. The maze seed's form (A…F, subtracting equations 1−2 and
+    2−3) gives the same point. With exact ranges it is the position; with noisy ones it is
+    not the least-squares fit (:func:`multilaterate`), only what the seeds' robots compute.
+
+    Parameters
+    ----------
+    anchors_mm : (3, 2) array
+        Anchor positions, mm.
+    ranges_mm : (3,) array
+        Ranges to them, mm.
+    min_width_mm : float
+        Anchors within this distance of one line (:func:`collinear`) are refused, mm. The
+        default only guards against dividing by rounding noise.
+
+    Returns
+    -------
+    x_mm, y_mm : float
+        The position in the anchors' frame, mm.
 
     Raises
     ------
     GeometryError
-        If the three anchors are collinear (``EA − BD = 0``).
+        If the three anchors are collinear: no unique position.
+    ValueError
+        If the shapes are not (3, 2) and (3,).
 
     Examples
     --------
@@ -118,17 +202,31 @@ def trilaterate_linear(anchors_mm: np.ndarray, ranges_mm: np.ndarray) -> tuple[f
     >>> ranges = np.hypot(*(anchors - truth).T)
     >>> [round(v, 9) for v in trilaterate_linear(anchors, ranges)]
     [30.0, 40.0]
+
+    The follower's frame of three (robot 3 at (x₃, y₃) from :func:`place_references`):
+
+    >>> _, (x3, y3) = place_references(40.0, 40.0, 40.0)
+    >>> frame = [(0.0, 0.0), (40.0, 0.0), (x3, y3)]
+    >>> [round(v, 9) for v in trilaterate_linear(frame, np.hypot(*(np.array(frame) - [25, 10]).T))]
+    [25.0, 10.0]
     """
-    (x1, y1), (x2, y2), (x3, y3) = np.asarray(anchors_mm, dtype=float)[:3]
-    r1, r2, r3 = np.asarray(ranges_mm, dtype=float)[:3]
-    a, b = 2 * (x2 - x1), 2 * (y2 - y1)
-    c = r1**2 - r2**2 - x1**2 + x2**2 - y1**2 + y2**2
-    d, e = 2 * (x3 - x2), 2 * (y3 - y2)
-    f = r2**2 - r3**2 - x2**2 + x3**2 - y2**2 + y3**2
-    det = e * a - b * d
-    if abs(det) < 1e-9:
+    anchors = np.asarray(anchors_mm, dtype=float)
+    ranges = np.asarray(ranges_mm, dtype=float)
+    if anchors.shape != (3, 2) or ranges.shape != (3,):
+        raise ValueError(
+            f"anchors_mm must be (3, 2) and ranges_mm (3,); got {anchors.shape} and {ranges.shape}"
+        )
+    if collinear(anchors, min_width_mm=min_width_mm):
         raise GeometryError("the three anchors are collinear: no unique position")
-    return float((c * e - f * b) / det), float((c * d - a * f) / (b * d - a * e))
+    (x1, y1), (x2, y2), (x3, y3) = anchors.tolist()  # plain floats: robots call this per fix
+    r1, r2, r3 = ranges.tolist()
+    d12 = math.hypot(x2 - x1, y2 - y1)
+    ex, ey = (x2 - x1) / d12, (y2 - y1) / d12  # the frame's x axis; its y axis is (−ey, ex)
+    u3 = ex * (x3 - x1) + ey * (y3 - y1)
+    v3 = ex * (y3 - y1) - ey * (x3 - x1)
+    x = (r1**2 - r2**2 + d12**2) / (2 * d12)
+    y = (r1**2 - r3**2 + u3**2 + v3**2) / (2 * v3) - u3 * x / v3
+    return float(x1 + ex * x - ey * y), float(y1 + ey * x + ex * y)
 
 
 # ----------------------------------------------------------------------------- local frames
@@ -167,6 +265,12 @@ def angle_at(a_to_b_mm: float, a_to_c_mm: float, b_to_c_mm: float) -> float:
     >>> angle_at(10.0, 10.0, 25.0) == math.pi  # no such triangle: clipped to a straight angle
     True
     """
+    _check_sides(a_to_b_mm, a_to_c_mm, b_to_c_mm)
+    cos_a = (a_to_b_mm**2 + a_to_c_mm**2 - b_to_c_mm**2) / (2 * a_to_b_mm * a_to_c_mm)
+    return math.acos(min(1.0, max(-1.0, cos_a)))
+
+
+def _check_sides(a_to_b_mm: float, a_to_c_mm: float, b_to_c_mm: float) -> None:
     sides = (a_to_b_mm, a_to_c_mm, b_to_c_mm)
     if not all(math.isfinite(s) for s in sides):
         raise GeometryError(f"distances {sides} mm: not all finite")
@@ -175,18 +279,20 @@ def angle_at(a_to_b_mm: float, a_to_c_mm: float, b_to_c_mm: float) -> float:
             f"distances |AB|={a_to_b_mm}, |AC|={a_to_c_mm}, |BC|={b_to_c_mm} mm: "
             "|AB| and |AC| must be positive and |BC| non-negative"
         )
-    cos_a = (a_to_b_mm**2 + a_to_c_mm**2 - b_to_c_mm**2) / (2 * a_to_b_mm * a_to_c_mm)
-    return math.acos(min(1.0, max(-1.0, cos_a)))
 
 
 def place_references(
     d_ab_mm: float, d_ac_mm: float, d_bc_mm: float, *, min_height_mm: float = 1.0
 ) -> tuple[tuple[float, float], tuple[float, float]]:
-    """Coordinates of the references B and C in seed A's new frame (thesis §4.3).
+    """The frame of three robots A, B, C from their distances: A at the origin, B on +x, C above.
 
-    A is the origin, ``B = (|AB|, 0)`` and ``C = (|AC| cos α, |AC| sin α)`` with α = ∠BAC
-    from :func:`angle_at`, so C lies above the x axis (the frame may be a mirror image of the
-    floor: y is taken positive).
+    Thesis §4.3 (a seed A places its references B and C) and the follower seed's frame of
+    robots 1, 2, 3: ``B = (|AB|, 0)`` and ``C = (x, y)`` with
+
+    ``x = (|AC|² − |BC|² + |AB|²) / (2 |AB|)``, ``y = √(|AC|² − x²)``
+
+    (the thesis writes the same point as ``(|AC| cos α, |AC| sin α)``, α = ∠BAC from
+    :func:`angle_at`). y is taken positive, so the frame may be a mirror image of the floor.
 
     Parameters
     ----------
@@ -195,7 +301,8 @@ def place_references(
     min_height_mm : float
         Smallest accepted distance of C from the x axis (line AB), mm. Below it the direction
         of the y axis is set by the distance noise rather than by the robots (with the
-        Kilobot's ±2 mm ranges, 1 mm is already noise).
+        Kilobot's ±2 mm ranges, 1 mm is already noise), and a position fixed from the three
+        robots is no better.
 
     Returns
     -------
@@ -205,35 +312,30 @@ def place_references(
     Raises
     ------
     GeometryError
-        If the distances are invalid (see :func:`angle_at`), or the triangle is degenerate:
-        the sides break the triangle inequality, or C lies within ``min_height_mm`` of AB.
+        If a distance is not finite, ``|AB|`` or ``|AC|`` is not positive or ``|BC|`` is
+        negative, or the triangle is degenerate: the sides break the triangle inequality
+        (noise; C is then put on line AB), or C lies within ``min_height_mm`` of AB.
 
     Examples
     --------
     >>> place_references(3.0, 4.0, 5.0)
     ((3.0, 0.0), (0.0, 4.0))
-    >>> (xb, yb), (xc, yc) = place_references(40.0, 40.0, 40.0)
-    >>> xb, yb, round(xc, 9), round(yc, 9)
-    (40.0, 0.0, 20.0, 34.641016151)
+    >>> place_references(40.0, 40.0, 40.0)
+    ((40.0, 0.0), (20.0, 34.64101615137755))
     >>> place_references(40.0, 40.0, 80.0)  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
     kilonet.geometry.GeometryError: ... degenerate triangle: C is 0 mm from line AB (need >= 1.0 mm)
     """
-    alpha = angle_at(d_ab_mm, d_ac_mm, d_bc_mm)
-    cos_a, sin_a = math.cos(alpha), math.sin(alpha)
-    x_c, y_c = d_ac_mm * cos_a, d_ac_mm * sin_a
-    if alpha in (0.0, math.pi):
-        # Exact zeros instead of 1e-15 leftovers of cos/sin at the clip limits.
-        x_c, y_c = (d_ac_mm if alpha == 0.0 else -d_ac_mm), 0.0
+    _check_sides(d_ab_mm, d_ac_mm, d_bc_mm)
+    x_c = (d_ac_mm**2 - d_bc_mm**2 + d_ab_mm**2) / (2 * d_ab_mm)
+    y_c = math.sqrt(max(0.0, d_ac_mm**2 - x_c**2))
     if not y_c >= min_height_mm:
         raise GeometryError(
             f"distances |AB|={d_ab_mm}, |AC|={d_ac_mm}, |BC|={d_bc_mm} mm form a degenerate "
             f"triangle: C is {y_c:.3g} mm from line AB (need >= {min_height_mm} mm)"
         )
-    if abs(x_c) < 1e-12 * d_ac_mm:
-        x_c = 0.0
-    return (float(d_ab_mm), 0.0), (float(x_c), float(y_c))
+    return (float(d_ab_mm), 0.0), (float(x_c), y_c)
 
 
 # ------------------------------------------------------------------ choosing the references
@@ -516,11 +618,11 @@ def multilaterate(
 
     if k < 3:
         return reject("too_few_anchors")
-    centre = anchors.mean(axis=0)
-    _, _, axes = np.linalg.svd(anchors - centre)
-    normal = axes[1]  # unit normal of the anchors' total-least-squares line
-    if np.abs((anchors - centre) @ normal).max() < min_width:
+    if collinear(anchors, min_width_mm=min_width):
         return reject("collinear_anchors")
+    centre = anchors.mean(axis=0)
+    (ux, uy), _ = _best_fit_line(anchors.tolist())  # the line collinear() measured
+    normal = np.array([-uy, ux])
 
     scale = 1.0 + float(np.abs(anchors).max()) + float(ranges.max())
     tol = 1e-9 * scale
@@ -661,8 +763,8 @@ def crlb_rmse_mm(
     Notes
     -----
     O(N³) time and O(N²) memory: J is a dense 2N × 2N matrix. A rigid connected graph is
-    handled by one Cholesky factorisation (about a second for N = 1,000 on one core); other
-    graphs by the eigen-decomposition, several times slower.
+    handled by one Cholesky factorisation, other graphs by the slower eigen-decomposition
+    (``docs/math.md`` gives both at N = 1,000).
 
     Examples
     --------
@@ -722,8 +824,8 @@ def _gauge_fixed_trace(info: np.ndarray, pos: np.ndarray, pairs: np.ndarray) -> 
 
     With G an orthonormal basis of the rigid motions (the null space of a rigid connected
     graph's J) and c > 0, ``(J + c G Gᵀ)⁻¹ = pinv(J) + G Gᵀ / c``, so the trace follows from
-    one Cholesky factor and a triangular inverse: about four times faster than the full
-    eigen-decomposition. Returns None (use the eigenvalues) when the graph is disconnected,
+    one Cholesky factor and a triangular inverse, cheaper than the full eigen-decomposition.
+    Returns None (use the eigenvalues) when the graph is disconnected,
     when the factorisation fails (another null direction: a flexible graph) or when the
     result shows an eigenvalue the eigenvalue path would count as null.
     """

@@ -34,12 +34,12 @@ keeps ``data[0..1]`` and stores X and Y as int16 and d12 as uint16 in tenths of 
 The frame robots average ``samples`` distance readings before they flag their coordinates:
 robot 2 sets ``(d12, 0)``; robot 3, once it has a flagged d12 from robot 2 and readings from
 both, sets ``x3 = (d13² − d23² + d12²)/(2 d12)``, ``y3 = √(d13² − x3²)``
-(:func:`kilonet.geometry.frame_of_three`). y3 is taken positive, so when robot 3 stands on the
+(:func:`kilonet.geometry.place_references`). y3 is taken positive, so when robot 3 stands on the
 right of the 1→2 axis the frame is a mirror image of the floor.
 
 The follower (:class:`Follower`) transmits nothing. It listens until it has fresh readings
 (received after its motors stopped) from all three robots and robot 3's flagged frame, then
-trilaterates with the seed's formulas (:func:`kilonet.geometry.trilaterate_in_frame`), takes the
+trilaterates with the seed's formulas (:func:`kilonet.geometry.trilaterate_linear`), takes the
 goal to be the centroid of robots 1–3 and steps: a small first move gives its heading u; then
 it turns by α = atan2(u₁v₂ − u₂v₁, u₁v₁ + u₂v₂) toward the goal direction v for ``t = f(α)``
 from its linear turn calibration, takes a short step, and re-trilaterates, until it is within
@@ -80,7 +80,7 @@ from dataclasses import dataclass
 from statistics import median
 from typing import NamedTuple
 
-from kilonet.geometry import GeometryError, frame_of_three, trilaterate_in_frame
+from kilonet.geometry import GeometryError, place_references, trilaterate_linear
 from kilonet.message import Layout, Message
 from kilonet.robot import Kilobot
 from protocols.turn_calibration import TurnCalibration
@@ -583,9 +583,10 @@ class ThirdRobot(_FrameMember):
             d13 = sum(self._from[ORIGIN]) / self.samples
             d23 = sum(self._from[X_AXIS]) / self.samples
             try:
-                self.x_mm, self.y_mm = frame_of_three(self.d12_mm, d13, d23)
+                _, (self.x_mm, self.y_mm) = place_references(self.d12_mm, d13, d23)
             except GeometryError as exc:
-                # Readings that form no triangle: start over with fresh ones.
+                # Readings that form no triangle (or put robot 3 within 1 mm of the 1→2
+                # axis, too close to tell its side): start over with fresh ones.
                 self.log("frame_rejected", reason=str(exc))
                 self._from = {ORIGIN: [], X_AXIS: []}
                 return
@@ -811,18 +812,18 @@ class Follower(Kilobot):
 
     def _locate(self, distances: dict[int, float | None]) -> tuple[Point, str] | None:
         """A position fix in the frame from this window's readings, or ``None``."""
-        d12, x3, y3 = self.frame
         usable = {k: d for k, d in distances.items() if d is not None and math.isfinite(d)}
+        anchors = self._anchors()
         if len(usable) == 3:
+            roles = (ORIGIN, X_AXIS, THIRD)
             try:
-                return trilaterate_in_frame(
-                    usable[ORIGIN], usable[X_AXIS], usable[THIRD], d12, x3, y3
+                return trilaterate_linear(
+                    [anchors[k] for k in roles], [usable[k] for k in roles]
                 ), "three"
             except GeometryError:
                 return None
         if len(usable) != 2:
             return None
-        anchors = self._anchors()
         (i, di), (j, dj) = usable.items()
         candidates = circle_intersections(anchors[i], di, anchors[j], dj)
         (k,) = set(anchors) - {i, j}

@@ -12,7 +12,7 @@ standing still at a cell centre:
 2. **Trilaterates** — with the seed's linear formula (A…F, :func:`kilonet.geometry.
    trilaterate_linear`) over the first three landmarks it has (the fourth ignored, as the seed
    ignores its yellow cylinder), or with least squares over all it has when it has four
-   (:func:`trilaterate_lsq`; ``fit = "lsq"``, the default).
+   (:func:`kilonet.geometry.multilaterate`; ``fit = "lsq"``, the default).
 3. **Maps (x, y) to a cell** and marks it visited; the event ``step`` carries the grid with
    ``X`` for visited cells, as the seed prints it. Without a fix it keeps the cell it
    dead-reckons from the last cell and command.
@@ -47,7 +47,7 @@ from typing import Literal
 import networkx as nx
 import numpy as np
 
-from kilonet.geometry import GeometryError, trilaterate_linear
+from kilonet.geometry import GeometryError, multilaterate, trilaterate_linear
 from kilonet.maze import DIRECTIONS, Maze, MazeHardware, MazeKilobot
 from kilonet.message import Layout, Message
 from kilonet.robot import Kilobot
@@ -65,7 +65,6 @@ __all__ = [
     "nearest_unvisited",
     "predict",
     "random_walk_direction",
-    "trilaterate_lsq",
     "wall_likelihood",
 ]
 
@@ -76,57 +75,6 @@ LANDMARK_COLORS = ((3, 0, 0), (0, 3, 0), (0, 0, 3), (3, 3, 0))
 
 
 # -- trilateration ----------------------------------------------------------------------------
-def trilaterate_lsq(
-    anchors_mm: np.ndarray, ranges_mm: np.ndarray, *, iterations: int = 20
-) -> tuple[float, float]:
-    """Least-squares position from three or more anchors and the ranges to them.
-
-    The linear system of range differences (each anchor's circle minus the first one's) gives a
-    start; Gauss–Newton on the range residuals ``|p − aᵢ| − rᵢ`` refines it.
-
-    Parameters
-    ----------
-    anchors_mm : (n, 2) array
-        Anchor positions, mm; ``n ≥ 3``.
-    ranges_mm : (n,) array
-        Measured ranges, mm.
-    iterations : int
-        At most this many Gauss–Newton steps.
-
-    Raises
-    ------
-    GeometryError
-        If there are fewer than three anchors or they are (nearly) collinear.
-
-    Examples
-    --------
-    >>> anchors = np.array([[0.0, 0.0], [400.0, 0.0], [400.0, 400.0], [0.0, 400.0]])
-    >>> ranges = np.hypot(*(anchors - [100.0, 250.0]).T)
-    >>> [round(v, 6) for v in trilaterate_lsq(anchors, ranges)]
-    [100.0, 250.0]
-    """
-    anchors = np.asarray(anchors_mm, dtype=float).reshape(-1, 2)
-    ranges = np.asarray(ranges_mm, dtype=float)
-    if len(anchors) < 3 or len(ranges) != len(anchors):
-        raise GeometryError(f"least squares needs ≥ 3 anchors with ranges, got {len(anchors)}")
-    a = 2 * (anchors[1:] - anchors[0])
-    sv = np.linalg.svd(a, compute_uv=False)
-    if sv[-1] < 1e-9 * max(sv[0], 1.0):
-        raise GeometryError("the anchors are collinear: no unique position")
-    b = ranges[0] ** 2 - ranges[1:] ** 2 + (anchors[1:] ** 2).sum(1) - (anchors[0] ** 2).sum()
-    p = np.linalg.lstsq(a, b, rcond=None)[0]
-    for _ in range(iterations):
-        diff = p - anchors
-        dist = np.hypot(*diff.T)
-        if dist.min() < 1e-9:
-            break
-        step = np.linalg.lstsq(diff / dist[:, None], ranges - dist, rcond=None)[0]
-        p = p + step
-        if np.hypot(*step) < 1e-9:
-            break
-    return float(p[0]), float(p[1])
-
-
 @dataclass(frozen=True)
 class Fix:
     """A position estimate: where, how (``"linear"`` or ``"lsq"``) and from how many landmarks."""
@@ -143,19 +91,25 @@ def locate(
     """Position from the landmarks that have a range (``nan``: not found).
 
     With fewer than three ranges there is no fix (``None``). With exactly three, or with
-    ``fit = "linear"``, the seed's linear formula over the first three found; with four or more
-    and ``fit = "lsq"``, least squares over all.
+    ``fit = "linear"``, the seed's linear formula over the first three found
+    (:func:`kilonet.geometry.trilaterate_linear`); with four or more and ``fit = "lsq"``, the
+    least-squares fit over all (:func:`kilonet.geometry.multilaterate`'s estimate, taken
+    whatever its verdict: the robot trusts its landmarks).
 
     Raises
     ------
     GeometryError
-        If the landmarks used are collinear.
+        If the landmarks used are collinear (least squares: within multilaterate's default
+        1 mm of one line).
 
     Examples
     --------
     >>> anchors = np.array([[0.0, 0.0], [400.0, 0.0], [400.0, 400.0], [0.0, 400.0]])
     >>> locate(anchors, [141.4213562373095, 316.22776601683796, np.nan, 316.22776601683796])
     Fix(x_mm=100.0, y_mm=100.0, method='linear', landmarks=3)
+    >>> fix = locate(anchors, np.hypot(*(anchors - [100.0, 250.0]).T))
+    >>> round(fix.x_mm, 6), round(fix.y_mm, 6), fix.method, fix.landmarks
+    (100.0, 250.0, 'lsq', 4)
     >>> locate(anchors, [150.0, np.nan, np.nan, 300.0]) is None
     True
     """
@@ -167,8 +121,10 @@ def locate(
     if fit == "linear" or len(found) == 3:
         x, y = trilaterate_linear(anchors[found[:3]], ranges[found[:3]])
         return Fix(round(x, 9), round(y, 9), "linear", 3)
-    x, y = trilaterate_lsq(anchors[found], ranges[found])
-    return Fix(x, y, "lsq", len(found))
+    fit_all = multilaterate(anchors[found], ranges[found])
+    if fit_all.reason == "collinear_anchors":
+        raise GeometryError("the anchors are collinear: no unique position")
+    return Fix(fit_all.x_mm, fit_all.y_mm, "lsq", len(found))
 
 
 # -- the Bayes filter over cells --------------------------------------------------------------

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from kilonet.geometry import frame_of_three, trilaterate_in_frame
+from kilonet.geometry import place_references, trilaterate_linear
 from kilonet.message import PayloadError
 from kilonet.params import ParamError
 from kilonet.placement import save_csv
@@ -91,18 +91,19 @@ def test_decode_ignores_other_messages():
 
 def test_frame_of_three_hand_computed():
     # d12 = 6, d13 = d23 = 5: x3 = (25 - 25 + 36) / 12 = 3, y3 = sqrt(25 - 9) = 4.
-    assert frame_of_three(6.0, 5.0, 5.0) == (3.0, 4.0)
+    assert place_references(6.0, 5.0, 5.0) == ((6.0, 0.0), (3.0, 4.0))
     # d12 = 60, d13 = 80, d23 = 100: x3 = (6400 - 10000 + 3600) / 120 = 0, y3 = 80.
-    assert frame_of_three(60.0, 80.0, 100.0) == (0.0, 80.0)
+    assert place_references(60.0, 80.0, 100.0)[1] == (0.0, 80.0)
 
 
 def test_trilateration_hand_computed():
     # Frame (0,0), (6,0), (3,4); follower at (3,1): d1 = d2 = √10, d3 = 3.
     # x4 = (10 - 10 + 36) / 12 = 3; y4 = (10 - 9 + 9 + 16) / 8 - 3·3/4 = 3.25 - 2.25 = 1.
-    x4, y4 = trilaterate_in_frame(math.sqrt(10), math.sqrt(10), 3.0, 6.0, 3.0, 4.0)
+    x4, y4 = trilaterate_linear([(0, 0), (6, 0), (3, 4)], [math.sqrt(10), math.sqrt(10), 3.0])
     assert (x4, y4) == pytest.approx((3.0, 1.0))
     # Frame (0,0), (60,0), (0,80); follower at the circumcentre (30,40): all distances 50.
-    assert trilaterate_in_frame(50.0, 50.0, 50.0, 60.0, 0.0, 80.0) == pytest.approx((30.0, 40.0))
+    frame = [(0.0, 0.0), (60.0, 0.0), (0.0, 80.0)]
+    assert trilaterate_linear(frame, [50.0, 50.0, 50.0]) == pytest.approx((30.0, 40.0))
 
 
 def test_turn_angle_hand_computed():

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from scipy.optimize import least_squares
 
 from kilonet.alignment import procrustes_rmse
 from kilonet.geometry import (
@@ -18,11 +19,10 @@ from kilonet.geometry import (
     angle_at,
     choose_references_best_conditioned,
     choose_references_max_angle,
+    collinear,
     crlb_rmse_mm,
-    frame_of_three,
     multilaterate,
     place_references,
-    trilaterate_in_frame,
     trilaterate_linear,
 )
 from kilonet.placement import hex_lattice
@@ -41,43 +41,203 @@ def _min_altitude(a, b, c) -> float:
     return area2 / max(_dist(a, b), _dist(a, c), _dist(b, c), 1e-300)
 
 
+# -------------------------------------------------------------------------------- collinear
+
+
+def test_collinear_measures_the_width_across_the_best_fit_line():
+    # The best-fit line of this symmetric bend is y = 1/3: the middle point is 2/3 mm off it.
+    bent = np.array([[0.0, 0.0], [40.0, 1.0], [80.0, 0.0]])
+    assert collinear(bent, min_width_mm=0.67)
+    assert not collinear(bent, min_width_mm=0.66)
+    assert collinear(np.array([[0.0, 0.0], [10.0, 5.0], [30.0, 15.0]]), min_width_mm=0.0) is False
+    assert collinear(np.array([[0.0, 0.0], [10.0, 5.0], [30.0, 15.0]]), min_width_mm=1e-9)
+    # Fewer than three points always lie on a line; so do coincident ones.
+    assert collinear(np.array([[0.0, 0.0], [50.0, 50.0]]), min_width_mm=0.0) is True
+    assert collinear(np.zeros((4, 2)), min_width_mm=1e-9)
+    # 3-D points: the distance from the line counts in both directions across it.
+    tilted = np.array([[0.0, 0.0, 0.0], [40.0, 0.3, 1.0], [80.0, 0.0, 0.0]])
+    width = math.hypot(0.2, 2.0 / 3.0)  # off the line through (x, 0.1, 1/3)
+    assert collinear(tilted, min_width_mm=width + 1e-9)
+    assert not collinear(tilted, min_width_mm=width - 1e-9)
+    # No unique best-fit line (a plane of directions, or all, equally spread): any is one, and
+    # the width from it lies between the smallest and the largest possible, 0.87 R and R.
+    turn = np.array([0.0, 2.0 * math.pi / 3.0, 4.0 * math.pi / 3.0])
+    equilateral = np.column_stack([40.0 * np.cos(turn), 40.0 * np.sin(turn), np.full(3, 7.0)])
+    assert not collinear(equilateral, min_width_mm=0.86 * 40.0)
+    assert collinear(equilateral, min_width_mm=40.0 + 1e-9)
+    octahedron = np.vstack([np.eye(3), -np.eye(3)]) * 25.0
+    assert not collinear(octahedron, min_width_mm=24.9)
+    assert collinear(octahedron, min_width_mm=25.0 + 1e-9)
+
+
+def test_collinear_refuses_malformed_input():
+    with pytest.raises(ValueError, match=r"\(k, 2\) or \(k, 3\)"):
+        collinear(np.zeros((3, 4)), min_width_mm=1.0)
+    with pytest.raises(ValueError, match="finite"):
+        collinear(np.array([[0.0, 0.0], [1.0, np.nan], [2.0, 1.0]]), min_width_mm=1.0)
+    with pytest.raises(ValueError, match="non-negative"):
+        collinear(_TRIANGLE, min_width_mm=-1.0)
+
+
+def _svd_width(points: np.ndarray) -> float:
+    """The oracle: the largest distance from the principal axis numpy's SVD finds, mm."""
+    centred = points - points.mean(axis=0)
+    _, _, axes = np.linalg.svd(centred)
+    across = centred @ axes[1:].T
+    return float(np.sqrt((across * across).sum(axis=1)).max())
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.integers(3, 8),
+    st.sampled_from([2, 3]),
+    st.floats(-6.0, 2.0),
+    st.booleans(),
+    st.integers(0, 2**32 - 1),
+)
+def test_collinear_measures_the_width_numpys_svd_finds(k, dims, log_noise, along_line, seed):
+    """Random points, or points scattered across a line by 1e-6 to 100 mm, in 2-D and 3-D:
+    the closed-form width agrees with the SVD's to 1e-9 of the points' scale."""
+    rng = np.random.default_rng(seed)
+    if along_line:
+        direction = rng.normal(size=dims)
+        direction /= np.linalg.norm(direction)
+        points = np.outer(rng.uniform(-300.0, 300.0, k), direction)
+        points += rng.normal(0.0, 10.0**log_noise, (k, dims)) + rng.uniform(-300.0, 300.0, dims)
+    else:
+        points = rng.uniform(-300.0, 300.0, (k, dims))
+    width = _svd_width(points)
+    tol = 1e-9 * (1.0 + np.abs(points).max())
+    assert collinear(points, min_width_mm=width + tol)
+    assert not collinear(points, min_width_mm=max(width - tol, 0.0)) or width <= tol
+
+
 # ------------------------------------------------------------------- the seeds' closed forms
 
 
-def test_frame_of_three_exact_and_errors():
-    assert frame_of_three(3.0, 4.0, 5.0) == (0.0, 4.0)
-    assert frame_of_three(5.0, 4.0, 3.0) == (3.2, pytest.approx(2.4))
-    with pytest.raises(GeometryError, match="coincide"):
-        frame_of_three(0.0, 4.0, 5.0)
-    with pytest.raises(GeometryError, match="no triangle"):
-        frame_of_three(10.0, 10.0, 30.0)
+def _maze_seed_formula(anchors, ranges):
+    """The maze lab's A…F form (DESIGN.md §3), as the seed writes it: the test's oracle."""
+    (x1, y1), (x2, y2), (x3, y3) = anchors
+    r1, r2, r3 = ranges
+    a, b = 2 * (x2 - x1), 2 * (y2 - y1)
+    c = r1**2 - r2**2 - x1**2 + x2**2 - y1**2 + y2**2
+    d, e = 2 * (x3 - x2), 2 * (y3 - y2)
+    f = r2**2 - r3**2 - x2**2 + x3**2 - y2**2 + y3**2
+    return (c * e - f * b) / (e * a - b * d), (c * d - a * f) / (b * d - a * e)
 
 
-def test_trilaterate_in_frame_and_linear_refuse_collinear_frames():
-    with pytest.raises(GeometryError, match="collinear"):
-        trilaterate_in_frame(10.0, 20.0, 30.0, 40.0, 80.0, 0.0)
-    with pytest.raises(GeometryError, match="coincide"):
-        trilaterate_in_frame(10.0, 20.0, 30.0, 0.0, 80.0, 5.0)
+def _follower_seed_formula(d1, d2, d3, d12, x3, y3):
+    """The follower seed's x4, y4 in the frame of robots 1-3 (DESIGN.md §3)."""
+    x4 = (d1**2 - d2**2 + d12**2) / (2 * d12)
+    return x4, (d1**2 - d3**2 + x3**2 + y3**2) / (2 * y3) - x3 * x4 / y3
+
+
+def test_follower_frames_exact_values():
+    # d12 = 3, d13 = 4, d23 = 5: x3 = (16 - 25 + 9) / 6 = 0, y3 = 4.
+    assert place_references(3.0, 4.0, 5.0)[1] == (0.0, 4.0)
+    assert place_references(5.0, 4.0, 3.0)[1] == (3.2, pytest.approx(2.4))
+    with pytest.raises(GeometryError, match="positive"):
+        place_references(0.0, 4.0, 5.0)
+    with pytest.raises(GeometryError, match="degenerate"):
+        place_references(10.0, 10.0, 30.0)  # no triangle
+
+
+def test_trilaterate_linear_refuses_collinear_anchors_and_bad_shapes():
     line = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.0]])
     with pytest.raises(GeometryError, match="collinear"):
         trilaterate_linear(line, np.array([30.0, 20.0, 60.0]))
+    with pytest.raises(GeometryError, match="collinear"):  # anchors 1 and 2 coincide
+        trilaterate_linear([(0.0, 0.0), (0.0, 0.0), (10.0, 30.0)], [10.0, 10.0, 20.0])
+    bent = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.5]])
+    trilaterate_linear(bent, [50.0, 40.0, 60.0])  # 0.33 mm from a line: accepted by default...
+    with pytest.raises(GeometryError, match="collinear"):  # ... but not with this threshold
+        trilaterate_linear(bent, [50.0, 40.0, 60.0], min_width_mm=1.0)
+    with pytest.raises(ValueError, match=r"\(3, 2\)"):
+        trilaterate_linear(np.zeros((4, 2)), np.ones(4))
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=80, deadline=None)
 @given(point, point, point, point)
 def test_closed_forms_recover_a_fourth_robot(p1, p2, p3, p4):
     assume(_min_altitude(p1, p2, p3) > 10.0)
     d12, d13, d23 = _dist(p1, p2), _dist(p1, p3), _dist(p2, p3)
-    x3, y3 = frame_of_three(d12, d13, d23)
+    _, (x3, y3) = place_references(d12, d13, d23)
     frame = np.array([[0.0, 0.0], [d12, 0.0], [x3, y3]])
     ranges = [_dist(p4, p) for p in (p1, p2, p3)]
-    x4, y4 = trilaterate_in_frame(*ranges, d12, x3, y3)
+    x4, y4 = trilaterate_linear(frame, ranges)
     # The frame is the floor up to a rigid motion (perhaps mirrored): compare all distances.
     est = np.vstack([frame, [x4, y4]])
     true = np.array([p1, p2, p3, p4])
     assert procrustes_rmse(est, true)[1] < 1e-6 * (1 + np.abs(true).max())
-    x, y = trilaterate_linear(frame, np.array(ranges))
-    assert (x, y) == (pytest.approx(x4, abs=1e-6), pytest.approx(y4, abs=1e-6))
+    # On the floor's own coordinates it is the maze seed's A…F formula.
+    x, y = trilaterate_linear(true[:3], ranges)
+    want = _maze_seed_formula(true[:3].tolist(), ranges)
+    assert (x, y) == (pytest.approx(want[0], abs=1e-6), pytest.approx(want[1], abs=1e-6))
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.floats(20.0, 250.0),
+    st.floats(-200.0, 200.0),
+    st.floats(1.0, 200.0),
+    st.lists(st.floats(0.0, 300.0), min_size=3, max_size=3),
+)
+def test_in_the_frame_of_three_it_is_the_follower_seeds_formula_bit_for_bit(d12, x3, y3, ranges):
+    """With robot 1 at the origin and robot 2 on +x, the frame turn is exactly the identity,
+    so the follower computes the very numbers of the seed's formula (its runs are unchanged)."""
+    got = trilaterate_linear([(0.0, 0.0), (d12, 0.0), (x3, y3)], ranges)
+    assert got == _follower_seed_formula(*ranges, d12, x3, y3)
+
+
+def _least_squares_oracle(anchors, ranges, start):
+    """scipy's least squares on the range residuals, to full precision, from ``start``.
+
+    It solves for ``q = p − (start − 1 mm)`` from q = (1, 1) mm: scipy sizes its first step
+    by the size of the start, so a start near the origin would stall it.
+    """
+    offset = np.asarray(start, dtype=float) - 1.0
+
+    def residuals(q):
+        return np.hypot(*(q + offset - anchors).T) - ranges
+
+    def jacobian(q):
+        diff = q + offset - anchors
+        return diff / np.hypot(*diff.T)[:, None]
+
+    fit = least_squares(residuals, np.ones(2), jac=jacobian, xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    return fit.x + offset
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    point,
+    st.floats(30.0, 150.0),
+    st.floats(0.0, 2.0 * math.pi),
+    st.integers(3, 8),
+    st.floats(0.0, 0.8),
+    st.floats(0.0, 2.0),
+    st.integers(0, 2**32 - 1),
+)
+def test_multilaterate_is_the_least_squares_fit_of_scipy(
+    centre, radius_mm, heading, k, inside, sigma_mm, seed
+):
+    """Well-conditioned anchor sets (k anchors spread round a circle, the robot inside) with
+    noisy ranges: the fix is the minimum scipy's Levenberg–Marquardt finds from the truth."""
+    rng = np.random.default_rng(seed)
+    angles = heading + 2.0 * math.pi * (np.arange(k) + rng.uniform(-0.2, 0.2, k)) / k
+    anchors = np.array(centre) + radius_mm * np.column_stack([np.cos(angles), np.sin(angles)])
+    truth = np.array(centre) + inside * radius_mm * np.array([math.cos(seed), math.sin(seed)])
+    ranges = _ranges(anchors, truth) + rng.normal(0.0, sigma_mm, k)
+    assume(ranges.min() > 5.0)
+    fix = multilaterate(anchors, ranges, sigma_mm=max(sigma_mm, 0.1))
+    want = _least_squares_oracle(anchors, ranges, truth)
+    # multilaterate stops once a step is below 1e-9 of the problem's scale, which leaves an
+    # error of about that step (5,000 random cases: at most 6.5e-10 of the scale).
+    scale = 1.0 + np.abs(anchors).max() + ranges.max()
+    assert math.dist((fix.x_mm, fix.y_mm), want) < 2e-9 * scale
+    assert fix.rmse_mm == pytest.approx(
+        math.sqrt(np.mean((_ranges(anchors, want) - ranges) ** 2)), abs=1e-9
+    )
 
 
 # ----------------------------------------------------------------------------- local frames

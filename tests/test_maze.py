@@ -28,7 +28,6 @@ from protocols.maze import (
     locate,
     nearest_unvisited,
     predict,
-    trilaterate_lsq,
     wall_likelihood,
 )
 from scenarios.base import build_params, run, write_outputs
@@ -228,7 +227,7 @@ def test_least_squares_beats_the_three_landmark_formula_with_noise():
 def test_degenerate_landmarks_are_reported():
     line = np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0], [300.0, 0.0]])
     with pytest.raises(GeometryError, match="collinear"):
-        trilaterate_lsq(line, [50.0, 60.0, 150.0, 250.0])
+        locate(line, [50.0, 60.0, 150.0, 250.0])
     with pytest.raises(GeometryError, match="collinear"):
         locate(line, [50.0, 60.0, 150.0, np.nan])
     assert locate(SQUARE, [10.0, np.nan, np.nan, 20.0]) is None
