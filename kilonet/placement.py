@@ -19,7 +19,8 @@ import os
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from kilonet.errors import UserError
 
 __all__ = [
     "ROBOT_DIAMETER_MM",
@@ -39,7 +40,7 @@ _COLUMNS = ("x_mm", "y_mm")
 _MAX_LISTED = 5  # overlapping pairs spelled out in one error message
 
 
-class PlacementError(ValueError):
+class PlacementError(UserError, ValueError):
     """A placement given by the user is unusable; ``str()`` is one line: source, row, reason."""
 
 
@@ -463,6 +464,8 @@ def _check(positions, diameter_mm: float, source: str, lines: Sequence[int] | No
     n = len(xy)
     if n < 2:
         raise PlacementError(f"{source}: {n} robot{'' if n == 1 else 's'}, at least 2 are needed")
+
+    from scipy.spatial import cKDTree
 
     pairs = cKDTree(xy).query_pairs(diameter_mm - 1e-9, output_type="ndarray")
     if len(pairs):

@@ -19,10 +19,9 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 import simpy
 
 from kilonet.battery import Battery
@@ -35,6 +34,9 @@ from kilonet.params import Params
 from kilonet.placement import ROBOT_DIAMETER_MM, validate_positions
 from kilonet.robot import Kilobot
 from kilonet.trace import Trace
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["STREAMS", "Simulation", "World", "stream_for"]
 
@@ -238,6 +240,8 @@ class Simulation:
     # -- results -------------------------------------------------------------------------------
     def robots_frame(self) -> pd.DataFrame:
         """One row per robot: start and final pose, state, LED, battery and message counters."""
+        import pandas as pd
+
         w = self.world
         frame = pd.DataFrame(
             {

@@ -6,9 +6,13 @@ again only when a robot moves, crashes out of the table or is removed.
 
 from __future__ import annotations
 
-import networkx as nx
+from typing import TYPE_CHECKING
+
 import numpy as np
-from scipy.spatial import cKDTree
+
+if TYPE_CHECKING:
+    import networkx as nx
+    from scipy.spatial import cKDTree
 
 __all__ = ["communication_graph", "visible_pairs"]
 
@@ -60,6 +64,8 @@ def visible_pairs(
         empty = np.empty(0, dtype=np.intp)
         return empty, empty, np.empty(0)
     sub = pos[idx]
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(sub)
     pairs = tree.query_pairs(range_mm, output_type="ndarray")
     if len(pairs) == 0:
@@ -118,6 +124,8 @@ def communication_graph(
     i, j, d = visible_pairs(
         positions_mm, range_mm, radius_mm=radius_mm, line_of_sight=line_of_sight
     )
+    import networkx as nx
+
     g = nx.Graph()
     g.add_nodes_from(range(len(positions_mm)))
     g.add_weighted_edges_from(

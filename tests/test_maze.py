@@ -420,11 +420,9 @@ def test_directions_are_the_seeds_order():
     assert DIRECTIONS == ("W", "N", "E", "S")
 
 
-def test_cli_run_writes_the_summary_and_figures(tmp_path, monkeypatch, capsys):
-    import scenarios
+def test_cli_run_writes_the_summary_and_figures(tmp_path, capsys):
     from kilonet.cli import main
 
-    monkeypatch.setitem(scenarios.SCENARIOS, "maze", SCENARIO)  # as scenarios/__init__ will
     out = tmp_path / "run"
     assert main(["run", "maze", "--set", "maze.size=3x3", "--out", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)

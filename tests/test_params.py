@@ -180,8 +180,13 @@ def test_flat_dict_and_describe_cover_every_key():
     assert flat["seed"] == 1
     assert "scenario" not in flat
     rows = describe(Params())
-    assert [key for key, _, _ in rows] == list(flat)
-    docs = {key: doc for key, _, doc in rows}
+    assert [key for key, _, _, _ in rows] == list(flat)
+    docs = {key: doc for key, _, _, doc in rows}
     assert docs["medium.range_mm"] == "reception range, centre to centre"
+    kinds = {key: kind for key, _, kind, _ in rows}
+    assert kinds["medium.range_mm"] == "float, 33 to 1000"
+    assert kinds["medium.line_of_sight"] == "bool"
+    assert kinds["medium.message_format"] == "one of: kilolib, thesis"
+    assert kinds["duration_s"] == "float >= 0"
     # Every key given back as an override reproduces the same parameters.
     assert Params().with_overrides(flat) == Params()
