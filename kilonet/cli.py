@@ -17,11 +17,12 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from importlib.metadata import EntryPoint, PackageNotFoundError, entry_points, version
+from importlib.metadata import EntryPoint, entry_points
 
+from kilonet import __version__
 from kilonet.errors import UserError
 
-__all__ = ["COMMANDS", "UsageError", "main", "package_version"]
+__all__ = ["COMMANDS", "UsageError", "main"]
 
 #: Entry-point group of the sub-commands.
 COMMANDS = "kilonet.commands"
@@ -29,14 +30,6 @@ COMMANDS = "kilonet.commands"
 
 class UsageError(UserError):
     """A command-line option or argument the user must change (exit status 2)."""
-
-
-def package_version() -> str:
-    """The installed distribution's version (``importlib.metadata``), or ``unknown``."""
-    try:
-        return version("kilonet")
-    except PackageNotFoundError:
-        return "unknown (kilonet is not installed: pip install -e .)"
 
 
 def _commands(argv: Sequence[str]) -> list[EntryPoint]:
@@ -54,7 +47,7 @@ def _parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         description="Discrete-event simulator for Kilobot swarms and the protocols they run.",
         epilog="Start with `kilonet run` (the default scenario) or `kilonet run --help`.",
     )
-    parser.add_argument("--version", action="version", version=f"kilonet {package_version()}")
+    parser.add_argument("--version", action="version", version=f"kilonet {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in _commands(argv):
         command.load()(sub)

@@ -23,6 +23,7 @@ import numpy as np
 from kilonet.errors import UserError
 
 __all__ = [
+    "MAX_COORDINATE_MM",
     "ROBOT_DIAMETER_MM",
     "PlacementError",
     "hex_lattice",
@@ -35,6 +36,10 @@ __all__ = [
 
 ROBOT_DIAMETER_MM = 33.0
 """Body diameter of a Kilobot, mm; no two centres may be closer than this."""
+
+MAX_COORDINATE_MM = 1e6
+"""Largest coordinate accepted, mm (1 km): far beyond any table, and far enough below the
+float range that squared distances between robots cannot overflow."""
 
 _COLUMNS = ("x_mm", "y_mm")
 _MAX_LISTED = 5  # overlapping pairs spelled out in one error message
@@ -73,8 +78,9 @@ def validate_positions(
     Raises
     ------
     PlacementError
-        If the shape is not (N, 2), a coordinate is not a finite number, N < 2, or two
-        centres are closer than `diameter_mm` (up to five such pairs are listed).
+        If the shape is not (N, 2), a coordinate is not a finite number or lies beyond
+        :data:`MAX_COORDINATE_MM`, N < 2, or two centres are closer than `diameter_mm` (up to
+        five such pairs are listed).
 
     Examples
     --------
@@ -353,8 +359,10 @@ def load_csv(path: str | os.PathLike, *, diameter_mm: float = ROBOT_DIAMETER_MM)
     Raises
     ------
     PlacementError
-        If the file is missing, unreadable, empty, lacks a column, holds a value that is not
-        a finite number, has fewer than 2 robots, or two robots overlap.
+        If the file is missing, unreadable, empty, lacks a column, has a row with more
+        (non-empty) fields than the header has columns, holds a value that is not a finite
+        number or lies beyond :data:`MAX_COORDINATE_MM`, has fewer than 2 robots, or two robots
+        overlap.
     """
     source = os.fspath(path)
     try:
@@ -386,6 +394,11 @@ def load_csv(path: str | os.PathLike, *, diameter_mm: float = ROBOT_DIAMETER_MM)
 
     values, lines, problems = [], [], []
     for line_no, row in rows[1:]:
+        if any(c.strip() for c in row[len(names) :]):
+            problems.append(
+                f"line {line_no}: {len(row)} fields, but the header names {len(names)} columns"
+            )
+            continue
         xy = []
         for col, k in columns:
             if k >= len(row):
@@ -461,6 +474,13 @@ def _check(positions, diameter_mm: float, source: str, lines: Sequence[int] | No
         more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
         x, y = xy[bad[0]].tolist()
         raise PlacementError(f"{source}{one(bad[0])} position ({x}, {y}) is not finite{more}")
+    far = np.flatnonzero((np.abs(xy) > MAX_COORDINATE_MM).any(axis=1))
+    if len(far):
+        x, y = xy[far[0]].tolist()
+        raise PlacementError(
+            f"{source}{one(far[0])} position ({x:g}, {y:g}) is more than "
+            f"{MAX_COORDINATE_MM:g} mm from the origin"
+        )
     n = len(xy)
     if n < 2:
         raise PlacementError(f"{source}: {n} robot{'' if n == 1 else 's'}, at least 2 are needed")

@@ -232,6 +232,9 @@ def run(
     from kilonet.simulation import Simulation
 
     params = build_params(scenario, overrides, seed=seed)
+    # A placement given is read (and refused) before anything is shown; a generated one is a
+    # set-up stage, which can be long for a large swarm.
+    positions = None if placement is None else place(scenario, params, placement)
     with RunProgress(
         scenario.name,
         expected_end_s=_expected_end_s(scenario, params),
@@ -239,8 +242,9 @@ def run(
         ends_when=scenario.ends_when,
         enabled=progress,
     ) as bar:
-        bar.stage("placing robots")
-        positions = place(scenario, params, placement)
+        if positions is None:
+            bar.stage("placing robots")
+            positions = place(scenario, params)
         bar.stage(f"building {len(positions):,} robots")
         sim = Simulation(positions, scenario.program(params, positions), params)
         bar.stage("starting")

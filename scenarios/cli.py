@@ -15,7 +15,7 @@ Everything the user can get wrong is checked before the simulation starts: the s
 parameter (a run file's bad key is reported with the file and line), the placement, the
 program file, and the output directory (``--out`` must not exist unless ``--replace``; its
 parent must be a writable directory). A run without ``--out`` says in one line that it writes
-nothing.
+nothing (said after the run, so that an error stays the only line).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import json
 import re
 import sys
 import typing
+from contextlib import nullcontext
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -280,6 +281,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         run_file_overrides(scenario, run_file, file_overrides)
     overrides = {**file_overrides, **_parse_set(args.set), **_scenario_options(args, scenario)}
     if args.robots is not None:
+        if args.robots < 1:
+            raise UsageError(f"--robots {args.robots}: give the number of robots (at least 2)")
         overrides["placement.robots"] = args.robots
     if args.duration is not None:
         overrides["duration_s"] = args.duration
@@ -291,8 +294,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     params = build_params(scenario, overrides, seed=args.seed)  # every value, before the run
     if args.program is not None and args.placement is None and not params.placement.robots:
         raise UsageError("--program needs --placement F.csv or --robots N (a hex lattice)")
-    with OutputDir(args.out, replace=args.replace) if args.out else _NoOutput() as out:
-        result = _guarded(args, scenario)(
+    with OutputDir(args.out, replace=args.replace) if args.out else nullcontext() as out:
+        result = _guarded(args)(
             scenario,
             overrides,
             seed=args.seed,
@@ -315,6 +318,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
             if not args.json:
                 extra = " and animation.gif" if args.animate else ""
                 print(f"wrote {len(written)} files{extra} to {args.out}", file=sys.stderr)
+    if args.out is None:
+        print("kilonet: no --out DIR given, so nothing was written", file=sys.stderr)
     if args.json:
         print(json.dumps(json_safe(result.summary), indent=2))
     else:
@@ -322,30 +327,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-class _NoOutput:
-    """Stands in for :class:`OutputDir` when there is no ``--out``: says so, once."""
-
-    def __enter__(self) -> _NoOutput:
-        print(
-            "kilonet: no --out DIR given: nothing is written, only the summary is printed",
-            file=sys.stderr,
-        )
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        return None
-
-
-def _guarded(args: argparse.Namespace, scenario: Scenario):
+def _guarded(args: argparse.Namespace):
     """``scenarios.base.run``, reporting a user program's exceptions as one-line errors."""
     from scenarios.base import run
 
     if args.program is None:
         return run
-    from scenarios.program import reported_as_user_errors
+    from scenarios.program import parse_spec, reported_as_user_errors
 
     def guarded(*a: Any, **k: Any):
-        with reported_as_user_errors(scenario):
+        with reported_as_user_errors(parse_spec(args.program)[0]):
             return run(*a, **k)
 
     return guarded

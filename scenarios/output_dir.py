@@ -89,7 +89,7 @@ class OutputDir:
             self.staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
         except OSError as exc:
             self.discard()
-            raise OutputDirError(f"cannot write in {target.parent}: {exc.strerror}") from None
+            raise OutputDirError(f"cannot write in {target.parent} ({exc.strerror})") from None
 
     def _make_parents(self, parent: Path) -> None:
         missing = []
@@ -104,7 +104,7 @@ class OutputDir:
                 directory.mkdir()
             except OSError as exc:
                 self.discard()
-                raise OutputDirError(f"cannot create {directory}: {exc.strerror}") from None
+                raise OutputDirError(f"cannot create {directory} ({exc.strerror})") from None
             self._created.append(directory)
 
     def publish(self) -> Path:
@@ -128,7 +128,7 @@ class OutputDir:
                 self.staging.replace(target)
         except OSError as exc:
             self.discard()
-            raise OutputDirError(f"cannot move the run into {target}: {exc.strerror}") from None
+            raise OutputDirError(f"cannot move the run into {target} ({exc.strerror})") from None
         self._published = True
         return target
 

@@ -102,4 +102,6 @@ class RunProgress:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
+        if exc_type is not None and self._bar is not None:
+            self._bar.leave = False  # erase the bar: the error message is what remains
         self.close()
