@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Literal
 
-from kilonet.errors import UserError
+from kilonet.errors import UserError, read_text
 
 __all__ = [
     "BatteryParams",
@@ -269,15 +269,7 @@ class Params:
         """
         path = Path(path)
         try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ParamError(f"{path}: no such file") from None
-        except IsADirectoryError:
-            raise ParamError(f"{path}: is a directory, not a run file") from None
-        except OSError as exc:
-            raise ParamError(f"{path}: cannot read ({exc.strerror})") from None
-        except UnicodeDecodeError as exc:
-            raise ParamError(f"{path}: not a UTF-8 text file ({exc.reason})") from None
+            data = tomllib.loads(read_text(path, ParamError, "run file"))
         except tomllib.TOMLDecodeError as exc:
             raise ParamError(f"{path}: not valid TOML ({exc})") from None
         scenario = data.pop("scenario", None)

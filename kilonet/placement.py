@@ -13,6 +13,7 @@ naming the source, the row and the reason, e.g.::
 from __future__ import annotations
 
 import csv
+import io
 import math
 import operator
 import os
@@ -20,7 +21,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from kilonet.errors import UserError
+from kilonet.errors import UserError, read_text
 
 __all__ = [
     "MAX_COORDINATE_MM",
@@ -365,16 +366,10 @@ def load_csv(path: str | os.PathLike, *, diameter_mm: float = ROBOT_DIAMETER_MM)
         overlap.
     """
     source = os.fspath(path)
+    text = read_text(path, PlacementError, "placement file", encoding="utf-8-sig", newline="")
     try:
-        with open(path, newline="", encoding="utf-8-sig") as f:
-            reader = csv.reader(f)
-            rows = [(reader.line_num, row) for row in reader if any(c.strip() for c in row)]
-    except FileNotFoundError:
-        raise PlacementError(f"{source}: file not found") from None
-    except OSError as exc:
-        raise PlacementError(f"{source}: cannot read file ({exc.strerror})") from None
-    except UnicodeDecodeError as exc:
-        raise PlacementError(f"{source}: not a UTF-8 text file ({exc.reason})") from None
+        reader = csv.reader(io.StringIO(text, newline=""))
+        rows = [(reader.line_num, row) for row in reader if any(c.strip() for c in row)]
     except csv.Error as exc:
         raise PlacementError(f"{source} line {reader.line_num}: not valid CSV ({exc})") from None
     if not rows:

@@ -26,6 +26,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from kilonet.errors import read_text
 from kilonet.robot import Kilobot
 from scenarios.base import RunResult, Scenario, ScenarioError
 
@@ -80,15 +81,7 @@ def load_program(spec: str) -> tuple[Path, type[Kilobot]]:
         a Kilobot subclass, or its constructor needs arguments.
     """
     path, name = parse_spec(spec)
-    try:
-        source = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ProgramError(f"{path}: no such program file") from None
-    except IsADirectoryError:
-        raise ProgramError(f"{path}: is a directory, not a program file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        why = exc.strerror if isinstance(exc, OSError) else f"not UTF-8 text ({exc.reason})"
-        raise ProgramError(f"{path}: cannot read the program ({why})") from None
+    source = read_text(path, ProgramError, "program file")
     try:
         compile(source, str(path), "exec")
     except SyntaxError as exc:

@@ -91,7 +91,7 @@ def files(tmp_path: Path) -> dict[str, Path]:
 REFUSED = [
     (["run", "{binary.toml}"], "binary.toml: not a UTF-8 text file"),
     (["run", "{folder.toml}"], "folder.toml: is a directory, not a run file"),
-    (["run", "{tmp}/in/missing.toml"], "missing.toml: no such file"),
+    (["run", "{tmp}/in/missing.toml"], "missing.toml: no such run file"),
     (["run", "{bad_key.toml}"], "bad_key.toml:4: unknown parameter 'medium.los'"),
     (["run", "{bad_value.toml}"], "bad_value.toml:2: medium.range_mm = 5.0 is out of range"),
     (["run", "{bad_syntax.toml}"], "bad_syntax.toml: not valid TOML (Expected ']'"),

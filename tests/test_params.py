@@ -158,7 +158,7 @@ def test_read_toml_without_scenario(tmp_path):
 
 def test_read_toml_errors_name_the_file(tmp_path):
     missing = tmp_path / "nope.toml"
-    with pytest.raises(ParamError, match=re.escape(f"{missing}: no such file")):
+    with pytest.raises(ParamError, match=re.escape(f"{missing}: no such run file")):
         Params.read_toml(missing)
     broken = tmp_path / "broken.toml"
     broken.write_text("[medium\nloss_prob = 0.3\n")

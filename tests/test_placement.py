@@ -385,12 +385,12 @@ def test_csv_bad_input(tmp_path, text, fragments):
 
 def test_csv_missing_file(tmp_path):
     path = tmp_path / "nowhere.csv"
-    with pytest.raises(PlacementError, match=r"nowhere\.csv: file not found"):
+    with pytest.raises(PlacementError, match=r"nowhere\.csv: no such placement file"):
         load_csv(path)
 
 
 def test_csv_directory_is_not_a_file(tmp_path):
-    with pytest.raises(PlacementError, match="cannot read file"):
+    with pytest.raises(PlacementError, match="is a directory, not a placement file"):
         load_csv(tmp_path)
 
 
