@@ -77,16 +77,21 @@ def register_run(subparsers: Any) -> None:
     )
     run.add_argument(
         "--placement",
+        metavar="F.csv|NAME",
         help="CSV of start positions with columns x_mm,y_mm, or a named placement "
         "(thesis-7.1a, thesis-7.1b, thesis-7.1c: the thesis's failure cases)",
     )
     run.add_argument(
-        "--robots", type=int, help="number of robots on the scenario's layout (placement.robots)"
+        "--robots",
+        type=int,
+        metavar="N",
+        help="number of robots on the scenario's layout (placement.robots)",
     )
-    run.add_argument("--seed", type=int, help=f"master seed (default: {seed_default})")
+    run.add_argument("--seed", type=int, metavar="S", help=f"master seed (default: {seed_default})")
     run.add_argument(
         "--duration",
         type=float,
+        metavar="SECONDS",
         help="simulated seconds at most (duration_s; default: the scenario's)",
     )
     run.add_argument(
@@ -100,7 +105,9 @@ def register_run(subparsers: Any) -> None:
     run.add_argument(
         "--replace", action="store_true", help="replace an existing --out DIR whole (never merged)"
     )
-    run.add_argument("--format", default="csv", choices=["csv", "parquet"], help="table format")
+    run.add_argument(
+        "--format", default="csv", choices=["csv", "parquet"], help="table format (default: csv)"
+    )
     run.add_argument("--json", action="store_true", help="print only the summary JSON on stdout")
     run.add_argument(
         "--animate", action="store_true", help="also write DIR/animation.gif (needs --out)"
@@ -127,6 +134,7 @@ def _field_of(scenario: Scenario, key: str):
 
 
 def _add_scenario_options(run: argparse.ArgumentParser) -> None:
+    group = run.add_argument_group("options of one scenario (declared by the scenario)")
     for flag, declared in _owners().items():
         helps, choices = [], None
         for scenario, option in declared:
@@ -135,9 +143,7 @@ def _add_scenario_options(run: argparse.ArgumentParser) -> None:
             tp = typing.get_type_hints(scenario.section)[f.name]
             if len(declared) == 1 and typing.get_origin(tp) is typing.Literal:
                 choices = list(typing.get_args(tp))
-        run.add_argument(
-            flag, dest=_dest(flag), choices=choices, metavar=None, help="; ".join(helps)
-        )
+        group.add_argument(flag, dest=_dest(flag), choices=choices, help="; ".join(helps))
 
 
 def _dest(flag: str) -> str:

@@ -57,9 +57,10 @@ class RunProgress:
 
         if expected_end_s is not None:
             total = round(expected_end_s, 3)
+            digits = 0 if total >= 10 else 1  # a 0.5 s run is not "0/0 sim s"
             layout = (
-                "{desc}  {percentage:3.0f}% |{bar}| {n:.0f}/{total:.0f} sim s "
-                "[{elapsed}<{remaining}]{postfix}"
+                f"{{desc}}  {{percentage:3.0f}}% |{{bar}}| {{n:.{digits}f}}/{{total:.{digits}f}} "
+                "sim s [{elapsed}<{remaining}]{postfix}"
             )
         else:
             total = None
@@ -85,7 +86,7 @@ class RunProgress:
             return
         if bar.total is not None and now_s > bar.total:
             bar.total = round(now_s, 3)  # ran past the expected end: never show more than 100 %
-        bar.set_postfix_str(f"  {note}" if note else "", refresh=False)
+        bar.set_postfix_str(note, refresh=False)
         bar.update(round(now_s - bar.n, 3))
 
     def close(self) -> None:

@@ -142,6 +142,10 @@ REFUSED = [
     (["run", "--program", "{two_robots.py}", "--robots", "3"], "several Kilobot subclasses"),
     (["run", "--program", "{blink.py}"], "--program needs --placement F.csv or --robots N"),
     (["run", "gcs", "--program", "{blink.py}", "--robots", "3"], "not the scenario 'gcs'"),
+    (
+        ["run", "{bad_key.toml}", "--program", "{blink.py}", "--robots", "3"],
+        "bad_key.toml: names scenario 'gradient', but --program runs your own program",
+    ),
     (["analyze", "{line.csv}", "--out", "{tmp}/in/figure.svg"], "the figure is a PNG"),
     (["analyze", "{line.csv}", "--out", "{old.png}"], "old.png already exists"),
     (["analyze", "{tmp}/in/nowhere.csv"], "no such placement file or named placement"),
@@ -172,6 +176,18 @@ def test_an_error_during_the_run_is_one_line_with_and_without_json(files, tmp_pa
         out, err = capsys.readouterr()
         assert "raises_in_loop.py:7: in loop: RuntimeError" in error_line(err) and out == ""
         assert not (tmp_path / "out").exists()
+
+
+def test_an_interrupted_run_leaves_nothing(files, tmp_path, capsys):
+    program = tmp_path / "in" / "interrupts.py"
+    program.write_text(
+        "from kilonet.robot import Kilobot\n\n\nclass Stop(Kilobot):\n"
+        "    def loop(self):\n        raise KeyboardInterrupt\n"
+    )
+    out = tmp_path / "runs" / "one"
+    assert main(["run", "--program", str(program), "--robots", "3", "--out", str(out)]) == 130
+    assert error_line(capsys.readouterr().err) == "kilonet: interrupted"
+    assert not (tmp_path / "runs").exists()
 
 
 def _fill(arg: str, names: dict[str, str]) -> str:
@@ -371,7 +387,7 @@ def test_progress_shows_the_set_up_then_a_bar_to_a_known_end(capsys):
     scenarios.run(scenarios.get("gradient"), {"duration_s": 2.0}, progress=True)
     err = capsys.readouterr().err
     assert "gradient: placing robots" in err and "gradient: building 100 robots" in err
-    assert "100% |" in err and "2/2 sim s" in err
+    assert "100% |" in err and "2.0/2.0 sim s" in err
 
 
 def test_progress_without_a_known_end_is_an_honest_count(capsys):
@@ -384,7 +400,7 @@ def test_progress_without_a_known_end_is_an_honest_count(capsys):
 def test_gcs_progress_names_the_phase_and_ends_at_its_window(capsys):
     scenarios.run(scenarios.get("gcs"), {"placement.robots": 12, "gcs.until": "ids"}, progress=True)
     err = capsys.readouterr().err
-    assert "phase 1/6 ids (to 8 s)" in err and "9/9 sim s" in err and "100% |" in err
+    assert "phase 1/6 ids (to 8 s)" in err and "9.0/9.0 sim s" in err and "100% |" in err
 
 
 def test_expected_ends():
