@@ -172,7 +172,7 @@ def place(
         wanted = params.placement.robots
         if wanted and wanted != len(positions):
             raise ParamError(
-                f"placement.robots = {wanted} (--robots) but the placement {_name(placement)} "
+                f"placement.robots = {wanted} but the placement {_name(placement)} "
                 f"has {len(positions)} robots; give one or the other"
             )
         return positions

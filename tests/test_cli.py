@@ -104,7 +104,7 @@ REFUSED = [
     ),
     (
         ["run", "gradient", "--set", "placement.robots=10", "--placement", "{line.csv}"],
-        "placement.robots = 10 (--robots) but the placement",
+        "line.csv has 3 robots; give one or the other",
     ),
     (["run", "gradient", "--robots", "0"], "--robots 0: give the number of robots"),
     (["run", "gradient", "--until", "ids"], "--until is an option of the gcs scenario, not of"),
