@@ -21,11 +21,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-__all__ = ["register"]
+__all__ = ["register_report", "register_sweep"]
 
 
-def register(subparsers: Any) -> None:
-    """Add the ``sweep`` and ``report`` sub-commands to ``kilonet``'s sub-parsers."""
+def register_sweep(subparsers: Any) -> None:
+    """Add the ``sweep`` sub-command to ``kilonet``'s sub-parsers."""
     sweep = subparsers.add_parser(
         "sweep",
         help="run a parameter sweep (every cell and seed) into a results directory",
@@ -53,6 +53,9 @@ def register(subparsers: Any) -> None:
     sweep.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     sweep.set_defaults(func=_cmd_sweep)
 
+
+def register_report(subparsers: Any) -> None:
+    """Add the ``report`` sub-command to ``kilonet``'s sub-parsers."""
     report = subparsers.add_parser(
         "report",
         help="tables and figures of a sweep, aggregated over seeds (.html or .md)",

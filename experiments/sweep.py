@@ -310,9 +310,7 @@ class _Validator:
         import scenarios
 
         if "scenario" not in data:
-            raise self.fail(
-                f"missing key 'scenario'; one of: {', '.join(sorted(scenarios.SCENARIOS))}"
-            )
+            raise self.fail(f"missing key 'scenario'; one of: {', '.join(scenarios.names())}")
         name = self.text(data, "scenario", "")
         try:
             return scenarios.get(name)

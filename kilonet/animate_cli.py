@@ -4,8 +4,8 @@
                         [--overlay NAME ...] [--start S] [--end S] [--window S] [--size PX]
                         [--raw-estimates]
 
-Listed in ``kilonet.cli._PLUGINS``; the work is done by :func:`kilonet.animation.animate_run`,
-which ``kilonet run --animate`` calls too.
+Registered as the ``animate`` entry point of ``kilonet.commands``; the work is done by
+:func:`kilonet.animation.animate_run`, which ``kilonet run --animate`` calls too.
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ import argparse
 import sys
 from typing import Any
 
-from kilonet.animation import OVERLAYS, AnimationError, animate_run
 from kilonet.cli import UsageError
 
 __all__ = ["register"]
@@ -36,14 +35,14 @@ def register(subparsers: Any) -> None:
         type=float,
         help="simulated seconds per video second (default: the run in at most 20 s)",
     )
-    p.add_argument(
+    overlay = p.add_argument(
         "--overlay",
         action="extend",
         nargs="+",
         metavar="NAME",
-        help=f"any of {', '.join(OVERLAYS)}, or none (default: those the run has data for, "
-        "except edges)",
+        help="any of %(overlays)s, or none (default: those the run has data for, except edges)",
     )
+    overlay.overlays = _OverlayNames()  # read only when the help is shown
     p.add_argument("--start", type=float, default=0.0, help="first simulated second shown")
     p.add_argument("--end", type=float, help="last simulated second shown (default: run end)")
     p.add_argument(
@@ -61,7 +60,19 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=_cmd_animate)
 
 
+class _OverlayNames:
+    """The overlay names for the help text, from :data:`kilonet.animation.OVERLAYS`: imported
+    only when the help is printed, so that registering the command stays cheap."""
+
+    def __str__(self) -> str:
+        from kilonet.animation import OVERLAYS
+
+        return ", ".join(OVERLAYS)
+
+
 def _cmd_animate(args: argparse.Namespace) -> int:
+    from kilonet.animation import AnimationError, animate_run
+
     try:
         written = animate_run(
             args.run_dir,

@@ -1,199 +1,73 @@
-"""The ``kilonet`` command line.
+"""The ``kilonet`` command line: a dispatcher that knows no command of its own.
 
-    kilonet run [SCENARIO|FILE.toml] [--placement F.csv] [--robots N] [--seed S]
-                [--duration S] [--set key=value ...] [--out DIR] [--format csv|parquet] [--json]
-    kilonet scenarios
-    kilonet params [SCENARIO]
+Every sub-command registers itself as an entry point of the group ``kilonet.commands``
+(``[project.entry-points."kilonet.commands"]`` in ``pyproject.toml``, created when the package
+is installed): the entry's name is the command, its value a function ``register(subparsers)``
+that adds that command's parser (``subparsers.add_parser(name, ...)``) with
+``set_defaults(func=handler)``. A handler returns the exit status. Adding a sub-command means
+writing its module and one line in ``pyproject.toml``; this file does not change.
 
-User errors (unknown scenario or parameter, bad placement file, bad value) print one line on
-stderr and exit with status 2, leaving no partial output behind.
+Errors the user can fix (:class:`kilonet.errors.UserError`: a bad parameter, placement,
+scenario, option or program file) print one line on stderr and exit with status 2, leaving no
+partial output behind; an interrupt exits with 130.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
-import json
 import sys
 from collections.abc import Sequence
-from pathlib import Path
-from typing import Any
+from importlib.metadata import EntryPoint, entry_points
 
-from kilonet.params import ParamError, Params, describe
-from kilonet.placement import PlacementError
+from kilonet import __version__
+from kilonet.errors import UserError
 
-__all__ = ["main"]
+__all__ = ["COMMANDS", "UsageError", "main"]
 
-USER_ERRORS = (ParamError, PlacementError)
-
-#: Modules that add sub-commands: each has ``register(subparsers)``, which adds its parsers
-#: with ``set_defaults(func=handler)``; a handler returns the exit status and raises
-#: :class:`UsageError` (or another user error) for bad input.
-_PLUGINS: list[str] = ["kilonet.animate_cli", "experiments.cli", "scenarios.analyze"]
+#: Entry-point group of the sub-commands.
+COMMANDS = "kilonet.commands"
 
 
-class UsageError(Exception):
-    """A user error the CLI reports in one line (exit status 2)."""
+class UsageError(UserError):
+    """A command-line option or argument the user must change (exit status 2)."""
 
 
-def _parse_set(items: Sequence[str]) -> dict[str, str]:
-    out: dict[str, str] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise UsageError(f"--set expects key=value, got {item!r}")
-        out[key.strip()] = value.strip()
-    return out
+def _commands(argv: Sequence[str]) -> list[EntryPoint]:
+    """The commands to load: only the one named in ``argv`` when it is known (so
+    ``kilonet params`` imports nothing of ``run``), else all (for help and error listings)."""
+    found = list(entry_points(group=COMMANDS))
+    named = next((a for a in argv if not a.startswith("-")), None)
+    chosen = [ep for ep in found if ep.name == named]
+    return chosen or found
 
 
-def _resolve(target: str | None) -> tuple[Any, dict[str, Any]]:
-    """Scenario and file overrides for ``kilonet run TARGET``."""
-    import scenarios
-
-    if target is None:
-        return scenarios.get(scenarios.DEFAULT), {}
-    if target.endswith(".toml"):
-        name, overrides = Params.read_toml(target)
-        return scenarios.get(name or scenarios.DEFAULT), overrides
-    return scenarios.get(target), {}
-
-
-def _cmd_run(args: argparse.Namespace) -> int:
-    import scenarios
-
-    scenario, overrides = _resolve(args.target)
-    overrides.update(_parse_set(args.set))
-    if args.robots is not None:
-        overrides["placement.robots"] = args.robots
-    if args.duration is not None:
-        overrides["duration_s"] = args.duration
-    if args.until is not None:
-        if scenario.name != "gcs":
-            raise UsageError(f"--until applies to the gcs scenario, not {scenario.name!r}")
-        overrides["gcs.until"] = args.until
-    if args.animate and args.out is None:
-        raise UsageError("--animate needs --out DIR: the animation is drawn from the run directory")
-    if args.placement is not None and not Path(args.placement).exists():
-        from scenarios.thesis_placements import NAMED_PLACEMENTS
-
-        if args.placement not in NAMED_PLACEMENTS:
-            raise UsageError(
-                f"{args.placement}: no such placement file or named placement "
-                f"(named: {', '.join(NAMED_PLACEMENTS)})"
-            )
-    result = scenarios.run(
-        scenario, overrides, seed=args.seed, placement=args.placement, progress=not args.json
-    )
-    if args.out is not None:
-        written = scenarios.write_outputs(result, args.out, fmt=args.format)
-        if not args.json:
-            print(f"wrote {len(written)} files to {args.out}", file=sys.stderr)
-        if args.animate:
-            from kilonet.animation import AnimationError, animate_run
-
-            try:
-                movie = animate_run(Path(args.out))
-            except AnimationError as exc:
-                raise UsageError(str(exc)) from None
-            if not args.json:
-                print(f"wrote {movie}", file=sys.stderr)
-    if args.json:
-        print(json.dumps(result.summary, indent=2))
-    else:
-        _print_summary(result.summary)
-    return 0
-
-
-def _print_summary(summary: dict[str, Any]) -> None:
-    """One line per figure; nested sections flattened to dotted names, long lists shortened
-    (``--json`` prints everything)."""
-    flat: dict[str, Any] = {}
-
-    def walk(section: dict[str, Any], prefix: str) -> None:
-        for key, value in section.items():
-            if isinstance(value, dict):
-                walk(value, f"{prefix}{key}.")
-            else:
-                flat[f"{prefix}{key}"] = value
-
-    walk(summary, "")
-    width = max(len(k) for k in flat)
-    for key, value in flat.items():
-        if isinstance(value, float):
-            shown = f"{value:.4g}"
-        elif isinstance(value, list) and len(value) > 8:
-            shown = f"{len(value)} items: {', '.join(map(str, value[:6]))}, ..."
-        else:
-            shown = value
-        print(f"{key:<{width}}  {shown}")
-
-
-def _cmd_scenarios(_args: argparse.Namespace) -> int:
-    import scenarios
-
-    for name, scenario in sorted(scenarios.SCENARIOS.items()):
-        marker = " (default)" if name == scenarios.DEFAULT else ""
-        print(f"{name:<12} {scenario.summary}{marker}")
-    return 0
-
-
-def _cmd_params(args: argparse.Namespace) -> int:
-    import scenarios
-    from scenarios.base import build_params
-
-    scenario = scenarios.get(args.scenario or scenarios.DEFAULT)
-    for key, value, doc in describe(build_params(scenario)):
-        print(f"{key:<32} {value!s:<12} {doc}")
-    return 0
-
-
-def _parser() -> argparse.ArgumentParser:
+def _parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="kilonet", description="Discrete-event simulator for Kilobot swarms."
+        prog="kilonet",
+        description="Discrete-event simulator for Kilobot swarms and the protocols they run.",
+        epilog="Start with `kilonet run` (the default scenario) or `kilonet run --help`.",
     )
-    sub = parser.add_subparsers(dest="command", required=True)
-    run = sub.add_parser("run", help="run a scenario and print its summary")
-    run.add_argument("target", nargs="?", help="scenario name or run file (.toml)")
-    run.add_argument(
-        "--placement",
-        help="CSV of start positions with columns x_mm,y_mm, or a named placement "
-        "(thesis-7.1a, thesis-7.1b, thesis-7.1c: the thesis's failure cases)",
-    )
-    run.add_argument("--robots", type=int, help="number of robots (placement.robots)")
-    run.add_argument("--seed", type=int, help="master seed")
-    run.add_argument("--duration", type=float, help="simulated seconds (duration_s)")
-    run.add_argument(
-        "--set", action="append", default=[], metavar="KEY=VALUE", help="set a parameter"
-    )
-    run.add_argument(
-        "--until",
-        choices=["ids", "seeds", "frames", "localization", "groups", "merge"],
-        help="gcs scenario: stop after this phase (gcs.until)",
-    )
-    run.add_argument("--out", help="directory for tables, summary.json and figures")
-    run.add_argument("--format", default="csv", choices=["csv", "parquet"], help="table format")
-    run.add_argument("--json", action="store_true", help="print only the summary JSON on stdout")
-    run.add_argument(
-        "--animate", action="store_true", help="also write DIR/animation.gif (needs --out)"
-    )
-    run.set_defaults(func=_cmd_run)
-    sub.add_parser("scenarios", help="list the named scenarios").set_defaults(func=_cmd_scenarios)
-    params = sub.add_parser("params", help="list every parameter with its default")
-    params.add_argument("scenario", nargs="?")
-    params.set_defaults(func=_cmd_params)
-    for module in _PLUGINS:
-        importlib.import_module(module).register(sub)
+    parser.add_argument("--version", action="version", version=f"kilonet {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for command in _commands(argv):
+        command.load()(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``kilonet`` console script; returns the exit status."""
-    from scenarios.base import ScenarioError
-
-    args = _parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not list(entry_points(group=COMMANDS)):
+        print(
+            f"kilonet: error: no commands registered ({COMMANDS} entry points); install the "
+            "package: pip install -e .",
+            file=sys.stderr,
+        )
+        return 2
+    args = _parser(argv).parse_args(argv)
     try:
         return args.func(args)
-    except (*USER_ERRORS, ScenarioError, UsageError) as exc:
+    except UserError as exc:
         print(f"kilonet: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -47,11 +47,14 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-import networkx as nx
 import numpy as np
 
 from kilonet.robot import Kilobot
+
+if TYPE_CHECKING:
+    import networkx as nx
 
 __all__ = [
     "DIRECTIONS",
@@ -279,6 +282,8 @@ class Maze:
     def graph(self) -> nx.Graph:
         """The maze as a graph: one node per cell (attribute ``pos``: centre in mm), one edge per
         opening between neighbouring cells."""
+        import networkx as nx
+
         g = nx.Graph()
         for cell in range(self.n_cells):
             g.add_node(cell, pos=tuple(self.centre_mm(cell).tolist()))
@@ -376,6 +381,7 @@ def generate_maze(
 
     Examples
     --------
+    >>> import networkx as nx
     >>> maze = generate_maze(4, 4, np.random.default_rng(0))
     >>> g = maze.graph()
     >>> g.number_of_edges(), nx.is_connected(g)

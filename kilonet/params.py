@@ -23,10 +23,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
+import types
 import typing
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Literal
+
+from kilonet.errors import UserError, read_text
 
 __all__ = [
     "BatteryParams",
@@ -44,7 +47,7 @@ __all__ = [
 ]
 
 
-class ParamError(ValueError):
+class ParamError(UserError, ValueError):
     """A parameter key is unknown or its value is invalid; the message names the key."""
 
 
@@ -341,13 +344,11 @@ class Params:
         Raises
         ------
         ParamError
-            If the file is missing or not valid TOML.
+            If the file is missing, a directory, unreadable, not UTF-8 text or not valid TOML.
         """
         path = Path(path)
         try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise ParamError(f"{path}: no such file") from None
+            data = tomllib.loads(read_text(path, ParamError, "run file"))
         except tomllib.TOMLDecodeError as exc:
             raise ParamError(f"{path}: not valid TOML ({exc})") from None
         scenario = data.pop("scenario", None)
@@ -388,8 +389,22 @@ def _check_ranges(section: Any, prefix: str) -> None:
             )
 
 
+def _optional(tp: Any) -> Any:
+    """``X`` for a type ``X | None``, else ``None``."""
+    args = typing.get_args(tp)
+    if typing.get_origin(tp) in (typing.Union, types.UnionType) and type(None) in args:
+        (inner,) = (a for a in args if a is not type(None))
+        return inner
+    return None
+
+
 def _coerce(key: str, raw: Any, tp: Any) -> Any:
-    """Parse ``raw`` (a string from the command line, or a TOML value) as type ``tp``."""
+    """Parse ``raw`` (a string from the command line, or a TOML value) as type ``tp``;
+    for ``X | None``, ``none`` is ``None``."""
+    if (inner := _optional(tp)) is not None:
+        if raw is None or str(raw).strip().lower() == "none":
+            return None
+        return _coerce(key, raw, inner)
     if typing.get_origin(tp) is Literal:
         choices = typing.get_args(tp)
         if raw not in choices:
@@ -419,12 +434,40 @@ def _coerce(key: str, raw: Any, tp: Any) -> Any:
     raise ParamError(f"{key}: parameters of type {tp} cannot be set from text")
 
 
-def describe(params: Params) -> list[tuple[str, Any, str]]:
-    """``(dotted key, value, description)`` for every parameter, for ``--help`` style listings."""
+def describe(params: Params) -> list[tuple[str, Any, str, str]]:
+    """``(dotted key, value, type and allowed values, description)`` for every parameter, for
+    ``--help`` style listings.
+
+    Examples
+    --------
+    >>> for row in describe(Params()):
+    ...     if row[0] in ("seed", "medium.loss_prob", "robot.rx_mode"):
+    ...         print(row[:3])
+    ('seed', 1, 'int >= 0')
+    ('medium.loss_prob', 0.0, 'float, 0 to 1')
+    ('robot.rx_mode', 'callback', 'one of: callback, polled')
+    """
     rows = []
     for key, value in params.to_flat_dict().items():
         head, _, name = key.rpartition(".")
         section = params._sections()[head] if head else params
         meta = {f.name: f.metadata for f in dataclasses.fields(section)}.get(name, {})
-        rows.append((key, value, meta.get("doc", "")))
+        kind = _allowed(_field_type(type(section), name), meta.get("lo"), meta.get("hi"))
+        rows.append((key, value, kind, meta.get("doc", "")))
     return rows
+
+
+def _allowed(tp: Any, lo: float | None, hi: float | None) -> str:
+    """A field's type and allowed values in words: ``float, 0 to 1``, ``one of: a, b``."""
+    if typing.get_origin(tp) is Literal:
+        return "one of: " + ", ".join(map(str, typing.get_args(tp)))
+    if (inner := _optional(tp)) is not None:
+        return _allowed(inner, lo, hi).replace(inner.__name__, f"{inner.__name__} or none", 1)
+    name = getattr(tp, "__name__", str(tp))
+    if lo is not None and hi is not None:
+        return f"{name}, {lo:g} to {hi:g}"
+    if lo is not None:
+        return f"{name} >= {lo:g}"
+    if hi is not None:
+        return f"{name} <= {hi:g}"
+    return name

@@ -13,15 +13,18 @@ naming the source, the row and the reason, e.g.::
 from __future__ import annotations
 
 import csv
+import io
 import math
 import operator
 import os
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from kilonet.errors import UserError, read_text
 
 __all__ = [
+    "MAX_COORDINATE_MM",
     "ROBOT_DIAMETER_MM",
     "PlacementError",
     "hex_lattice",
@@ -35,11 +38,15 @@ __all__ = [
 ROBOT_DIAMETER_MM = 33.0
 """Body diameter of a Kilobot, mm; no two centres may be closer than this."""
 
+MAX_COORDINATE_MM = 1e6
+"""Largest coordinate accepted, mm (1 km): far beyond any table, and far enough below the
+float range that squared distances between robots cannot overflow."""
+
 _COLUMNS = ("x_mm", "y_mm")
 _MAX_LISTED = 5  # overlapping pairs spelled out in one error message
 
 
-class PlacementError(ValueError):
+class PlacementError(UserError, ValueError):
     """A placement given by the user is unusable; ``str()`` is one line: source, row, reason."""
 
 
@@ -72,8 +79,9 @@ def validate_positions(
     Raises
     ------
     PlacementError
-        If the shape is not (N, 2), a coordinate is not a finite number, N < 2, or two
-        centres are closer than `diameter_mm` (up to five such pairs are listed).
+        If the shape is not (N, 2), a coordinate is not a finite number or lies beyond
+        :data:`MAX_COORDINATE_MM`, N < 2, or two centres are closer than `diameter_mm` (up to
+        five such pairs are listed).
 
     Examples
     --------
@@ -352,20 +360,16 @@ def load_csv(path: str | os.PathLike, *, diameter_mm: float = ROBOT_DIAMETER_MM)
     Raises
     ------
     PlacementError
-        If the file is missing, unreadable, empty, lacks a column, holds a value that is not
-        a finite number, has fewer than 2 robots, or two robots overlap.
+        If the file is missing, unreadable, empty, lacks a column, has a row with more
+        (non-empty) fields than the header has columns, holds a value that is not a finite
+        number or lies beyond :data:`MAX_COORDINATE_MM`, has fewer than 2 robots, or two robots
+        overlap.
     """
     source = os.fspath(path)
+    text = read_text(path, PlacementError, "placement file", encoding="utf-8-sig", newline="")
     try:
-        with open(path, newline="", encoding="utf-8-sig") as f:
-            reader = csv.reader(f)
-            rows = [(reader.line_num, row) for row in reader if any(c.strip() for c in row)]
-    except FileNotFoundError:
-        raise PlacementError(f"{source}: file not found") from None
-    except OSError as exc:
-        raise PlacementError(f"{source}: cannot read file ({exc.strerror})") from None
-    except UnicodeDecodeError as exc:
-        raise PlacementError(f"{source}: not a UTF-8 text file ({exc.reason})") from None
+        reader = csv.reader(io.StringIO(text, newline=""))
+        rows = [(reader.line_num, row) for row in reader if any(c.strip() for c in row)]
     except csv.Error as exc:
         raise PlacementError(f"{source} line {reader.line_num}: not valid CSV ({exc})") from None
     if not rows:
@@ -385,6 +389,11 @@ def load_csv(path: str | os.PathLike, *, diameter_mm: float = ROBOT_DIAMETER_MM)
 
     values, lines, problems = [], [], []
     for line_no, row in rows[1:]:
+        if any(c.strip() for c in row[len(names) :]):
+            problems.append(
+                f"line {line_no}: {len(row)} fields, but the header names {len(names)} columns"
+            )
+            continue
         xy = []
         for col, k in columns:
             if k >= len(row):
@@ -460,9 +469,18 @@ def _check(positions, diameter_mm: float, source: str, lines: Sequence[int] | No
         more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
         x, y = xy[bad[0]].tolist()
         raise PlacementError(f"{source}{one(bad[0])} position ({x}, {y}) is not finite{more}")
+    far = np.flatnonzero((np.abs(xy) > MAX_COORDINATE_MM).any(axis=1))
+    if len(far):
+        x, y = xy[far[0]].tolist()
+        raise PlacementError(
+            f"{source}{one(far[0])} position ({x:g}, {y:g}) is more than "
+            f"{MAX_COORDINATE_MM:g} mm from the origin"
+        )
     n = len(xy)
     if n < 2:
         raise PlacementError(f"{source}: {n} robot{'' if n == 1 else 's'}, at least 2 are needed")
+
+    from scipy.spatial import cKDTree
 
     pairs = cKDTree(xy).query_pairs(diameter_mm - 1e-9, output_type="ndarray")
     if len(pairs):

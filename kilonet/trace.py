@@ -7,11 +7,20 @@ out as tidy pandas DataFrames with times in simulated seconds.
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import pandas as pd
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["Trace"]
+
+
+def _table(rows: list[tuple], columns: list[str]) -> pd.DataFrame:
+    """A DataFrame of ``rows``; pandas is imported here, when a run's tables are wanted, not
+    before the run starts."""
+    import pandas as pd
+
+    return pd.DataFrame(rows, columns=columns)
 
 
 class Trace:
@@ -54,30 +63,28 @@ class Trace:
 
     def led_frame(self) -> pd.DataFrame:
         """LED changes: ``t_s, robot, r, g, b``."""
-        return pd.DataFrame(self._led, columns=["t_s", "robot", "r", "g", "b"])
+        return _table(self._led, ["t_s", "robot", "r", "g", "b"])
 
     def events_frame(self) -> pd.DataFrame:
         """Protocol events: ``t_s, robot, event, data`` (data as a JSON object string)."""
-        return pd.DataFrame(self._events, columns=["t_s", "robot", "event", "data"])
+        return _table(self._events, ["t_s", "robot", "event", "data"])
 
     def poses_frame(self) -> pd.DataFrame:
         """Poses of moving robots: ``t_s, robot, x_mm, y_mm, heading_rad``."""
-        return pd.DataFrame(self._poses, columns=["t_s", "robot", "x_mm", "y_mm", "heading_rad"])
+        return _table(self._poses, ["t_s", "robot", "x_mm", "y_mm", "heading_rad"])
 
     def stops_frame(self) -> pd.DataFrame:
         """Robot stops: ``t_s, robot, cause``."""
-        return pd.DataFrame(self._stops, columns=["t_s", "robot", "cause"])
+        return _table(self._stops, ["t_s", "robot", "cause"])
 
     def messages_frame(self) -> pd.DataFrame:
         """Transmissions (only with ``trace.messages``): ``t_s, sender, receivers, delivered``,
         where ``t_s`` is the end of airtime."""
-        return pd.DataFrame(self._messages, columns=["t_s", "sender", "receivers", "delivered"])
+        return _table(self._messages, ["t_s", "sender", "receivers", "delivered"])
 
     def battery_frame(self) -> pd.DataFrame:
         """Battery degradation changes: ``t_s, robot, voltage_v, level, led_factor``."""
-        return pd.DataFrame(
-            self._battery, columns=["t_s", "robot", "voltage_v", "level", "led_factor"]
-        )
+        return _table(self._battery, ["t_s", "robot", "voltage_v", "level", "led_factor"])
 
     def frames(self) -> dict[str, pd.DataFrame]:
         """All tables by name."""

@@ -78,10 +78,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from statistics import median
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 from kilonet.geometry import GeometryError, place_references, trilaterate_linear
 from kilonet.message import Layout, Message
+from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
 from protocols.turn_calibration import TurnCalibration
 
@@ -89,12 +90,14 @@ __all__ = [
     "FOLLOWER",
     "FRAME_BYTE",
     "FRAME_WIDE",
+    "GUARD_S",
+    "MIN_TURN_DEG",
     "ORIGIN",
     "PIVOT_LEG_MM",
     "THIRD",
     "X_AXIS",
     "Follower",
-    "FollowerConfig",
+    "FollowerParams",
     "FrameReport",
     "Origin",
     "ThirdRobot",
@@ -597,63 +600,60 @@ class ThirdRobot(_FrameMember):
 # ------------------------------------------------------------------------------ follower
 
 
-@dataclass(frozen=True)
-class FollowerConfig:
-    """Knobs of the follower program (all lengths mm, times s, angles degrees).
+#: Wait after the motors stop before readings count, s: a message on the air while the robot
+#: moved carries an old distance.
+GUARD_S = 0.1
+#: Turns smaller than this are skipped, degrees.
+MIN_TURN_DEG = 2.0
 
-    Parameters
-    ----------
-    listen_samples : int
-        Fresh readings per frame robot averaged into one position fix.
-    listen_timeout_s : float
-        After this long in one listening window, robots not heard are left out of the fix.
-    give_up_s : float
-        Listening this long without being able to locate itself ends the walk.
-    guard_s : float
-        Wait after the motors stop before readings count (a message on the air while the
-        robot moved carries an old distance).
-    first_step_mm, step_mm : float
-        Length of the first (and every probe) step, and of the longest ordinary step near the
-        goal.
-    step_fraction : float
-        Far from the goal a step may be this fraction of the remaining distance instead (a
-        first or probe step half of it, up to ``step_mm``), since far fixes are less precise.
-    tolerance_mm : float
-        The robot stops when its estimate is this close to the goal.
-    clearance_mm : float
-        Extra distance kept from the frame robots' bodies when planning.
-    body_mm : float
-        Kilobot body diameter.
-    speed_mm_s : float
-        Nominal forward speed (the data sheet's); the real one is learned from steps.
-    max_steps : int
-        Steps after which the robot gives up.
-    saturation_mm : int
-        The distance sensor's ceiling: a reading this large means "at least this far".
-    min_turn_deg : float
-        Smaller turns are skipped.
-    probe_deg : float
-        Smallest turn that tests the frame's handedness.
-    adapt_turns : bool
-        Learn the real turn rate from conclusive turns.
+
+@dataclass(frozen=True)
+class FollowerParams:
+    """Parameters of the follower scenario (section ``follower``): how the scenario places the
+    four robots and judges the walk, and the knobs the robots' programs take directly
+    (lengths mm, times s, angles degrees).
+
+    The programs read ``frame_samples``, ``message`` (robots 1-3) and ``listen_samples``,
+    ``listen_timeout_s``, ``give_up_s``, ``first_step_mm``, ``step_mm``, ``step_fraction`` (far
+    from the goal a step may be this share of the remaining distance instead; a first or probe
+    step half of it, up to ``step_mm``, since far fixes are less precise), ``tolerance_mm``,
+    ``clearance_mm`` (kept from the frame robots' bodies when planning), ``max_steps``,
+    ``probe_deg`` and ``adapt_turns`` (the follower); the scenario reads the rest.
     """
 
-    listen_samples: int = 4
-    listen_timeout_s: float = 3.0
-    give_up_s: float = 60.0
-    guard_s: float = 0.1
-    first_step_mm: float = 10.0
-    step_mm: float = 20.0
-    step_fraction: float = 0.25
-    tolerance_mm: float = 3.0
-    clearance_mm: float = 1.5
-    body_mm: float = 33.0
-    speed_mm_s: float = 10.0
-    max_steps: int = 100
-    saturation_mm: int = 255
-    min_turn_deg: float = 2.0
-    probe_deg: float = 60.0
-    adapt_turns: bool = True
+    section_name = "follower"
+    side_min_mm: float = param(60.0, lo=33.0, hi=1000.0, doc="generated frame: shortest side")
+    side_max_mm: float = param(80.0, lo=33.0, hi=1000.0, doc="generated frame: longest side")
+    handedness: Literal["random", "left", "right"] = param(
+        "random", doc="robot 3 left/right of the 1->2 axis (right: mirrored frame)"
+    )
+    start_min_mm: float = param(0.0, lo=0.0, hi=10_000.0, doc="follower start: min from goal")
+    start_max_mm: float = param(0.0, lo=0.0, hi=10_000.0, doc="follower start: max (0: range)")
+    direct_start: bool = param(True, doc="generated start has a passable straight line to goal")
+    message: Literal["byte", "wide"] = param(
+        "byte", doc="the seed's byte-per-field message, or the 16-bit variant"
+    )
+    frame_samples: int = param(8, lo=1, hi=1000, doc="readings robots 2, 3 average")
+    listen_samples: int = param(4, lo=1, hi=1000, doc="fresh readings per robot per fix")
+    listen_timeout_s: float = param(3.0, lo=0.1, hi=600.0, doc="then fix without the unheard")
+    give_up_s: float = param(60.0, lo=1.0, hi=1e5, doc="silence before the follower gives up")
+    first_step_mm: float = param(10.0, lo=1.0, hi=500.0, doc="first and probe step length")
+    step_mm: float = param(20.0, lo=1.0, hi=500.0, doc="longest ordinary step near the goal")
+    step_fraction: float = param(0.25, lo=0.0, hi=1.0, doc="far away: step this share of the way")
+    tolerance_mm: float = param(3.0, lo=0.1, hi=500.0, doc="follower stops this close (estimate)")
+    clearance_mm: float = param(1.5, lo=0.0, hi=100.0, doc="kept from robot bodies when planning")
+    max_steps: int = param(100, lo=1, hi=100_000, doc="steps before the follower gives up")
+    probe_deg: float = param(60.0, lo=20.0, hi=120.0, doc="smallest turn testing handedness")
+    adapt_turns: bool = param(True, doc="follower learns its turn rate from its turns")
+    calibration_seed: int = param(1, lo=0, doc="seed of the robot the turn calibration is made on")
+    calibration_sd_deg: float = param(3.0, lo=0.0, hi=90.0, doc="error reading each timed angle")
+    success_mm: float = param(8.0, lo=0.0, hi=1000.0, doc="reached: true distance to the goal")
+
+    def __post_init__(self) -> None:
+        if self.side_min_mm > self.side_max_mm:
+            raise ParamError("follower.side_min_mm must not exceed follower.side_max_mm")
+        if self.start_max_mm and self.start_min_mm > self.start_max_mm:
+            raise ParamError("follower.start_min_mm must not exceed follower.start_max_mm")
 
 
 class Follower(Kilobot):
@@ -661,11 +661,17 @@ class Follower(Kilobot):
 
     Parameters
     ----------
-    config : FollowerConfig
-        Listening, stepping and tolerance settings.
+    params : FollowerParams
+        The scenario's section: listening, stepping and tolerance settings.
     calibration : TurnCalibration
         The linear ``t = f(angle)`` this robot turns by (made on some robot, not exactly this
         one).
+    speed_mm_s : float
+        Nominal forward speed (the data sheet's); the real one is learned from steps.
+    saturation_mm : int
+        The distance sensor's ceiling: a reading this large means "at least this far".
+    body_mm : float
+        Kilobot body diameter.
 
     Attributes
     ----------
@@ -679,13 +685,23 @@ class Follower(Kilobot):
         Whether that conclusion rests on a conclusive turn.
     """
 
-    def __init__(self, config: FollowerConfig, calibration: TurnCalibration) -> None:
-        self.config = config
+    def __init__(
+        self,
+        params: FollowerParams,
+        calibration: TurnCalibration,
+        *,
+        speed_mm_s: float,
+        saturation_mm: int,
+        body_mm: float,
+    ) -> None:
+        self.params = params
         self.calibration = calibration
+        self.nominal_speed_mm_s = speed_mm_s
+        self.saturation_mm = saturation_mm
+        self.body_mm = body_mm
 
     # -- state ---------------------------------------------------------------------------
     def setup(self) -> None:
-        c = self.config
         self.outcome: str | None = None
         self.steps = 0
         self.mirrored = False
@@ -712,7 +728,7 @@ class Follower(Kilobot):
         self._side = 0  # detour side memory of the planner
         self._blocked_steps = 0  # consecutive steps that did not move the robot
         self._speed_samples: list[tuple[float, float]] = []  # (mm moved, s) of clean steps
-        self.speed_mm_s = c.speed_mm_s
+        self.speed_mm_s = self.nominal_speed_mm_s
         self._rate_samples: list[float] = []
         self.turn_gain = 1.0  # real turn rate / calibrated rate, as learned
         # Walking toward the nearest robot when no fix is possible yet.
@@ -751,14 +767,14 @@ class Follower(Kilobot):
     # -- listening and locating --------------------------------------------------------------
     def _start_listening(self, now: int) -> None:
         self.phase = "listen"
-        self._listen_from_tick = now + max(1, round(self.config.guard_s * self.ticks_per_s))
+        self._listen_from_tick = now + max(1, round(GUARD_S * self.ticks_per_s))
         self._listen_started_tick = self._listen_from_tick
         self._silent_since_tick = self._listen_from_tick
         for readings in self._readings.values():
             readings.clear()
 
     def _listen(self, now: int) -> None:
-        c = self.config
+        c = self.params
         tps = self.ticks_per_s
         if (now - self._silent_since_tick) / tps > c.give_up_s:
             self._finish("gave_up", reason="silence")
@@ -802,7 +818,7 @@ class Follower(Kilobot):
         """Mean reading in mm; ``None`` if unheard, ``inf`` if at the sensor's ceiling."""
         if not readings:
             return None
-        if max(readings) >= self.config.saturation_mm:
+        if max(readings) >= self.saturation_mm:
             return math.inf
         return sum(readings) / len(readings)
 
@@ -828,7 +844,7 @@ class Follower(Kilobot):
         candidates = circle_intersections(anchors[i], di, anchors[j], dj)
         (k,) = set(anchors) - {i, j}
         if distances[k] is not None:  # saturated: at least the ceiling away from robot k
-            floor_mm = self.config.saturation_mm - 3
+            floor_mm = self.saturation_mm - 3
             candidates = [p for p in candidates if _dist(p, anchors[k]) >= floor_mm]
         if not candidates:
             return None
@@ -868,7 +884,7 @@ class Follower(Kilobot):
     # -- deciding the next move --------------------------------------------------------------
     def _act(self, distances: dict[int, float | None]) -> bool:
         """Locate and plan the next move; False if there is nothing to act on yet."""
-        if self.steps >= self.config.max_steps:
+        if self.steps >= self.params.max_steps:
             self._finish("gave_up", reason="steps")
             return True
         fix = self._locate(distances)
@@ -895,7 +911,7 @@ class Follower(Kilobot):
         self.position = position
         goal = self._goal()
         obstacles = list(self._anchors().values())
-        radius = self.config.body_mm + self.config.clearance_mm
+        radius = self.body_mm + self.params.clearance_mm
         target = reachable_goal(goal, obstacles, radius)
         to_goal = _dist(position, goal)
         to_target = _dist(position, target)
@@ -909,7 +925,7 @@ class Follower(Kilobot):
             to_goal_mm=to_goal,
             heard=sorted(k for k, d in distances.items() if d is not None),
         )
-        if min(to_goal, to_target) <= self.config.tolerance_mm:
+        if min(to_goal, to_target) <= self.params.tolerance_mm:
             self._finish("reached", to_goal_mm=to_goal)
             return True
         heading = self._heading
@@ -917,13 +933,13 @@ class Follower(Kilobot):
             if self._blocked_steps:
                 # Against a body with no trusted heading: turn (round, first) and step away.
                 turn = _ESCAPE_TURNS[(self._blocked_steps - 1) % len(_ESCAPE_TURNS)]
-                self._plan(turn, self.config.first_step_mm, "escape")
+                self._plan(turn, self.params.first_step_mm, "escape")
             else:
                 self._plan(0.0, self._short_step_mm(to_target), "first")
             return True
         # Far from the goal, longer steps: fewer of them, and a longer baseline for the heading
         # where the fixes are least precise.
-        step = min(max(self.config.step_mm, self.config.step_fraction * to_target), to_target)
+        step = min(max(self.params.step_mm, self.params.step_fraction * to_target), to_target)
         direction, self._side = plan_direction(
             position, target, obstacles, radius, step, self._side
         )
@@ -946,7 +962,7 @@ class Follower(Kilobot):
             mode = "probe"
         elif abs(alpha) > math.pi / 2:
             step = min(step, self._short_step_mm(to_target))  # a long turn is least accurate
-        if abs(alpha) < math.radians(self.config.min_turn_deg):
+        if abs(alpha) < math.radians(MIN_TURN_DEG):
             alpha = 0.0
         # α is in the frame; the pivot is physical, and flips in a mirrored frame.
         physical = abs(alpha) * frame_direction(alpha, self.mirrored)
@@ -957,7 +973,7 @@ class Follower(Kilobot):
         """Length of a first, probe or after-long-turn step: ``first_step_mm``, longer far
         from the goal where a fix is less precise (half the far-field step fraction), but at
         most ``step_mm`` (the step may well lead away from the goal)."""
-        c = self.config
+        c = self.params
         return max(c.first_step_mm, min(c.step_mm, c.step_fraction / 2 * to_target_mm))
 
     def _probe_turn(
@@ -972,7 +988,7 @@ class Follower(Kilobot):
         """A frame turn that tells the handedness: between ``probe_deg`` and 150°, as close
         to ``alpha`` as possible, whose step is clear of the robots whichever handedness the
         frame has (the robot ends up heading ``±turn`` from ``heading``)."""
-        probe, limit = math.radians(self.config.probe_deg), math.radians(150)
+        probe, limit = math.radians(self.params.probe_deg), math.radians(150)
         s = 1.0 if alpha >= 0 else -1.0
         # Preference order: the turn toward the goal itself, then the nearest big enough.
         near = (alpha, alpha + s * probe, alpha - s * probe)
@@ -1049,7 +1065,7 @@ class Follower(Kilobot):
             self.log(
                 "handedness", mirrored=mirrored, floor=self._votes[False], mirror=self._votes[True]
             )
-        if self.config.adapt_turns and math.radians(40) <= abs(commanded) <= math.radians(150):
+        if self.params.adapt_turns and math.radians(40) <= abs(commanded) <= math.radians(150):
             # The turn was timed for commanded / gain, so the real rate is ratio × gain.
             ratio = abs(observed_rad) / abs(commanded) * self.turn_gain
             self._rate_samples.append(min(2.0, max(0.5, ratio)))
@@ -1073,7 +1089,7 @@ class Follower(Kilobot):
         else:
             state = {"robot": k, "distance": d, "theta": 0.0, "side": 1.0, "turned": 0.0}
         self._approach = state
-        self._plan(turn, self.config.step_mm, "approach")
+        self._plan(turn, self.params.step_mm, "approach")
 
     def _plan(self, physical_turn_rad: float, step_mm: float, mode: str) -> None:
         """Start the move: a physical pivot (counter-clockwise positive), then a step."""

@@ -19,7 +19,8 @@ standing still at a cell centre:
 4. **Senses the walls** on its four sides and updates its belief over cells with the Bayes
    filter (:func:`bayes_step`): motion model move ``p_move`` (0.8) / stay ``1 − p_move`` (0.2),
    sensor model per side ``p(z=0 | s=0) = p_open`` (0.7 in the seed) and
-   ``p(z=1 | s=1) = p_wall`` (0.95 by default: the seed's text gives only the first entry).
+   ``p(z=1 | s=1) = p_wall`` (0.95 by default: the seed's text gives only the first entry) —
+   the table it assumes (:attr:`MazeParams.filter_table`), by default the sensor's true one.
    It logs the probabilities that the last move happened or not (the seed's *move* and *stay*
    probabilities) every step, and the seed's unnormalised products for its likeliest cell.
 5. **Plans the next move** — the seed's random walk (``planner = "random"``: a random open
@@ -42,15 +43,18 @@ linear formula ignores when all four are there).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
-import networkx as nx
 import numpy as np
 
 from kilonet.geometry import GeometryError, multilaterate, trilaterate_linear
-from kilonet.maze import DIRECTIONS, Maze, MazeHardware, MazeKilobot
+from kilonet.maze import DIRECTIONS, Maze, MazeError, MazeHardware, MazeKilobot, parse_size
 from kilonet.message import Layout, Message
+from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
+
+if TYPE_CHECKING:  # networkx is imported where used, so that listing scenarios stays fast
+    import networkx as nx
 
 __all__ = [
     "LANDMARK",
@@ -58,7 +62,7 @@ __all__ = [
     "BayesStep",
     "Fix",
     "LandmarkBeacon",
-    "MazeProgram",
+    "MazeParams",
     "MazeRobot",
     "bayes_step",
     "locate",
@@ -265,11 +269,14 @@ def nearest_unvisited(graph: nx.Graph, start: int, visited: set[int]) -> list[in
 
     Examples
     --------
+    >>> import networkx as nx
     >>> nearest_unvisited(nx.path_graph(4), 1, {0, 1})
     [1, 2]
     >>> nearest_unvisited(nx.path_graph(3), 0, {0, 1, 2}) is None
     True
     """
+    import networkx as nx
+
     paths = nx.single_source_shortest_path(graph, start)
     todo = [(len(path), cell) for cell, path in paths.items() if cell not in visited]
     if not todo:
@@ -286,47 +293,77 @@ def random_walk_direction(maze: Maze, cell: int, rng: np.random.Generator) -> st
 
 # -- the programs ---------------------------------------------------------------------------
 @dataclass(frozen=True)
-class MazeProgram:
-    """What the maze robot is flashed with.
+class MazeParams:
+    """Parameters of the maze scenario (section ``maze``): the world the scenario builds (maze,
+    landmarks, the robot's true sensors and drive) and the program's own settings, which
+    :class:`MazeRobot` takes directly.
 
-    Parameters
-    ----------
-    maze : Maze
-        Its map of the maze.
-    landmarks_mm : (4, 2) array
-        Landmark coordinates it knows (camera mode); in infrared mode it learns them from the
-        beacons' messages instead.
-    landmarks : ``"camera"`` or ``"infrared"``
-        How it ranges the landmarks.
-    fit : ``"lsq"`` or ``"linear"``
-        Least squares over all landmarks when it has four, or always the seed's linear formula.
-    planner : ``"bfs"`` or ``"random"``
-        Nearest unvisited cell, or the seed's random walk.
-    navigate_by : ``"landmarks"`` or ``"belief"``
-        Which cell estimate it plans and marks visits with.
-    p_move, p_open, p_wall : float
-        The filter's motion model and sensor table.
-    mark_belief : float
-        Navigating by belief, a cell is marked visited only when the belief in it is at least
-        this (an unsure robot would otherwise mark cells it never stood in).
-    listen_s : float
-        Time standing still in each cell before sensing, s (infrared: collecting beacons).
-    max_steps : int
-        It gives up after this many moves.
+    The wall sensor's true error table (``wall_p_open``, ``wall_p_wall``) and the table the
+    Bayes filter assumes (``filter_p_open``, ``filter_p_wall``) are separate, so a mismatch
+    between model and sensor can be studied; the filter's default (``none``) is the true table.
     """
 
-    maze: Maze
-    landmarks_mm: np.ndarray
-    landmarks: Literal["camera", "infrared"] = "camera"
-    fit: Literal["lsq", "linear"] = "lsq"
-    planner: Literal["bfs", "random"] = "bfs"
-    navigate_by: Literal["landmarks", "belief"] = "landmarks"
-    p_move: float = 0.8
-    p_open: float = 0.7
-    p_wall: float = 0.95
-    mark_belief: float = 0.5
-    listen_s: float = 1.0
-    max_steps: int = 1000
+    section_name = "maze"
+    size: str = param("4x4", doc="maze size WIDTHxHEIGHT in cells")
+    cell_mm: float = param(100.0, lo=1.0, hi=10_000.0, doc="side of a square cell")
+    loops: float = param(0.0, lo=0.0, hi=1.0, doc="share of inner walls removed (0: perfect)")
+    planner: Literal["bfs", "random"] = param(
+        "bfs", doc="nearest unvisited cell (breadth-first), or the seed's random walk"
+    )
+    navigate_by: Literal["landmarks", "belief"] = param(
+        "landmarks", doc="plan with the trilaterated cell, or the belief's most likely cell"
+    )
+    landmarks: Literal["camera", "infrared"] = param(
+        "camera", doc="range landmarks by camera model, or by hearing Kilobot beacons"
+    )
+    fit: Literal["lsq", "linear"] = param(
+        "lsq", doc="least squares over four landmarks, or always the seed's linear formula"
+    )
+    landmark_offset_mm: float = param(
+        0.0, lo=0.0, hi=1000.0, doc="landmarks stand this far outside the corners (each axis)"
+    )
+    sigma_mm: float = param(5.0, lo=0.0, hi=1000.0, doc="camera range noise (sd)")
+    camera_range_mm: float = param(10_000.0, lo=1.0, hi=1e6, doc="farthest landmark found")
+    dropout_prob: float = param(0.05, lo=0.0, hi=1.0, doc="camera misses a landmark")
+    wall_p_open: float = param(0.7, lo=0.0, hi=1.0, doc="true wall sensor: p(z=0 | s=0)")
+    wall_p_wall: float = param(0.95, lo=0.0, hi=1.0, doc="true wall sensor: p(z=1 | s=1)")
+    filter_p_open: float | None = param(
+        None, lo=0.0, hi=1.0, doc="p(z=0 | s=0) the filter assumes (none: wall_p_open)"
+    )
+    filter_p_wall: float | None = param(
+        None, lo=0.0, hi=1.0, doc="p(z=1 | s=1) the filter assumes (none: wall_p_wall)"
+    )
+    p_move: float = param(0.8, lo=0.0, hi=1.0, doc="filter's motion model: p(move)")
+    mark_belief: float = param(
+        0.5, lo=0.0, hi=1.0, doc="navigating by belief: least belief to mark a cell visited"
+    )
+    slip_prob: float = param(0.0, lo=0.0, hi=1.0, doc="drive: share of moves that stay put")
+    listen_s: float = param(1.0, lo=0.0, hi=600.0, doc="standing time in a cell before sensing")
+    max_steps: int = param(1000, lo=1, hi=1_000_000, doc="the robot gives up after this many")
+    burn_in_steps: int = param(5, lo=0, hi=1_000_000, doc="steps left out of belief accuracy")
+
+    def __post_init__(self) -> None:
+        try:
+            cols, rows = parse_size(self.size)
+        except MazeError as exc:
+            raise ParamError(f"maze.size: {exc}") from None
+        if cols * rows > 10_000:
+            raise ParamError(f"maze.size = {self.size!r}: at most 10000 cells")
+
+    @property
+    def filter_table(self) -> tuple[float, float]:
+        """``(p(z=0 | s=0), p(z=1 | s=1))`` the filter assumes: its own, else the true one.
+
+        Examples
+        --------
+        >>> MazeParams(wall_p_open=0.6).filter_table
+        (0.6, 0.95)
+        >>> MazeParams(wall_p_open=0.6, filter_p_open=0.7).filter_table
+        (0.7, 0.95)
+        """
+        p_open = self.wall_p_open if self.filter_p_open is None else self.filter_p_open
+        p_wall = self.wall_p_wall if self.filter_p_wall is None else self.filter_p_wall
+        return p_open, p_wall
 
 
 class MazeRobot(MazeKilobot):
@@ -339,17 +376,24 @@ class MazeRobot(MazeKilobot):
     ----------
     hardware : MazeHardware
         Its sensors and drive.
-    program : MazeProgram
-        Its map and settings.
+    params : MazeParams
+        Its settings (the scenario's section).
+    maze : Maze
+        Its map of the maze.
+    landmarks_mm : (4, 2) array
+        Landmark coordinates it knows (camera mode); in infrared mode it learns them from the
+        beacons' messages instead.
     """
 
-    def __init__(self, hardware: MazeHardware, program: MazeProgram) -> None:
+    def __init__(
+        self, hardware: MazeHardware, params: MazeParams, maze: Maze, landmarks_mm: np.ndarray
+    ) -> None:
         super().__init__(hardware)
-        self.program = program
+        self.params = params
+        self.map = maze
+        self.landmarks_mm = np.asarray(landmarks_mm, dtype=float)
 
     def setup(self) -> None:
-        prog = self.program
-        self.map = prog.maze
         self.graph = self.map.graph()
         self.belief = np.full(self.map.n_cells, 1.0 / self.map.n_cells)
         self.belief_history: list[np.ndarray] = []
@@ -369,12 +413,12 @@ class MazeRobot(MazeKilobot):
             self._heard = {}  # estimates taken while moving do not describe this cell
             self.set_color(0, 0, 1)
         elif self.state == "listen" and (
-            self.kilo_ticks - self._arrived_tick >= self.program.listen_s * self.ticks_per_s
+            self.kilo_ticks - self._arrived_tick >= self.params.listen_s * self.ticks_per_s
         ):
             self._sense_and_move()
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        if self.program.landmarks != "infrared" or self.state != "listen":
+        if self.params.landmarks != "infrared" or self.state != "listen":
             return
         if LANDMARK.matches(message):
             beacon = LANDMARK.unpack(message)
@@ -384,15 +428,16 @@ class MazeRobot(MazeKilobot):
 
     # -- one step ---------------------------------------------------------------------------
     def _ranges(self) -> tuple[np.ndarray, np.ndarray]:
-        if self.program.landmarks == "camera":
-            return np.asarray(self.program.landmarks_mm, dtype=float), self.sense_landmark_ranges()
+        if self.params.landmarks == "camera":
+            return self.landmarks_mm, self.sense_landmark_ranges()
         ids = sorted(self._heard)
         anchors = np.array([self._heard[i][:2] for i in ids], dtype=float).reshape(-1, 2)
         ranges = np.array([float(np.median(self._heard[i][2])) for i in ids])
         return anchors, ranges
 
     def _sense_and_move(self) -> None:
-        prog = self.program
+        prog = self.params
+        p_open, p_wall = prog.filter_table
         anchors, ranges = self._ranges()
         heard = int((~np.isnan(ranges)).sum())
         fix = None
@@ -411,16 +456,14 @@ class MazeRobot(MazeKilobot):
                 self._command,
                 reading,
                 p_move=prog.p_move,
-                p_open=prog.p_open,
-                p_wall=prog.p_wall,
+                p_open=p_open,
+                p_wall=p_wall,
             )
         except ValueError:
             # The model rules out every cell: start over from a uniform prior (kidnapped robot).
             self.log("belief_reset", step=self.step)
             uniform = np.full(self.map.n_cells, 1.0 / self.map.n_cells)
-            update = bayes_step(
-                uniform, self.map, None, reading, p_open=prog.p_open, p_wall=prog.p_wall
-            )
+            update = bayes_step(uniform, self.map, None, reading, p_open=p_open, p_wall=p_wall)
         seed_move, seed_stay = self._seed_products(update.likelihood)
         self.belief = update.belief
         self.belief_history.append(self.belief)
@@ -457,14 +500,14 @@ class MazeRobot(MazeKilobot):
             return None, None
         here = int(np.argmax(self.belief))
         there = self.map.neighbour(here, self._command)
-        p_move = self.program.p_move if there != here else 0.0
+        p_move = self.params.p_move if there != here else 0.0
         return round(p_move * float(likelihood[there]), 6), round(
             (1 - p_move) * float(likelihood[here]), 6
         )
 
     def _where(self, fix: Fix | None, best: int) -> int:
         """The cell the robot navigates by."""
-        if self.program.navigate_by == "belief":
+        if self.params.navigate_by == "belief":
             return best
         if fix is not None:
             return self.map.nearest_cell(fix.x_mm, fix.y_mm)
@@ -473,7 +516,9 @@ class MazeRobot(MazeKilobot):
         return best
 
     def _plan_and_drive(self) -> None:
-        prog = self.program
+        prog = self.params
+        import networkx as nx
+
         reachable = nx.node_connected_component(self.graph, self.cell)
         if reachable <= self.visited:
             self.log("covered", step=self.step, visited=len(self.visited))

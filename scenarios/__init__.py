@@ -1,27 +1,40 @@
-"""Named scenarios, by name. ``kilonet run NAME`` and sweeps look them up here."""
+"""Named scenarios, by name. ``kilonet run NAME`` and sweeps look them up here.
+
+A scenario registers itself as an entry point of the group ``kilonet.scenarios``
+(``[project.entry-points."kilonet.scenarios"]`` in ``pyproject.toml``; a package of your own
+can add scenarios the same way): the entry's name is the scenario's name, its value the
+:class:`Scenario` object (``"scenarios.gcs:SCENARIO"``). A scenario's module is imported only
+when the scenario is asked for.
+"""
 
 from __future__ import annotations
 
-from scenarios import follower, gcs, gradient, maze
+from importlib.metadata import entry_points
+
 from scenarios.base import RunResult, Scenario, ScenarioError, run, write_outputs
 
 __all__ = [
     "DEFAULT",
-    "SCENARIOS",
+    "GROUP",
     "RunResult",
     "Scenario",
     "ScenarioError",
     "get",
+    "names",
     "run",
     "write_outputs",
 ]
 
-SCENARIOS: dict[str, Scenario] = {
-    s.name: s for s in (follower.SCENARIO, gcs.SCENARIO, gradient.SCENARIO, maze.SCENARIO)
-}
+#: Entry-point group of the scenarios.
+GROUP = "kilonet.scenarios"
 
 #: What ``kilonet run`` runs when no scenario is named.
 DEFAULT = "gcs"
+
+
+def names() -> list[str]:
+    """The registered scenarios' names, sorted (nothing is imported)."""
+    return sorted({ep.name for ep in entry_points(group=GROUP)})
 
 
 def get(name: str) -> Scenario:
@@ -31,10 +44,14 @@ def get(name: str) -> Scenario:
     ------
     ScenarioError
         If there is none; the message lists the known names.
+    TypeError
+        If the entry point names something that is not a :class:`Scenario` (a packaging bug).
     """
-    try:
-        return SCENARIOS[name]
-    except KeyError:
-        raise ScenarioError(
-            f"unknown scenario {name!r}; known scenarios: {', '.join(sorted(SCENARIOS))}"
-        ) from None
+    found = [ep for ep in entry_points(group=GROUP) if ep.name == name]
+    if not found:
+        known = ", ".join(names()) or f"none ({GROUP} entry points: is kilonet installed?)"
+        raise ScenarioError(f"unknown scenario {name!r}; known scenarios: {known}")
+    scenario = found[0].load()
+    if not isinstance(scenario, Scenario) or scenario.name != name:
+        raise TypeError(f"entry point {found[0].value} of {GROUP} is not the Scenario {name!r}")
+    return scenario

@@ -5,24 +5,23 @@ geometry: each seed takes the reference pair its rule would choose from true dis
 join a seed's frame when they see the seed and at least two robots already in that frame
 (repeated until nothing changes, as localization spreads); merging groups are found as the
 robots would find them. The frame graph's components are the global frames merging can reach.
+
+``kilonet analyze PLACEMENT`` prints the prediction and writes nothing unless asked:
+``--out F.png`` draws it.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 
 import scenarios
-from scenarios.prediction import predict_from_seeds
 from scenarios.thesis_placements import NAMED_PLACEMENTS
 
 __all__ = ["predict", "register"]
@@ -36,6 +35,8 @@ def predict(
     Returns the failure cases (robot indices), the rigidity facts, the seeds and the
     predicted frames per robot.
     """
+    from scenarios.prediction import predict_from_seeds
+
     result = scenarios.run(
         scenarios.get("gcs"),
         {**(overrides or {}), "gcs.until": "seeds"},
@@ -48,6 +49,11 @@ def predict(
 
 
 def _figure(pos: np.ndarray, report: dict[str, Any], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     fig, ax = plt.subplots(figsize=(6, 6))
     ax.scatter(pos[:, 0], pos[:, 1], s=40, c="0.75", label="robots")
     ax.scatter(*pos[report["seeds"]].T, s=40, c="tab:blue", label="seeds")
@@ -74,19 +80,18 @@ def _cmd(args: argparse.Namespace) -> int:
 
     if args.placement in NAMED_PLACEMENTS:
         positions = NAMED_PLACEMENTS[args.placement]()
-        default_figure = Path(f"{args.placement}.analysis.png")
     elif Path(args.placement).exists():
         positions = load_csv(args.placement)
-        default_figure = Path(args.placement).with_suffix(".analysis.png")
     else:
         named = ", ".join(sorted(NAMED_PLACEMENTS))
         raise UsageError(
             f"{args.placement}: no such placement file or named placement (named: {named})"
         )
+    figure = None if args.out is None else _figure_target(args.out, args.replace)
     named = args.placement in NAMED_PLACEMENTS  # a name brings the thesis's premise along
     report = predict(args.placement if named else positions, seed=args.seed)
-    figure = Path(args.figure or default_figure)
-    _figure(positions, report, figure)
+    if figure is not None:
+        _write_figure(positions, report, figure)
     if args.json:
         print(json.dumps({k: v for k, v in report.items() if k != "located_in"}, indent=2))
         return 0
@@ -100,12 +105,47 @@ def _cmd(args: argparse.Namespace) -> int:
     print(f"on a frame boundary    {len(report['boundary'])}  {report['boundary']}")
     print(f"articulation points    {report['articulation_points']}")
     print(f"fewer than 3 neighbours {report['low_degree']}")
-    print(f"figure                 {figure}", file=sys.stderr)
+    if figure is not None:
+        print(f"figure                 {figure}", file=sys.stderr)
     return 0
 
 
+def _figure_target(out: str, replace: bool) -> Path:
+    """``--out`` checked before the phases run: a PNG path in a writable directory, not there
+    yet unless ``--replace``."""
+    from kilonet.cli import UsageError
+
+    path = Path(out)
+    if path.suffix.lower() != ".png":
+        raise UsageError(f"--out {out}: the figure is a PNG; give a file name ending in .png")
+    if path.is_dir():
+        raise UsageError(f"--out {out} is a directory; give a file name ending in .png")
+    if path.exists() and not replace:
+        raise UsageError(f"{out} already exists; choose another --out or pass --replace")
+    if not path.parent.is_dir():
+        raise UsageError(f"--out {out}: {path.parent} is not a directory")
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise UsageError(f"--out {out}: cannot write in {path.parent}")
+    return path
+
+
+def _write_figure(pos: np.ndarray, report: dict[str, Any], path: Path) -> None:
+    """Draw into a temporary file beside ``path`` and rename it into place, so a failure
+    leaves nothing behind."""
+    from kilonet.cli import UsageError
+
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.png")
+    try:
+        _figure(pos, report, tmp)
+        tmp.replace(path)
+    except OSError as exc:
+        raise UsageError(f"{path}: cannot write the figure ({exc.strerror})") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def register(subparsers: Any) -> None:
-    """Add ``kilonet analyze PLACEMENT [--seed S] [--json] [--figure F.png]``."""
+    """Add ``kilonet analyze PLACEMENT [--seed S] [--json] [--out F.png [--replace]]``."""
     parser = subparsers.add_parser(
         "analyze", help="predict the global coordinate system's failure cases for a placement"
     )
@@ -114,5 +154,8 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--json", action="store_true", help="print the prediction as JSON")
-    parser.add_argument("--figure", help="PNG to write (default: next to the placement)")
+    parser.add_argument(
+        "--out", metavar="F.png", help="also draw the prediction into F.png (default: no file)"
+    )
+    parser.add_argument("--replace", action="store_true", help="overwrite an existing F.png")
     parser.set_defaults(func=_cmd)

@@ -1,44 +1,63 @@
 """Named scenarios: a placement, parameters and robot programs, glued into a runnable whole.
 
 A :class:`Scenario` says which program each robot runs, its own parameter section, its default
-swarm size and duration, and the metrics it reports against ground truth. :func:`run` builds
-the parameters and the placement, runs the simulation and returns a :class:`RunResult`;
+swarm size and duration, the metrics it reports against ground truth, and what the command line
+needs to know of it (its own options, when a run is expected to end). :func:`run` builds the
+parameters and the placement, runs the simulation and returns a :class:`RunResult`;
 :func:`write_outputs` writes a run directory. The CLI and the sweep runner call these.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
-import sys
-import tempfile
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from tqdm import tqdm
 
+from kilonet.errors import UserError
 from kilonet.params import ParamError, Params
 from kilonet.placement import hex_lattice, line, load_csv, random_uniform
 from kilonet.robot import Kilobot
-from kilonet.simulation import Simulation, stream_for
+from scenarios.output_dir import OutputDir
+from scenarios.progress import RunProgress
 from scenarios.thesis_placements import NAMED_PLACEMENTS, PREMISE
+
+if TYPE_CHECKING:
+    from kilonet.simulation import Simulation
 
 __all__ = [
     "RunResult",
     "Scenario",
     "ScenarioError",
+    "ScenarioOption",
     "build_params",
+    "json_safe",
     "place",
     "run",
     "write_outputs",
+    "write_run_files",
 ]
 
 
-class ScenarioError(ValueError):
+class ScenarioError(UserError, ValueError):
     """A scenario name, file or option is unusable; the message says which and why."""
+
+
+@dataclass(frozen=True)
+class ScenarioOption:
+    """An option of ``kilonet run`` that a scenario declares: ``flag`` sets parameter ``key``.
+
+    ``kilonet run --until frames`` is ``--set gcs.until=frames``; the allowed values and the
+    default come from the parameter's declaration, and other scenarios refuse the option.
+    """
+
+    flag: str
+    key: str
+    help: str
 
 
 ProgramFactory = Callable[[int], Kilobot]
@@ -72,6 +91,18 @@ class Scenario:
     robot_columns : callable, optional
         ``robot_columns(sim) -> DataFrame`` with a ``robot`` column: scenario columns joined
         to the robots table.
+    options : tuple of ScenarioOption
+        Options of ``kilonet run`` that set this scenario's parameters (``--until``).
+    expected_end_s : callable, optional
+        ``expected_end_s(params) -> float or None``: the simulated time the run will end at,
+        when the scenario knows it before the run (``None``: only ``stop_when`` will tell).
+        Without it a run is expected to last ``duration_s`` unless it has a ``stop_when``.
+    ends_when : str
+        What ``stop_when`` waits for, in words, for the progress display
+        ("the follower arrives or gives up").
+    progress_note : callable, optional
+        ``progress_note(sim) -> str``: where the run is (the current phase), for the progress
+        display.
     """
 
     name: str
@@ -85,6 +116,10 @@ class Scenario:
     stop_when: Callable[[Simulation], bool] | None = None
     outputs: Callable[[RunResult, Path], None] | None = None
     robot_columns: Callable[[Simulation], Any] | None = None
+    options: tuple[ScenarioOption, ...] = ()
+    expected_end_s: Callable[[Params], float | None] | None = None
+    ends_when: str = ""
+    progress_note: Callable[[Simulation], str] | None = None
 
 
 @dataclass
@@ -128,14 +163,21 @@ def place(
     kilonet.placement.PlacementError
         If the file or array is not a valid placement.
     kilonet.params.ParamError
-        If a generator cannot place the robots with its parameters (density too high).
+        If a generator cannot place the robots with its parameters (density too high), or
+        ``placement.robots`` is set and differs from the number of robots in ``placement``
+        (the two would contradict each other).
     """
-    if isinstance(placement, str) and placement in NAMED_PLACEMENTS:
-        return NAMED_PLACEMENTS[placement]()
-    if isinstance(placement, str | Path):
-        return load_csv(placement)
     if placement is not None:
-        return np.asarray(placement, dtype=float)
+        positions = _given_placement(placement)
+        wanted = params.placement.robots
+        if wanted and wanted != len(positions):
+            raise ParamError(
+                f"placement.robots = {wanted} but the placement {_name(placement)} "
+                f"has {len(positions)} robots; give one or the other"
+            )
+        return positions
+    from kilonet.simulation import stream_for
+
     p = params.placement
     n = p.robots or scenario.robots
     rng = stream_for(params.seed, "placement")
@@ -149,6 +191,18 @@ def place(
         return random_uniform(n, density_per_m2=p.density_per_m2, area=p.area, rng=rng)
     except ValueError as exc:  # a generator refusing its parameters is the user's to fix
         raise ParamError(f"placement ({p.kind}, {n} robots): {exc}") from None
+
+
+def _given_placement(placement: str | Path | np.ndarray) -> np.ndarray:
+    if isinstance(placement, str) and placement in NAMED_PLACEMENTS:
+        return NAMED_PLACEMENTS[placement]()
+    if isinstance(placement, str | Path):
+        return load_csv(placement)
+    return np.asarray(placement, dtype=float)
+
+
+def _name(placement: str | Path | np.ndarray) -> str:
+    return str(placement) if isinstance(placement, str | Path) else "array"
 
 
 def run(
@@ -172,83 +226,127 @@ def run(
     placement : name, path or (N, 2) array, optional
         Start positions in mm instead of the scenario's generator.
     progress : bool
-        Show a progress bar on stderr (simulated seconds).
+        Show on stderr what the set-up is doing, then the run's progress in simulated seconds
+        (:class:`scenarios.progress.RunProgress`).
     """
+    from kilonet.simulation import Simulation
+
     if isinstance(placement, str) and placement in NAMED_PLACEMENTS:
         overrides = {**PREMISE, **(overrides or {})}  # the thesis's cases assume it
     params = build_params(scenario, overrides, seed=seed)
-    positions = place(scenario, params, placement)
-    sim = Simulation(positions, scenario.program(params, positions), params)
-    stop_when = (lambda: scenario.stop_when(sim)) if scenario.stop_when else None
-    _run_with_progress(sim, params.duration_s, stop_when, progress)
+    # A placement given is read (and refused) before anything is shown; a generated one is a
+    # set-up stage, which can be long for a large swarm.
+    positions = None if placement is None else place(scenario, params, placement)
+    with RunProgress(
+        scenario.name,
+        expected_end_s=_expected_end_s(scenario, params),
+        cap_s=params.duration_s,
+        ends_when=scenario.ends_when,
+        enabled=progress,
+    ) as bar:
+        if positions is None:
+            bar.stage("placing robots")
+            positions = place(scenario, params)
+        bar.stage(f"building {len(positions):,} robots")
+        sim = Simulation(positions, scenario.program(params, positions), params)
+        bar.stage("starting")
+        sim.start()  # every robot's setup(), also for a run of zero seconds
+        bar.stage("running")
+        _run(sim, scenario, params.duration_s, bar)
     summary = {"scenario": scenario.name, **sim.summary()}
     if scenario.metrics is not None:
         summary.update(scenario.metrics(sim))
     return RunResult(scenario, params, sim, summary)
 
 
-def _run_with_progress(
-    sim: Simulation, duration_s: float, stop_when: Callable[[], bool] | None, progress: bool
-) -> None:
-    with tqdm(
-        total=round(duration_s, 3),
-        unit="sim s",
-        file=sys.stderr,
-        disable=not progress,
-        bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} sim s [{elapsed}<{remaining}]",
-    ) as bar:
-        # Check the stop condition every simulated second; otherwise update about 200 times.
-        step = 1.0 if stop_when is not None else max(duration_s / 200, 0.5)
-        while sim.env.now < duration_s:
-            sim.run(min(duration_s, sim.env.now + step))
-            bar.update(round(sim.env.now - bar.n, 3))
-            if stop_when is not None and stop_when():
-                break
+def _expected_end_s(scenario: Scenario, params: Params) -> float | None:
+    if scenario.expected_end_s is not None:
+        end = scenario.expected_end_s(params)
+    else:
+        end = None if scenario.stop_when is not None else params.duration_s
+    return None if end is None else min(end, params.duration_s)
 
 
-def write_outputs(result: RunResult, out_dir: str | Path, *, fmt: str = "csv") -> list[Path]:
-    """Write a run directory: tables (CSV or Parquet), ``summary.json``, ``params.json`` and
-    the scenario's own files. Written to a temporary directory first and moved into place, so a
-    failure leaves no partial output.
+def _run(sim: Simulation, scenario: Scenario, duration_s: float, bar: RunProgress) -> None:
+    stop_when = scenario.stop_when
+    note = scenario.progress_note
+    # Check the stop condition every simulated second; otherwise update about 200 times.
+    step = 1.0 if stop_when is not None else max(duration_s / 200, 0.5)
+    while sim.env.now < duration_s:
+        sim.run(min(duration_s, sim.env.now + step))
+        bar.update(sim.env.now, note(sim) if note is not None else "")
+        if stop_when is not None and stop_when(sim):
+            break
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float (NaN, ±inf) replaced by ``None``, so that the
+    JSON written is valid JSON (``null``) rather than Python's ``NaN``.
+
+    Examples
+    --------
+    >>> json_safe({"rmse_mm": float("nan"), "frames": [1, float("inf")], "ok": 2.5})
+    {'rmse_mm': None, 'frames': [1, None], 'ok': 2.5}
+    """
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    return value
+
+
+def write_run_files(result: RunResult, directory: str | Path, *, fmt: str = "csv") -> list[Path]:
+    """Write a run's files into ``directory`` (which exists): tables (CSV or Parquet),
+    ``summary.json``, ``params.json`` and the scenario's own files. Returns the paths written.
+
+    Raises
+    ------
+    ScenarioError
+        If ``fmt`` is not ``csv`` or ``parquet``.
+    """
+    if fmt not in ("csv", "parquet"):
+        raise ScenarioError(f"--format must be csv or parquet, not {fmt!r}")
+    out = Path(directory)
+    sim = result.sim
+    robots = sim.robots_frame()
+    if result.scenario.robot_columns is not None:
+        robots = robots.merge(result.scenario.robot_columns(sim), on="robot", how="left")
+    tables = {"robots": robots, **sim.trace.frames()}
+    for name, frame in tables.items():
+        if fmt == "csv":
+            frame.to_csv(out / f"{name}.csv", index=False)
+        else:
+            frame.to_parquet(out / f"{name}.parquet", index=False)
+    (out / "summary.json").write_text(json.dumps(json_safe(result.summary), indent=2) + "\n")
+    flat = result.params.to_flat_dict()
+    (out / "params.json").write_text(json.dumps(flat, indent=2, default=str) + "\n")
+    if result.scenario.outputs is not None:
+        result.scenario.outputs(result, out)
+    return sorted(out.iterdir())
+
+
+def write_outputs(
+    result: RunResult, out_dir: str | Path, *, fmt: str = "csv", replace: bool = False
+) -> list[Path]:
+    """Write a run directory whole (:func:`write_run_files` into a staging directory that
+    :class:`scenarios.output_dir.OutputDir` then puts in place): a failure leaves nothing
+    behind, and an existing directory is never merged into.
 
     Returns the paths written.
 
     Raises
     ------
     ScenarioError
-        If ``fmt`` is not ``csv`` or ``parquet``, or ``out_dir`` exists and is not a directory.
+        If ``fmt`` is not ``csv`` or ``parquet``.
+    scenarios.output_dir.OutputDirError
+        If ``out_dir`` exists and is not empty (without ``replace``), is not a directory, or
+        cannot be created or written.
     """
     if fmt not in ("csv", "parquet"):
         raise ScenarioError(f"--format must be csv or parquet, not {fmt!r}")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise ScenarioError(f"{out} exists and is not a directory")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
-        sim = result.sim
-        robots = sim.robots_frame()
-        if result.scenario.robot_columns is not None:
-            robots = robots.merge(result.scenario.robot_columns(sim), on="robot", how="left")
-        tables = {"robots": robots, **sim.trace.frames()}
-        for name, frame in tables.items():
-            if fmt == "csv":
-                frame.to_csv(tmp / f"{name}.csv", index=False)
-            else:
-                frame.to_parquet(tmp / f"{name}.parquet", index=False)
-        (tmp / "summary.json").write_text(json.dumps(result.summary, indent=2) + "\n")
-        flat = {k: v for k, v in result.params.to_flat_dict().items()}
-        (tmp / "params.json").write_text(json.dumps(flat, indent=2, default=str) + "\n")
-        if result.scenario.outputs is not None:
-            result.scenario.outputs(result, tmp)
-        out.mkdir(exist_ok=True)
-        written = []
-        for path in sorted(tmp.iterdir()):
-            target = out / path.name
-            if target.is_dir():
-                shutil.rmtree(target)
-            path.replace(target)
-            written.append(target)
-        return written
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    with OutputDir(out_dir, replace=replace) as out:
+        names = [p.name for p in write_run_files(result, out.staging, fmt=fmt)]
+        target = out.publish()
+    return [target / name for name in names]

@@ -33,23 +33,17 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
-import pandas as pd
-from matplotlib.patches import Circle
 
-from kilonet.params import BatteryParams, MotionParams, ParamError, Params, RobotParams, param
+from kilonet.params import BatteryParams, MotionParams, ParamError, Params, RobotParams
 from kilonet.placement import ROBOT_DIAMETER_MM
 from kilonet.simulation import Simulation, stream_for
 from kilonet.visibility import LinkModel
 from protocols.follower import (
     Follower,
-    FollowerConfig,
+    FollowerParams,
     Origin,
     ThirdRobot,
     XAxisRobot,
@@ -57,6 +51,9 @@ from protocols.follower import (
 )
 from protocols.turn_calibration import TimedTurns, TurnCalibration
 from scenarios.base import RunResult, Scenario, ScenarioError, run
+
+if TYPE_CHECKING:  # pandas and matplotlib are imported where used: listing scenarios is fast
+    import pandas as pd
 
 __all__ = [
     "ROLES",
@@ -77,45 +74,6 @@ FOLLOWER_INDEX = 3
 CALIBRATION_DURATIONS_S = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
 _BYTE_LAYOUT_MAX_SIDE_MM = 120.0  # |x| of robots 2 and 3 (plus noise) must fit an int8 (mm)
 _MIN_FRAME_HEIGHT_MM = 10.0  # robot 3 this far from the 1→2 line, or the frame is degenerate
-
-
-@dataclass(frozen=True)
-class FollowerParams:
-    """Parameters of the follower scenario (section ``follower``)."""
-
-    section_name = "follower"
-    side_min_mm: float = param(60.0, lo=33.0, hi=1000.0, doc="generated frame: shortest side")
-    side_max_mm: float = param(80.0, lo=33.0, hi=1000.0, doc="generated frame: longest side")
-    handedness: Literal["random", "left", "right"] = param(
-        "random", doc="robot 3 left/right of the 1->2 axis (right: mirrored frame)"
-    )
-    start_min_mm: float = param(0.0, lo=0.0, hi=10_000.0, doc="follower start: min from goal")
-    start_max_mm: float = param(0.0, lo=0.0, hi=10_000.0, doc="follower start: max (0: range)")
-    direct_start: bool = param(True, doc="generated start has a passable straight line to goal")
-    message: Literal["byte", "wide"] = param(
-        "byte", doc="the seed's byte-per-field message, or the 16-bit variant"
-    )
-    frame_samples: int = param(8, lo=1, hi=1000, doc="readings robots 2, 3 average")
-    listen_samples: int = param(4, lo=1, hi=1000, doc="fresh readings per robot per fix")
-    listen_timeout_s: float = param(3.0, lo=0.1, hi=600.0, doc="then fix without the unheard")
-    give_up_s: float = param(60.0, lo=1.0, hi=1e5, doc="silence before the follower gives up")
-    first_step_mm: float = param(10.0, lo=1.0, hi=500.0, doc="first and probe step length")
-    step_mm: float = param(20.0, lo=1.0, hi=500.0, doc="longest ordinary step near the goal")
-    step_fraction: float = param(0.25, lo=0.0, hi=1.0, doc="far away: step this share of the way")
-    tolerance_mm: float = param(3.0, lo=0.1, hi=500.0, doc="follower stops this close (estimate)")
-    clearance_mm: float = param(1.5, lo=0.0, hi=100.0, doc="kept from robot bodies when planning")
-    max_steps: int = param(100, lo=1, hi=100_000, doc="steps before the follower gives up")
-    probe_deg: float = param(60.0, lo=20.0, hi=120.0, doc="smallest turn testing handedness")
-    adapt_turns: bool = param(True, doc="follower learns its turn rate from its turns")
-    calibration_seed: int = param(1, lo=0, doc="seed of the robot the turn calibration is made on")
-    calibration_sd_deg: float = param(3.0, lo=0.0, hi=90.0, doc="error reading each timed angle")
-    success_mm: float = param(8.0, lo=0.0, hi=1000.0, doc="reached: true distance to the goal")
-
-    def __post_init__(self) -> None:
-        if self.side_min_mm > self.side_max_mm:
-            raise ParamError("follower.side_min_mm must not exceed follower.side_max_mm")
-        if self.start_max_mm and self.start_min_mm > self.start_max_mm:
-            raise ParamError("follower.start_min_mm must not exceed follower.start_max_mm")
 
 
 # --------------------------------------------------------------------------- calibration
@@ -346,29 +304,19 @@ def _program(params: Params, positions: np.ndarray):
     cal = calibrate_turns(
         params, seed=f.calibration_seed, reading_sd_deg=f.calibration_sd_deg
     ).calibration
-    config = FollowerConfig(
-        listen_samples=f.listen_samples,
-        listen_timeout_s=f.listen_timeout_s,
-        give_up_s=f.give_up_s,
-        first_step_mm=f.first_step_mm,
-        step_mm=f.step_mm,
-        step_fraction=f.step_fraction,
-        tolerance_mm=f.tolerance_mm,
-        clearance_mm=f.clearance_mm,
-        body_mm=ROBOT_DIAMETER_MM,
-        speed_mm_s=params.motion.speed_mm_s,  # the data sheet's figure, not this robot's
-        max_steps=f.max_steps,
-        saturation_mm=params.ranging.max_mm,
-        probe_deg=f.probe_deg,
-        adapt_turns=f.adapt_turns,
-    )
     wide = f.message == "wide"
     frame_roles = (Origin, XAxisRobot, ThirdRobot)
 
     def build(i: int):
         if i < 3:
             return frame_roles[i](samples=f.frame_samples, wide=wide)
-        return Follower(config, cal)
+        return Follower(
+            f,
+            cal,
+            speed_mm_s=params.motion.speed_mm_s,  # the data sheet's figure, not this robot's
+            saturation_mm=params.ranging.max_mm,
+            body_mm=ROBOT_DIAMETER_MM,
+        )
 
     return build
 
@@ -404,6 +352,8 @@ def frame_to_floor(positions_mm: np.ndarray, frame_xy_mm: np.ndarray) -> np.ndar
 
 def _follower_poses(sim: Simulation) -> pd.DataFrame:
     """True poses of the follower over time, starting with its start pose at t = 0."""
+    import pandas as pd
+
     poses = sim.trace.poses_frame()
     poses = poses[poses["robot"] == FOLLOWER_INDEX].drop(columns="robot")
     # The start heading is not traced (nothing moved yet). Without a record of it on the
@@ -421,6 +371,8 @@ def _follower_poses(sim: Simulation) -> pd.DataFrame:
 
 def _fixes(sim: Simulation) -> pd.DataFrame:
     """The follower's position estimates: time, frame coordinates and floor coordinates."""
+    import pandas as pd
+
     events = sim.trace.events_frame()
     events = events[(events["robot"] == FOLLOWER_INDEX) & (events["event"] == "fix")]
     data = [json.loads(d) for d in events["data"]]
@@ -444,6 +396,8 @@ def trajectory(sim: Simulation) -> pd.DataFrame:
     latest estimate mapped to the floor, ``est_x_mm, est_y_mm`` (empty before its first fix);
     and the same estimate in the robot's own frame, ``frame_x_mm, frame_y_mm``.
     """
+    import pandas as pd
+
     poses = _follower_poses(sim)
     fixes = _fixes(sim)
     times = pd.DataFrame({"t_s": np.union1d(poses["t_s"], fixes["t_s"])})
@@ -459,6 +413,8 @@ def path_length_mm(sim: Simulation) -> float:
 
 
 def _metrics(sim: Simulation) -> dict[str, Any]:
+    import pandas as pd
+
     start = sim.initial_positions_mm
     goal = start[:3].mean(axis=0)  # the frame robots never move
     follower = sim.robots[FOLLOWER_INDEX]
@@ -501,6 +457,12 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
 
 
 def _outputs(result: RunResult, out_dir: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle
+
     sim = result.sim
     traj = trajectory(sim)
     traj.to_csv(out_dir / "trajectory.csv", index=False)
@@ -543,6 +505,7 @@ SCENARIO = Scenario(
     placement=_generate,
     metrics=_metrics,
     stop_when=_stop_when,
+    ends_when="the follower arrives or gives up",
     outputs=_outputs,
 )
 
@@ -550,5 +513,7 @@ SCENARIO = Scenario(
 def run_many(seeds: range | list[int], overrides: dict[str, Any] | None = None) -> pd.DataFrame:
     """Run the scenario once per seed (generated placements) and return one summary per row,
     e.g. ``run_many(range(1, 101), {"medium.loss_prob": 0.1})["reached"].mean()``."""
+    import pandas as pd
+
     rows = [run(SCENARIO, overrides, seed=s).summary for s in seeds]
     return pd.DataFrame(rows)

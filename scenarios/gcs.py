@@ -27,33 +27,31 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
-import pandas as pd
 
-from kilonet.alignment import procrustes_rmse
-from kilonet.geometry import crlb_rmse_mm
-from kilonet.simulation import Simulation
-from kilonet.topology import failure_cases, rigidity_facts
-from kilonet.visibility import LinkModel
-from protocols.gcs import GcsRobot, phase_windows_s
 from protocols.gcs_base import GcsParams
-from scenarios.base import RunResult, Scenario
-from scenarios.prediction import predict_from_seeds
+from scenarios.base import RunResult, Scenario, ScenarioOption
+
+if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
+    import pandas as pd
+
+    from kilonet.params import Params
+    from kilonet.simulation import Simulation
 
 __all__ = ["SCENARIO", "estimates_frame", "local_frames_frame"]
 
 
 def _program(params: Any, positions: np.ndarray):
+    from protocols.gcs import GcsRobot
+
     return lambda _i: GcsRobot(params.scenario)
 
 
 def _windows(sim: Simulation) -> list[tuple[str, float, float]]:
+    from protocols.gcs import phase_windows_s
+
     return phase_windows_s(sim.params.scenario)
 
 
@@ -88,6 +86,27 @@ def _stop_when(sim: Simulation) -> bool:
     return now - settled_s >= _CHECK_S
 
 
+def _expected_end_s(params: Params) -> float | None:
+    """Where :func:`_stop_when` ends a run that stops before merging; merging has no known end."""
+    from protocols.gcs import phase_windows_s
+
+    name, _, end = phase_windows_s(params.scenario)[-1]
+    return None if name == "merge" else end + 1.0
+
+
+def _phase_note(sim: Simulation) -> str:
+    """The phase the run is in, for the progress display: ``phase 3/6 frames (to 41 s)``."""
+    from protocols.gcs_base import PHASES
+
+    windows = _windows(sim)
+    now = sim.env.now
+    k, (name, _, end) = next(
+        ((k, w) for k, w in enumerate(windows) if now < w[2]), (len(windows) - 1, windows[-1])
+    )
+    until = f" (to {end:g} s)" if math.isfinite(end) else ""
+    return f"phase {k + 1}/{len(PHASES)} {name}{until}"
+
+
 def _seed_robot_by_key(sim: Simulation) -> dict[int, int]:
     """Which robot (index) is the seed of each frame key (ground truth, for tables)."""
     return {r.frame_key(r.uid): i for i, r in enumerate(sim.robots) if r.is_seed}
@@ -95,6 +114,8 @@ def _seed_robot_by_key(sim: Simulation) -> dict[int, int]:
 
 def local_frames_frame(sim: Simulation) -> pd.DataFrame:
     """Long table of local positions: ``robot, seed_robot, local_x_mm, local_y_mm``."""
+    import pandas as pd
+
     seeds = _seed_robot_by_key(sim)
     rows = [
         (i, seeds.get(key, -1), x, y)
@@ -106,6 +127,8 @@ def local_frames_frame(sim: Simulation) -> pd.DataFrame:
 
 def estimates_frame(sim: Simulation) -> pd.DataFrame:
     """Per robot: truth, role, ID, frames held, global estimate, final frame label."""
+    import pandas as pd
+
     seeds = _seed_robot_by_key(sim)
     rows = []
     for i, r in enumerate(sim.robots):
@@ -135,6 +158,8 @@ def estimates_frame(sim: Simulation) -> pd.DataFrame:
 
 
 def _pooled_rmse(groups: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    from kilonet.alignment import procrustes_rmse
+
     squared, count = 0.0, 0
     for est, true in groups:
         if len(est) >= 3:
@@ -147,6 +172,8 @@ def _pooled_rmse(groups: list[tuple[np.ndarray, np.ndarray]]) -> float:
 def _failures(sim: Simulation) -> dict[str, Any]:
     """The thesis's failure cases as this run produced them (robot indices), with the
     communication graph's rigidity facts that explain them."""
+    from scenarios.topology import failure_cases, rigidity_facts
+
     seeds = _seed_robot_by_key(sim)
     located = {i: [seeds[k] for k in r.frames if k in seeds] for i, r in enumerate(sim.robots)}
     groups = [
@@ -165,6 +192,10 @@ def _failures(sim: Simulation) -> dict[str, Any]:
 
 
 def _metrics(sim: Simulation) -> dict[str, Any]:
+    from kilonet.geometry import crlb_rmse_mm
+    from kilonet.visibility import LinkModel
+    from scenarios.prediction import predict_from_seeds
+
     windows = _windows(sim)
     robots = sim.robots
     truth = sim.world.positions_mm
@@ -237,7 +268,10 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
                 "frames": len(sizes),
                 "largest_frame_fraction": float(sizes.max() / sim.n_robots) if len(sizes) else 0,
                 "rmse_mm": _pooled_rmse(per_frame),
-                "crlb_rmse_mm": crlb_rmse_mm(truth, edges, sim.params.ranging.sigma_mm),
+                # No two robots in range: nothing is measured, the bound is infinite (null).
+                "crlb_rmse_mm": crlb_rmse_mm(truth, edges, sim.params.ranging.sigma_mm)
+                if len(edges)
+                else None,
                 "merge_rounds": int(counts.get("merge_round", 0)),
                 "merge_rounds_max_per_seed": int(
                     max((r.phase.rounds for r in robots if r.is_seed and r.phase), default=0)
@@ -267,6 +301,13 @@ def _outputs(result: RunResult, out_dir: Path) -> None:
 
 
 def _figure(sim: Simulation, est: pd.DataFrame, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from kilonet.alignment import procrustes_rmse
+
     truth = sim.world.positions_mm
     fig, ax = plt.subplots(figsize=(7, 7))
     ax.scatter(truth[:, 0], truth[:, 1], s=40, facecolors="none", edgecolors="0.6", label="truth")
@@ -322,4 +363,8 @@ SCENARIO = Scenario(
     stop_when=_stop_when,
     outputs=_outputs,
     robot_columns=estimates_frame,
+    options=(ScenarioOption("--until", "gcs.until", "stop after this phase"),),
+    expected_end_s=_expected_end_s,
+    ends_when="every seed is done merging",
+    progress_note=_phase_note,
 )

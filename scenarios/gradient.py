@@ -9,19 +9,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
-import networkx as nx
 import numpy as np
 
-from kilonet.params import param
-from kilonet.simulation import Simulation
+from kilonet.params import ParamError, param
 from protocols.gradient import UNKNOWN, Gradient
 from scenarios.base import RunResult, Scenario
+
+if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
+    from kilonet.simulation import Simulation
 
 __all__ = ["SCENARIO", "GradientParams", "hop_distances"]
 
@@ -37,6 +34,8 @@ class GradientParams:
 
 def hop_distances(sim: Simulation, source: int) -> dict[int, int]:
     """Hops from ``source`` in the medium's own communication graph of the running robots."""
+    import networkx as nx
+
     graph = sim.medium.graph()
     graph.remove_nodes_from(np.flatnonzero(~sim.world.running).tolist())
     if source not in graph:
@@ -47,8 +46,6 @@ def hop_distances(sim: Simulation, source: int) -> dict[int, int]:
 def _program(params: Any, positions: np.ndarray):
     g = params.scenario
     if g.source >= len(positions):
-        from kilonet.params import ParamError
-
         raise ParamError(f"gradient.source = {g.source} but there are only {len(positions)} robots")
     return lambda i: Gradient(is_source=i == g.source, refresh_s=g.refresh_s)
 
@@ -71,6 +68,11 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
 
 
 def _figure(result: RunResult, out_dir: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     sim = result.sim
     pos = sim.world.positions_mm
     values = np.array([r.gradient for r in sim.robots], dtype=float)

@@ -30,21 +30,13 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
-import pandas as pd
-from matplotlib.figure import Figure
 
 from kilonet.maze import (
     Maze,
-    MazeError,
     MazeHardware,
     RangeSensor,
     WallSensor,
@@ -52,11 +44,15 @@ from kilonet.maze import (
     generate_maze,
     parse_size,
 )
-from kilonet.params import ParamError, Params, param
+from kilonet.params import ParamError, Params
 from kilonet.placement import ROBOT_DIAMETER_MM
 from kilonet.simulation import Simulation, stream_for
-from protocols.maze import LANDMARK_COLORS, LandmarkBeacon, MazeProgram, MazeRobot
+from protocols.maze import LANDMARK_COLORS, LandmarkBeacon, MazeParams, MazeRobot
 from scenarios.base import RunResult, Scenario, run
+
+if TYPE_CHECKING:  # pandas and matplotlib are imported where used: listing scenarios is fast
+    import pandas as pd
+    from matplotlib.figure import Figure
 
 __all__ = [
     "DEFAULT_NOISE_TABLES",
@@ -72,52 +68,6 @@ __all__ = [
 
 _ROBOT = 0
 _LANDMARKS = (1, 2, 3, 4)
-
-
-@dataclass(frozen=True)
-class MazeParams:
-    """Parameters of the maze scenario (section ``maze``)."""
-
-    section_name = "maze"
-    size: str = param("4x4", doc="maze size WIDTHxHEIGHT in cells")
-    cell_mm: float = param(100.0, lo=1.0, hi=10_000.0, doc="side of a square cell")
-    loops: float = param(0.0, lo=0.0, hi=1.0, doc="share of inner walls removed (0: perfect)")
-    planner: Literal["bfs", "random"] = param(
-        "bfs", doc="nearest unvisited cell (breadth-first), or the seed's random walk"
-    )
-    navigate_by: Literal["landmarks", "belief"] = param(
-        "landmarks", doc="plan with the trilaterated cell, or the belief's most likely cell"
-    )
-    landmarks: Literal["camera", "infrared"] = param(
-        "camera", doc="range landmarks by camera model, or by hearing Kilobot beacons"
-    )
-    fit: Literal["lsq", "linear"] = param(
-        "lsq", doc="least squares over four landmarks, or always the seed's linear formula"
-    )
-    landmark_offset_mm: float = param(
-        0.0, lo=0.0, hi=1000.0, doc="landmarks stand this far outside the corners (each axis)"
-    )
-    sigma_mm: float = param(5.0, lo=0.0, hi=1000.0, doc="camera range noise (sd)")
-    camera_range_mm: float = param(10_000.0, lo=1.0, hi=1e6, doc="farthest landmark found")
-    dropout_prob: float = param(0.05, lo=0.0, hi=1.0, doc="camera misses a landmark")
-    p_open: float = param(0.7, lo=0.0, hi=1.0, doc="wall sensor and filter: p(z=0 | s=0)")
-    p_wall: float = param(0.95, lo=0.0, hi=1.0, doc="wall sensor and filter: p(z=1 | s=1)")
-    p_move: float = param(0.8, lo=0.0, hi=1.0, doc="filter's motion model: p(move)")
-    mark_belief: float = param(
-        0.5, lo=0.0, hi=1.0, doc="navigating by belief: least belief to mark a cell visited"
-    )
-    slip_prob: float = param(0.0, lo=0.0, hi=1.0, doc="drive: share of moves that stay put")
-    listen_s: float = param(1.0, lo=0.0, hi=600.0, doc="standing time in a cell before sensing")
-    max_steps: int = param(1000, lo=1, hi=1_000_000, doc="the robot gives up after this many")
-    burn_in_steps: int = param(5, lo=0, hi=1_000_000, doc="steps left out of belief accuracy")
-
-    def __post_init__(self) -> None:
-        try:
-            cols, rows = parse_size(self.size)
-        except MazeError as exc:
-            raise ParamError(f"maze.size: {exc}") from None
-        if cols * rows > 10_000:
-            raise ParamError(f"maze.size = {self.size!r}: at most 10000 cells")
 
 
 # -- world ------------------------------------------------------------------------------------
@@ -176,28 +126,14 @@ def _program(params: Params, positions: np.ndarray):
     hardware = MazeHardware(
         maze,
         RangeSensor(m.sigma_mm, m.camera_range_mm, m.dropout_prob),
-        WallSensor(m.p_open, m.p_wall),
+        WallSensor(m.wall_p_open, m.wall_p_wall),
         landmark_robots=_LANDMARKS,
         slip_prob=m.slip_prob,
-    )
-    program = MazeProgram(
-        maze,
-        landmarks_mm,
-        landmarks=m.landmarks,
-        fit=m.fit,
-        planner=m.planner,
-        navigate_by=m.navigate_by,
-        p_move=m.p_move,
-        p_open=m.p_open,
-        p_wall=m.p_wall,
-        mark_belief=m.mark_belief,
-        listen_s=m.listen_s,
-        max_steps=m.max_steps,
     )
 
     def build(i: int):
         if i == _ROBOT:
-            return MazeRobot(hardware, program)
+            return MazeRobot(hardware, m, maze, landmarks_mm)
         position = (float(positions[i, 0]), float(positions[i, 1]))
         return LandmarkBeacon(i - 1, position, broadcast=m.landmarks == "infrared")
 
@@ -228,6 +164,8 @@ def step_table(sim: Simulation) -> pd.DataFrame:
     ``true_x_mm, true_y_mm, true_cell`` (where it really stood), ``error_mm`` (fix vs truth)
     and ``belief_correct``.
     """
+    import pandas as pd
+
     events = sim.trace.events_frame()
     events = events[(events["robot"] == _ROBOT) & (events["event"] == "step")]
     rows = [
@@ -336,6 +274,11 @@ def _draw_maze(ax: Any, maze: Maze) -> None:
 
 
 def _figures(result: RunResult, out_dir: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     sim = result.sim
     maze = maze_for(result.params)
     steps = step_table(sim)
@@ -413,6 +356,7 @@ SCENARIO = Scenario(
     placement=_placement,
     metrics=_metrics,
     stop_when=_stop_when,
+    ends_when="the robot covers the maze or gives up",
     outputs=_figures,
 )
 
@@ -430,6 +374,8 @@ def coverage_study(
     Returns one row per run: ``planner, seed, cells, cells_visited, steps_to_cover, covered,
     sim_time_s``.
     """
+    import pandas as pd
+
     rows = []
     for planner in planners:
         for s in range(seed, seed + runs):
@@ -451,6 +397,8 @@ def coverage_study(
 def coverage_table(study: pd.DataFrame) -> pd.DataFrame:
     """Per planner: runs, runs that covered every cell, and mean / median / max steps to cover
     (over the covering runs)."""
+    import pandas as pd
+
     grouped = study.groupby("planner", sort=False)
     return pd.DataFrame(
         {
@@ -485,7 +433,8 @@ def belief_accuracy_by_noise(
     overrides: dict[str, Any] | None = None,
 ) -> tuple[pd.DataFrame, Figure]:
     """Probability that the belief's maximum is the true cell, per step, for each wall-sensor
-    table (the sensor and the filter use the same table).
+    table (the sensor's true table, which the filter assumes too unless ``overrides`` set
+    ``maze.filter_p_open`` or ``maze.filter_p_wall``).
 
     Every table runs in the same ``runs`` random mazes (seeds ``seed … seed + runs − 1``).
 
@@ -498,10 +447,16 @@ def belief_accuracy_by_noise(
         ``p_correct`` against step, one line per table, for the steps at least half the runs
         reached.
     """
+    import matplotlib
+    import pandas as pd
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     parts = []
     for p_open, p_wall in tables:
         for s in range(seed, seed + runs):
-            values = {**(overrides or {}), "maze.p_open": p_open, "maze.p_wall": p_wall}
+            values = {**(overrides or {}), "maze.wall_p_open": p_open, "maze.wall_p_wall": p_wall}
             steps = step_table(run(SCENARIO, values, seed=s).sim)
             parts.append(
                 pd.DataFrame(

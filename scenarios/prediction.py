@@ -6,7 +6,7 @@ distances; robots join a seed's frame when they see the seed and at least two ro
 that frame and the robots' own fix test accepts those anchors (repeated until nothing changes,
 as localization spreads); merging groups are found
 as the robots would find them (:func:`protocols.merging_groups.find_groups`). The frame graph's
-components (:func:`kilonet.topology.failure_cases`) are the global frames merging can reach.
+components (:func:`scenarios.topology.failure_cases`) are the global frames merging can reach.
 
 Used before a run (``kilonet analyze``) and after one (the ``gcs`` scenario reports the
 prediction next to what it observed).
@@ -27,9 +27,9 @@ from kilonet.geometry import (
     multilaterate,
 )
 from kilonet.params import Params
-from kilonet.topology import failure_cases, rigidity_facts
 from kilonet.visibility import LinkModel, communication_graph
 from protocols.merging_groups import find_groups
+from scenarios.topology import failure_cases, rigidity_facts
 
 __all__ = ["predict_from_seeds"]
 
@@ -61,7 +61,7 @@ def predict_from_seeds(
     -------
     dict
         ``robots``, ``seeds``, ``located_in`` (robot → seeds whose frames it will be located
-        in), the cases of :func:`kilonet.topology.failure_cases` (``unlocalizable``,
+        in), the cases of :func:`scenarios.topology.failure_cases` (``unlocalizable``,
         ``isolated_seeds``, ``frames``, ``split``) and the rigidity facts of the communication
         graph; ``final_frame`` (robot → index into ``frames`` of the merged frame it will
         report, ``None`` if unlocalizable), ``final_frames`` (how many distinct ones robots

@@ -383,7 +383,6 @@ def test_estimates_are_aligned_per_frame_onto_the_truth(tmp_path: Path):
 def test_user_errors_are_one_line_with_nothing_written(
     gradient_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
 ):
-    monkeypatch.setattr(cli, "_PLUGINS", ["kilonet.animate_cli"])
     no_messages = _write_run(tmp_path / "quiet", _robots([(0, 0)]))
     cases = [
         ([str(tmp_path / "nowhere")], "no such run directory"),
@@ -418,7 +417,6 @@ def test_mp4_without_ffmpeg_says_so(
 
 
 def test_cli_writes_the_default_file(gradient_dir: Path, monkeypatch: pytest.MonkeyPatch, capsys):
-    monkeypatch.setattr(cli, "_PLUGINS", ["kilonet.animate_cli"])
     out = gradient_dir / "animation.gif"
     try:
         assert cli.main(["animate", str(gradient_dir), "--end", "0.5", "--size", "200"]) == 0

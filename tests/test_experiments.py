@@ -503,7 +503,9 @@ def test_report_html_and_markdown_from_a_sweep(tmp_path):
 
 def test_register_adds_sweep_and_report_sub_commands():
     parser = argparse.ArgumentParser()
-    experiments_cli.register(parser.add_subparsers(dest="command"))
+    subparsers = parser.add_subparsers(dest="command")
+    experiments_cli.register_sweep(subparsers)
+    experiments_cli.register_report(subparsers)
     args = parser.parse_args(["sweep", "s.toml", "--out", "d", "--workers", "3", "--resume"])
     assert (args.sweep_file, args.out, args.workers, args.resume) == ("s.toml", "d", 3, True)
     assert args.func is experiments_cli._cmd_sweep
@@ -513,8 +515,7 @@ def test_register_adds_sweep_and_report_sub_commands():
 
 
 @pytest.fixture
-def kilonet_main(monkeypatch):
-    monkeypatch.setattr(kilonet.cli, "_PLUGINS", ["experiments.cli"])
+def kilonet_main():
     return kilonet.cli.main
 
 

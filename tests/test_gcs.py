@@ -361,7 +361,7 @@ def test_analyze_predicts_the_lone_robot_before_a_full_run(tmp_path, capsys):
 
     placement = tmp_path / "swarm.csv"
     save_csv(np.vstack([hex_lattice(19, spacing_mm=40.0), [[500.0, 0.0]]]), placement)
-    assert main(["analyze", str(placement), "--json", "--figure", str(tmp_path / "a.png")]) == 0
+    assert main(["analyze", str(placement), "--json", "--out", str(tmp_path / "a.png")]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["unlocalizable"] == [19]
     assert report["isolated_seeds"] == [19]

@@ -30,7 +30,7 @@ from protocols.maze import (
     predict,
     wall_likelihood,
 )
-from scenarios.base import build_params, run, write_outputs
+from scenarios.base import build_params, place, run, write_outputs
 from scenarios.maze import (
     SCENARIO,
     MazeParams,
@@ -408,22 +408,40 @@ def test_belief_accuracy_by_noise_fast():
 @pytest.mark.slow
 def test_default_sensor_model_localizes_in_90_percent_of_steps_after_the_first_five():
     default = MazeParams()
-    assert default.p_open == 0.7  # the seed's p(z=0 | s=0)
-    frame, _fig = belief_accuracy_by_noise(((default.p_open, default.p_wall),), runs=50)
+    assert default.wall_p_open == 0.7  # the seed's p(z=0 | s=0)
+    assert default.filter_table == (default.wall_p_open, default.wall_p_wall)
+    frame, _fig = belief_accuracy_by_noise(((default.wall_p_open, default.wall_p_wall),), runs=50)
     assert frame.loc[frame["step"] == 0, "runs"].item() == 50
     summary = belief_accuracy_summary(frame, burn_in_steps=5)
     assert summary["p_correct_after_burn_in"].item() >= 0.9
+
+
+def test_the_filter_can_assume_another_wall_sensor_than_the_true_one():
+    base = {"maze.size": "3x3", "maze.wall_p_open": 0.6}
+    mismatch = {**base, "maze.filter_p_open": 0.9}
+    params = build_params(SCENARIO, mismatch, seed=3)
+    positions = place(SCENARIO, params)
+    robot = SCENARIO.program(params, positions)(0)
+    assert robot._hardware.wall_sensor == WallSensor(p_open=0.6, p_wall=0.95)  # the truth
+    assert robot.params.filter_table == (0.9, 0.95)  # what the filter assumes
+    same = step_table(run(SCENARIO, base, seed=3).sim)
+    other = step_table(run(SCENARIO, mismatch, seed=3).sim)
+    # Same maze, same path (it navigates by landmarks), same sensor draws: the walls read are
+    # the same, the filter weighs them differently.
+    assert len(same) == len(other) > 5
+    assert same["walls"].tolist() == other["walls"].tolist()
+    assert same["p_moved"].tolist() != other["p_moved"].tolist()
+    # By default the filter assumes the true table.
+    assert build_params(SCENARIO, base).scenario.filter_table == (0.6, 0.95)
 
 
 def test_directions_are_the_seeds_order():
     assert DIRECTIONS == ("W", "N", "E", "S")
 
 
-def test_cli_run_writes_the_summary_and_figures(tmp_path, monkeypatch, capsys):
-    import scenarios
+def test_cli_run_writes_the_summary_and_figures(tmp_path, capsys):
     from kilonet.cli import main
 
-    monkeypatch.setitem(scenarios.SCENARIOS, "maze", SCENARIO)  # as scenarios/__init__ will
     out = tmp_path / "run"
     assert main(["run", "maze", "--set", "maze.size=3x3", "--out", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)

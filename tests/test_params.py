@@ -165,12 +165,35 @@ def test_read_toml_without_scenario(tmp_path):
 
 def test_read_toml_errors_name_the_file(tmp_path):
     missing = tmp_path / "nope.toml"
-    with pytest.raises(ParamError, match=re.escape(f"{missing}: no such file")):
+    with pytest.raises(ParamError, match=re.escape(f"{missing}: no such run file")):
         Params.read_toml(missing)
     broken = tmp_path / "broken.toml"
     broken.write_text("[medium\nloss_prob = 0.3\n")
     with pytest.raises(ParamError, match=re.escape(f"{broken}: not valid TOML")):
         Params.read_toml(broken)
+    with pytest.raises(ParamError, match=re.escape(f"{tmp_path}: is a directory, not a run")):
+        Params.read_toml(tmp_path)
+    binary = tmp_path / "binary.toml"
+    binary.write_bytes(b"\x00\xff\xfe")
+    with pytest.raises(ParamError, match=re.escape(f"{binary}: not a UTF-8 text file")):
+        Params.read_toml(binary)
+
+
+def test_optional_fields_take_none_or_a_value_in_range():
+    from protocols.maze import MazeParams
+
+    p = Params(scenario=MazeParams())
+    assert p.scenario.filter_p_open is None
+    assert p.with_overrides({"maze.filter_p_open": "0.5"}).scenario.filter_p_open == 0.5
+    assert p.with_overrides({"maze.filter_p_open": 0.5}).scenario.filter_p_open == 0.5
+    set_then_reset = p.with_overrides({"maze.filter_p_open": 0.5})
+    assert set_then_reset.with_overrides({"maze.filter_p_open": "none"}) == p
+    with pytest.raises(ParamError, match=r"maze\.filter_p_open = 2\.0 is out of range"):
+        p.with_overrides({"maze.filter_p_open": "2"})
+    with pytest.raises(ParamError, match=r"maze\.filter_p_open = 'high' is not a number"):
+        p.with_overrides({"maze.filter_p_open": "high"})
+    kinds = {key: kind for key, _, kind, _ in describe(p)}
+    assert kinds["maze.filter_p_open"] == "float or none, 0 to 1"
 
 
 def test_toml_values_are_type_checked_by_key(tmp_path):
@@ -187,8 +210,13 @@ def test_flat_dict_and_describe_cover_every_key():
     assert flat["seed"] == 1
     assert "scenario" not in flat
     rows = describe(Params())
-    assert [key for key, _, _ in rows] == list(flat)
-    docs = {key: doc for key, _, doc in rows}
+    assert [key for key, _, _, _ in rows] == list(flat)
+    docs = {key: doc for key, _, _, doc in rows}
     assert docs["medium.range_mm"] == "reception range, centre to centre"
+    kinds = {key: kind for key, _, kind, _ in rows}
+    assert kinds["medium.range_mm"] == "float, 33 to 1000"
+    assert kinds["medium.line_of_sight"] == "bool"
+    assert kinds["medium.message_format"] == "one of: kilolib, thesis"
+    assert kinds["duration_s"] == "float >= 0"
     # Every key given back as an override reproduces the same parameters.
     assert Params().with_overrides(flat) == Params()

@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist
 
 from kilonet.placement import (
+    MAX_COORDINATE_MM,
     ROBOT_DIAMETER_MM,
     PlacementError,
     hex_lattice,
@@ -261,6 +262,25 @@ def test_csv_extra_columns_any_order_spaces_and_blank_lines(tmp_path):
     np.testing.assert_array_equal(load_csv(path), [[0.0, 0.0], [40.0, 5.5], [80.0, -100.0]])
 
 
+def test_csv_refuses_a_row_with_more_fields_than_the_header(tmp_path):
+    path = tmp_path / "p.csv"
+    path.write_text("x_mm,y_mm\n0,0\n40,0,7\n")
+    with pytest.raises(PlacementError, match=r"p\.csv line 3: 3 fields, but the header names 2"):
+        load_csv(path)
+    path.write_text("x_mm,y_mm\n0,0,\n40,0, \n")  # empty trailing fields carry nothing
+    np.testing.assert_array_equal(load_csv(path), [[0.0, 0.0], [40.0, 0.0]])
+
+
+def test_csv_refuses_coordinates_beyond_a_kilometre(tmp_path):
+    path = tmp_path / "p.csv"
+    path.write_text("x_mm,y_mm\n0,0\n0,1e308\n")
+    with pytest.raises(PlacementError, match=r"line 3: position \(0, 1e\+308\) is more than"):
+        load_csv(path)
+    with pytest.raises(PlacementError, match=r"robot 1 \(0-based index\) position"):
+        validate_positions([[0.0, 0.0], [-2e6, 0.0]])
+    assert validate_positions([[0.0, 0.0], [MAX_COORDINATE_MM, 0.0]])[1, 0] == 1e6
+
+
 def test_csv_accepts_byte_order_mark(tmp_path):
     path = tmp_path / "excel.csv"
     path.write_bytes(b"\xef\xbb\xbfx_mm,y_mm\r\n0,0\r\n40,0\r\n")
@@ -365,12 +385,12 @@ def test_csv_bad_input(tmp_path, text, fragments):
 
 def test_csv_missing_file(tmp_path):
     path = tmp_path / "nowhere.csv"
-    with pytest.raises(PlacementError, match=r"nowhere\.csv: file not found"):
+    with pytest.raises(PlacementError, match=r"nowhere\.csv: no such placement file"):
         load_csv(path)
 
 
 def test_csv_directory_is_not_a_file(tmp_path):
-    with pytest.raises(PlacementError, match="cannot read file"):
+    with pytest.raises(PlacementError, match="is a directory, not a placement file"):
         load_csv(tmp_path)
 
 

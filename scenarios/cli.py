@@ -1,0 +1,418 @@
+"""The ``run``, ``scenarios`` and ``params`` sub-commands of ``kilonet``.
+
+    kilonet run [SCENARIO|FILE.toml] [--program FILE.py[:CLASS]] [--placement F.csv]
+                [--robots N] [--seed S] [--duration S] [--set KEY=VALUE ...]
+                [--out DIR [--replace]] [--format csv|parquet] [--json] [--animate]
+                [scenario options, e.g. --until PHASE]
+    kilonet scenarios
+    kilonet params [SCENARIO]
+
+Registered as entry points of ``kilonet.commands`` (``pyproject.toml``). Scenarios come from
+the ``kilonet.scenarios`` entry points, and so do their own options (:class:`ScenarioOption`):
+this module knows no scenario by name except the default.
+
+Everything the user can get wrong is checked before the simulation starts: the scenario, every
+parameter (a run file's bad key is reported with the file and line), the placement, the
+program file, and the output directory (``--out`` must not exist unless ``--replace``; its
+parent must be a writable directory). A run without ``--out`` says in one line that it writes
+nothing (said after the run, so that an error stays the only line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import typing
+from contextlib import nullcontext
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+import scenarios
+from kilonet.cli import UsageError
+from kilonet.params import ParamError, Params, describe
+from scenarios.base import Scenario, ScenarioOption, build_params, json_safe
+
+__all__ = ["register_params", "register_run", "register_scenarios", "run_file_overrides"]
+
+_EXAMPLES = """\
+examples:
+  kilonet run                                   the default scenario ({default}), seed 1
+  kilonet run gradient --robots 300 --seed 2 --out runs/g300
+  kilonet run gcs --until localization --set medium.loss_prob=0.2 --set ranging.sigma_mm=2
+  kilonet run follower --placement my_four.csv --out runs/follower --replace
+  kilonet run experiment.toml                   scenario = "gcs" and [medium], [gcs] sections
+  kilonet run --program my_bot.py:Orbit --robots 2 --out runs/orbit
+
+Every parameter, its default, type and allowed values: kilonet params [SCENARIO].
+Output files and summary keys: docs/outputs.md.
+"""
+
+
+# -- run ----------------------------------------------------------------------------------------
+def register_run(subparsers: Any) -> None:
+    """Add ``kilonet run`` (its scenario options come from the registered scenarios)."""
+    seed_default = Params().seed
+    run = subparsers.add_parser(
+        "run",
+        help="run a scenario (or your own program) and print its summary",
+        description="Run a scenario once and print its summary figures. "
+        f"Scenarios: {', '.join(scenarios.names())} (default {scenarios.DEFAULT}).",
+        epilog=_EXAMPLES.format(default=scenarios.DEFAULT),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    run.add_argument(
+        "target",
+        nargs="?",
+        metavar="SCENARIO|FILE.toml",
+        help=f"scenario name or run file (default: {scenarios.DEFAULT})",
+    )
+    run.add_argument(
+        "--program",
+        metavar="FILE.py[:CLASS]",
+        help="run your own Kilobot subclass from FILE.py on every robot instead of a scenario "
+        "(needs --placement or --robots)",
+    )
+    run.add_argument(
+        "--placement",
+        metavar="F.csv|NAME",
+        help="CSV of start positions with columns x_mm,y_mm, or a named placement "
+        "(thesis-7.1a, thesis-7.1b, thesis-7.1c: the thesis's failure cases)",
+    )
+    run.add_argument(
+        "--robots",
+        type=int,
+        metavar="N",
+        help="number of robots on the scenario's layout (placement.robots)",
+    )
+    run.add_argument("--seed", type=int, metavar="S", help=f"master seed (default: {seed_default})")
+    run.add_argument(
+        "--duration",
+        type=float,
+        metavar="SECONDS",
+        help="simulated seconds at most (duration_s; default: the scenario's)",
+    )
+    run.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set a parameter; repeat for more (kilonet params lists every key)",
+    )
+    run.add_argument("--out", metavar="DIR", help="write tables, summary.json and figures to DIR")
+    run.add_argument(
+        "--replace", action="store_true", help="replace an existing --out DIR whole (never merged)"
+    )
+    run.add_argument(
+        "--format", default="csv", choices=["csv", "parquet"], help="table format (default: csv)"
+    )
+    run.add_argument("--json", action="store_true", help="print only the summary JSON on stdout")
+    run.add_argument(
+        "--animate", action="store_true", help="also write DIR/animation.gif (needs --out)"
+    )
+    _add_scenario_options(run)
+    run.set_defaults(func=_cmd_run)
+
+
+def _owners() -> dict[str, list[tuple[Scenario, ScenarioOption]]]:
+    """Each scenario option's flag and the scenarios that declare it."""
+    owners: dict[str, list[tuple[Scenario, ScenarioOption]]] = {}
+    for name in scenarios.names():
+        scenario = scenarios.get(name)
+        for option in scenario.options:
+            owners.setdefault(option.flag, []).append((scenario, option))
+    return owners
+
+
+def _field_of(scenario: Scenario, key: str):
+    section, _, name = key.partition(".")
+    if scenario.section is None or getattr(scenario.section, "section_name", "") != section:
+        raise TypeError(f"scenario {scenario.name}: option key {key!r} is not in its section")
+    return next(f for f in fields(scenario.section) if f.name == name)
+
+
+def _add_scenario_options(run: argparse.ArgumentParser) -> None:
+    group = run.add_argument_group("options of one scenario (declared by the scenario)")
+    for flag, declared in _owners().items():
+        helps, choices = [], None
+        for scenario, option in declared:
+            f = _field_of(scenario, option.key)
+            helps.append(f"{scenario.name}: {option.help} ({option.key}, default {f.default})")
+            tp = typing.get_type_hints(scenario.section)[f.name]
+            if len(declared) == 1 and typing.get_origin(tp) is typing.Literal:
+                choices = list(typing.get_args(tp))
+        group.add_argument(flag, dest=_dest(flag), choices=choices, help="; ".join(helps))
+
+
+def _dest(flag: str) -> str:
+    return "option" + flag.replace("-", "_")
+
+
+def _scenario_options(args: argparse.Namespace, scenario: Scenario) -> dict[str, Any]:
+    """The parameters the scenario options given on the command line set.
+
+    Raises
+    ------
+    UsageError
+        If an option belongs to other scenarios only.
+    """
+    out = {}
+    for flag, declared in _owners().items():
+        value = getattr(args, _dest(flag), None)
+        if value is None:
+            continue
+        keys = [option.key for s, option in declared if s.name == scenario.name]
+        if not keys:
+            names = ", ".join(s.name for s, _ in declared)
+            raise UsageError(f"{flag} is an option of the {names} scenario, not of {scenario.name}")
+        out[keys[0]] = value
+    return out
+
+
+def _parse_set(items: list[str]) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise UsageError(f"--set expects KEY=VALUE, got {item!r}")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def run_file_overrides(scenario: Scenario, path: str | Path, overrides: dict[str, Any]) -> None:
+    """Check a run file's parameters on their own, so that an error names the file and, for
+    one bad key, its line (``run.toml:4: unknown parameter 'medium.los'; ...``).
+
+    Raises
+    ------
+    ParamError
+        If a key is unknown or a value invalid.
+    """
+    try:
+        build_params(scenario, overrides)
+    except ParamError as whole:
+        text = Path(path).read_text()
+        for key, value in overrides.items():
+            try:
+                build_params(scenario, {key: value})
+            except ParamError as exc:
+                line = toml_line(text, key)
+                where = f"{path}:{line}" if line else str(path)
+                raise ParamError(f"{where}: {exc}") from None
+        raise ParamError(f"{path}: {whole}") from None
+
+
+def toml_line(text: str, key: str) -> int | None:
+    """The line (1-based) of TOML ``text`` that sets the dotted ``key``, if one plainly does
+    (``key = ...`` under its ``[section]``, or ``section.key = ...`` at the top).
+
+    Examples
+    --------
+    >>> toml_line('scenario = "gcs"\\n[medium]\\nloss_prob = 0.2\\nlos = 1\\n', "medium.los")
+    4
+    >>> toml_line('seed = 3\\nmedium.range_mm = 90\\n', "medium.range_mm")
+    2
+    """
+    head, _, name = key.rpartition(".")
+    section = ""
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        header = re.fullmatch(r"\[\s*([^\[\]]+?)\s*\]\s*(#.*)?", stripped)
+        if header:
+            section = header.group(1)
+            continue
+        assigned = re.match(r"([A-Za-z0-9_.\"' -]+?)\s*=", stripped)
+        if assigned is None:
+            continue
+        written = assigned.group(1).replace('"', "").replace("'", "").replace(" ", "")
+        full = f"{section}.{written}" if section else written
+        if full == key or (not head and section == "" and written == name):
+            return number
+    return None
+
+
+def _resolve(args: argparse.Namespace) -> tuple[Scenario, dict[str, Any], Path | None]:
+    """The scenario to run, the run file's overrides, and the run file (if any)."""
+    target = args.target
+    if args.program is not None:
+        from scenarios.program import program_scenario
+
+        if target is not None and not target.endswith(".toml"):
+            raise UsageError(
+                f"--program runs your own program, not the scenario {target!r}; leave one out"
+            )
+        overrides: dict[str, Any] = {}
+        if target is not None:
+            named, overrides = Params.read_toml(target)
+            if named is not None:
+                raise UsageError(
+                    f"{target}: names scenario {named!r}, but --program runs your own program; "
+                    "remove the scenario key or --program"
+                )
+        return program_scenario(args.program), overrides, Path(target) if target else None
+    if target is None:
+        return scenarios.get(scenarios.DEFAULT), {}, None
+    if target.endswith(".toml"):
+        name, overrides = Params.read_toml(target)
+        return scenarios.get(name or scenarios.DEFAULT), overrides, Path(target)
+    return scenarios.get(target), {}, None
+
+
+def _check_placement(args: argparse.Namespace) -> None:
+    if args.placement is None:
+        return
+    if args.robots is not None:
+        raise UsageError(
+            f"--robots {args.robots} and --placement {args.placement} both give the swarm; "
+            "the placement has its own robots (leave out --robots)"
+        )
+    if not Path(args.placement).exists():
+        from scenarios.thesis_placements import NAMED_PLACEMENTS
+
+        if args.placement not in NAMED_PLACEMENTS:
+            raise UsageError(
+                f"{args.placement}: no such placement file or named placement "
+                f"(named: {', '.join(NAMED_PLACEMENTS)})"
+            )
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from scenarios.base import write_run_files
+    from scenarios.output_dir import OutputDir
+
+    scenario, file_overrides, run_file = _resolve(args)
+    if run_file is not None:
+        run_file_overrides(scenario, run_file, file_overrides)
+    overrides = {**file_overrides, **_parse_set(args.set), **_scenario_options(args, scenario)}
+    if args.robots is not None:
+        if args.robots < 1:
+            raise UsageError(f"--robots {args.robots}: give the number of robots (at least 2)")
+        overrides["placement.robots"] = args.robots
+    if args.duration is not None:
+        overrides["duration_s"] = args.duration
+    if args.animate and args.out is None:
+        raise UsageError("--animate needs --out DIR: the animation is drawn from the run directory")
+    if args.replace and args.out is None:
+        raise UsageError("--replace needs --out DIR: it replaces that directory")
+    _check_placement(args)
+    params = build_params(scenario, overrides, seed=args.seed)  # every value, before the run
+    if args.program is not None and args.placement is None and not params.placement.robots:
+        raise UsageError("--program needs --placement F.csv or --robots N (a hex lattice)")
+    with OutputDir(args.out, replace=args.replace) if args.out else nullcontext() as out:
+        result = _guarded(args)(
+            scenario,
+            overrides,
+            seed=args.seed,
+            placement=args.placement,
+            progress=not args.json,
+        )
+        if args.out is not None:
+            try:
+                written = write_run_files(result, out.staging, fmt=args.format)
+            except OSError as exc:
+                raise UsageError(f"{args.out}: cannot write the run ({exc.strerror})") from None
+            if args.animate:
+                from kilonet.animation import AnimationError, animate_run
+
+                try:
+                    animate_run(out.staging)
+                except AnimationError as exc:
+                    raise UsageError(str(exc)) from None
+            out.publish()
+            if not args.json:
+                extra = " and animation.gif" if args.animate else ""
+                print(f"wrote {len(written)} files{extra} to {args.out}", file=sys.stderr)
+    if args.out is None:
+        print("kilonet: no --out DIR given, so nothing was written", file=sys.stderr)
+    if args.json:
+        print(json.dumps(json_safe(result.summary), indent=2))
+    else:
+        _print_summary(result.summary)
+    return 0
+
+
+def _guarded(args: argparse.Namespace):
+    """``scenarios.base.run``, reporting a user program's exceptions as one-line errors."""
+    from scenarios.base import run
+
+    if args.program is None:
+        return run
+    from scenarios.program import parse_spec, reported_as_user_errors
+
+    def guarded(*a: Any, **k: Any):
+        with reported_as_user_errors(parse_spec(args.program)[0]):
+            return run(*a, **k)
+
+    return guarded
+
+
+def _print_summary(summary: dict[str, Any]) -> None:
+    """One line per figure; nested sections flattened to dotted names, long lists shortened
+    (``--json`` prints everything)."""
+    flat: dict[str, Any] = {}
+
+    def walk(section: dict[str, Any], prefix: str) -> None:
+        for key, value in section.items():
+            if isinstance(value, dict):
+                walk(value, f"{prefix}{key}.")
+            else:
+                flat[f"{prefix}{key}"] = value
+
+    walk(summary, "")
+    width = max(len(k) for k in flat)
+    for key, value in flat.items():
+        if isinstance(value, float):
+            shown = f"{value:.4g}"
+        elif isinstance(value, list) and len(value) > 8:
+            shown = f"{len(value)} items: {', '.join(map(str, value[:6]))}, ..."
+        else:
+            shown = value
+        print(f"{key:<{width}}  {shown}")
+
+
+# -- scenarios and params ------------------------------------------------------------------------
+def register_scenarios(subparsers: Any) -> None:
+    """Add ``kilonet scenarios``."""
+    subparsers.add_parser(
+        "scenarios", help="list the registered scenarios", description="List the scenarios."
+    ).set_defaults(func=_cmd_scenarios)
+
+
+def _cmd_scenarios(_args: argparse.Namespace) -> int:
+    for name in scenarios.names():
+        scenario = scenarios.get(name)
+        marker = " (default)" if name == scenarios.DEFAULT else ""
+        print(f"{name:<12} {scenario.summary}{marker}")
+    return 0
+
+
+def register_params(subparsers: Any) -> None:
+    """Add ``kilonet params [SCENARIO]``."""
+    params = subparsers.add_parser(
+        "params",
+        help="list every parameter with its default, type and allowed values",
+        description="List every parameter of a scenario (default: "
+        f"{scenarios.DEFAULT}): dotted key, default, type and allowed values, description. "
+        "Set one with `kilonet run --set KEY=VALUE` or in a run file's [section].",
+    )
+    params.add_argument(
+        "scenario",
+        nargs="?",
+        help=f"one of {', '.join(scenarios.names())} (default: {scenarios.DEFAULT})",
+    )
+    params.set_defaults(func=_cmd_params)
+
+
+def _cmd_params(args: argparse.Namespace) -> int:
+    scenario = scenarios.get(args.scenario or scenarios.DEFAULT)
+    rows = [
+        (key, str(value), kind, doc) for key, value, kind, doc in describe(build_params(scenario))
+    ]
+    widths = [max(len(r[k]) for r in rows) for k in range(3)]
+    head = ("key", "default", "type and allowed values")
+    print("  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True)) + "  description")
+    for row in rows:
+        print("  ".join(c.ljust(w) for c, w in zip(row[:3], widths, strict=True)) + f"  {row[3]}")
+    return 0

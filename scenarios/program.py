@@ -1,0 +1,227 @@
+"""Your own Kilobot program on every robot: ``kilonet run --program my_bot.py[:ClassName]``.
+
+The file is loaded as a module (its folder goes on ``sys.path``, as for a script, so it can
+import its neighbours) and the class to run is the one Kilobot subclass it defines, or the one
+named after the colon. Every robot runs ``ClassName()``; the swarm comes from ``--placement``
+or ``--robots`` (a jittered hex lattice), and the run writes what every scenario writes
+(``robots.csv``, ``led.csv``, ``events.csv``, ``poses.csv``, ``summary.json``,
+``params.json``) plus ``program.png``: start and final positions, LEDs and paths.
+
+A program that cannot run is refused in one line naming the file and line
+(:class:`ProgramError`): a missing file, a syntax error, an exception while the file loads,
+no Kilobot subclass (or a name that is not one, or one whose constructor needs arguments), and
+an exception raised by the program while the swarm runs (in ``setup``, ``loop``,
+``message_rx``, ...): ``my_bot.py:14: in setup: ZeroDivisionError: division by zero``.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import inspect
+import sys
+import traceback
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from kilonet.errors import read_text
+from kilonet.robot import Kilobot
+from scenarios.base import RunResult, Scenario, ScenarioError
+
+if TYPE_CHECKING:
+    from kilonet.simulation import Simulation
+
+__all__ = [
+    "ProgramError",
+    "load_program",
+    "parse_spec",
+    "program_scenario",
+    "reported_as_user_errors",
+]
+
+
+class ProgramError(ScenarioError):
+    """A user's program file cannot be run; the message names the file and line."""
+
+
+def parse_spec(spec: str) -> tuple[Path, str | None]:
+    """The file and class name of ``FILE.py[:ClassName]``.
+
+    Examples
+    --------
+    >>> parse_spec("bots/orbit.py:Planet")
+    (PosixPath('bots/orbit.py'), 'Planet')
+    >>> parse_spec("orbit.py")
+    (PosixPath('orbit.py'), None)
+    """
+    head, sep, tail = spec.rpartition(":")
+    if sep and tail.isidentifier() and head:
+        return Path(head), tail
+    return Path(spec), None
+
+
+def _class_lines(source: str) -> dict[str, int]:
+    return {
+        node.name: node.lineno
+        for node in ast.walk(ast.parse(source))
+        if isinstance(node, ast.ClassDef)
+    }
+
+
+def load_program(spec: str) -> tuple[Path, type[Kilobot]]:
+    """The program file and Kilobot subclass that ``spec`` (``FILE.py[:ClassName]``) names.
+
+    Raises
+    ------
+    ProgramError
+        If the file is missing or unreadable, does not compile, raises while it loads, defines
+        no Kilobot subclass (or several, and none is named), the named class is missing or not
+        a Kilobot subclass, or its constructor needs arguments.
+    """
+    path, name = parse_spec(spec)
+    source = read_text(path, ProgramError, "program file")
+    try:
+        compile(source, str(path), "exec")
+    except SyntaxError as exc:
+        raise ProgramError(f"{path}:{exc.lineno}: syntax error: {exc.msg}") from None
+    module_name = f"kilonet_program_{abs(hash(str(path.resolve())))}"
+    loader_spec = importlib.util.spec_from_file_location(module_name, path)
+    module = importlib.util.module_from_spec(loader_spec)
+    sys.modules[module_name] = module
+    folder = str(path.resolve().parent)
+    if folder not in sys.path:
+        sys.path.insert(0, folder)
+    with reported_as_user_errors(path, "while loading"):
+        loader_spec.loader.exec_module(module)
+    lines = _class_lines(source)
+    if name is None:
+        defined = [
+            c
+            for c in vars(module).values()
+            if inspect.isclass(c) and issubclass(c, Kilobot) and c.__module__ == module_name
+        ]
+        if not defined:
+            raise ProgramError(
+                f"{path}: defines no Kilobot subclass (class MyBot(Kilobot): ... with setup, "
+                "loop, message_tx, message_rx)"
+            )
+        if len(defined) > 1:
+            names = ", ".join(c.__name__ for c in defined)
+            raise ProgramError(
+                f"{path}: defines several Kilobot subclasses ({names}); name one: "
+                f"--program {path}:{defined[0].__name__}"
+            )
+        (cls,) = defined
+    else:
+        cls = getattr(module, name, None)
+        where = f"{path}:{lines[name]}" if name in lines else str(path)
+        if cls is None:
+            raise ProgramError(f"{path}: has no {name!r}")
+        if not (inspect.isclass(cls) and issubclass(cls, Kilobot)) or cls is Kilobot:
+            raise ProgramError(f"{where}: {name} is not a Kilobot subclass")
+    required = [
+        p.name
+        for p in inspect.signature(cls).parameters.values()
+        if p.default is p.empty and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+    ]
+    if required:
+        where = f"{path}:{lines[cls.__name__]}" if cls.__name__ in lines else str(path)
+        raise ProgramError(
+            f"{where}: {cls.__name__}() needs {', '.join(required)}; every robot runs "
+            f"{cls.__name__}() with no arguments"
+        )
+    return path, cls
+
+
+@contextmanager
+def reported_as_user_errors(path: str | Path, during: str = "") -> Iterator[None]:
+    """Turn an exception raised in the program file ``path`` into a one-line
+    :class:`ProgramError` naming the file, the line and the function
+    (``my_bot.py:14: in setup: ZeroDivisionError: division by zero``). Exceptions that did not
+    pass through the file are left alone (they are kilonet's)."""
+    target = Path(path).resolve()
+    try:
+        yield
+    except ScenarioError:
+        raise
+    except Exception as exc:
+        frames = [
+            f
+            for f in traceback.extract_tb(exc.__traceback__)
+            if f.filename and Path(f.filename).resolve() == target
+        ]
+        if not frames:
+            raise
+        last = frames[-1]
+        context = f"in {last.name}" if last.name != "<module>" else (during or "at top level")
+        raise ProgramError(
+            f"{path}:{last.lineno}: {context}: {type(exc).__name__}: {exc}"
+        ) from None
+
+
+def program_scenario(spec: str) -> Scenario:
+    """A scenario that runs the program ``spec`` (``FILE.py[:ClassName]``) on every robot.
+
+    Raises
+    ------
+    ProgramError
+        If the program cannot be loaded (:func:`load_program`).
+    """
+    path, cls = load_program(spec)
+    label = f"{path.name}:{cls.__name__}"
+
+    def program(params: Any, positions: Any):
+        return lambda _i: cls()
+
+    def metrics(_sim: Simulation) -> dict[str, Any]:
+        return {"program": label}
+
+    def figure(result: RunResult, out_dir: Path) -> None:
+        _figure(result, label, out_dir / "program.png")
+
+    return Scenario(
+        name="program",
+        summary=f"your program {label} on every robot",
+        program=program,
+        robots=0,
+        metrics=metrics,
+        outputs=figure,
+    )
+
+
+def _figure(result: RunResult, label: str, path: Path) -> None:
+    """Start positions (open circles), paths and final positions filled with the LED colour."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from matplotlib.patches import Circle
+
+    sim = result.sim
+    start, end = sim.initial_positions_mm, sim.world.positions_mm
+    radius = sim.world.radius_mm
+    poses = sim.trace.poses_frame()
+    fig, ax = plt.subplots(figsize=(6, 6))
+    for robot, path_xy in poses.groupby("robot")[["x_mm", "y_mm"]]:
+        xy = np.vstack([start[robot], path_xy.to_numpy()])
+        ax.plot(xy[:, 0], xy[:, 1], color="0.3", lw=0.8, zorder=3)
+    for k, (x, y) in enumerate(start):
+        ax.add_patch(Circle((x, y), radius, fc="none", ec="0.7", ls="--"))
+        colour = np.array(sim.robots[k].color, dtype=float) / 3.0
+        ax.add_patch(Circle(tuple(end[k]), radius, fc=colour, ec="k"))
+    ax.autoscale_view()
+    ax.set_aspect("equal")
+    ax.margins(0.1)
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(
+        f"{label}: {sim.n_robots} robots at t = {sim.env.now:.0f} s "
+        "(filled: final position and LED; dashed: start)",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

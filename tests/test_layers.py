@@ -1,0 +1,225 @@
+"""The house's one-way layers, checked on the source.
+
+``kilonet/`` (the kernel) imports no protocol, scenario or experiment; ``protocols/`` use only
+the robot API and pure math; ``scenarios/`` glue the two; ``experiments/`` and the command
+line's sub-commands sit on top. An import counts wherever it is written: at the top of a
+module, inside a function or a ``TYPE_CHECKING`` block, by name
+(``importlib.import_module("experiments.cli")``, ``__import__``), or as a string that names a
+module of the project (``"scenarios.analyze:register"``); docstrings do not count.
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYERS = ("kilonet", "protocols", "scenarios", "experiments")
+
+#: What a protocol may use of the kernel: the robot API (the Kilobot base class, the maze
+#: robot's sensors and drive, messages, parameter declarations) and pure math.
+ROBOT_API = ("kilonet.robot", "kilonet.maze", "kilonet.message", "kilonet.params")
+PURE_MATH_KERNEL = ("kilonet.geometry", "kilonet.alignment")
+#: Third-party libraries a protocol may use: array math, linear algebra, graph algorithms.
+PURE_MATH = ("numpy", "scipy", "networkx")
+
+_IMPORT_FUNCTIONS = {"import_module", "__import__", "find_spec"}
+
+
+def module_name(path: Path) -> str:
+    """``kilonet/cli.py`` -> ``kilonet.cli``; ``scenarios/__init__.py`` -> ``scenarios``."""
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def is_project_module(name: str) -> bool:
+    """Whether ``name`` (dotted) is a module or package of the project."""
+    base = ROOT.joinpath(*name.split("."))
+    return base.with_suffix(".py").is_file() or (base / "__init__.py").is_file()
+
+
+def _docstrings(tree: ast.AST) -> set[int]:
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef):
+            body = node.body
+            if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
+                found.add(id(body[0].value))
+    return found
+
+
+def _named_module(text: str) -> str | None:
+    """The project module a string names (``"experiments.cli"``, ``"scenarios.gcs:SCENARIO"``),
+    or ``None``."""
+    name = text.partition(":")[0]
+    if name.split(".")[0] not in LAYERS or "." not in text.strip(":"):
+        return None
+    if not all(part.isidentifier() for part in name.split(".")):
+        return None
+    return name if is_project_module(name) else None
+
+
+def imports_of(source: str, module: str) -> Iterator[tuple[int, str]]:
+    """``(line, imported module)`` for every import in ``source`` (the text of ``module``).
+
+    Relative imports are resolved; ``from package import name`` also yields
+    ``package.name`` when that is a project module.
+
+    Examples
+    --------
+    >>> sorted(imports_of("import os\\nfrom . import base\\n", "scenarios.gcs"))
+    [(1, 'os'), (2, 'scenarios'), (2, 'scenarios.base')]
+    """
+    tree = ast.parse(source)
+    package = module if is_project_module(module + ".__init__") else module.rpartition(".")[0]
+    docstrings = _docstrings(tree)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*anchor, node.module] if node.module else anchor)
+            else:
+                base = node.module or ""
+            yield node.lineno, base
+            for alias in node.names:
+                if is_project_module(f"{base}.{alias.name}"):
+                    yield node.lineno, f"{base}.{alias.name}"
+        elif isinstance(node, ast.Call):
+            func = node.func
+            name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+            arg = node.args[0] if node.args else None
+            if (
+                name in _IMPORT_FUNCTIONS
+                and isinstance(arg, ast.Constant)
+                and isinstance(arg.value, str)
+            ):
+                yield node.lineno, arg.value
+        elif (
+            isinstance(node, ast.Constant)
+            and isinstance(node.value, str)
+            and id(node) not in docstrings
+            and (named := _named_module(node.value))
+        ):
+            yield node.lineno, named
+
+
+def _within(name: str, modules: tuple[str, ...]) -> bool:
+    return any(name == m or name.startswith(m + ".") for m in modules)
+
+
+def layer_rule_broken(importer: str, imported: str) -> str | None:
+    """Why ``importer`` may not import ``imported``, or ``None`` if it may."""
+    layer, top = importer.split(".")[0], imported.split(".")[0]
+    if layer == "kilonet" and top in ("protocols", "scenarios", "experiments"):
+        return "the kernel imports no protocol, scenario or experiment"
+    if layer == "protocols":
+        if top in ("scenarios", "experiments"):
+            return "protocols import no scenario or experiment"
+        if top == "kilonet" and not _within(imported, ROBOT_API + PURE_MATH_KERNEL):
+            return (
+                "protocols use only the robot API "
+                f"({', '.join(ROBOT_API)}) and pure math ({', '.join(PURE_MATH_KERNEL)})"
+            )
+        if top not in LAYERS and top not in sys.stdlib_module_names and top not in PURE_MATH:
+            return f"protocols use only the standard library and pure math ({', '.join(PURE_MATH)})"
+    if layer == "scenarios" and top == "experiments":
+        return "scenarios import no experiment (experiments sit on top)"
+    return None
+
+
+def violations_in(path: Path, source: str) -> list[str]:
+    """One ``file:line: imports X: rule`` line per import in ``source`` (the text of the
+    project file ``path``) that breaks a layer."""
+    module = module_name(path)
+    found = []
+    for line, imported in sorted(set(imports_of(source, module))):
+        why = layer_rule_broken(module, imported)
+        if why is not None:
+            found.append(f"{path.relative_to(ROOT)}:{line}: imports {imported}: {why}")
+    return found
+
+
+def _project_files() -> list[Path]:
+    return sorted(p for layer in LAYERS for p in (ROOT / layer).rglob("*.py"))
+
+
+def test_every_import_keeps_to_its_layer():
+    violations = [v for path in _project_files() for v in violations_in(path, path.read_text())]
+    assert not violations, f"{len(violations)} imports break the one-way layers:\n" + "\n".join(
+        violations
+    )
+
+
+# -- the checker itself -----------------------------------------------------------------------
+def _check(source: str, module: str) -> list[tuple[int, str | None]]:
+    found = sorted(set(imports_of(source, module)))
+    return [(line, layer_rule_broken(module, name)) for line, name in found]
+
+
+def test_the_checker_sees_static_imports_in_functions_and_type_checking_blocks():
+    source = (
+        "from typing import TYPE_CHECKING\n"
+        "if TYPE_CHECKING:\n"
+        "    from scenarios.base import Scenario\n"
+        "def f():\n"
+        "    import experiments.sweep\n"
+    )
+    broken = [line for line, why in _check(source, "kilonet.cli") if why]
+    assert broken == [3, 5]  # scenarios.base, experiments.sweep
+
+
+def test_the_checker_sees_imports_by_name_and_module_strings():
+    source = (
+        '"""Mentions scenarios.analyze in a docstring, which is fine."""\n'
+        "import importlib\n"
+        'importlib.import_module("experiments.cli")\n'
+        '__import__("protocols.gcs")\n'
+        'PLUGINS = ["scenarios.analyze:register", "not.a.module", "scenarios"]\n'
+    )
+    found = [(line, name) for line, name in imports_of(source, "kilonet.cli")]
+    assert (3, "experiments.cli") in found
+    assert (4, "protocols.gcs") in found
+    assert (5, "scenarios.analyze") in found
+    assert all(line != 1 for line, _ in found)
+    assert [line for line, why in _check(source, "kilonet.cli") if why] == [3, 4, 5]
+
+
+@pytest.mark.parametrize(
+    ("imported", "allowed"),
+    [
+        ("kilonet.robot", True),
+        ("kilonet.message", True),
+        ("kilonet.params", True),
+        ("kilonet.geometry", True),
+        ("numpy", True),
+        ("scipy.spatial.transform", True),
+        ("math", True),
+        ("protocols.gcs_base", True),
+        ("kilonet.simulation", False),
+        ("kilonet.medium", False),
+        ("kilonet.motion", False),
+        ("kilonet", False),  # the package re-exports Simulation
+        ("pandas", False),
+        ("simpy", False),
+        ("scenarios.base", False),
+    ],
+)
+def test_protocols_use_only_the_robot_api_and_pure_math(imported, allowed):
+    assert (layer_rule_broken("protocols.gradient", imported) is None) is allowed
+
+
+def test_a_violation_names_file_line_and_rule():
+    source = "def main():\n    import scenarios\n"
+    assert violations_in(ROOT / "kilonet" / "cli.py", source) == [
+        "kilonet/cli.py:2: imports scenarios: the kernel imports no protocol, scenario or "
+        "experiment"
+    ]
