@@ -21,7 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from kilonet.params import ParamError, Params
-from kilonet.placement import hex_lattice, line, load_csv, random_uniform
+from kilonet.placement import generate, load_csv
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation, stream_for
 from scenarios.thesis_placements import NAMED_PLACEMENTS, PREMISE
@@ -142,11 +142,15 @@ def place(
     try:
         if p.kind == "scenario" and scenario.placement is not None:
             return scenario.placement(params, n, rng)
-        if p.kind in ("scenario", "hex"):
-            return hex_lattice(n, spacing_mm=p.spacing_mm, jitter_mm=p.jitter_mm, rng=rng)
-        if p.kind == "line":
-            return line(n, spacing_mm=p.spacing_mm)
-        return random_uniform(n, density_per_m2=p.density_per_m2, area=p.area, rng=rng)
+        return generate(
+            "hex" if p.kind == "scenario" else p.kind,
+            n,
+            rng=rng,
+            spacing_mm=p.spacing_mm,
+            jitter_mm=p.jitter_mm,
+            density_per_m2=p.density_per_m2,
+            area=p.area,
+        )
     except ValueError as exc:  # a generator refusing its parameters is the user's to fix
         raise ParamError(f"placement ({p.kind}, {n} robots): {exc}") from None
 
