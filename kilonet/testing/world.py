@@ -54,10 +54,12 @@ def build_params(params: Params | Mapping[str, Any] | None, seed: int | None) ->
     return out if seed is None else out.with_overrides({"seed": seed})
 
 
-class _Neighbour:
-    """A robot placed beside the program under test."""
+class _OnTable:
+    """A robot of the world: its program, start pose and UID (``None``: its index)."""
 
-    def __init__(self, program: Kilobot, at_mm: tuple[float, float], heading_rad: float, uid):
+    def __init__(
+        self, program: Kilobot, at_mm: tuple[float, float], heading_rad: float, uid: int | None
+    ) -> None:
         self.program = program
         self.at_mm = at_mm
         self.heading_rad = heading_rad
@@ -131,7 +133,7 @@ class ScriptedWorld:
         layouts: Iterable[Layout] = (),
     ) -> None:
         self.params = build_params(params, seed)
-        self._robots = [_Neighbour(_instance(program, "program"), (0.0, 0.0), heading_rad, uid)]
+        self._robots = [_OnTable(_instance(program, "program"), (0.0, 0.0), heading_rad, uid)]
         self.layouts = list(layouts)
         self.script: list[ScriptedReception] = []
         self.sim: Simulation | None = None
@@ -185,13 +187,14 @@ class ScriptedWorld:
         if (at_mm is None) == (distance_mm is None):
             raise ScriptError("add_neighbour() needs at_mm=(x, y) or distance_mm=, not both")
         if at_mm is None:
-            angle = math.radians(bearing_deg)
-            at_mm = (distance_mm * math.cos(angle), distance_mm * math.sin(angle))
+            angle = math.radians(bearing_deg)  # rounded so that 90 degrees gives x = 0
+            at_mm = (
+                round(distance_mm * math.cos(angle), 9),
+                round(distance_mm * math.sin(angle), 9),
+            )
         name = f"neighbour {len(self._robots)}"
         self._robots.append(
-            _Neighbour(
-                _instance(program, name), (float(at_mm[0]), float(at_mm[1])), heading_rad, uid
-            )
+            _OnTable(_instance(program, name), (float(at_mm[0]), float(at_mm[1])), heading_rad, uid)
         )
         return len(self._robots) - 1
 
