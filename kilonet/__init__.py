@@ -1,14 +1,12 @@
 """kilonet: a discrete-event simulator for Kilobot swarms and their communication protocols.
 
-The kernel (simulation, medium, robot API, models) lives here and imports no protocol.
+The kernel (simulation, medium, robot API, models) lives here and imports no protocol. The
+names below are imported on first use (:mod:`kilonet.lazy`).
 """
 
 from importlib.metadata import PackageNotFoundError, version
 
-from kilonet.message import Layout, Message
-from kilonet.params import Params
-from kilonet.robot import Kilobot
-from kilonet.simulation import Simulation
+from kilonet.lazy import lazy_exports
 
 __all__ = ["Kilobot", "Layout", "Message", "Params", "Simulation"]
 
@@ -16,3 +14,15 @@ try:
     __version__ = version("kilonet")  # the installed distribution's, from pyproject.toml
 except PackageNotFoundError:  # run from a source tree that was never installed
     __version__ = "unknown"
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        "Kilobot": "kilonet.robot",
+        "Layout": "kilonet.message",
+        "Message": "kilonet.message",
+        "Params": "kilonet.params",
+        "Simulation": "kilonet.simulation",
+    },
+    globals(),
+)

@@ -46,8 +46,8 @@ import numpy as np
 from kilonet.clock import Timer, push
 from kilonet.counters import LOSS_CAUSES, MediumCounters
 from kilonet.mac import Channel
-from kilonet.message import KILOLIB, THESIS, Message, PayloadLimit
-from kilonet.reception import CAUSES, GaussianRanging, LossShares, ReceptionModel
+from kilonet.message import LIMITS, Message, PayloadLimit
+from kilonet.reception import CAUSES, RANDOM, GaussianRanging, LossShares, ReceptionModel
 from kilonet.robot import Kilobot
 from kilonet.visibility import LinkModel
 
@@ -169,11 +169,15 @@ class InfraredMedium:
         self.reception = reception or GaussianRanging(
             sim.params, n, sim.stream("ranging"), self._medium_rng
         )
-        self.channel = Channel(n)
+        # One channel slot per robot and one more, the last, for senders outside the swarm
+        # (a test's scripted messages, see arrive()): it is a sender's slot only, never
+        # a receiver's.
+        self.channel = Channel(n + 1)
+        self._outside = n
         self._busy_until = self.channel.busy_until
         self.counts = MediumCounters(n)
         self._lost_by_code = {code: self.counts.lost(c) for code, c in _CODE_CAUSE.items()}
-        self.limit: PayloadLimit = KILOLIB if p.message_format == "kilolib" else THESIS
+        self.limit: PayloadLimit = LIMITS[p.message_format]
         self.airtime_s = p.airtime_s or self.limit.air_bytes * 8 / p.bitrate_bps
 
         # Timing per robot in true seconds: each robot's clock runs at its own rate.
@@ -335,6 +339,12 @@ class InfraredMedium:
         for s in self._senders_reaching(robot):
             self._derive(s)
 
+    def set_tx_source(self, robot: int, source: Callable[[], Message | None]) -> None:
+        """Ask ``source()`` instead of ``robot``'s ``message_tx()`` at its transmit
+        opportunities (:mod:`kilonet.testing` calls the program's own method from there to
+        record what it offers)."""
+        self._message_tx[robot] = source
+
     def start(self, robot: int) -> None:
         """Schedule the first transmit opportunity of ``robot`` at ``U(0, period)`` (the phase
         of its transmit counter at the start is random)."""
@@ -472,6 +482,82 @@ class InfraredMedium:
                 handler(message, estimate)
         if self._trace_messages:
             self.sim.trace.message(self.env._now, tx.sender, len(tx.receivers), delivered)
+
+    def arrive(
+        self,
+        receiver: int,
+        message: Message,
+        distance_mm: float,
+        *,
+        estimate_mm: int | None = None,
+        lose: bool = False,
+    ) -> str | None:
+        """A message from a sender outside the swarm begins arriving at ``receiver`` now.
+
+        This is how :mod:`kilonet.testing`'s scripted world makes a robot hear what a test
+        decides. The message goes through the same parts as any transmission, from
+        ``receiver``'s side: it must fit the payload limit; it occupies the receiver's channel
+        for the airtime (the receiver senses a carrier; it collides with whatever else arrives
+        there meanwhile, and with the receiver's own transmission); the reception model gives
+        its distance estimate at true ``distance_mm`` and whether it is lost, with the
+        receiver's loss shares; a wrong CRC drops it. At the end of the airtime it reaches the
+        receiver's handler unless lost or collided, and the counters (and the trace, with
+        sender -1) count it as any reception. A receiver that has stopped hears nothing.
+
+        Parameters
+        ----------
+        receiver : int
+            The robot that hears it.
+        message : Message
+            What arrives.
+        distance_mm : float
+            True centre-to-centre distance of the (imaginary) sender, mm.
+        estimate_mm : int, optional
+            The distance estimate the receiver gets (whole mm, 0-255) instead of the
+            reception model's.
+        lose : bool
+            Lose the reception for sure (counted as ``lost_random``).
+
+        Returns
+        -------
+        str or None
+            The cause the reception is lost to already (``"random"``, ``"crc"``, ...; see
+            :data:`LOSS_CAUSES`), or ``None``: it is delivered at the end of the airtime
+            unless it collides there.
+
+        Raises
+        ------
+        kilonet.message.PayloadError
+            If the message does not fit the payload limit.
+        """
+        self.limit.check(message)
+        if not self._running[receiver]:
+            return "stopped"
+        at = np.array([receiver])
+        shares = LossShares(
+            self.params.loss_prob, np.zeros(1), self._loss_battery[at], self._loss_fault[at]
+        )
+        outcome = self.reception.draw(-1, at, np.array([float(distance_mm)]), shares, 1)
+        if not message.crc_ok:
+            code = _CRC
+        elif lose:
+            code = RANDOM
+        else:
+            code = 0 if outcome.losses is None else int(outcome.losses[0, 0])
+        now = self.env._now
+        tx = _Transmission(
+            -1,
+            message,
+            [self._ids[receiver]],
+            [self._handlers[receiver]],
+            outcome.estimates[0].tobytes() if estimate_mm is None else bytes([estimate_mm]),
+            bytes([code]),
+            self._epoch,
+            self._end_callbacks,
+        )
+        self.channel.occupy(tx, self._outside, tx.receivers, now, now + self.airtime_s)
+        push(self.env, now + self.airtime_s, tx)
+        return _CODE_CAUSE[code] if code else None
 
     def forget_receiver(self, robot: int) -> None:
         """Take a stopped robot out of the topology (and so of the messages still on the air)."""

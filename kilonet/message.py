@@ -33,6 +33,7 @@ from typing import Any
 
 __all__ = [
     "KILOLIB",
+    "LIMITS",
     "THESIS",
     "Layout",
     "Message",
@@ -158,6 +159,8 @@ class PayloadLimit:
 KILOLIB = PayloadLimit("kilolib", data_bits=72, has_type=True, air_bytes=12)
 #: The thesis's library: 2 bytes and 7 bits of payload plus a checksum, "almost 4 bytes".
 THESIS = PayloadLimit("thesis", data_bits=23, has_type=False, air_bytes=4)
+#: The limits by ``medium.message_format``.
+LIMITS = {"kilolib": KILOLIB, "thesis": THESIS}
 
 
 class Layout:
@@ -212,6 +215,20 @@ class Layout:
     def size_bytes(self) -> int:
         """Payload bytes this layout uses."""
         return self._struct.size
+
+    @property
+    def fields(self) -> list[tuple[str, str, float | None]]:
+        """The fields in payload order, each as ``(name, struct code, scale or None)``.
+
+        Examples
+        --------
+        >>> Layout("p", type=3, fields=[("seed", "B"), ("x_mm", "h", 0.5)]).fields
+        [('seed', 'B', None), ('x_mm', 'h', 0.5)]
+        """
+        return list(zip(self._names, self._codes, self._scales, strict=True))
+
+    def __repr__(self) -> str:
+        return f"Layout({self.name!r}, type={self.type})"
 
     def pack(self, **values: Any) -> Message:
         """Build a :class:`Message` from field values.

@@ -269,6 +269,7 @@ class Motion:
         self._dirty = False  # a robot moved since the links were last rebuilt
         self._timer = Timer(sim.env, self._tick, None)
         self._timer_on = False
+        self._watchers: list[Callable[[int, int, int], None]] = []
         self.blocked_count = [0] * n
 
     def pivot_rate_rad_s(self, robot: int, motor: int, duty: int) -> float:
@@ -279,10 +280,18 @@ class Motion:
         )
         return float(self.turn_rad_s[robot] * drive)
 
+    def watch(self, listener: Callable[[int, int, int], None]) -> None:
+        """Call ``listener(robot, left, right)`` on every motor command of a running robot
+        (``spinup_motors()`` is ``255, 255``), before it takes effect; :mod:`kilonet.testing`
+        records runs with it."""
+        self._watchers.append(listener)
+
     def set_motors(self, robot: int, left: int, right: int) -> None:
         """Set the duty cycles of ``robot``'s motors; its pose is integrated up to now first."""
         if not self.sim.world.running[robot]:
             return
+        for listener in self._watchers:
+            listener(robot, left, right)
         self._integrate(robot)
         state = self.motors[robot]
         drives, running = [], []

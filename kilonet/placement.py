@@ -24,9 +24,11 @@ import numpy as np
 from kilonet.errors import UserError, read_text
 
 __all__ = [
+    "LAYOUTS",
     "MAX_COORDINATE_MM",
     "ROBOT_DIAMETER_MM",
     "PlacementError",
+    "generate",
     "hex_lattice",
     "line",
     "load_csv",
@@ -56,6 +58,7 @@ def validate_positions(
     diameter_mm: float = ROBOT_DIAMETER_MM,
     source: str = "placement",
     row_offset: int | None = None,
+    min_robots: int = 2,
 ) -> np.ndarray:
     """Check a placement and return it as a new float64 (N, 2) array of centres in mm.
 
@@ -70,6 +73,9 @@ def validate_positions(
     row_offset : int, optional
         If given, robot ``i`` is reported as ``line i + row_offset`` (2 for a file whose
         header is line 1); otherwise as ``robot i (0-based index)``.
+    min_robots : int
+        Fewest robots accepted: 2 for a swarm a user hands in; a :class:`~kilonet.Simulation`
+        also runs a robot alone (1).
 
     Returns
     -------
@@ -80,8 +86,8 @@ def validate_positions(
     ------
     PlacementError
         If the shape is not (N, 2), a coordinate is not a finite number or lies beyond
-        :data:`MAX_COORDINATE_MM`, N < 2, or two centres are closer than `diameter_mm` (up to
-        five such pairs are listed).
+        :data:`MAX_COORDINATE_MM`, N < `min_robots`, or two centres are closer than
+        `diameter_mm` (up to five such pairs are listed).
 
     Examples
     --------
@@ -97,7 +103,7 @@ def validate_positions(
     if row_offset is not None:
         n = len(positions) if hasattr(positions, "__len__") else 0
         lines = range(row_offset, row_offset + n)
-    return _check(positions, diameter_mm, source, lines)
+    return _check(positions, diameter_mm, source, lines, min_robots)
 
 
 def line(n: int, *, spacing_mm: float = 40.0, diameter_mm: float = ROBOT_DIAMETER_MM) -> np.ndarray:
@@ -338,6 +344,54 @@ def random_uniform(
     return xy
 
 
+#: Names of the generated placements :func:`generate` knows.
+LAYOUTS = ("hex", "line", "random")
+
+
+def generate(
+    kind: str,
+    n: int,
+    *,
+    rng: np.random.Generator | None = None,
+    spacing_mm: float = 40.0,
+    jitter_mm: float = 0.0,
+    density_per_m2: float = 400.0,
+    area: str = "disc",
+    diameter_mm: float = ROBOT_DIAMETER_MM,
+) -> np.ndarray:
+    """A generated placement by name: ``"hex"`` (:func:`hex_lattice` with ``spacing_mm`` and
+    ``jitter_mm``), ``"line"`` (:func:`line`) or ``"random"`` (:func:`random_uniform` at
+    ``density_per_m2`` in a region of shape ``area``), as ``placement.kind`` names them.
+
+    Raises
+    ------
+    ValueError
+        If ``kind`` is not one of :data:`LAYOUTS`, or the generator refuses its parameters.
+
+    Examples
+    --------
+    >>> generate("line", 3, spacing_mm=50.0)[:, 0].tolist()
+    [0.0, 50.0, 100.0]
+    >>> generate("hex", 7).shape
+    (7, 2)
+    >>> generate("ring", 3)
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown layout 'ring'; layouts are: hex, line, random
+    """
+    if kind == "hex":
+        return hex_lattice(
+            n, spacing_mm=spacing_mm, jitter_mm=jitter_mm, rng=rng, diameter_mm=diameter_mm
+        )
+    if kind == "line":
+        return line(n, spacing_mm=spacing_mm, diameter_mm=diameter_mm)
+    if kind == "random":
+        return random_uniform(
+            n, density_per_m2=density_per_m2, area=area, rng=rng, diameter_mm=diameter_mm
+        )
+    raise ValueError(f"unknown layout {kind!r}; layouts are: {', '.join(LAYOUTS)}")
+
+
 def load_csv(path: str | os.PathLike, *, diameter_mm: float = ROBOT_DIAMETER_MM) -> np.ndarray:
     """Read and validate a placement from a CSV file with columns ``x_mm`` and ``y_mm``.
 
@@ -443,7 +497,9 @@ def save_csv(positions, path: str | os.PathLike) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def _check(positions, diameter_mm: float, source: str, lines: Sequence[int] | None):
+def _check(
+    positions, diameter_mm: float, source: str, lines: Sequence[int] | None, min_robots: int = 2
+):
     """Validate positions; robot i is called ``line lines[i]``, or by index if `lines` is None."""
     if not (math.isfinite(diameter_mm) and diameter_mm > 0):
         raise ValueError(f"diameter_mm={diameter_mm} must be finite and > 0")
@@ -477,8 +533,11 @@ def _check(positions, diameter_mm: float, source: str, lines: Sequence[int] | No
             f"{MAX_COORDINATE_MM:g} mm from the origin"
         )
     n = len(xy)
-    if n < 2:
-        raise PlacementError(f"{source}: {n} robot{'' if n == 1 else 's'}, at least 2 are needed")
+    if n < min_robots:
+        raise PlacementError(
+            f"{source}: {n} robot{'' if n == 1 else 's'}, at least {min_robots} "
+            f"{'is' if min_robots == 1 else 'are'} needed"
+        )
 
     from scipy.spatial import cKDTree
 

@@ -88,7 +88,8 @@ class ReceptionModel(ABC):
         rows: int,
     ) -> Outcomes:
         """Outcomes of ``sender``'s next ``rows`` transmissions to ``receivers`` (robot
-        indices) at true ``distance_mm``."""
+        indices) at true ``distance_mm``; ``sender`` is -1 for a message from outside the
+        swarm (:meth:`kilonet.medium.InfraredMedium.arrive`)."""
 
 
 class GaussianRanging(ReceptionModel):

@@ -122,7 +122,8 @@ class Simulation:
     Raises
     ------
     kilonet.placement.PlacementError
-        If the positions are not a valid placement (too few robots, overlaps, non-finite).
+        If the positions are not a valid placement (no robot, overlaps, non-finite); one
+        robot alone is a valid swarm.
     ValueError
         If ``uids`` does not give one uint16 per robot.
     """
@@ -139,7 +140,7 @@ class Simulation:
         reception: ReceptionModel | None = None,
     ) -> None:
         self.params = params or Params()
-        positions = validate_positions(positions_mm, source="positions")
+        positions = validate_positions(positions_mm, source="positions", min_robots=1)
         n = len(positions)
         self.n_robots = n
         self.env = simpy.Environment()
@@ -316,6 +317,29 @@ class Simulation:
             return deliver
         tables = self.calibration_tables[i]
         return lambda message, estimate_mm: deliver(message, measurement_for(estimate_mm, tables))
+
+    def watch_receptions(self, robot: int, listener: Callable[[Message, Any], None]) -> None:
+        """Call ``listener(message, distance)`` with every reception handed to ``robot``'s
+        program (its ``message_rx`` or its polled buffer), just before the program gets it:
+        after the medium's losses and collisions and any receiver fault's delay, with the
+        distance as the program receives it. :mod:`kilonet.testing` records runs with it.
+
+        Raises
+        ------
+        RuntimeError
+            If the simulation has started (a receiver fault may have rerouted the robot's
+            deliveries by then).
+        """
+        if self._started:
+            raise RuntimeError("watch_receptions() must be called before the simulation starts")
+        program = self._handlers[robot]
+
+        def watched(message: Message, distance: Any) -> None:
+            listener(message, distance)
+            program(message, distance)
+
+        self._handlers[robot] = watched
+        self.medium.set_handler(robot, watched)
 
     def deliver(self, robot: int, message: Message, distance_mm: int) -> None:
         """Hand a (possibly delayed) reception to ``robot`` as its receive mode says."""

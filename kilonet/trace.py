@@ -61,6 +61,16 @@ class Trace:
         the LED brightness factor that goes with it (animations dim the LED by it)."""
         self._battery.append((t_s, robot, float(voltage_v), float(level), float(led_factor)))
 
+    def led_since(self, start: int) -> list[tuple[float, int, int, int, int]]:
+        """LED changes from the ``start``-th on, as recorded: ``(t_s, robot, r, g, b)`` (for
+        readers that follow a run as it goes, as :mod:`kilonet.testing` does)."""
+        return self._led[start:]
+
+    def events_since(self, start: int) -> list[tuple[float, int, str, str]]:
+        """Protocol events from the ``start``-th on, as recorded: ``(t_s, robot, event, JSON
+        data)``."""
+        return self._events[start:]
+
     def led_frame(self) -> pd.DataFrame:
         """LED changes: ``t_s, robot, r, g, b``."""
         return _table(self._led, ["t_s", "robot", "r", "g", "b"])

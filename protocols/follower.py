@@ -949,7 +949,7 @@ class Follower(Kilobot):
             dx, dy = pivot_displacement(heading, alpha)
             start = (position[0] + dx, position[1] + dy)
             to_target = _dist(start, target)
-            step = min(max(self.config.step_mm, self.config.step_fraction * to_target), to_target)
+            step = min(max(self.params.step_mm, self.params.step_fraction * to_target), to_target)
             direction, self._side = plan_direction(
                 start, target, obstacles, radius, step, self._side
             )

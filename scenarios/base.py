@@ -20,7 +20,7 @@ import numpy as np
 
 from kilonet.errors import UserError
 from kilonet.params import ParamError, Params
-from kilonet.placement import hex_lattice, line, load_csv, random_uniform
+from kilonet.placement import generate, load_csv
 from kilonet.robot import Kilobot
 from scenarios.output_dir import OutputDir
 from scenarios.progress import RunProgress
@@ -184,11 +184,15 @@ def place(
     try:
         if p.kind == "scenario" and scenario.placement is not None:
             return scenario.placement(params, n, rng)
-        if p.kind in ("scenario", "hex"):
-            return hex_lattice(n, spacing_mm=p.spacing_mm, jitter_mm=p.jitter_mm, rng=rng)
-        if p.kind == "line":
-            return line(n, spacing_mm=p.spacing_mm)
-        return random_uniform(n, density_per_m2=p.density_per_m2, area=p.area, rng=rng)
+        return generate(
+            "hex" if p.kind == "scenario" else p.kind,
+            n,
+            rng=rng,
+            spacing_mm=p.spacing_mm,
+            jitter_mm=p.jitter_mm,
+            density_per_m2=p.density_per_m2,
+            area=p.area,
+        )
     except ValueError as exc:  # a generator refusing its parameters is the user's to fix
         raise ParamError(f"placement ({p.kind}, {n} robots): {exc}") from None
 

@@ -81,7 +81,7 @@ def _write_run(
     params = {
         "duration_s": duration_s,
         "medium.range_mm": 85.0,
-        "medium.line_of_sight": True,
+        "medium.occlusion": "block",
         "motion.step_s": 0.05,
         "robot.tx_period_s": 0.2,
         "trace.messages": messages is not None,

@@ -371,7 +371,7 @@ def test_params_shows_types_and_allowed_values(capsys):
     rows = {line.split()[0]: line for line in capsys.readouterr().out.splitlines()}
     assert "one of: ids, seeds, frames, localization, groups, merge" in rows["gcs.until"]
     assert "float, 33 to 1000" in rows["medium.range_mm"]
-    assert " bool " in rows["medium.line_of_sight"]
+    assert " bool " in rows["medium.csma"]
     assert "int >= 0" in rows["seed"]
     assert rows["key"].split()[:2] == ["key", "default"]
 

@@ -895,3 +895,57 @@ def test_a_swapped_in_reception_model_decides_the_losses():
             expected, abs=4 * math.sqrt(expected * (1 - expected) / sent)
         )
         assert lossy["received"][r] + lossy["lost_random"][r] == sent
+
+
+# ------------------------------------------------------- messages from outside the swarm
+
+
+def test_a_message_from_outside_is_a_reception_like_any_other():
+    """InfraredMedium.arrive (the test kit's scripted messages): airtime, carrier, collisions
+    with the swarm's own messages, CRC, loss, counters and trace (sender -1)."""
+    log: list = []
+    params = quiet_params({"trace.messages": True, "ranging.sigma_mm": 0.0})
+    sim = build([[0, 0], [50, 0]], params, log, r1={"after_s": 1.0, "max_messages": 1})
+    sim.start()
+    medium, env = sim.medium, sim.env
+    airtime = medium.airtime_s
+    outcomes = []
+
+    def at(t_s, *args, **kwargs):
+        env.timeout(t_s).callbacks.append(
+            lambda _e: outcomes.append(medium.arrive(0, *args, **kwargs))
+        )
+
+    at(0.1, Message(b"\x09\x01\x00"), 61.7)  # estimate from the model: round(61.7)
+    at(0.2, Message(b"\x09\x02\x00"), 61.7, estimate_mm=40)
+    at(0.3, Message(b"\x09\x03\x00", crc=0), 50.0)
+    at(0.4, Message(b"\x09\x04\x00"), 50.0, lose=True)
+    at(0.5, Message(b"\x09\x05\x00"), 50.0)
+    at(0.5 + airtime / 2, Message(b"\x09\x06\x00"), 50.0)  # overlaps the one before
+    sim.run(0.9)
+    assert entries(log, "rx", 0) == [
+        (0, pytest.approx(0.1 + airtime), 9, 1, 62),
+        (0, pytest.approx(0.2 + airtime), 9, 2, 40),
+    ]
+    assert outcomes == [None, None, "crc", "random", None, None]
+    frame = sim.robots_frame()
+    assert (frame.received[0], frame.lost_crc[0], frame.lost_random[0]) == (2, 1, 1)
+    assert frame.lost_collision[0] == 2
+    assert sim.trace.messages_frame().sender.tolist() == [-1] * 6
+    # The swarm's own message reaches robot 0 as before; a robot that stopped hears nothing.
+    run_and_drain(sim, 2.0)
+    assert [e[2] for e in entries(log, "rx", 0)] == [9, 9, 1]
+    sim.stop_robot(0, "crash")
+    assert medium.arrive(0, Message(b"\x09"), 50.0) == "stopped"
+    with pytest.raises(PayloadError, match="exceeds the kilolib limit"):
+        medium.arrive(1, Message(bytes(range(1, 11))), 50.0)
+
+
+def test_a_tx_source_replaces_what_the_medium_asks_at_opportunities():
+    log: list = []
+    sim = build([[0, 0], [50, 0]], quiet_params(), log)
+    asked = []
+    sim.medium.set_tx_source(0, lambda: asked.append(sim.env.now) or Message(b"\x00\x07\x00"))
+    sim.run(1.0)
+    assert len(asked) == 5  # one opportunity every 200 ms
+    assert [e[2:4] for e in entries(log, "rx", 1)] == [(0, 7)] * 5  # sender byte 0, seq 7

@@ -7,7 +7,7 @@ import pickle
 
 import pytest
 
-from kilonet.message import KILOLIB, THESIS, Layout, Message, PayloadError
+from kilonet.message import KILOLIB, LIMITS, THESIS, Layout, Message, PayloadError
 
 # ------------------------------------------------------------------------------- Message
 
@@ -171,3 +171,10 @@ def test_a_decoded_message_still_pickles_and_copies_as_itself():
     for twin in (pickle.loads(pickle.dumps(message)), copy.deepcopy(message)):
         assert twin == message
         assert layout.unpack(twin) == record
+
+
+def test_a_layout_lists_its_fields_and_limits_go_by_format_name():
+    layout = Layout("pos", type=3, fields=[("id", "B"), ("x_mm", "h", 0.5)])
+    assert layout.fields == [("id", "B", None), ("x_mm", "h", 0.5)]
+    assert repr(layout) == "Layout('pos', type=3)"
+    assert LIMITS == {"kilolib": KILOLIB, "thesis": THESIS}

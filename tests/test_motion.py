@@ -373,3 +373,29 @@ def test_removed_robot_is_no_obstacle():
     drive(sim, {0: STRAIGHT}, 8.0)
     assert sim.world.positions_mm[0].tolist() == pytest.approx([80.0, 0.0], abs=1e-9)
     assert sim.motion.blocked_count[0] == 0
+
+
+def test_motor_command_listeners_hear_every_command_of_running_robots():
+    commands: list = []
+
+    class Driver(Kilobot):
+        def setup(self):
+            self.spinup_motors()
+            self.set_motors(self.kilo_straight_left, self.kilo_straight_right)
+
+        def loop(self):
+            if self.kilo_ticks == 31:
+                self.set_motors(0, 0)
+
+    sim = Simulation([[0, 0], [200, 0]], Driver, Params(seed=1))
+    sim.motion.watch(lambda robot, left, right: commands.append((sim.env.now, robot, left, right)))
+    sim.faults.crash_at(1, 0.5)
+    sim.run(2.0)
+    straight = [(r.kilo_straight_left, r.kilo_straight_right) for r in sim.robots]
+    assert commands[:4] == [
+        (0.0, 0, 255, 255), (0.0, 0, *straight[0]), (0.0, 1, 255, 255), (0.0, 1, *straight[1]),
+    ]  # fmt: skip
+    # Robot 0 stops its motors in its loop at tick 31; robot 1 crashed before its tick 31.
+    (stop,) = commands[4:]
+    tick_31_s = (31.5 - sim.clocks.phase[0]) / sim.clocks.rate_hz(0)  # loops run mid-tick
+    assert stop == (pytest.approx(tick_31_s), 0, 0, 0)

@@ -215,7 +215,7 @@ def test_flat_dict_and_describe_cover_every_key():
     assert docs["medium.range_mm"] == "reception range, centre to centre"
     kinds = {key: kind for key, _, kind, _ in rows}
     assert kinds["medium.range_mm"] == "float, 33 to 1000"
-    assert kinds["medium.line_of_sight"] == "bool"
+    assert kinds["medium.csma"] == "bool"
     assert kinds["medium.message_format"] == "one of: kilolib, thesis"
     assert kinds["duration_s"] == "float >= 0"
     # Every key given back as an override reproduces the same parameters.

@@ -15,6 +15,7 @@ from kilonet.placement import (
     MAX_COORDINATE_MM,
     ROBOT_DIAMETER_MM,
     PlacementError,
+    generate,
     hex_lattice,
     line,
     load_csv,
@@ -403,3 +404,25 @@ def test_csv_binary_file(tmp_path):
 
 def test_placement_error_is_a_value_error():
     assert issubclass(PlacementError, ValueError)
+
+
+# ------------------------------------------------------------------------ named layouts
+
+
+def test_generate_names_the_kernels_generators():
+    rng = np.random.default_rng(2)
+    np.testing.assert_array_equal(generate("line", 3, spacing_mm=50.0), line(3, spacing_mm=50.0))
+    np.testing.assert_array_equal(generate("hex", 7), hex_lattice(7))
+    random = generate("random", 10, rng=rng, density_per_m2=100.0, area="rect")
+    expected = random_uniform(10, density_per_m2=100.0, rng=np.random.default_rng(2))
+    np.testing.assert_array_equal(random, expected)
+    with pytest.raises(ValueError, match="unknown layout 'grid'; layouts are: hex, line, random"):
+        generate("grid", 3)
+    with pytest.raises(ValueError, match="random_uniform needs rng"):
+        generate("random", 3)
+
+
+def test_a_lone_robot_is_valid_only_where_asked_for():
+    assert validate_positions([[1.0, 2.0]], min_robots=1).tolist() == [[1.0, 2.0]]
+    with pytest.raises(PlacementError, match="0 robots, at least 1 is needed"):
+        validate_positions([], min_robots=1)

@@ -291,3 +291,36 @@ def test_summary_totals_match_per_robot_counters_and_callbacks():
     assert frame["received"].tolist() == c["received"]
     assert frame["sent"].tolist() == c["sent"]
     assert frame[["x0_mm", "y0_mm"]].values.tolist() == positions.tolist()
+
+
+def test_a_robot_alone_is_a_simulation():
+    sim = Simulation([[0, 0]], Painter, quiet_params({"duration_s": 1.0}))
+    sim.run()
+    assert sim.n_robots == 1 and sim.robots[0].color == (1, 2, 3)
+    assert sim.robots_frame().sent.tolist() == [0]
+    with pytest.raises(PlacementError, match="0 robots, at least 1 is needed"):
+        Simulation(np.empty((0, 2)), Kilobot, Params())
+
+
+def test_reception_listeners_see_what_the_program_is_handed_before_it_is():
+    seen: list = []
+
+    class Shouter(Kilobot):
+        def message_tx(self):
+            return Message(b"\x05", 1)
+
+    class Ear(Kilobot):
+        def setup(self):
+            self.got = 0
+
+        def message_rx(self, message, distance_mm):
+            assert len(seen) == self.got + 1  # the listener came first
+            self.got += 1
+
+    sim = Simulation([[0, 0], [50, 0]], lambda i: Shouter() if i else Ear(), quiet_params())
+    sim.watch_receptions(0, lambda message, distance: seen.append((message.data, distance)))
+    sim.run(3.0)
+    assert sim.robots[0].got == len(seen) == sim.robots_frame().received[0] > 0
+    assert {data for data, _ in seen} == {b"\x05"}
+    with pytest.raises(RuntimeError, match="before the simulation starts"):
+        sim.watch_receptions(1, print)

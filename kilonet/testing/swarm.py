@@ -1,0 +1,208 @@
+"""A small swarm in one call: :func:`run_swarm` and the :class:`SwarmResult` it returns."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from kilonet.params import Params
+from kilonet.placement import LAYOUTS, generate
+from kilonet.robot import Kilobot
+from kilonet.simulation import Simulation, stream_for
+from kilonet.testing.errors import ScriptError
+from kilonet.testing.explain import short_repr
+from kilonet.testing.record import program_state
+from kilonet.testing.world import build_params
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+__all__ = ["SwarmResult", "run_swarm"]
+
+
+@dataclass(frozen=True)
+class SwarmResult:
+    """What a swarm run by :func:`run_swarm` did.
+
+    Attributes
+    ----------
+    sim : Simulation
+        The run itself, for anything the attributes below do not give.
+    stopped : bool
+        Whether the stop condition held when the run ended (``False`` without one).
+    """
+
+    sim: Simulation
+    stopped: bool
+
+    @property
+    def t_s(self) -> float:
+        """Simulated time at the end of the run, s."""
+        return float(self.sim.env.now)
+
+    @property
+    def robots(self) -> pd.DataFrame:
+        """One row per robot (:meth:`~kilonet.simulation.Simulation.robots_frame`): start and
+        final pose, clock, LED, battery and message counters."""
+        return self.sim.robots_frame()
+
+    @property
+    def tables(self) -> dict[str, pd.DataFrame]:
+        """The trace's tables by name (``led``, ``events``, ``poses``, ``stops``,
+        ``messages``, ``battery``)."""
+        return self.sim.trace.frames()
+
+    @property
+    def programs(self) -> list[Kilobot]:
+        """Every robot's program, by robot index."""
+        return list(self.sim.robots)
+
+    def program(self, robot: int) -> Kilobot:
+        """Robot ``robot``'s program.
+
+        Raises
+        ------
+        ScriptError
+            If there is no such robot.
+        """
+        n = self.sim.n_robots
+        if not (isinstance(robot, int | np.integer) and 0 <= robot < n):
+            raise ScriptError(f"robot {robot!r} is not in this swarm of {n} robots (0-{n - 1})")
+        return self.sim.robots[robot]
+
+    @property
+    def final(self) -> list[dict[str, Any]]:
+        """Each robot's final program state (:func:`~kilonet.testing.program_state`)."""
+        return [program_state(r) for r in self.sim.robots]
+
+    def state_frame(self) -> pd.DataFrame:
+        """The final states as a table: a ``robot`` column and one column per attribute
+        whose value is a number, string or ``None`` on every robot."""
+        import pandas as pd
+
+        rows = self.final
+        scalar = (int, float, str, bool, np.integer, np.floating, type(None))
+        names = [k for k in rows[0] if all(isinstance(r.get(k, ()), scalar) for r in rows)]
+        return pd.DataFrame(
+            [{"robot": i, **{k: r[k] for k in names}} for i, r in enumerate(rows)],
+            columns=["robot", *names],
+        )
+
+    def assert_each(
+        self, predicate: Callable[[int, Kilobot], bool], what: str | None = None
+    ) -> None:
+        """Assert ``predicate(index, program)`` for every robot.
+
+        Raises
+        ------
+        AssertionError
+            Naming the robots it fails for (up to ten), each with its position and state.
+        """
+        failing = [i for i, r in enumerate(self.sim.robots) if not predicate(i, r)]
+        if not failing:
+            return
+        pos = self.sim.world.positions_mm
+        lines = [
+            f"{what or 'the predicate'} fails for {len(failing)} of {self.sim.n_robots} robots "
+            f"at {self.t_s:.3f} s:"
+        ]
+        for i in failing[:10]:
+            state = ", ".join(
+                f"{k}={short_repr(v, 40)}" for k, v in program_state(self.sim.robots[i]).items()
+            )
+            lines.append(f"  robot {i} at ({pos[i, 0]:.1f}, {pos[i, 1]:.1f}) mm: {state}")
+        if len(failing) > 10:
+            lines.append(f"  ... and {len(failing) - 10} more")
+        raise AssertionError("\n".join(lines))
+
+
+def run_swarm(
+    program: type[Kilobot] | Callable[[int], Kilobot],
+    placement: str | Sequence[Sequence[float]] | np.ndarray = "hex",
+    *,
+    robots: int | None = None,
+    params: Params | Mapping[str, Any] | None = None,
+    seed: int | None = None,
+    until_s: float | None = None,
+    stop_when: Callable[[list[Kilobot]], bool] | None = None,
+) -> SwarmResult:
+    """Run a small swarm and hand back what it did.
+
+    Parameters
+    ----------
+    program : Kilobot subclass or callable
+        Every robot runs the class, or ``program(index)`` builds robot ``index``'s program.
+    placement : str or (N, 2) array-like
+        Start positions in mm, or a layout of :data:`kilonet.placement.LAYOUTS` (``"hex"``,
+        ``"line"``, ``"random"``) generated by the kernel's generators with the parameters'
+        ``placement.*`` values (spacing, jitter, density, area) from the run's placement
+        stream, as scenarios place robots.
+    robots : int, optional
+        Number of robots of a named layout (default ``placement.robots``).
+    params : Params or dict, optional
+        A :class:`~kilonet.params.Params`, or dotted overrides of the kernel's defaults.
+    seed : int, optional
+        Seed of the run (default: the parameters' own).
+    until_s : float, optional
+        Simulated time to run to (default ``duration_s``, 60 s).
+    stop_when : callable, optional
+        ``stop_when(programs) -> bool``, checked every simulated second; the run ends as soon
+        as it holds.
+
+    Raises
+    ------
+    ScriptError
+        If a named layout has no size, or ``robots`` disagrees with the placement given.
+    ValueError
+        If the layout's generator refuses its parameters (e.g. robots that would overlap).
+
+    Examples
+    --------
+    >>> from kilonet.message import Layout
+    >>> HOPS = Layout("hops", type=1, fields=[("hops", "B")])
+    >>> class Hops(Kilobot):
+    ...     def __init__(self, source):
+    ...         self.hops = 0 if source else 255
+    ...     def message_rx(self, message, distance_mm):
+    ...         self.hops = min(self.hops, HOPS.unpack(message).hops + 1)
+    ...     def message_tx(self):
+    ...         return HOPS.pack(hops=self.hops) if self.hops < 255 else None
+    >>> result = run_swarm(lambda i: Hops(source=i == 0), "line", robots=4,
+    ...                    params={"placement.spacing_mm": 50},  # 100 mm: beyond range
+    ...                    stop_when=lambda programs: all(p.hops < 255 for p in programs))
+    >>> result.stopped, [p.hops for p in result.programs]
+    (True, [0, 1, 2, 3])
+    >>> result.state_frame().hops.tolist()
+    [0, 1, 2, 3]
+    """
+    p = build_params(params, seed)
+    if isinstance(placement, str):
+        n = robots or p.placement.robots
+        if not n:
+            raise ScriptError(
+                f"run_swarm(): layout {placement!r} needs a size: robots=N "
+                f"(layouts: {', '.join(LAYOUTS)})"
+            )
+        pp = p.placement
+        positions = generate(
+            placement,
+            n,
+            rng=stream_for(p.seed, "placement"),
+            spacing_mm=pp.spacing_mm,
+            jitter_mm=pp.jitter_mm,
+            density_per_m2=pp.density_per_m2,
+            area=pp.area,
+        )
+    else:
+        positions = np.asarray(placement, dtype=float)
+        if robots is not None and robots != len(positions):
+            raise ScriptError(
+                f"run_swarm(): robots={robots} but the placement has {len(positions)} robots"
+            )
+    sim = Simulation(positions, program, p)
+    stop = None if stop_when is None else (lambda: stop_when(sim.robots))
+    sim.run(until_s, stop_when=stop)
+    return SwarmResult(sim, stopped=stop is not None and bool(stop()))
