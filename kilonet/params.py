@@ -194,6 +194,12 @@ class LightParams:
     falloff_mm: float = param(
         300.0, lo=1.0, hi=1e6, doc="distance at which the source's share halves"
     )
+    sensor_angle_deg: float = param(
+        100.0, lo=-180.0, hi=180.0, doc="where the sensor sees best, CCW from the heading (ARGoS)"
+    )
+    directionality: float = param(
+        1.0, lo=0.0, hi=1.0, doc="source's share x (1 - this * angle off sensor_angle / 180°)"
+    )
     noise_sd: float = param(10.0, lo=0.0, hi=1023.0, doc="reading noise, ADC counts (sd)")
 
 

@@ -4,10 +4,18 @@ All three are 10-bit ADC readings, as kilolib returns them (``get_ambientlight``
 ``get_voltage``, ``get_temperature``; each returns -1 while a message is arriving, which the
 robot API handles).
 
-* **Ambient light** (``light.*``): ``ambient + I / (1 + (d / falloff)**2) + N(0, noise_sd)``,
-  clipped to 0-1023, for a source of intensity ``I`` at distance ``d`` from the robot; the
-  source's share halves at ``falloff_mm``. kilolib documents no scale (the move-to-light lab
-  uses thresholds of 300 and 600); this field is a scenario's choice.
+* **Ambient light** (``light.*``): ``ambient + I / (1 + (d / falloff)**2) * (1 - k * a / 180°)
+  + N(0, noise_sd)``, clipped to 0-1023, for a source of intensity ``I`` at distance ``d`` from
+  the robot; the source's share halves at ``falloff_mm``. The sensor sits on one side of the
+  body, so what it reads of the source depends on the robot's heading: ``a`` is the angle
+  between the bearing to the source and the direction the sensor sees best
+  (``sensor_angle_deg``, counter-clockwise from the heading), and ``k`` is ``directionality``.
+  The defaults are ARGoS's Kilobot light sensor (``kilobot_light_rotzonly_sensor.cpp``: the
+  reading scales by ``1 - a / 180°``, best at 100° from the heading); ``directionality = 0``
+  reads the same facing any way. kilolib documents no scale (the move-to-light lab uses
+  thresholds of 300 and 600); the field is a scenario's choice. The lab's zigzag towards the
+  light needs the heading dependence: with a reading that depends on position alone, a robot
+  pivoting on one motor circles its leg and never crosses both thresholds.
 * **Voltage**: ``round(169 * V + 6)``, the line through two calibration points of a kilolib
   fork (547 at 3.2 V, 716 at 4.2 V; kilolib's own battery display switches at 682, 648 and 614,
   which this maps to 4.0, 3.8 and 3.6 V).
@@ -18,6 +26,7 @@ robot API handles).
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -59,20 +68,25 @@ class Sensors:
     def __init__(self, sim: Simulation) -> None:
         self.sim = sim
         self.light = sim.params.light
+        self._sensor_angle = math.radians(self.light.sensor_angle_deg)
         self._rng = sim.stream("sensors")
         self.temperature_offset = np.rint(self._rng.normal(0.0, 5.0, sim.n_robots)).astype(int)
 
     def ambient_light(self, robot: int) -> int:
-        """The light reading at ``robot``'s position now."""
+        """The light reading at ``robot``'s position and heading now."""
         p = self.light
         value = p.ambient
         if p.source_intensity > 0:
-            x, y = self.sim.world.positions_mm[robot]
-            d = float(np.hypot(x - p.source_x_mm, y - p.source_y_mm))
-            value += p.source_intensity / (1.0 + (d / p.falloff_mm) ** 2)
+            world = self.sim.world
+            x, y = world.positions_mm[robot]
+            dx, dy = p.source_x_mm - float(x), p.source_y_mm - float(y)
+            off = math.atan2(dy, dx) - float(world.heading_rad[robot]) - self._sensor_angle
+            off = abs((off + math.pi) % (2 * math.pi) - math.pi)  # 0 to pi
+            share = p.source_intensity / (1.0 + (math.hypot(dx, dy) / p.falloff_mm) ** 2)
+            value += share * (1.0 - p.directionality * off / math.pi)
         if p.noise_sd > 0:
             value += p.noise_sd * float(self._rng.standard_normal())
-        return int(np.clip(round(value), 0, 1023))
+        return min(max(round(value), 0), 1023)
 
     def voltage_reading(self, robot: int) -> int:
         """The battery reading of ``robot`` now."""
