@@ -18,6 +18,7 @@ import math
 import operator
 import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,11 +29,13 @@ __all__ = [
     "MAX_COORDINATE_MM",
     "ROBOT_DIAMETER_MM",
     "PlacementError",
+    "PlacementFile",
     "generate",
     "hex_lattice",
     "line",
     "load_csv",
     "random_uniform",
+    "read_placement",
     "save_csv",
     "validate_positions",
 ]
@@ -393,7 +396,31 @@ def generate(
 
 
 def load_csv(path: str | os.PathLike, *, diameter_mm: float = ROBOT_DIAMETER_MM) -> np.ndarray:
-    """Read and validate a placement from a CSV file with columns ``x_mm`` and ``y_mm``.
+    """Read and validate a placement's centres from a CSV file with columns ``x_mm`` and
+    ``y_mm`` (:func:`read_placement`, without the UIDs).
+
+    Raises
+    ------
+    PlacementError
+        As :func:`read_placement`.
+    """
+    return read_placement(path, diameter_mm=diameter_mm).positions_mm
+
+
+@dataclass(frozen=True)
+class PlacementFile:
+    """A placement read from a file: the robots' centres and, if the file gives them, their
+    hardware UIDs (``kilo_uid``)."""
+
+    positions_mm: np.ndarray
+    uids: tuple[int, ...] | None
+
+
+def read_placement(
+    path: str | os.PathLike, *, diameter_mm: float = ROBOT_DIAMETER_MM
+) -> PlacementFile:
+    """Read and validate a placement from a CSV file with columns ``x_mm`` and ``y_mm`` and,
+    optionally, ``uid`` (each robot's ``kilo_uid``, an integer 0–65535).
 
     The first non-blank line is the header; column names may be in any order and surrounded
     by spaces, and other columns are ignored. Blank lines are skipped. Errors name the CSV
@@ -408,16 +435,16 @@ def load_csv(path: str | os.PathLike, *, diameter_mm: float = ROBOT_DIAMETER_MM)
 
     Returns
     -------
-    (N, 2) float64 ndarray
-        Centres, mm, in file order.
+    PlacementFile
+        Centres, mm, in file order, and the UIDs if the file has a ``uid`` column.
 
     Raises
     ------
     PlacementError
         If the file is missing, unreadable, empty, lacks a column, has a row with more
         (non-empty) fields than the header has columns, holds a value that is not a finite
-        number or lies beyond :data:`MAX_COORDINATE_MM`, has fewer than 2 robots, or two robots
-        overlap.
+        number or lies beyond :data:`MAX_COORDINATE_MM`, a UID that is not an integer 0–65535,
+        has fewer than 2 robots, or two robots overlap.
     """
     source = os.fspath(path)
     text = read_text(path, PlacementError, "placement file", encoding="utf-8-sig", newline="")
@@ -440,8 +467,11 @@ def load_csv(path: str | os.PathLike, *, diameter_mm: float = ROBOT_DIAMETER_MM)
                 f"{source}: missing column {col!r} (header has: {', '.join(names)})"
             )
         columns.append((col, names.index(col)))
+    if names.count("uid") > 1:
+        raise PlacementError(f"{source} line {header_line}: column 'uid' appears twice")
+    uid_at = names.index("uid") if "uid" in names else None
 
-    values, lines, problems = [], [], []
+    values, lines, problems, uids = [], [], [], []
     for line_no, row in rows[1:]:
         if any(c.strip() for c in row[len(names) :]):
             problems.append(
@@ -462,12 +492,19 @@ def load_csv(path: str | os.PathLike, *, diameter_mm: float = ROBOT_DIAMETER_MM)
             if not math.isfinite(value):
                 problems.append(f"line {line_no}: {col} is not finite ({text!r})")
             xy.append(value)
+        if uid_at is not None:
+            text = row[uid_at].strip() if uid_at < len(row) else ""
+            if not text.isdigit() or int(text) > 0xFFFF:
+                problems.append(f"line {line_no}: uid is not an integer 0-65535 ({text!r})")
+            else:
+                uids.append(int(text))
         values.append(xy)
         lines.append(line_no)
     if problems:
         more = f" (and {len(problems) - 1} more bad values)" if len(problems) > 1 else ""
         raise PlacementError(f"{source} {problems[0]}{more}")
-    return _check(np.array(values).reshape(-1, 2), diameter_mm, source, lines)
+    positions = _check(np.array(values).reshape(-1, 2), diameter_mm, source, lines)
+    return PlacementFile(positions, tuple(uids) if uid_at is not None else None)
 
 
 def save_csv(positions, path: str | os.PathLike) -> None:

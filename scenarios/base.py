@@ -20,7 +20,7 @@ import numpy as np
 
 from kilonet.errors import UserError
 from kilonet.params import ParamError, Params
-from kilonet.placement import generate, load_csv
+from kilonet.placement import generate, load_csv, read_placement
 from kilonet.robot import Kilobot
 from scenarios.output_dir import OutputDir
 from scenarios.progress import RunProgress
@@ -37,6 +37,7 @@ __all__ = [
     "build_params",
     "json_safe",
     "place",
+    "placement_uids",
     "run",
     "write_outputs",
     "write_run_files",
@@ -205,6 +206,22 @@ def _given_placement(placement: str | Path | np.ndarray) -> np.ndarray:
     return np.asarray(placement, dtype=float)
 
 
+def placement_uids(placement: str | Path | np.ndarray | None) -> tuple[int, ...] | None:
+    """The hardware UIDs a placement file gives in its ``uid`` column (``None`` for a file
+    without one, a named or generated placement, or an array).
+
+    Raises
+    ------
+    kilonet.placement.PlacementError
+        If the file is not a valid placement.
+    """
+    if isinstance(placement, str) and placement in NAMED_PLACEMENTS:
+        return None
+    if isinstance(placement, str | Path):
+        return read_placement(placement).uids
+    return None
+
+
 def _name(placement: str | Path | np.ndarray) -> str:
     return str(placement) if isinstance(placement, str | Path) else "array"
 
@@ -241,6 +258,7 @@ def run(
     # A placement given is read (and refused) before anything is shown; a generated one is a
     # set-up stage, which can be long for a large swarm.
     positions = None if placement is None else place(scenario, params, placement)
+    uids = placement_uids(placement)
     with RunProgress(
         scenario.name,
         expected_end_s=_expected_end_s(scenario, params),
@@ -252,7 +270,7 @@ def run(
             bar.stage("placing robots")
             positions = place(scenario, params)
         bar.stage(f"building {len(positions):,} robots")
-        sim = Simulation(positions, scenario.program(params, positions), params)
+        sim = Simulation(positions, scenario.program(params, positions), params, uids=uids)
         bar.stage("starting")
         sim.start()  # every robot's setup(), also for a run of zero seconds
         bar.stage("running")

@@ -10,7 +10,9 @@ from __future__ import annotations
 import importlib.util
 import math
 import sys
+from pathlib import Path
 
+import networkx as nx
 import numpy as np
 import pytest
 
@@ -24,7 +26,6 @@ from examples.labs.orbit import DESIRED_DISTANCE, Orbit
 from examples.labs.simple_movement import SimpleMovement
 from examples.labs.speaker_listener import SpeakerListener
 from examples.labs.sync import Sync, c_div, c_mod
-from kilonet.placement import PlacementError
 from kilonet.robot import Kilobot
 
 
@@ -78,11 +79,21 @@ def test_lab_worlds_carry_the_uids_the_labs_need():
     assert world.load("disperse").uids is None
 
 
-def test_a_bad_uid_is_refused_with_file_and_line(tmp_path):
-    path = tmp_path / "bad.csv"
-    path.write_text("x_mm,y_mm,uid\n0,0,1\n\n50,0,x\n")
-    with pytest.raises(PlacementError, match=r"bad.csv line 4: uid must be an integer"):
-        world.read_uids(path)
+def test_the_cli_runs_a_lab_file_on_its_placement_with_the_uids_it_gives(tmp_path):
+    # kilonet run --program examples/labs/gradient_simple.py --placement .../gradient_simple.csv
+    import scenarios
+    from scenarios.program import program_scenario
+
+    lab = Path(world.__file__).parent
+    spec = str(lab / "gradient_simple.py")
+    result = scenarios.run(
+        program_scenario(spec), {"duration_s": 30.0}, placement=lab / "gradient_simple.csv"
+    )
+    robots = result.sim.robots
+    seed = next(i for i, r in enumerate(robots) if r.kilo_uid == SEED_ID)
+    assert robots[seed].own_gradient == 0
+    hops = nx.single_source_shortest_path_length(result.sim.medium.graph(), seed)
+    assert [r.own_gradient for r in robots] == [hops[i] for i in range(len(robots))]
 
 
 def test_main_prints_the_figures_and_refuses_a_bad_parameter(capsys):

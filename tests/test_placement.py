@@ -20,6 +20,7 @@ from kilonet.placement import (
     line,
     load_csv,
     random_uniform,
+    read_placement,
     save_csv,
     validate_positions,
 )
@@ -426,3 +427,21 @@ def test_a_lone_robot_is_valid_only_where_asked_for():
     assert validate_positions([[1.0, 2.0]], min_robots=1).tolist() == [[1.0, 2.0]]
     with pytest.raises(PlacementError, match="0 robots, at least 1 is needed"):
         validate_positions([], min_robots=1)
+
+
+def test_a_placement_file_may_give_each_robots_uid(tmp_path):
+    path = tmp_path / "uids.csv"
+    path.write_text("uid,x_mm,y_mm\n42,0,0\n\n7,50,0\n")
+    placement = read_placement(path)
+    assert placement.uids == (42, 7)
+    assert placement.positions_mm.tolist() == [[0.0, 0.0], [50.0, 0.0]]
+    path.write_text("x_mm,y_mm\n0,0\n50,0\n")
+    assert read_placement(path).uids is None
+
+
+@pytest.mark.parametrize("bad", ["x", "-1", "65536", "1.5", ""])
+def test_a_uid_that_is_not_a_uint16_is_refused_with_file_and_line(tmp_path, bad):
+    path = tmp_path / "bad.csv"
+    path.write_text(f"x_mm,y_mm,uid\n0,0,1\n\n50,0,{bad}\n")
+    with pytest.raises(PlacementError, match=r"bad.csv line 4: uid is not an integer 0-65535"):
+        read_placement(path)

@@ -10,7 +10,6 @@ reads them, without a ``scenario`` key). ``python -m examples.labs.NAME`` runs t
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -21,10 +20,10 @@ from typing import Any
 import numpy as np
 
 from kilonet.params import ParamError, Params
-from kilonet.placement import PlacementError, load_csv
+from kilonet.placement import PlacementError, read_placement
 from kilonet.simulation import Simulation
 
-__all__ = ["LABS_DIR", "LabWorld", "load", "main", "read_uids", "simulation"]
+__all__ = ["LABS_DIR", "LabWorld", "load", "main", "simulation"]
 
 #: Where the labs' placement and parameter files are.
 LABS_DIR = Path(__file__).resolve().parent
@@ -49,33 +48,6 @@ class LabWorld:
     overrides: dict[str, Any]
 
 
-def read_uids(path: str | Path) -> list[int] | None:
-    """The ``uid`` column of a placement CSV (rows as :func:`kilonet.placement.load_csv` reads
-    them: blank lines skipped), or ``None`` if the file has no such column.
-
-    Raises
-    ------
-    PlacementError
-        If a uid is missing or not an integer 0-65535 (the message names the file and line).
-    """
-    with open(path, newline="", encoding="utf-8-sig") as f:
-        reader = csv.reader(f)
-        rows = [(reader.line_num, row) for row in reader if any(c.strip() for c in row)]
-    names = [c.strip() for c in rows[0][1]]
-    if "uid" not in names:
-        return None
-    k = names.index("uid")
-    uids = []
-    for line, row in rows[1:]:
-        text = row[k].strip() if k < len(row) else ""
-        if not (text.isdigit() and int(text) <= 0xFFFF):
-            raise PlacementError(
-                f"{path} line {line}: uid must be an integer 0-65535, got {text!r}"
-            )
-        uids.append(int(text))
-    return uids
-
-
 def load(lab: str) -> LabWorld:
     """The placement (``LAB.csv``) and parameters (``LAB.toml``, if any) of ``lab``.
 
@@ -86,11 +58,11 @@ def load(lab: str) -> LabWorld:
     ParamError
         If the parameter file is not valid TOML.
     """
-    placement = LABS_DIR / f"{lab}.csv"
-    positions = load_csv(placement)
+    placement = read_placement(LABS_DIR / f"{lab}.csv")
     toml = LABS_DIR / f"{lab}.toml"
     overrides = Params.read_toml(toml)[1] if toml.exists() else {}
-    return LabWorld(positions, read_uids(placement), overrides)
+    uids = list(placement.uids) if placement.uids is not None else None
+    return LabWorld(placement.positions_mm, uids, overrides)
 
 
 def simulation(
