@@ -34,6 +34,8 @@ from typing import Any
 __all__ = [
     "KILOLIB",
     "LIMITS",
+    "NORMAL",
+    "SYSTEM_TYPES",
     "THESIS",
     "Layout",
     "Message",
@@ -146,6 +148,12 @@ class PayloadLimit:
             raise PayloadError(
                 f"the {self.name} message format has no type byte; got type={message.type}"
             )
+        if message.type >= SYSTEM_TYPES:
+            raise PayloadError(
+                f"message type {message.type}: types {SYSTEM_TYPES} and up are kilolib's system "
+                "messages (the overhead controller's boot, reset, run ...), which never reach "
+                "message_rx; use a type below 128"
+            )
         # Little-endian like Layout: bits beyond the limit are the top bits of the last byte.
         used = int.from_bytes(data, "little").bit_length()
         if len(data) > -(-self.data_bits // 8) or used > self.data_bits:
@@ -154,6 +162,11 @@ class PayloadLimit:
                 f"the {self.name} limit of {self.data_bits} bits; pack fields more tightly"
             )
 
+
+#: kilolib's ``message_type_t`` for a program's own messages (``message.h``).
+NORMAL = 0
+#: The first of kilolib's system message types (``BOOT = 0x80``): kilolib handles them itself.
+SYSTEM_TYPES = 0x80
 
 #: kilolib v2: ``data[9]`` + type + 16-bit CRC = 12 bytes on the air.
 KILOLIB = PayloadLimit("kilolib", data_bits=72, has_type=True, air_bytes=12)

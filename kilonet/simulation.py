@@ -226,8 +226,11 @@ class Simulation:
         return call
 
     def _program(self, i: int, has_loop: bool) -> Generator[Any, Any, None]:
-        """Robot ``i``'s program as a SimPy process: setup, then its loop once every
-        ``robot.loop_ticks`` ticks, each call allowed to block in ``yield self.delay(ms)``."""
+        """Robot ``i``'s program as a SimPy process: setup, then its loop, each call allowed to
+        block in ``yield self.delay(ms)``. A call that blocked is followed by the next at once
+        (kilolib calls ``loop()`` back to back); one that did not, at the middle of the tick
+        ``robot.loop_ticks`` later (nothing a program reads changes in between but its
+        receptions)."""
         robot, running = self.robots[i], self.world.running
         yield from self._blocking(i, robot.setup())
         if not running[i]:
@@ -238,17 +241,23 @@ class Simulation:
         rate, theta = self.clocks.rate_hz(i), float(self.clocks.phase[i])
         loop_s = self.params.robot.loop_ticks / rate
         due = self.env.now
+        blocked = False
         while True:
-            # The next loop call falls mid-tick, at or after `due`.
-            tick = np.floor(due * rate + theta)
-            at = (tick + 0.5 - theta) / rate
-            if at < due:
-                at += 1.0 / rate
-            yield self.env.timeout(at - self.env.now)
+            if not blocked:
+                # The next loop call falls mid-tick, at or after `due`.
+                tick = np.floor(due * rate + theta)
+                at = (tick + 0.5 - theta) / rate
+                if at < due:
+                    at += 1.0 / rate
+                yield self.env.timeout(at - self.env.now)
+                if not running[i]:
+                    return
+            started = self.env.now
+            yield from self._blocking(i, robot.loop())
             if not running[i]:
                 return
-            yield from self._blocking(i, robot.loop())
-            due = max(self.env.now, at + loop_s)
+            blocked = self.env.now > started
+            due = started + loop_s
 
     def _blocking(self, i: int, result: Any) -> Generator[Any, Any, None]:
         """Run a program call that may be a generator of delays (see :meth:`Kilobot.delay`).

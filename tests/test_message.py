@@ -23,7 +23,13 @@ def test_message_size_counts_type_and_crc():
 
 @pytest.mark.parametrize("n_bytes", [0, 1, 8, 9])
 def test_kilolib_accepts_up_to_nine_bytes(n_bytes):
-    KILOLIB.check(Message(b"\xff" * n_bytes, type=255))
+    KILOLIB.check(Message(b"\xff" * n_bytes, type=127))
+
+
+@pytest.mark.parametrize("system_type", [128, 0x8A, 255])
+def test_kilolibs_system_types_are_refused_because_they_never_reach_message_rx(system_type):
+    with pytest.raises(PayloadError, match=f"type {system_type}: types 128 and up are kilolib's"):
+        KILOLIB.check(Message(b"", type=system_type))
 
 
 def test_kilolib_refuses_ten_bytes():

@@ -324,3 +324,49 @@ def test_reception_listeners_see_what_the_program_is_handed_before_it_is():
     assert {data for data, _ in seen} == {b"\x05"}
     with pytest.raises(RuntimeError, match="before the simulation starts"):
         sim.watch_receptions(1, print)
+
+
+class Blinker(Kilobot):
+    """kilolib's blink: on, delay(500), off, delay(500), and round again."""
+
+    def loop(self):
+        self.set_color(1, 0, 0)
+        yield self.delay(500)
+        self.set_color(0, 0, 0)
+        yield self.delay(500)
+
+
+def test_a_blocking_loop_runs_again_at_once_and_its_delays_run_on_its_own_clock():
+    params = Params(seed=5).with_overrides({"battery.enabled": False, "robot.clock_sd": 0.02})
+    sim = Simulation([[0, 0], [50, 0]], Blinker, params)
+    sim.run(10.0)
+    led = sim.trace.led_frame()
+    for robot in (0, 1):
+        times = led[led.robot == robot]["t_s"].to_numpy()
+        own_half_s = 0.5 / sim.clocks.factor[robot]
+        assert len(times) >= 19
+        np.testing.assert_allclose(np.diff(times), own_half_s, rtol=1e-9)  # no tick in between
+        assert times[0] == pytest.approx(sim.clocks.first_mid_tick_s(robot))
+
+
+class Forgetful(Kilobot):
+    def loop(self):
+        self.delay(100)  # no yield: nothing blocks
+        yield self.delay(100)
+
+
+def test_a_delay_that_is_not_yielded_is_an_error_that_says_so():
+    sim = Simulation([[0, 0], [50, 0]], Forgetful, Params(seed=1))
+    with pytest.raises(RuntimeError, match=r"delay\(\) was called without `yield`"):
+        sim.run(1.0)
+
+
+class PlainDelay(Kilobot):
+    def loop(self):
+        self.delay(100)
+
+
+def test_delay_in_a_plain_loop_is_refused_with_the_way_out():
+    sim = Simulation([[0, 0], [50, 0]], PlainDelay, Params(seed=1))
+    with pytest.raises(RuntimeError, match=r"write `yield self\.delay\(ms\)`"):
+        sim.run(1.0)

@@ -9,12 +9,10 @@ as the C global does) and :meth:`MotionLab.set_motion`.
 
 from __future__ import annotations
 
+from kilonet.message import NORMAL  # kilolib's message type for a program's own messages
 from kilonet.robot import Kilobot
 
 __all__ = ["FORWARD", "LEFT", "NORMAL", "RIGHT", "STOP", "MotionLab"]
-
-#: kilolib's ``message_type_t`` for a program's own messages (``message.h``: ``NORMAL = 0``).
-NORMAL = 0
 
 # Constants for the motion handling function.
 STOP = 0

@@ -46,7 +46,7 @@ except ImportError as exc:  # pragma: no cover - hypothesis is a test dependency
         "pip install hypothesis"
     ) from exc
 
-from kilonet.message import KILOLIB, Layout, Message, PayloadLimit
+from kilonet.message import KILOLIB, SYSTEM_TYPES, Layout, Message, PayloadLimit
 from kilonet.placement import ROBOT_DIAMETER_MM, generate
 from kilonet.visibility import LinkModel, communication_graph
 
@@ -195,15 +195,16 @@ def messages(layout: Layout) -> st.SearchStrategy[Message]:
 
 
 def raw_messages(limit: PayloadLimit = KILOLIB) -> st.SearchStrategy[Message]:
-    """Any message ``limit`` accepts: payloads of up to its bits (little-endian), any type
-    byte if it has one (else 0), correct CRC."""
+    """Any message ``limit`` accepts: payloads of up to its bits (little-endian), any program
+    type byte if it has one (0-127; kilolib keeps 128 and up for itself; else 0), correct
+    CRC."""
     n_bytes = -(-limit.data_bits // 8)
     data = st.integers(0, (1 << limit.data_bits) - 1).flatmap(
         lambda v: st.integers(max(1, -(-v.bit_length() // 8)), n_bytes).map(
             lambda k: v.to_bytes(k, "little")
         )
     )
-    kind = st.integers(0, 255) if limit.has_type else st.just(0)
+    kind = st.integers(0, SYSTEM_TYPES - 1) if limit.has_type else st.just(0)
     return st.builds(Message, st.one_of(st.just(b""), data), kind)
 
 
