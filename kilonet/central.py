@@ -23,7 +23,7 @@ import numpy as np
 
 from kilonet.alignment import procrustes_rmse
 
-__all__ = ["CentralResult", "central_reference", "solve_positions"]
+__all__ = ["CentralResult", "central_reference", "pooled_aligned_rmse", "solve_positions"]
 
 #: Components with fewer robots are left unsolved: two robots and a distance fix no frame.
 MIN_COMPONENT = 3
@@ -249,32 +249,68 @@ def central_reference(
         raise ValueError(f"truth_mm must be a finite (n, 2) array; got shape {truth.shape}")
     n = len(truth)
     solved = solve_positions(n, pairs, distances_mm, weights)
-    aligned = np.full((n, 2), np.nan)
     pairs_arr = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
+    labels = np.arange(n)
     if len(pairs_arr):
         graph = coo_matrix(
             (np.ones(len(pairs_arr)), (pairs_arr[:, 0], pairs_arr[:, 1])), shape=(n, n)
         )
         _, labels = connected_components(graph, directed=False)
-    else:
-        labels = np.arange(n)
-    squared, count = 0.0, 0
-    for label in np.unique(labels):
-        members = np.flatnonzero((labels == label) & np.isfinite(solved[:, 0]))
-        if len(members) < MIN_COMPONENT:
-            continue
-        rmse, _, moved = procrustes_rmse(solved[members], truth[members])
-        aligned[members] = moved
-        squared += rmse**2 * len(members)
-        count += len(members)
+    labels = np.where(np.isfinite(solved[:, 0]), labels, -1)
+    rmse, aligned = pooled_aligned_rmse(solved, truth, labels)
     error = np.hypot(*(aligned - truth).T)
     localized = np.isfinite(error) & (error <= within_mm)
     return CentralResult(
-        rmse_mm=math.sqrt(squared / count) if count else math.nan,
+        rmse_mm=rmse,
         localized_fraction=float(localized.sum() / n) if n else 0.0,
         localized=localized,
         aligned_mm=aligned,
     )
+
+
+def pooled_aligned_rmse(
+    estimated_mm: np.ndarray, truth_mm: np.ndarray, labels: np.ndarray
+) -> tuple[float, np.ndarray]:
+    """RMS error of estimates in several frames, each frame aligned to the truth on its own.
+
+    Parameters
+    ----------
+    estimated_mm, truth_mm : (n, 2) arrays
+        Estimates (each in its frame) and true positions, mm.
+    labels : (n,) array
+        Each robot's frame; robots labelled ``-1`` have no estimate.
+
+    Returns
+    -------
+    rmse_mm : float
+        ``sqrt(mean |aligned − true|²)`` over every robot of a frame with at least three
+        robots, after the best rigid alignment of each such frame (reflection allowed); NaN if
+        there is none.
+    aligned_mm : (n, 2) array
+        The aligned estimates; NaN for robots without one or in smaller frames.
+
+    Examples
+    --------
+    >>> truth = np.array([[0.0, 0.0], [40.0, 0.0], [0.0, 30.0], [90.0, 0.0]])
+    >>> est = truth * [-1.0, 1.0] + [5.0, 5.0]
+    >>> rmse, aligned = pooled_aligned_rmse(est, truth, np.array([0, 0, 0, -1]))
+    >>> round(rmse, 9), bool(np.isnan(aligned[3]).all())
+    (0.0, True)
+    """
+    est = np.asarray(estimated_mm, dtype=float)
+    truth = np.asarray(truth_mm, dtype=float)
+    labels = np.asarray(labels)
+    aligned = np.full(truth.shape, np.nan)
+    squared, count = 0.0, 0
+    for label in np.unique(labels[labels != -1]):
+        members = np.flatnonzero(labels == label)
+        if len(members) < MIN_COMPONENT:
+            continue
+        rmse, _, moved = procrustes_rmse(est[members], truth[members])
+        aligned[members] = moved
+        squared += rmse**2 * len(members)
+        count += len(members)
+    return (math.sqrt(squared / count) if count else math.nan), aligned

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from scenarios import follower, gcs, gradient, maze
+from scenarios import follower, gcs, gradient, localize, maze
 from scenarios.base import RunResult, Scenario, ScenarioError, run, write_outputs
 
 __all__ = [
@@ -17,7 +17,14 @@ __all__ = [
 ]
 
 SCENARIOS: dict[str, Scenario] = {
-    s.name: s for s in (follower.SCENARIO, gcs.SCENARIO, gradient.SCENARIO, maze.SCENARIO)
+    s.name: s
+    for s in (
+        follower.SCENARIO,
+        gcs.SCENARIO,
+        gradient.SCENARIO,
+        localize.SCENARIO,
+        maze.SCENARIO,
+    )
 }
 
 #: What ``kilonet run`` runs when no scenario is named.

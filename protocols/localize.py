@@ -1,0 +1,247 @@
+"""``localize``: one global frame for a whole swarm, as one Kilobot program.
+
+The phases (one module each) follow one another on every robot as its local work is done,
+not in fixed windows:
+
+1. :mod:`protocols.localize_election` — locally unique IDs, a root elected by flooding the
+   smallest key, every robot's hop count to it, and an echo that tells the root everyone has
+   heard it;
+2. :mod:`protocols.localize_spread` — the frame starts at the root (root, axis and third
+   robot) and spreads outward by multilateration, with flip and collinearity checks and
+   neighbours' candidate pairs where three anchors are missing;
+3. :mod:`protocols.refinement` — from the moment it has a position, every robot keeps
+   improving it from its neighbours' announced positions and the distances both ends measured
+   (:mod:`protocols.localize_base`'s DIST reports), while
+   :mod:`protocols.localize_termination` climbs settledness back to the root, which floods
+   DONE; every robot then freezes its estimate and falls silent.
+
+A robot learns only from what it receives: the messages and the distance estimate of each
+reception. It keeps time with its own clock (``kilo_ticks``): a round of work every
+``localize.round_s``, done from ``loop()``; ``message_tx()`` only packs the current state.
+
+Messages (all 9-byte kilolib payloads, the sender's ID first): ELECT (80), ROOT (81), POS
+(82), DIST (83), CAND (84) — layouts in the phase modules. One transmit opportunity in
+``localize.dist_every`` carries DIST, the others the phase's own message.
+
+LED: electing blue; the root white; located green; settled cyan; done off.
+"""
+
+from __future__ import annotations
+
+import struct
+
+from kilonet.message import Message
+from kilonet.robot import Kilobot
+from protocols.localize_base import (
+    COMPLETE,
+    DIST,
+    DONE,
+    LOCALIZED,
+    NBR,
+    NO_ID,
+    SETTLED,
+    LocalizeParams,
+    Neighbour,
+    Neighbours,
+    distance_report,
+)
+from protocols.localize_election import ELECT, Election
+from protocols.localize_spread import CAND, POS, ROOT, Spread
+from protocols.localize_termination import Termination
+from protocols.refinement import SettleWindow, gauss_newton_step
+
+__all__ = ["LocalizeRobot"]
+
+#: Every message's first field, the sender's ID (uint16).
+_SENDER = struct.Struct("<H").unpack_from
+_PHASE2 = frozenset((ROOT.type, POS.type, CAND.type))
+
+
+class LocalizeRobot(Kilobot):
+    """The ``localize`` program of one robot.
+
+    Parameters
+    ----------
+    params : LocalizeParams
+        The protocol's parameters.
+
+    Attributes
+    ----------
+    stage : str
+        ``"election"``, ``"localize"`` or ``"done"``.
+    position : (float, float) or None
+        This robot's estimate in the frame, mm.
+    root_key : int
+        The election key of this robot's root (its frame's label).
+    """
+
+    def __init__(self, params: LocalizeParams) -> None:
+        self.params = params
+
+    # -- kilolib callbacks ---------------------------------------------------------------------
+    def setup(self) -> None:
+        p = self.params
+        tps = self.ticks_per_s
+        self.uid = int(self.rand.integers(NO_ID))
+        self.neighbours = Neighbours(
+            duplicate_mm=p.duplicate_sigmas * p.sigma_mm, stale_ticks=p.stale_s * tps
+        )
+        # Neighbours' NBR reports about each other, while electing and on the root.
+        self.reports: dict[int, dict[int, float]] = {}
+        self.position: tuple[float, float] | None = None
+        self.is_root = False
+        self.located_tick = 0
+        self.stage = "election"
+        self.hops = 0
+        self.root_key = 0
+        self.election = Election(self)
+        self.spread = Spread(self)
+        self.termination = Termination(self)
+        self.settle = SettleWindow(settle_mm=p.settle_mm, rounds=p.settle_rounds)
+        self._round_ticks = p.round_s * tps
+        self._next_round = 0.0
+        self._turn = 0
+        self._dist_turn = 0
+        self._handlers = {
+            ELECT.type: self._elect_rx,
+            DIST.type: self._dist_rx,
+            NBR.type: self._nbr_rx,
+            ROOT.type: self.spread.root_rx,
+            POS.type: self.spread.pos_rx,
+            CAND.type: self.spread.cand_rx,
+        }
+        self.set_color(0, 0, 2)
+
+    def loop(self) -> None:
+        tick = self.kilo_ticks
+        if tick < self._next_round or self.stage == "done":
+            return
+        self._next_round = tick + self._round_ticks
+        fresh = self.neighbours.fresh(tick)
+        if self.stage == "election":
+            self.election.round(tick, fresh)
+            if self.election.won:
+                self.is_root = True
+                self._enter_localize()
+                self.locate(0.0, 0.0)
+            return
+        self.spread.round(tick, fresh)
+        if self.position is not None:
+            self._refine(fresh)
+        self.termination.round(tick, fresh)
+        if self.termination.done:
+            self.stage = "done"
+            self.log("stage", name="done")
+        self._show()
+
+    def message_tx(self) -> Message | None:
+        if self.stage == "done" and not self.termination.wants_to_send():
+            return None
+        self._turn += 1
+        if self._turn % self.params.dist_every == 0 and self.stage != "done":
+            message = self._dist_tx()
+            if message is not None:
+                return message
+        if self.stage == "election":
+            return self.election.message_tx()
+        return self.spread.message_tx()
+
+    def message_rx(self, message: Message, distance_mm: int) -> None:
+        if self.stage == "done":
+            return
+        (sender,) = _SENDER(message.data)
+        if sender == self.uid:
+            if self.stage == "election":
+                self.election.heard_own_id()
+            return
+        n = self.neighbours.heard(sender, distance_mm, self.kilo_ticks)
+        handler = self._handlers.get(message.type)
+        if handler is None:
+            return
+        if self.stage == "election" and message.type in _PHASE2:
+            self._enter_localize()
+        handler(n, message)
+        if n.flags & DONE and self.stage == "localize":
+            self.termination.finish("heard")
+
+    # -- state ---------------------------------------------------------------------------------
+    @property
+    def flags(self) -> int:
+        """This robot's state flags as POS and ROOT announce them."""
+        t = self.termination
+        return (
+            (LOCALIZED if self.position is not None else 0)
+            | (SETTLED if t.settled else 0)
+            | (COMPLETE if t.complete else 0)
+            | (DONE if t.done else 0)
+        )
+
+    def locate(self, x_mm: float, y_mm: float) -> None:
+        """Take a position in the frame (the spread's rules or the root's origin)."""
+        self.position = (x_mm, y_mm)
+        self.located_tick = self.kilo_ticks
+        self.settle.reset()
+
+    def _enter_localize(self) -> None:
+        if not self.is_root:
+            self.reports = {}  # only the root's choice of frame robots needs them
+        self.stage = "localize"
+        self.log("stage", name="localize", hops=self.hops, root=self.is_root)
+
+    # -- refinement ----------------------------------------------------------------------------
+    def _refine(self, fresh: list[Neighbour]) -> None:
+        x, y = self.position
+        if not self.is_root:
+            links = [(n.x_mm, n.y_mm, n.range_mm) for n in fresh if n.x_mm is not None]
+            p = self.params
+            x, y, _ = gauss_newton_step(
+                x,
+                y,
+                links,
+                huber_mm=p.huber_mm,
+                max_step_mm=p.max_step_mm,
+                fix_y=self.uid == self.spread.axis,
+            )
+            self.position = (x, y)
+        self.settle.add(x, y)
+
+    # -- distance reports ----------------------------------------------------------------------
+    def _dist_tx(self) -> Message | None:
+        """A distance report about the next neighbour in turn (by ID), or None with no
+        neighbour yet."""
+        heard = sorted(self.neighbours.by_id)
+        if not heard:
+            return None
+        self._dist_turn = (self._dist_turn + 1) % len(heard)
+        return distance_report(self.uid, self.position, self.neighbours[heard[self._dist_turn]])
+
+    def _dist_rx(self, n: Neighbour, message: Message) -> None:
+        m = DIST.unpack(message)
+        n.x_mm, n.y_mm = m.x_mm, m.y_mm
+        if m.neighbour == self.uid:
+            self.neighbours.report(n, m.distance)
+
+    def _nbr_rx(self, n: Neighbour, message: Message) -> None:
+        m = NBR.unpack(message)
+        if m.neighbour == self.uid:
+            n.reported_mm = m.distance_mm
+        elif self.stage == "election" or self.is_root:
+            # A root chooses its frame robots from its neighbours' distances to each other.
+            self.reports.setdefault(m.sender, {})[m.neighbour] = m.distance_mm
+
+    def _elect_rx(self, n: Neighbour, message: Message) -> None:
+        if self.stage == "election":
+            self.election.message_rx(n, message)
+
+    # -- LED -----------------------------------------------------------------------------------
+    def _show(self) -> None:
+        if self.stage == "done":
+            self.set_color(0, 0, 0)
+        elif self.is_root:
+            self.set_color(3, 3, 3)
+        elif self.termination.settled and self.position is not None:
+            self.set_color(0, 3, 3)
+        elif self.position is not None:
+            self.set_color(0, 3, 0)
+        else:
+            self.set_color(0, 0, 2)
