@@ -19,9 +19,10 @@ A robot learns only from what it receives: the messages and the distance estimat
 reception. It keeps time with its own clock (``kilo_ticks``): a round of work every
 ``localize.round_s``, done from ``loop()``; ``message_tx()`` only packs the current state.
 
-Messages (all 9-byte kilolib payloads, the sender's ID first): ELECT (80), ROOT (81), POS
-(82), DIST (83), CAND (84) — layouts in the phase modules. One transmit opportunity in
-``localize.dist_every`` carries DIST, the others the phase's own message.
+Messages (kilolib payloads of at most 9 bytes, the sender's ID first): ELECT (80), ROOT (81),
+POS (82), DIST (83), CAND (84), NBR (85), VOTE (86) — layouts in the phase modules. One
+transmit opportunity in ``localize.dist_every`` carries a distance report (DIST or NBR), the
+others the phase's own message.
 
 LED: electing blue; the root white; located green; settled cyan; done off.
 """
@@ -46,7 +47,7 @@ from protocols.localize_base import (
     distance_report,
 )
 from protocols.localize_election import ELECT, Election
-from protocols.localize_spread import CAND, POS, ROOT, Spread
+from protocols.localize_spread import CAND, POS, ROOT, VOTE, Spread
 from protocols.localize_termination import Termination
 from protocols.refinement import SettleWindow, gauss_newton_step
 
@@ -109,6 +110,7 @@ class LocalizeRobot(Kilobot):
             ROOT.type: self.spread.root_rx,
             POS.type: self.spread.pos_rx,
             CAND.type: self.spread.cand_rx,
+            VOTE.type: self.spread.vote_rx,
         }
         self.set_color(0, 0, 2)
 

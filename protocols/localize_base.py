@@ -127,6 +127,9 @@ class LocalizeParams:
     max_candidate_neighbours: int = param(
         3, lo=1, hi=6, doc="neighbours' candidate pairs combined in one fix at most"
     )
+    overlap_mm: float = param(
+        28.0, lo=0.0, hi=200.0, doc="a candidate nearer than this to a located robot is impossible"
+    )
     retry_s: float = param(
         2.0, lo=0.2, hi=600.0, doc="an unlocalized robot retries an unchanged fix this often"
     )
@@ -142,7 +145,7 @@ class LocalizeParams:
         120.0, lo=1.0, hi=3600.0, doc="a localized robot counts as settled after this anyway"
     )
     give_up_s: float = param(
-        3.0, lo=0.2, hi=3600.0, doc="an unlocalized robot gives up after no news for this long"
+        5.0, lo=0.2, hi=3600.0, doc="an unlocalized robot gives up after no news for this long"
     )
     done_confirm_rounds: int = param(
         3, lo=1, hi=1000, doc="rounds the root must stay complete before it floods done"

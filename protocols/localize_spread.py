@@ -30,6 +30,15 @@ have one (their announced positions, the distances both ends agree on):
    (and a robot next to three such robots places itself and then them): the sparse swarms
    where three anchors each are rare.
 
+4. *Bodies do not overlap*: a located robot that hears a neighbour's candidate pair checks
+   both candidates against the positions of its own located neighbours. A candidate closer
+   than ``localize.overlap_mm`` to one of them would put two Kilobots (33 mm across) on top of
+   each other, so it is impossible; when exactly one candidate is, the located robot sends a
+   VOTE for the other (:func:`overlap_vote`), and a robot that holds votes for one of its
+   candidates and none for the other takes it. This breaks the mirror ambiguity of robots
+   that only two anchors reach — at the swarm's edge, and where the frame has to squeeze
+   through a gap — with the knowledge of robots two hops away.
+
 A robot that fails retries when its anchors or candidates change, or every
 ``localize.retry_s``. Candidates come from anchors only, never from other candidates, so no
 choice depends on itself.
@@ -42,6 +51,8 @@ Messages::
                every other robot; x, y are 0 while the LOCALIZED flag is clear
     CAND (84)  sender:uint16  x:int16  y:int16 (0.1 mm)  index:uint8  version:uint8  8 bytes
                one of a robot's two candidates; the version changes with its anchors
+    VOTE (86)  sender:uint16  target:uint16  index:uint8  version:uint8              6 bytes
+               the candidate of ``target``'s pair (of that version) that is possible
 
 ``flags`` are :mod:`protocols.localize_base`'s LOCALIZED, SETTLED, COMPLETE, DONE.
 """
@@ -66,10 +77,12 @@ __all__ = [
     "CAND",
     "POS",
     "ROOT",
+    "VOTE",
     "Spread",
     "choose_frame",
     "circle_candidates",
     "fix_with_candidates",
+    "overlap_vote",
 ]
 
 ROOT = Layout(
@@ -98,6 +111,11 @@ CAND = Layout(
         ("index", "B"),
         ("version", "B"),
     ],
+)
+VOTE = Layout(
+    "vote",
+    type=86,
+    fields=[("sender", "H"), ("target", "H"), ("index", "B"), ("version", "B")],
 )
 
 #: The mirror test's margin, in noise deviations: a competing fit must be worse by more
@@ -262,6 +280,28 @@ def fix_with_candidates(
     return best
 
 
+def overlap_vote(
+    candidates: tuple[Point, Point], others: Sequence[Point], overlap_mm: float
+) -> int | None:
+    """The index of the only candidate that keeps clear of every robot in ``others``, or None
+    when both or neither do: a candidate closer than ``overlap_mm`` to another robot would
+    put two bodies in one place.
+
+    Examples
+    --------
+    >>> overlap_vote(((0.0, 40.0), (0.0, -40.0)), [(5.0, -30.0), (80.0, 0.0)], 28.0)
+    0
+    >>> overlap_vote(((0.0, 40.0), (0.0, -40.0)), [(80.0, 0.0)], 28.0) is None
+    True
+    """
+    clash = [
+        any(math.hypot(cx - x, cy - y) < overlap_mm for x, y in others) for cx, cy in candidates
+    ]
+    if clash[0] == clash[1]:
+        return None
+    return 1 if clash[0] else 0
+
+
 class Spread:
     """Phase 2 on one robot: the frame's start (root, axis, third) and rules 1-3.
 
@@ -292,6 +332,12 @@ class Spread:
         self.root_uid = NO_ID
         self.named_tick = 0.0
         self.excluded: set[int] = set()  # the root's frame robots that stayed silent
+        # Rule 4: votes to send, (target, index, version); votes sent, by (target, version);
+        # votes received for this robot's candidates, {index: set of voters}, and their version.
+        self.votes_out: list[tuple[int, int, int]] = []
+        self.voted: dict[tuple[int, int], float] = {}
+        self.votes_in: dict[int, set[int]] = {}
+        self.votes_version = -1
 
     # -- messages ------------------------------------------------------------------------------
     def message_tx(self) -> Message:
@@ -299,6 +345,9 @@ class Spread:
         POS."""
         r = self.robot
         flags = r.flags
+        if self.votes_out:
+            target, index, version = self.votes_out.pop()
+            return VOTE.pack(sender=r.uid, target=target, index=index, version=version)
         if r.is_root:
             return ROOT.pack(sender=r.uid, axis=self.axis, third=self.third, flags=flags)
         if self.candidates is not None and r.position is None:
@@ -333,6 +382,14 @@ class Spread:
         n.candidates[1][m.index] = (m.x_mm, m.y_mm)
         n.x_mm = n.y_mm = None
 
+    def vote_rx(self, n: Neighbour, message: Message) -> None:
+        m = VOTE.unpack(message)
+        if m.target != self.robot.uid:
+            return
+        if m.version != self.votes_version:
+            self.votes_in, self.votes_version = {}, m.version
+        self.votes_in.setdefault(m.index, set()).add(m.sender)
+
     # -- rounds --------------------------------------------------------------------------------
     def round(self, tick: int, fresh: list[Neighbour]) -> None:
         """The root names its frame robots; the others try to fix their position."""
@@ -341,6 +398,25 @@ class Spread:
             self._name_frame(tick, fresh)
         elif r.position is None:
             self._locate(tick, fresh)
+        if r.position is not None:
+            self._vote(tick, fresh)
+
+    def _vote(self, tick: int, fresh: list[Neighbour]) -> None:
+        """Rule 4: vote on the candidate pairs of neighbours (again after ``retry_s``)."""
+        others = None
+        for n in fresh:
+            held = n.candidates
+            if held is None or None in held[1] or n.x_mm is not None:
+                continue
+            key = (n.uid, held[0])
+            if tick < self.voted.get(key, -1.0):
+                continue
+            self.voted[key] = tick + self.retry_ticks
+            if others is None:
+                others = [(m.x_mm, m.y_mm) for m in fresh if m.x_mm is not None]
+            index = overlap_vote(tuple(held[1]), others, self.robot.params.overlap_mm)
+            if index is not None:
+                self.votes_out.append((n.uid, index, held[0]))
 
     def _name_frame(self, tick: int, fresh: list[Neighbour]) -> None:
         by_id = {n.uid: n for n in fresh}
@@ -418,6 +494,16 @@ class Spread:
                 self._located(fix.x_mm, fix.y_mm, "candidates", len(anchors) + len(pairs))
                 return
         self._update_candidates(anchors)
+        self._take_vote(len(anchors))
+
+    def _take_vote(self, anchors: int) -> None:
+        """Rule 4: take the candidate the votes allow, if they allow exactly one."""
+        if self.candidates is None or self.votes_version != self.candidates[0]:
+            return
+        allowed = [k for k in (0, 1) if self.votes_in.get(k)]
+        if len(allowed) == 1:
+            x, y = self.candidates[1][allowed[0]]
+            self._located(x, y, "vote", anchors)
 
     def _start_frame(self, fresh: list[Neighbour]) -> None:
         """Place the axis robot on +x, or the third robot above it."""

@@ -3,10 +3,10 @@
 Located robots keep refining (:mod:`protocols.refinement`) until each is *settled*: it moved
 less than ``localize.settle_mm`` over its last ``localize.settle_rounds`` rounds (or it has
 been located for ``localize.settle_timeout_s``). A robot that cannot place itself must not
-hold the swarm up forever: it *gives up* (:func:`gives_up`) when its located neighbours are
-all settled and its anchors and candidates have not changed for ``localize.give_up_s``, or,
-with no located neighbour at all, when every neighbour has given up; it counts as settled from
-then on, and takes a position after all if one turns up.
+hold the swarm up forever: it *gives up* (:func:`gives_up`) when its anchors and candidates
+have not changed for ``localize.give_up_s`` and its located neighbours are all settled, or,
+with no located neighbour, a neighbour has given up; it counts as settled from then on, and
+takes a position after all if one turns up.
 
 Settledness climbs the hop structure of the election as a convergecast
 (:func:`subtree_complete`): a robot is *complete* when it is settled and every neighbour one
@@ -53,27 +53,32 @@ def _complete(n: Neighbour) -> bool:
 
 
 def gives_up(neighbours: Sequence[Neighbour], quiet: bool) -> bool:
-    """Whether a robot without a position gives up.
+    """Whether a robot without a position gives up; ``quiet``: nothing it could use (anchors,
+    candidates) has changed for a while.
 
-    With located neighbours: when they are all settled and ``quiet`` (nothing it could use
-    has changed for a while). Without: when every neighbour has given up (or it has none).
+    With located neighbours: when it is quiet and they are all settled. Without: when it is
+    quiet and a neighbour has given up — so giving up spreads from the edge of the frame into
+    a region that cannot be placed, and never starts ahead of a frame that is still growing
+    (nobody there has given up). A robot with no neighbour at all gives up at once.
 
     Examples
     --------
-    >>> a, b = Neighbour(1), Neighbour(2)
+    >>> a, b, c = Neighbour(1), Neighbour(2), Neighbour(3)
     >>> a.x_mm, a.y_mm, a.flags = 10.0, 0.0, SETTLED
     >>> gives_up([a, b], quiet=True), gives_up([a, b], quiet=False)
     (True, False)
-    >>> gives_up([b], quiet=True)  # b has not given up
+    >>> gives_up([b, c], quiet=True)  # no neighbour has given up
     False
-    >>> b.flags = SETTLED
-    >>> gives_up([b], quiet=False), gives_up([], quiet=False)
-    (True, True)
+    >>> b.flags = SETTLED  # b has: c need not wait for its other neighbours
+    >>> gives_up([b, c], quiet=True), gives_up([b, c], quiet=False), gives_up([], quiet=False)
+    (True, False, True)
     """
+    if not neighbours:
+        return True
     located = [n for n in neighbours if n.x_mm is not None]
     if located:
         return quiet and all(n.flags & SETTLED for n in located)
-    return all(n.flags & SETTLED for n in neighbours)
+    return quiet and any(n.flags & SETTLED for n in neighbours)
 
 
 class Termination:
