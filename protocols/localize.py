@@ -17,7 +17,8 @@ not in fixed windows:
 
 A robot learns only from what it receives: the messages and the distance estimate of each
 reception. It keeps time with its own clock (``kilo_ticks``): a round of work every
-``localize.round_s``, done from ``loop()``; ``message_tx()`` only packs the current state.
+``localize.round_s``, done from ``loop()``; ``message_tx()`` only packs the current state. It
+runs with either receive mode (in polled mode, ``loop()`` drains the buffer first).
 
 Messages (kilolib payloads of at most 9 bytes, the sender's ID first): ELECT (80), ROOT (81),
 POS (82), DIST (83), CAND (84), NBR (85), VOTE (86) — layouts in the phase modules. One
@@ -29,6 +30,7 @@ LED: electing blue; the root white; located green; settled cyan; done off.
 
 from __future__ import annotations
 
+import math
 import struct
 
 from kilonet.message import Message
@@ -83,9 +85,11 @@ class LocalizeRobot(Kilobot):
     def setup(self) -> None:
         p = self.params
         tps = self.ticks_per_s
+        self._polled = self.polled  # fixed for a run; loop() asks many times a second
         self.uid = int(self.rand.integers(NO_ID))
         self.neighbours = Neighbours(
-            duplicate_mm=p.duplicate_sigmas * p.sigma_mm, stale_ticks=p.stale_s * tps
+            duplicate_mm=p.duplicate_sigmas * p.sigma_mm,
+            stale_rounds=math.ceil(p.stale_s / p.round_s),
         )
         # Neighbours' NBR reports about each other, while electing and on the root.
         self.reports: dict[int, dict[int, float]] = {}
@@ -101,6 +105,7 @@ class LocalizeRobot(Kilobot):
         self.settle = SettleWindow(settle_mm=p.settle_mm, rounds=p.settle_rounds)
         self._round_ticks = p.round_s * tps
         self._next_round = 0.0
+        self._round = 0  # rounds of work done: the neighbour records' time stamps
         self._turn = 0
         self._dist_turn = 0
         self._handlers = {
@@ -115,11 +120,15 @@ class LocalizeRobot(Kilobot):
         self.set_color(0, 0, 2)
 
     def loop(self) -> None:
+        if self._polled:
+            while (received := self.get_message()) is not None:
+                self.message_rx(*received)
         tick = self.kilo_ticks
         if tick < self._next_round or self.stage == "done":
             return
         self._next_round = tick + self._round_ticks
-        fresh = self.neighbours.fresh(tick)
+        self._round += 1
+        fresh = self.neighbours.fresh(self._round)
         if self.stage == "election":
             self.election.round(tick, fresh)
             if self.election.won:
@@ -137,16 +146,19 @@ class LocalizeRobot(Kilobot):
         self._show()
 
     def message_tx(self) -> Message | None:
-        if self.stage == "done" and not self.termination.wants_to_send():
-            return None
+        if self.stage == "done":
+            return self.spread.state_message() if self.termination.owes_done() else None
         self._turn += 1
-        if self._turn % self.params.dist_every == 0 and self.stage != "done":
+        if self._turn % self.params.dist_every == 0:
             message = self._dist_tx()
             if message is not None:
                 return message
         if self.stage == "election":
             return self.election.message_tx()
         return self.spread.message_tx()
+
+    def message_tx_success(self) -> None:
+        self.termination.sent()
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
         if self.stage == "done":
@@ -156,7 +168,7 @@ class LocalizeRobot(Kilobot):
             if self.stage == "election":
                 self.election.heard_own_id()
             return
-        n = self.neighbours.heard(sender, distance_mm, self.kilo_ticks)
+        n = self.neighbours.heard(sender, distance_mm, self._round)
         handler = self._handlers.get(message.type)
         if handler is None:
             return
@@ -167,6 +179,14 @@ class LocalizeRobot(Kilobot):
             self.termination.finish("heard")
 
     # -- state ---------------------------------------------------------------------------------
+    @property
+    def in_frame(self) -> bool:
+        """Whether this robot holds a position in a frame: a located robot, or a root whose
+        axis robot has placed itself (a lone root's origin is no frame)."""
+        if self.is_root:
+            return self.spread.frame_started
+        return self.position is not None
+
     @property
     def flags(self) -> int:
         """This robot's state flags as POS and ROOT announce them."""

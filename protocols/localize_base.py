@@ -198,8 +198,8 @@ class Neighbour:
         Its hop count to the root as last announced (255: unknown).
     flags : int
         Its state flags as last announced (:data:`LOCALIZED`, ...).
-    heard_tick : int
-        This robot's ``kilo_ticks`` at the last reception.
+    heard_round : int
+        This robot's round (its count of rounds of work) at the last reception.
     ambiguous : bool
         Two robots seem to use this ID; the record is ignored.
     """
@@ -210,7 +210,7 @@ class Neighbour:
         "distance_sum_mm",
         "echo",
         "flags",
-        "heard_tick",
+        "heard_round",
         "hops",
         "key",
         "reported_mm",
@@ -233,7 +233,7 @@ class Neighbour:
         self.echo = False
         # Two candidate positions (protocols.localize_spread): (version, [p0, p1]) or None.
         self.candidates: tuple[int, list] | None = None
-        self.heard_tick = 0
+        self.heard_round = 0
         self.ambiguous = False
 
     @property
@@ -263,52 +263,54 @@ class Neighbours:
     duplicate_mm : float
         A sample farther than this from its ID's mean (after 3 samples) marks the ID
         ambiguous.
-    stale_ticks : float
-        Records not heard for this many ticks are left out of :meth:`fresh`.
+    stale_rounds : int
+        Records not heard for this many of the robot's rounds are left out of :meth:`fresh`.
 
     Examples
     --------
-    >>> nbs = Neighbours(duplicate_mm=6.0, stale_ticks=96)
+    >>> nbs = Neighbours(duplicate_mm=6.0, stale_rounds=15)
     >>> for d in (40, 41, 40, 42):
-    ...     _ = nbs.heard(7, d, tick=10)
+    ...     _ = nbs.heard(7, d, 1)
     >>> nbs[7].mean_mm, nbs[7].ambiguous
     (40.75, False)
-    >>> _ = nbs.heard(7, 60, tick=11)  # another robot with ID 7, 20 mm farther
-    >>> nbs[7].ambiguous, [n.uid for n in nbs.fresh(tick=50)]
+    >>> _ = nbs.heard(7, 60, 2)  # another robot with ID 7, 20 mm farther
+    >>> nbs[7].ambiguous, [n.uid for n in nbs.fresh(5)]
     (True, [])
-    >>> _ = nbs.heard(8, 50, tick=20)
-    >>> [n.uid for n in nbs.fresh(tick=100)], [n.uid for n in nbs.fresh(tick=200)]
+    >>> _ = nbs.heard(8, 50, 3)
+    >>> [n.uid for n in nbs.fresh(18)], [n.uid for n in nbs.fresh(19)]
     ([8], [])
     """
 
-    def __init__(self, *, duplicate_mm: float, stale_ticks: float) -> None:
+    def __init__(self, *, duplicate_mm: float, stale_rounds: int) -> None:
         self.by_id: dict[int, Neighbour] = {}
         self.duplicate_mm = duplicate_mm
-        self.stale_ticks = stale_ticks
+        self.stale_rounds = stale_rounds
 
-    def heard(self, uid: int, distance_mm: float, tick: int) -> Neighbour:
-        """Record a reception from ``uid`` at ``distance_mm``; return its record."""
+    def heard(self, uid: int, distance_mm: float, stamp: int) -> Neighbour:
+        """Record a reception from ``uid`` at ``distance_mm`` in round ``stamp``; return its
+        record. (Runs on every reception: plain attribute arithmetic only.)"""
         n = self.by_id.get(uid)
         if n is None:
             n = self.by_id[uid] = Neighbour(uid)
-        elif n.samples >= 3 and abs(distance_mm - n.distance_sum_mm / n.samples) > (
-            self.duplicate_mm
+        elif n.samples >= 3 and abs(distance_mm * n.samples - n.distance_sum_mm) > (
+            self.duplicate_mm * n.samples
         ):
             n.ambiguous = True
         n.distance_sum_mm += distance_mm
         n.samples += 1
-        n.heard_tick = tick
+        n.heard_round = stamp
         return n
 
     def report(self, n: Neighbour, code: int) -> None:
         """Store ``n``'s DIST report of its distance to this robot (its code)."""
         n.reported_mm = unwrap_distance(code, n.distance_sum_mm / n.samples)
 
-    def fresh(self, tick: int) -> list[Neighbour]:
-        """Unambiguous records heard within the last ``stale_ticks``, by ID."""
-        oldest = tick - self.stale_ticks
+    def fresh(self, stamp: int) -> list[Neighbour]:
+        """Unambiguous records heard within the last ``stale_rounds`` rounds before round
+        ``stamp``, by ID."""
+        oldest = stamp - self.stale_rounds
         return [
-            n for _, n in sorted(self.by_id.items()) if n.heard_tick >= oldest and not n.ambiguous
+            n for _, n in sorted(self.by_id.items()) if n.heard_round >= oldest and not n.ambiguous
         ]
 
     def __getitem__(self, uid: int) -> Neighbour:

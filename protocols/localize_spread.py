@@ -15,9 +15,10 @@ positive root of y picks the frame's handedness). If B or C is not placed within
 have one (their announced positions, the distances both ends agree on):
 
 1. *Three or more anchors*: least squares (:func:`~kilonet.geometry.multilaterate`), rejected
-   if the anchors are collinear, the residuals too large (``localize.max_residual_sigmas``
-   noise deviations), the geometry poor, or the mirror image across the anchors' line fits
-   nearly as well — the flip that a noisy near-collinear triple allows (Savvides et al. 2001;
+   if the anchors lie within ``localize.min_height_mm`` of one line, the residuals are too
+   large (``localize.max_residual_sigmas`` noise deviations), the geometry is poor, or the
+   mirror image across the anchors' line fits nearly as well — the flip that a noisy
+   near-collinear triple allows (Savvides et al. 2001;
    Moore et al. 2004).
 2. *Two anchors*: two candidate positions, mirror images across the anchors' line
    (:func:`circle_candidates`). The robot announces both (CAND messages) unless they lie
@@ -149,7 +150,7 @@ def choose_frame(
     -------
     (axis, third) : IDs of two neighbours that see each other, whose triangle with the root is
     at least ``min_height_mm`` high, with the most other neighbours of the root adjacent to
-    both (ties: the higher triangle, then the smaller IDs).
+    both (ties: the higher triangle, to 0.1 mm, then the smaller IDs).
 
     Examples
     --------
@@ -186,7 +187,7 @@ def choose_frame(
                 continue
             if height < min_height_mm:
                 continue
-            score = (len(adjacent[b] & adjacent[c]), height, -b, -c)
+            score = (len(adjacent[b] & adjacent[c]), round(height, 1), -b, -c)
             if best is None or score > best[0]:
                 best = (score, b, c)
     return None if best is None else (best[1], best[2])
@@ -226,36 +227,53 @@ def fix_with_candidates(
     *,
     sigma_mm: float,
     max_rmse_mm: float,
+    min_width_mm: float,
 ) -> Fix | None:
     """A fix from anchors and neighbours' candidate pairs, if exactly one choice fits.
 
-    Every choice of one candidate per pair is multilaterated with the anchors. The best fix
-    that passes :func:`~kilonet.geometry.multilaterate`'s checks is returned when every choice
+    When the anchors lie within ``min_width_mm`` of one line (two anchors always do), the
+    robot's own mirror ambiguity is the reflection across that line, and a pair that this
+    reflection maps onto itself (within ``min_width_mm``) cannot resolve it: such pairs are
+    dropped. Every choice of one candidate per remaining pair is then multilaterated with the
+    anchors (:func:`~kilonet.geometry.multilaterate`, anchors within ``min_width_mm`` of a line
+    counting as collinear). The best fix that passes every check is returned when every choice
     that puts the robot more than ``3 · sigma_mm`` away from it has a sum of squared residuals
-    larger by more than ``(3 · sigma_mm)²``; otherwise (or if any choice is degenerate, so its
-    fit cannot be compared) None.
+    larger by more than ``(3 · sigma_mm)²``; otherwise (or with fewer than three points, or if
+    any choice is degenerate, so its fit cannot be compared) None.
 
     Examples
     --------
     The truth is (30, 20), with two anchors on the x axis; a neighbour at (50, 60) placed by
-    two other anchors, (60, 0) and (100, 40), holds its position and the mirror image across
-    their line, (120, -10):
+    two other anchors on the line x = 60 holds its position and the mirror image across that
+    line, (70, 60):
 
     >>> truth = np.array([30.0, 20.0])
     >>> anchors = [(0.0, 0.0), (60.0, 0.0)]
-    >>> pair = ((50.0, 60.0), (120.0, -10.0))
+    >>> pair = ((50.0, 60.0), (70.0, 60.0))
     >>> r = [float(np.hypot(*(truth - p))) for p in (*anchors, pair[0])]
-    >>> fix = fix_with_candidates(anchors, r[:2], [pair], r[2:], sigma_mm=1.0, max_rmse_mm=4.0)
+    >>> fix = fix_with_candidates(anchors, r[:2], [pair], r[2:], sigma_mm=1.0, max_rmse_mm=4.0,
+    ...                           min_width_mm=10.0)
     >>> round(fix.x_mm, 6), round(fix.y_mm, 6)
     (30.0, 20.0)
 
     Had the neighbour been placed by the same two anchors, its candidates would be mirror
-    images across the same line, and so would the robot's two fits: no choice.
+    images across the robot's own mirror line: no choice.
 
     >>> fix_with_candidates(anchors, r[:2], [((50.0, 60.0), (50.0, -60.0))], r[2:],
-    ...                     sigma_mm=1.0, max_rmse_mm=4.0) is None
+    ...                     sigma_mm=1.0, max_rmse_mm=4.0, min_width_mm=10.0) is None
     True
     """
+    line = _line_through(anchors)
+    if line is not None and line[2] < min_width_mm:
+        kept = [
+            (pair, r)
+            for pair, r in zip(candidates, candidate_ranges_mm, strict=True)
+            if math.dist(_reflect(pair[0], line), pair[1]) >= min_width_mm
+        ]
+        candidates = [pair for pair, _ in kept]
+        candidate_ranges_mm = [r for _, r in kept]
+    if not candidates or len(anchors) + len(candidates) < 3:
+        return None
     fits = []
     for choice in itertools.product((0, 1), repeat=len(candidates)):
         points = [*anchors, *(pair[k] for pair, k in zip(candidates, choice, strict=True))]
@@ -264,6 +282,7 @@ def fix_with_candidates(
             np.array([*ranges_mm, *candidate_ranges_mm]),
             sigma_mm=sigma_mm,
             max_rmse_mm=max_rmse_mm,
+            min_anchor_width_mm=min_width_mm,
         )
         if math.isnan(fix.x_mm):
             return None
@@ -278,6 +297,28 @@ def fix_with_candidates(
         if apart > MIRROR_SIGMAS * sigma_mm and ssr - best_ssr <= margin:
             return None
     return best
+
+
+def _line_through(points: Sequence[Point]) -> tuple[Point, Point, float] | None:
+    """The total-least-squares line of two or more points: (centre, unit normal, the largest
+    distance of a point from it); None for fewer than two points."""
+    if len(points) < 2:
+        return None
+    cx = sum(p[0] for p in points) / len(points)
+    cy = sum(p[1] for p in points) / len(points)
+    sxx = sum((p[0] - cx) ** 2 for p in points)
+    syy = sum((p[1] - cy) ** 2 for p in points)
+    sxy = sum((p[0] - cx) * (p[1] - cy) for p in points)
+    angle = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # direction of largest spread
+    nx, ny = -math.sin(angle), math.cos(angle)
+    width = max(abs((p[0] - cx) * nx + (p[1] - cy) * ny) for p in points)
+    return (cx, cy), (nx, ny), width
+
+
+def _reflect(p: Point, line: tuple[Point, Point, float]) -> Point:
+    (cx, cy), (nx, ny), _ = line
+    d = (p[0] - cx) * nx + (p[1] - cy) * ny
+    return p[0] - 2.0 * d * nx, p[1] - 2.0 * d * ny
 
 
 def overlap_vote(
@@ -332,6 +373,7 @@ class Spread:
         self.root_uid = NO_ID
         self.named_tick = 0.0
         self.excluded: set[int] = set()  # the root's frame robots that stayed silent
+        self.frame_started = False  # on the root: its axis robot has placed itself
         # Rule 4: votes to send, (target, index, version); votes sent, by (target, version);
         # votes received for this robot's candidates, {index: set of voters}, and their version.
         self.votes_out: list[tuple[int, int, int]] = []
@@ -341,15 +383,12 @@ class Spread:
 
     # -- messages ------------------------------------------------------------------------------
     def message_tx(self) -> Message:
-        """ROOT on the root; otherwise CAND and POS in turn while holding candidates, else
-        POS."""
+        """A VOTE if one is due; else ROOT on the root; otherwise CAND, CAND and POS in turn
+        while holding candidates, else POS."""
         r = self.robot
-        flags = r.flags
         if self.votes_out:
             target, index, version = self.votes_out.pop()
             return VOTE.pack(sender=r.uid, target=target, index=index, version=version)
-        if r.is_root:
-            return ROOT.pack(sender=r.uid, axis=self.axis, third=self.third, flags=flags)
         if self.candidates is not None and r.position is None:
             self.cand_turn = (self.cand_turn + 1) % 3
             if self.cand_turn < 2:
@@ -358,8 +397,15 @@ class Spread:
                 return CAND.pack(
                     sender=r.uid, x_mm=x, y_mm=y, index=self.cand_turn, version=version
                 )
+        return self.state_message()
+
+    def state_message(self) -> Message:
+        """ROOT on the root, else POS: position, hop count and flags."""
+        r = self.robot
+        if r.is_root:
+            return ROOT.pack(sender=r.uid, axis=self.axis, third=self.third, flags=r.flags)
         x, y = r.position if r.position is not None else (0.0, 0.0)
-        return POS.pack(sender=r.uid, x_mm=x, y_mm=y, hops=r.hops, flags=flags)
+        return POS.pack(sender=r.uid, x_mm=x, y_mm=y, hops=r.hops, flags=r.flags)
 
     def root_rx(self, n: Neighbour, message: Message) -> None:
         m = ROOT.unpack(message)
@@ -421,6 +467,7 @@ class Spread:
     def _name_frame(self, tick: int, fresh: list[Neighbour]) -> None:
         by_id = {n.uid: n for n in fresh}
         placed = [by_id.get(u) for u in (self.axis, self.third)]
+        self.frame_started |= placed[0] is not None and placed[0].x_mm is not None
         if all(n is not None and n.x_mm is not None for n in placed):
             return
         if self.axis != NO_ID and tick - self.named_tick < self.bootstrap_ticks:
@@ -468,17 +515,19 @@ class Spread:
         self.next_retry = tick + self.retry_ticks
         points = [(n.x_mm, n.y_mm) for n in anchors]
         ranges = [n.range_mm for n in anchors]
+        min_width = r.params.min_height_mm
         if len(anchors) >= 3:
             fix = multilaterate(
                 np.array(points),
                 np.array(ranges),
                 sigma_mm=self.sigma_mm,
                 max_rmse_mm=self.max_rmse_mm,
+                min_anchor_width_mm=min_width,
             )
             if fix.ok:
                 self._located(fix.x_mm, fix.y_mm, "anchors", len(anchors))
                 return
-        if pairs and len(anchors) + len(pairs) >= 3:
+        if pairs:
             # The pairs farthest apart discriminate best.
             pairs.sort(key=lambda n: -_separation(n.candidates[1]))
             pairs = pairs[: r.params.max_candidate_neighbours]
@@ -489,6 +538,7 @@ class Spread:
                 [n.range_mm for n in pairs],
                 sigma_mm=self.sigma_mm,
                 max_rmse_mm=self.max_rmse_mm,
+                min_width_mm=min_width,
             )
             if fix is not None:
                 self._located(fix.x_mm, fix.y_mm, "candidates", len(anchors) + len(pairs))

@@ -121,9 +121,11 @@ class Termination:
             self.done = True
             self.robot.log("done", cause=cause)
 
-    def wants_to_send(self) -> bool:
-        """Whether a done robot still owes its neighbours a DONE message; counts it."""
-        if self.repeats_left <= 0:
-            return False
-        self.repeats_left -= 1
-        return True
+    def owes_done(self) -> bool:
+        """Whether a done robot still owes its neighbours a DONE message."""
+        return self.repeats_left > 0
+
+    def sent(self) -> None:
+        """A message went on the air (after any carrier-sense back-off): count a DONE one."""
+        if self.done:
+            self.repeats_left -= 1

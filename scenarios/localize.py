@@ -63,7 +63,7 @@ def estimates_frame(sim: Simulation) -> pd.DataFrame:
     """Per robot: its ID, role, hop count, estimate, frame label and state at the end."""
     rows = []
     for i, r in enumerate(sim.robots):
-        located = r.position is not None
+        located = r.in_frame
         role = "root" if r.is_root else "axis" if r.uid == r.spread.axis else "robot"
         rows.append(
             {
@@ -114,7 +114,7 @@ def _hop_diameter(n: int, i: np.ndarray, j: np.ndarray) -> int:
 
     if len(i) == 0:
         return 0
-    graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
+    graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n)).tocsr()
     hops = shortest_path(graph, directed=False, unweighted=True)
     finite = hops[np.isfinite(hops)]
     return int(finite.max()) if len(finite) else 0
