@@ -106,6 +106,8 @@ class LocalizeRobot(Kilobot):
         self._round_ticks = p.round_s * tps
         self._next_round = 0.0
         self._round = 0  # rounds of work done: the neighbour records' time stamps
+        self._news = False  # a neighbour's echo or flags changed since the last work
+        self._urgent = False  # this robot's own state changed: send it next
         self._turn = 0
         self._dist_turn = 0
         self._handlers = {
@@ -123,33 +125,48 @@ class LocalizeRobot(Kilobot):
         if self._polled:
             while (received := self.get_message()) is not None:
                 self.message_rx(*received)
-        tick = self.kilo_ticks
-        if tick < self._next_round or self.stage == "done":
+        if self.stage == "done":
             return
-        self._next_round = tick + self._round_ticks
-        self._round += 1
-        fresh = self.neighbours.fresh(self._round)
+        tick = self.kilo_ticks
+        if tick >= self._next_round:
+            self._next_round = tick + self._round_ticks
+            self._round += 1
+            self._work(tick, self.neighbours.fresh(self._round), full=True)
+        elif self._news:
+            # A neighbour's echo or flags changed: pass it on now, not at the next round, so
+            # the echo, the settled wave and DONE cross the swarm at the pace of messages.
+            self._work(tick, self.neighbours.fresh(self._round), full=False)
+        self._news = False
+
+    def _work(self, tick: int, fresh: list[Neighbour], *, full: bool) -> None:
+        """A round of work (``full``), or only the updates a neighbour's news calls for."""
+        before = (self.stage, self.election.echo, self.flags)
         if self.stage == "election":
-            self.election.round(tick, fresh)
+            self.election.round(tick, fresh, full=full)
             if self.election.won:
                 self.is_root = True
                 self._enter_localize()
                 self.locate(0.0, 0.0)
-            return
-        self.spread.round(tick, fresh)
-        if self.position is not None:
-            self._refine(fresh)
-        self.termination.round(tick, fresh)
-        if self.termination.done:
-            self.stage = "done"
-            self.log("stage", name="done")
-        self._show()
+        else:
+            if full:
+                self.spread.round(tick, fresh)
+                if self.position is not None:
+                    self._refine(fresh)
+            self.termination.round(tick, fresh, full=full)
+            if self.termination.done:
+                self.stage = "done"
+                self.log("stage", name="done")
+            self._show()
+        if (self.stage, self.election.echo, self.flags) != before:
+            self._urgent = True
 
     def message_tx(self) -> Message | None:
         if self.stage == "done":
             return self.spread.state_message() if self.termination.owes_done() else None
         self._turn += 1
-        if self._turn % self.params.dist_every == 0:
+        if self._urgent:  # a change of state goes out at once
+            self._urgent = False
+        elif self._turn % self.params.dist_every == 0:
             message = self._dist_tx()
             if message is not None:
                 return message
@@ -174,7 +191,11 @@ class LocalizeRobot(Kilobot):
             return
         if self.stage == "election" and message.type in _PHASE2:
             self._enter_localize()
+            self._urgent = True
+        heard = (n.echo, n.flags, n.key)
         handler(n, message)
+        if (n.echo, n.flags, n.key) != heard:
+            self._news = True
         if n.flags & DONE and self.stage == "localize":
             self.termination.finish("heard")
 

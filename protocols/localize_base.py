@@ -110,7 +110,7 @@ class LocalizeParams:
     )
     stale_s: float = param(3.0, lo=0.2, hi=600.0, doc="a neighbour silent this long is ignored")
     listen_s: float = param(
-        2.0, lo=0.0, hi=600.0, doc="election key follows the neighbour count until then"
+        1.0, lo=0.0, hi=600.0, doc="election key follows the neighbour count until then"
     )
     elect_timeout_s: float = param(
         60.0, lo=1.0, hi=3600.0, doc="the best-key robot starts without the echo after this"
@@ -138,7 +138,7 @@ class LocalizeParams:
     )
     max_step_mm: float = param(5.0, lo=0.01, hi=100.0, doc="largest refinement step per round")
     settle_mm: float = param(
-        0.2, lo=0.0, hi=100.0, doc="settled: moved less than this over settle_rounds rounds"
+        0.5, lo=0.0, hi=100.0, doc="settled: moved less than this over settle_rounds rounds"
     )
     settle_rounds: int = param(10, lo=1, hi=10_000, doc="rounds the settle test looks back")
     settle_timeout_s: float = param(

@@ -130,10 +130,10 @@ class Election:
             r.uid = int(r.rand.integers(NO_ID))
         r.log("id", old=old, new=r.uid)
 
-    def round(self, tick: int, fresh: list[Neighbour]) -> None:
-        """Update the key, the echo and whether this robot has won."""
+    def round(self, tick: int, fresh: list[Neighbour], *, full: bool = True) -> None:
+        """Update the key (in a ``full`` round), the echo and whether this robot has won."""
         r = self.robot
-        if tick < self.listen_until:
+        if full and tick < self.listen_until:
             self.key = min(self.key, election_key(len(fresh), self.salt))
         if self.key < r.root_key or (self.key == r.root_key and r.hops != 0):
             r.root_key, r.hops, self.echo = self.key, 0, False

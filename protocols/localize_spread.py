@@ -15,17 +15,18 @@ positive root of y picks the frame's handedness). If B or C is not placed within
 have one (their announced positions, the distances both ends agree on):
 
 1. *Three or more anchors*: least squares (:func:`~kilonet.geometry.multilaterate`), rejected
-   if the anchors lie within ``localize.min_height_mm`` of one line, the residuals are too
-   large (``localize.max_residual_sigmas`` noise deviations), the geometry is poor, or the
-   mirror image across the anchors' line fits nearly as well — the flip that a noisy
-   near-collinear triple allows (Savvides et al. 2001;
+   if the anchors are collinear, the residuals are too large (``localize.max_residual_sigmas``
+   noise deviations), the geometry is poor, or the mirror image across the anchors' line fits
+   nearly as well — the flip that a noisy near-collinear triple allows (Savvides et al. 2001;
    Moore et al. 2004).
 2. *Two anchors*: two candidate positions, mirror images across the anchors' line
    (:func:`circle_candidates`). The robot announces both (CAND messages) unless they lie
    closer than ``2 · min_height_mm``.
 3. *Anchors and neighbours' candidates*: a robot combines its anchors with the candidate pairs
    of up to ``localize.max_candidate_neighbours`` neighbours and tries every choice of one
-   candidate each (:func:`fix_with_candidates`). It takes the fix only if exactly one choice
+   candidate each (:func:`fix_with_candidates`); a pair mirrored across (nearly) the robot's
+   own anchor line tells the robot's two mirror positions apart no better than its anchors
+   do, and is not used. It takes the fix only if exactly one choice
    passes every check of rule 1 and every choice placing it elsewhere fits worse by more than
    the mirror test's margin. Two robots that each see only two anchors thus place each other
    (and a robot next to three such robots places itself and then them): the sparse swarms
@@ -235,11 +236,11 @@ def fix_with_candidates(
     robot's own mirror ambiguity is the reflection across that line, and a pair that this
     reflection maps onto itself (within ``min_width_mm``) cannot resolve it: such pairs are
     dropped. Every choice of one candidate per remaining pair is then multilaterated with the
-    anchors (:func:`~kilonet.geometry.multilaterate`, anchors within ``min_width_mm`` of a line
-    counting as collinear). The best fix that passes every check is returned when every choice
-    that puts the robot more than ``3 · sigma_mm`` away from it has a sum of squared residuals
-    larger by more than ``(3 · sigma_mm)²``; otherwise (or with fewer than three points, or if
-    any choice is degenerate, so its fit cannot be compared) None.
+    anchors (:func:`~kilonet.geometry.multilaterate`). The best fix that passes every check is
+    returned when every choice that puts the robot more than ``3 · sigma_mm`` away from it has
+    a sum of squared residuals larger by more than ``(3 · sigma_mm)²``; otherwise (or with
+    fewer than three points, or if any choice is degenerate, so its fit cannot be compared)
+    None.
 
     Examples
     --------
@@ -282,7 +283,6 @@ def fix_with_candidates(
             np.array([*ranges_mm, *candidate_ranges_mm]),
             sigma_mm=sigma_mm,
             max_rmse_mm=max_rmse_mm,
-            min_anchor_width_mm=min_width_mm,
         )
         if math.isnan(fix.x_mm):
             return None
@@ -515,14 +515,12 @@ class Spread:
         self.next_retry = tick + self.retry_ticks
         points = [(n.x_mm, n.y_mm) for n in anchors]
         ranges = [n.range_mm for n in anchors]
-        min_width = r.params.min_height_mm
         if len(anchors) >= 3:
             fix = multilaterate(
                 np.array(points),
                 np.array(ranges),
                 sigma_mm=self.sigma_mm,
                 max_rmse_mm=self.max_rmse_mm,
-                min_anchor_width_mm=min_width,
             )
             if fix.ok:
                 self._located(fix.x_mm, fix.y_mm, "anchors", len(anchors))
@@ -538,7 +536,7 @@ class Spread:
                 [n.range_mm for n in pairs],
                 sigma_mm=self.sigma_mm,
                 max_rmse_mm=self.max_rmse_mm,
-                min_width_mm=min_width,
+                min_width_mm=r.params.min_height_mm,
             )
             if fix is not None:
                 self._located(fix.x_mm, fix.y_mm, "candidates", len(anchors) + len(pairs))

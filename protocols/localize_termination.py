@@ -99,9 +99,13 @@ class Termination:
         self.confirmed_rounds = 0
         self.repeats_left = p.done_repeats
 
-    def round(self, tick: int, fresh: list[Neighbour]) -> None:
-        """Update settled and complete; on the root, decide done."""
+    def round(self, tick: int, fresh: list[Neighbour], *, full: bool = True) -> None:
+        """Update settled (in a ``full`` round) and complete; on the root, decide done (it
+        counts only full rounds as confirming)."""
         r = self.robot
+        if not full:
+            self.complete = subtree_complete(self.settled, r.hops, fresh)
+            return
         if r.position is not None:
             self.settled = r.settle.settled or tick - r.located_tick >= self.settle_ticks
         else:
