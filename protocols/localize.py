@@ -40,6 +40,7 @@ from protocols.localize_base import (
     DIST,
     DONE,
     LOCALIZED,
+    MAX_COORDINATE_MM,
     NBR,
     NO_ID,
     SETTLED,
@@ -245,18 +246,21 @@ class LocalizeRobot(Kilobot):
                 max_step_mm=p.max_step_mm,
                 fix_y=self.uid == self.spread.axis,
             )
+            # Messages carry ±3276.7 mm: a frame that large is out of the protocol's range.
+            x = min(max(x, -MAX_COORDINATE_MM), MAX_COORDINATE_MM)
+            y = min(max(y, -MAX_COORDINATE_MM), MAX_COORDINATE_MM)
             self.position = (x, y)
         self.settle.add(x, y)
 
     # -- distance reports ----------------------------------------------------------------------
     def _dist_tx(self) -> Message | None:
-        """A distance report about the next neighbour in turn (by ID), or None with no
-        neighbour yet."""
-        heard = sorted(self.neighbours.by_id)
+        """A distance report about the next neighbour in turn (by ID; not about an ID two
+        robots share), or None with no neighbour yet."""
+        heard = [n for _, n in sorted(self.neighbours.by_id.items()) if not n.ambiguous]
         if not heard:
             return None
         self._dist_turn = (self._dist_turn + 1) % len(heard)
-        return distance_report(self.uid, self.position, self.neighbours[heard[self._dist_turn]])
+        return distance_report(self.uid, self.position, heard[self._dist_turn])
 
     def _dist_rx(self, n: Neighbour, message: Message) -> None:
         m = DIST.unpack(message)
