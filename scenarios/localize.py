@@ -32,10 +32,6 @@ import math
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
@@ -46,6 +42,7 @@ from kilonet.visibility import visible_pairs
 from protocols.localize import LocalizeRobot
 from protocols.localize_base import LocalizeParams
 from scenarios.base import RunResult, Scenario
+from scenarios.figures import frames_figure
 
 __all__ = ["SCENARIO", "estimates_frame", "measured_distances"]
 
@@ -195,40 +192,19 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
 
 
 def _outputs(result: RunResult, out_dir: Path) -> None:
-    sim = result.sim
-    _figure(sim, estimates_frame(sim), result.summary, out_dir / "localize.png")
-
-
-def _figure(sim: Simulation, est: pd.DataFrame, summary: dict, path: Path) -> None:
-    truth = sim.world.positions_mm
-    fig, ax = plt.subplots(figsize=(7, 7))
-    ax.scatter(truth[:, 0], truth[:, 1], s=40, facecolors="none", edgecolors="0.6", label="truth")
-    done = est[est.localized]
-    cmap = plt.get_cmap("tab10")
-    for k, (label, g) in enumerate(done.groupby("frame")):
-        idx = g.robot.to_numpy()
-        pts = g[["est_x_mm", "est_y_mm"]].to_numpy()
-        _, aligned = pooled_aligned_rmse(pts, truth[idx], np.zeros(len(idx), dtype=int))
-        if np.isnan(aligned).all():
-            aligned = truth[idx]
-        ax.scatter(aligned[:, 0], aligned[:, 1], s=12, color=cmap(k % 10), label=label)
-        for (x0, y0), (x1, y1) in zip(truth[idx], aligned, strict=True):
-            ax.plot([x0, x1], [y0, y1], color="red", lw=0.8)
-    roots = est.robot[est.role == "root"].to_numpy()
-    ax.scatter(truth[roots, 0], truth[roots, 1], marker="x", s=40, c="k", label="root")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_title(
+    sim, summary = result.sim, result.summary
+    est = estimates_frame(sim)
+    frames_figure(
+        sim.world.positions_mm,
+        est,
+        est.robot[est.role == "root"].to_numpy(),
+        "root",
         f"localize: {summary.get('frames', '?')} frame(s), RMSE "
         f"{summary.get('rmse_mm', math.nan):.2f} mm (CRLB "
         f"{summary.get('crlb_rmse_mm', math.nan):.2f}, central "
-        f"{summary.get('central_rmse_mm', math.nan):.2f})"
+        f"{summary.get('central_rmse_mm', math.nan):.2f})",
+        out_dir / "localize.png",
     )
-    ax.legend(loc="upper right", fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 SCENARIO = Scenario(
