@@ -49,7 +49,7 @@ from protocols.localize_base import (
     Neighbours,
     distance_report,
 )
-from protocols.localize_election import ELECT, Election
+from protocols.localize_election import ELECT, MAX_HOPS, Election
 from protocols.localize_spread import CAND, POS, ROOT, VOTE, Spread
 from protocols.localize_termination import Termination
 from protocols.refinement import SettleWindow, gauss_newton_step
@@ -150,6 +150,11 @@ class LocalizeRobot(Kilobot):
                 self.locate(0.0, 0.0)
         else:
             if full:
+                if not self.is_root:
+                    # Keep the hop count a breadth-first distance to the root from what the
+                    # neighbours announce now (a robot that joined late, or whose neighbour
+                    # left, would otherwise keep a count the convergecast misreads).
+                    self.hops = min(MAX_HOPS, 1 + min((n.hops for n in fresh), default=MAX_HOPS))
                 self.spread.round(tick, fresh)
                 if self.position is not None:
                     self._refine(fresh)

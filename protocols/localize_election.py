@@ -36,7 +36,7 @@ from protocols.localize_base import NO_ID, Neighbour, children_complete
 if TYPE_CHECKING:
     from protocols.localize import LocalizeRobot
 
-__all__ = ["ELECT", "Election", "echo_complete", "election_key"]
+__all__ = ["ELECT", "MAX_HOPS", "Election", "echo_complete", "election_key"]
 
 ELECT = Layout(
     "elect", type=80, fields=[("sender", "H"), ("key", "I"), ("hops", "B"), ("echo", "B")]

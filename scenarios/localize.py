@@ -21,7 +21,8 @@ never saw:
   ambiguous (two robots behind one ID) are left out. ``largest_frame_over_central`` is the
   largest frame's size over the number of robots the centralized solver localizes;
 * ``phase_times_s``: when the root was elected, when the last robot was located, when the root
-  declared done and when the last robot did (``done_s``, NaN unless every robot did);
+  declared done and when the last robot did (``done_s``, NaN unless every running robot did;
+  ``done_fraction`` is the share of running robots that did);
   ``hop_diameter`` of the line-of-sight graph, and ``done_over_hop_limit``, ``done_s`` over
   ``hop_diameter × robot.tx_period_s`` (the time information needs to cross the swarm).
 """
@@ -143,6 +144,7 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
     n = sim.n_robots
     p = sim.params
     est = estimates_frame(sim)
+    running = sim.world.running
     done = est[est.localized]
     codes = {label: k for k, label in enumerate(sorted(done.frame.unique()))}
     labels = np.full(n, -1)
@@ -160,7 +162,8 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
         "localized_fraction": len(done) / n,
         "largest_frame_fraction": float(sizes.max() / n) if len(sizes) else 0.0,
         "within_5mm_fraction": float(np.sum(error <= 5.0) / n),
-        "done_fraction": float(est.done.sum() / n),
+        # Of the robots still running (a crashed robot is never done).
+        "done_fraction": float(est.done[running].sum() / max(1, running.sum())),
         "rmse_mm": rmse,
         "max_error_mm": float(np.nanmax(error)) if len(done) else math.nan,
     }

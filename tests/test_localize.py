@@ -343,6 +343,17 @@ def test_small_lattice_with_loss_without_line_of_sight_and_polled(overrides):
     assert s["rmse_mm"] < s["crlb_rmse_mm"]
 
 
+def test_crashed_robots_do_not_hold_the_swarm_up():
+    overrides = {"faults.crash_fraction": 0.1, "faults.crash_from_s": 3, "faults.crash_to_s": 8}
+    result = run(60, **overrides)
+    s = result.summary
+    assert s["robots_stopped"] == 6
+    assert s["done_fraction"] == 1.0  # every robot still running decided it was done
+    assert s["frames"] == 1
+    assert s["localized_fraction"] >= 0.9
+    assert s["rmse_mm"] < s["crlb_rmse_mm"]
+
+
 def test_two_separate_swarms_make_two_frames():
     left = np.array([[x * 40.0 + (y % 2) * 20.0, y * 34.6] for x in range(4) for y in range(4)])
     positions = np.vstack([left, left + np.array([1000.0, 0.0])])
