@@ -59,6 +59,7 @@ __all__ = ["LocalizeRobot"]
 #: Every message's first field, the sender's ID (uint16).
 _SENDER = struct.Struct("<H").unpack_from
 _PHASE2 = frozenset((ROOT.type, POS.type, CAND.type))
+_ROUNDING_SIGMA_MM = 1.0 / math.sqrt(12.0)
 
 
 class LocalizeRobot(Kilobot):
@@ -77,6 +78,8 @@ class LocalizeRobot(Kilobot):
         This robot's estimate in the frame, mm.
     root_key : int
         The election key of this robot's root (its frame's label).
+    sigma_mm : float
+        The ranging noise per reception as this robot has measured it (mm).
     """
 
     def __init__(self, params: LocalizeParams) -> None:
@@ -91,9 +94,11 @@ class LocalizeRobot(Kilobot):
         self.neighbours = Neighbours(
             duplicate_mm=p.duplicate_sigmas * p.sigma_mm,
             stale_rounds=math.ceil(p.stale_s / p.round_s),
+            duplicate_after=p.duplicate_after,
         )
         # Neighbours' NBR reports about each other, while electing and on the root.
         self.reports: dict[int, dict[int, float]] = {}
+        self.sigma_mm = p.sigma_mm  # ranging noise per reception, as this robot measures it
         self.position: tuple[float, float] | None = None
         self.is_root = False
         self.located_tick = 0
@@ -132,6 +137,12 @@ class LocalizeRobot(Kilobot):
         if tick >= self._next_round:
             self._next_round = tick + self._round_ticks
             self._round += 1
+            p = self.params
+            # Estimates come in whole millimetres: their rounding alone has a spread of
+            # 1/sqrt(12) mm, the least noise a robot can measure.
+            noise = self.neighbours.noise_mm(p.noise_samples, p.sigma_mm)
+            self.sigma_mm = max(noise, _ROUNDING_SIGMA_MM)
+            self.neighbours.duplicate_mm = p.duplicate_sigmas * self.sigma_mm
             self._work(tick, self.neighbours.fresh(self._round), full=True)
         elif self._news:
             # A neighbour's echo or flags changed: pass it on now, not at the next round, so

@@ -24,6 +24,11 @@ that cycle nearest to its own mean (:func:`unwrap_distance`): a 0.1 mm resolutio
 the two means differ by less than 12.8 mm. NBR's full distances also tell the root, while it
 is elected, how far apart its neighbours are (:mod:`protocols.localize_spread`).
 
+Every robot measures its own ranging noise, as the median spread of the samples it gets from
+each neighbour (:meth:`Neighbours.noise_mm`), and scales its tolerances by it (the duplicate
+test here, the fix checks of :mod:`protocols.localize_spread`), so the protocol needs no
+calibration constant for it.
+
 IDs are drawn at random; :mod:`protocols.localize_election` redraws one heard from another
 robot. Two neighbours of one robot may still share an ID: when a sample from an ID lies more
 than ``duplicate_sigmas`` noise deviations from that ID's mean, the record is marked
@@ -32,6 +37,7 @@ ambiguous and ignored from then on (:meth:`Neighbours.heard`).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
@@ -100,7 +106,16 @@ class LocalizeParams:
     section_name = "localize"
     round_s: float = param(0.2, lo=0.01, hi=10.0, doc="a robot updates its state this often")
     sigma_mm: float = param(
-        1.0, lo=0.01, hi=100.0, doc="ranging noise per reception the robots assume"
+        1.0,
+        lo=0.01,
+        hi=100.0,
+        doc="ranging noise per reception assumed until a robot has measured its own",
+    )
+    noise_samples: int = param(
+        5, lo=2, hi=10_000, doc="receptions from a neighbour before its spread counts"
+    )
+    duplicate_after: int = param(
+        10, lo=3, hi=10_000, doc="receptions from an ID before the duplicate test applies"
     )
     dist_every: int = param(
         3, lo=2, hi=100, doc="one transmit opportunity in this many carries a DIST report"
@@ -188,8 +203,8 @@ class Neighbour:
 
     Attributes
     ----------
-    distance_sum_mm, samples
-        Sum and count of the distance estimates received from it (mm).
+    distance_sum_mm, distance_sq_sum_mm2, samples
+        Sum, sum of squares and count of the distance estimates received from it (mm, mm²).
     reported_mm : float or None
         Its own mean distance to this robot, from its DIST reports (mm).
     x_mm, y_mm : float or None
@@ -207,6 +222,7 @@ class Neighbour:
     __slots__ = (
         "ambiguous",
         "candidates",
+        "distance_sq_sum_mm2",
         "distance_sum_mm",
         "echo",
         "flags",
@@ -223,6 +239,7 @@ class Neighbour:
     def __init__(self, uid: int) -> None:
         self.uid = uid
         self.distance_sum_mm = 0.0
+        self.distance_sq_sum_mm2 = 0.0
         self.samples = 0
         self.reported_mm: float | None = None
         self.x_mm: float | None = None
@@ -261,19 +278,22 @@ class Neighbours:
     Parameters
     ----------
     duplicate_mm : float
-        A sample farther than this from its ID's mean (after 3 samples) marks the ID
-        ambiguous.
+        A sample farther than this from its ID's mean marks the ID ambiguous (the robot sets
+        it from the noise it measures).
     stale_rounds : int
         Records not heard for this many of the robot's rounds are left out of :meth:`fresh`.
+    duplicate_after : int
+        Samples an ID needs before the duplicate test applies to it (its mean must be good,
+        and the robot's noise estimate made, first).
 
     Examples
     --------
-    >>> nbs = Neighbours(duplicate_mm=6.0, stale_rounds=15)
-    >>> for d in (40, 41, 40, 42):
+    >>> nbs = Neighbours(duplicate_mm=6.0, stale_rounds=15, duplicate_after=4)
+    >>> for d in (40, 49, 40, 42):  # 9 mm off at the second sample: too early to judge
     ...     _ = nbs.heard(7, d, 1)
     >>> nbs[7].mean_mm, nbs[7].ambiguous
-    (40.75, False)
-    >>> _ = nbs.heard(7, 60, 2)  # another robot with ID 7, 20 mm farther
+    (42.75, False)
+    >>> _ = nbs.heard(7, 62, 2)  # another robot with ID 7, 20 mm farther
     >>> nbs[7].ambiguous, [n.uid for n in nbs.fresh(5)]
     (True, [])
     >>> _ = nbs.heard(8, 50, 3)
@@ -281,9 +301,10 @@ class Neighbours:
     ([8], [])
     """
 
-    def __init__(self, *, duplicate_mm: float, stale_rounds: int) -> None:
+    def __init__(self, *, duplicate_mm: float, stale_rounds: int, duplicate_after: int = 3) -> None:
         self.by_id: dict[int, Neighbour] = {}
         self.duplicate_mm = duplicate_mm
+        self.duplicate_after = duplicate_after
         self.stale_rounds = stale_rounds
 
     def heard(self, uid: int, distance_mm: float, stamp: int) -> Neighbour:
@@ -292,11 +313,12 @@ class Neighbours:
         n = self.by_id.get(uid)
         if n is None:
             n = self.by_id[uid] = Neighbour(uid)
-        elif n.samples >= 3 and abs(distance_mm * n.samples - n.distance_sum_mm) > (
-            self.duplicate_mm * n.samples
-        ):
+        elif n.samples >= self.duplicate_after and abs(
+            distance_mm * n.samples - n.distance_sum_mm
+        ) > (self.duplicate_mm * n.samples):
             n.ambiguous = True
         n.distance_sum_mm += distance_mm
+        n.distance_sq_sum_mm2 += distance_mm * distance_mm
         n.samples += 1
         n.heard_round = stamp
         return n
@@ -304,6 +326,44 @@ class Neighbours:
     def report(self, n: Neighbour, code: int) -> None:
         """Store ``n``'s DIST report of its distance to this robot (its code)."""
         n.reported_mm = unwrap_distance(code, n.distance_sum_mm / n.samples)
+
+    def noise_mm(self, min_samples: int, default_mm: float) -> float:
+        """This robot's own estimate of the ranging noise per reception: the median, over
+        unambiguous neighbours heard at least ``min_samples`` times, of the standard deviation
+        of their distance estimates (mm; ``default_mm`` until there is one). The median keeps
+        a neighbour whose ID two robots share from inflating it.
+
+        Examples
+        --------
+        >>> nbs = Neighbours(duplicate_mm=6.0, stale_rounds=5)
+        >>> for d in (40, 42, 40, 42, 41):
+        ...     _ = nbs.heard(1, d, 1)
+        >>> nbs.noise_mm(5, 1.0), nbs.noise_mm(6, 1.0)
+        (1.0, 1.0)
+        >>> for d in (50, 54, 50, 54, 52):
+        ...     _ = nbs.heard(2, d, 1)
+        >>> for d in (60, 60, 60, 60, 60):
+        ...     _ = nbs.heard(3, d, 1)
+        >>> nbs.noise_mm(5, 1.0)
+        1.0
+        >>> for d in (70, 76, 70, 76, 73):
+        ...     _ = nbs.heard(4, d, 1)
+        >>> nbs.noise_mm(5, 1.0)
+        1.5
+        """
+        spreads = []
+        for n in self.by_id.values():
+            k = n.samples
+            if k >= min_samples and not n.ambiguous:
+                variance = (n.distance_sq_sum_mm2 - n.distance_sum_mm**2 / k) / (k - 1)
+                spreads.append(math.sqrt(max(variance, 0.0)))
+        if not spreads:
+            return default_mm
+        spreads.sort()
+        middle = len(spreads) // 2
+        if len(spreads) % 2:
+            return spreads[middle]
+        return 0.5 * (spreads[middle - 1] + spreads[middle])
 
     def fresh(self, stamp: int) -> list[Neighbour]:
         """Unambiguous records heard within the last ``stale_rounds`` rounds before round

@@ -356,8 +356,6 @@ class Spread:
         self.robot = robot
         p = robot.params
         tps = robot.ticks_per_s
-        self.sigma_mm = p.sigma_mm
-        self.max_rmse_mm = p.max_residual_sigmas * p.sigma_mm
         self.retry_ticks = p.retry_s * tps
         self.bootstrap_ticks = p.bootstrap_timeout_s * tps
         self.attempt: tuple = ()  # what the last attempt used
@@ -515,12 +513,14 @@ class Spread:
         self.next_retry = tick + self.retry_ticks
         points = [(n.x_mm, n.y_mm) for n in anchors]
         ranges = [n.range_mm for n in anchors]
+        sigma = r.sigma_mm
+        max_rmse = r.params.max_residual_sigmas * sigma
         if len(anchors) >= 3:
             fix = multilaterate(
                 np.array(points),
                 np.array(ranges),
-                sigma_mm=self.sigma_mm,
-                max_rmse_mm=self.max_rmse_mm,
+                sigma_mm=sigma,
+                max_rmse_mm=max_rmse,
             )
             if fix.ok:
                 self._located(fix.x_mm, fix.y_mm, "anchors", len(anchors))
@@ -534,8 +534,8 @@ class Spread:
                 ranges,
                 [tuple(n.candidates[1]) for n in pairs],
                 [n.range_mm for n in pairs],
-                sigma_mm=self.sigma_mm,
-                max_rmse_mm=self.max_rmse_mm,
+                sigma_mm=sigma,
+                max_rmse_mm=max_rmse,
                 min_width_mm=r.params.min_height_mm,
             )
             if fix is not None:

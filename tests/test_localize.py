@@ -343,6 +343,19 @@ def test_small_lattice_with_loss_without_line_of_sight_and_polled(overrides):
     assert s["rmse_mm"] < s["crlb_rmse_mm"]
 
 
+def test_robots_measure_their_own_ranging_noise():
+    # Nobody tells the robots that the noise is 3 mm, not the 1 mm they start by assuming.
+    result = run(40, **{"ranging.sigma_mm": 3.0})
+    s = result.summary
+    estimates = [r.sigma_mm for r in result.sim.robots]
+    # Each robot's median spread, plus the whole-millimetre rounding (1/12 mm²).
+    assert np.median(estimates) == pytest.approx(math.sqrt(9 + 1 / 12), rel=0.05)
+    assert s["frames"] == 1
+    assert s["localized_fraction"] == 1.0
+    assert s["rmse_mm"] < 0.5 * s["crlb_rmse_mm"]
+    assert not any(n.ambiguous for r in result.sim.robots for n in r.neighbours.by_id.values())
+
+
 def test_crashed_robots_do_not_hold_the_swarm_up():
     overrides = {"faults.crash_fraction": 0.1, "faults.crash_from_s": 3, "faults.crash_to_s": 8}
     result = run(60, **overrides)
