@@ -344,7 +344,7 @@ def overlap_vote(
 
 
 class Spread:
-    """Phase 2 on one robot: the frame's start (root, axis, third) and rules 1-3.
+    """Phase 2 on one robot: the frame's start (root, axis, third) and rules 1-4.
 
     The robot's position (``robot.position``) lives on the robot; this holds the attempt
     bookkeeping, the robot's own candidates and, on the root, the frame robots it named.
