@@ -43,7 +43,7 @@ from kilonet.alignment import (
 )
 from kilonet.geometry import collinear, crlb_rmse_mm, multilaterate, trilaterate_linear
 from kilonet.placement import hex_lattice
-from kilonet.visibility import visible_pairs
+from kilonet.visibility import pairs_in_range
 
 #: The functions --calls counts: name -> the file that defines it.
 COUNTED = {
@@ -190,7 +190,7 @@ def crlb_seconds(n: int) -> tuple[float, float]:
     the Cholesky path, then the eigen-decomposition path it falls back on."""
     rng = np.random.default_rng(1)
     pos = hex_lattice(n, spacing_mm=40.0, jitter_mm=3.0, rng=rng)
-    i, j, _ = visible_pairs(pos, 85.0, line_of_sight=False)
+    i, j, _ = pairs_in_range(pos, 85.0)
     edges = np.column_stack([i, j])
     started = time.process_time()
     crlb_rmse_mm(pos, edges, 1.0)

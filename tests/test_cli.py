@@ -379,7 +379,7 @@ def test_params_shows_types_and_allowed_values(capsys):
 def test_scenarios_lists_the_registered_ones(capsys):
     assert main(["scenarios"]) == 0
     names = [line.split()[0] for line in capsys.readouterr().out.splitlines()]
-    assert names == scenarios.names() == ["follower", "gcs", "gradient", "maze"]
+    assert names == scenarios.names() == ["follower", "gcs", "gradient", "localize", "maze"]
 
 
 # -- progress -----------------------------------------------------------------------------------

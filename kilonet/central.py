@@ -1,0 +1,316 @@
+"""The centralized reference: every robot's position from all measured distances at once.
+
+What a distributed localization is measured against. Given the distances the robots measured
+(any number of measurements per pair, e.g. one mean per ordered pair of robots), the
+maximum-likelihood positions under independent Gaussian range noise minimise the weighted
+sum of squared range residuals ``Σ wₑ (|pᵢ − pⱼ| − dₑ)²``. :func:`solve_positions` finds them
+with :func:`scipy.optimize.least_squares` (trust region reflective, sparse Jacobian, LSMR
+steps), one connected component at a time, started from classical multidimensional scaling of
+the shortest-path distances through the measured graph. Distances fix positions only up to a
+rigid motion and a reflection; :func:`central_reference` removes that freedom by aligning each
+component to the truth (Procrustes) and reports the error, so the result is directly
+comparable with a swarm's own estimates.
+
+Pure functions on millimetres; no simulation, scenario or protocol knowledge.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from kilonet.alignment import procrustes_rmse
+
+__all__ = ["CentralResult", "central_reference", "pooled_aligned_rmse", "solve_positions"]
+
+#: Components with fewer robots are left unsolved: two robots and a distance fix no frame.
+MIN_COMPONENT = 3
+
+
+def solve_positions(
+    n: int,
+    pairs: np.ndarray,
+    distances_mm: np.ndarray,
+    weights: np.ndarray | None = None,
+) -> np.ndarray:
+    """Weighted least-squares positions of ``n`` robots from measured distances.
+
+    Parameters
+    ----------
+    n : int
+        Number of robots (row indices ``0 .. n-1``).
+    pairs : (E, 2) int array
+        The robots of each measurement; a pair may appear several times (e.g. once per
+        direction) and its measurements then all count.
+    distances_mm : (E,) array
+        Measured distances, mm (positive).
+    weights : (E,) array, optional
+        Weight of each measurement (e.g. the number of receptions a mean distance averages:
+        its inverse variance up to a constant); default 1 each.
+
+    Returns
+    -------
+    (n, 2) array
+        Positions in mm, each connected component of the measurement graph in a frame of its
+        own (arbitrary rotation, shift and reflection); NaN for robots in components of fewer
+        than three robots.
+
+    Raises
+    ------
+    ValueError
+        If shapes disagree, an index is out of range or a self-loop, a distance is not
+        positive and finite, or a weight is negative or not finite.
+
+    Notes
+    -----
+    Per component of m robots: the start is classical MDS of the m × m shortest-path matrix
+    (O(m² log m) time, O(m²) memory); the refinement costs a few sparse LSMR solves over the
+    measurements. A few seconds for 1,000 robots.
+
+    Examples
+    --------
+    A unit square with both diagonals, measured exactly, is recovered exactly:
+
+    >>> square = np.array([[0.0, 0.0], [50.0, 0.0], [50.0, 50.0], [0.0, 50.0]])
+    >>> pairs = np.array([(0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3)])
+    >>> d = np.hypot(*(square[pairs[:, 0]] - square[pairs[:, 1]]).T)
+    >>> p = solve_positions(4, pairs, d)
+    >>> round(procrustes_rmse(p, square)[0], 6)
+    0.0
+    """
+    pairs, dist, w = _checked(n, pairs, distances_mm, weights)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    out = np.full((n, 2), np.nan)
+    if len(pairs) == 0:
+        return out
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    count, labels = connected_components(graph, directed=False)
+    for label in range(count):
+        members = np.flatnonzero(labels == label)
+        if len(members) < MIN_COMPONENT:
+            continue
+        local = np.full(n, -1)
+        local[members] = np.arange(len(members))
+        keep = labels[pairs[:, 0]] == label
+        sub = local[pairs[keep]]
+        out[members] = _solve_component(len(members), sub, dist[keep], w[keep])
+    return out
+
+
+def _checked(n, pairs, distances_mm, weights):
+    pairs = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
+    dist = np.asarray(distances_mm, dtype=float).reshape(-1)
+    w = np.ones(len(dist)) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
+    if len(dist) != len(pairs) or len(w) != len(pairs):
+        raise ValueError(
+            f"pairs ({len(pairs)}), distances_mm ({len(dist)}) and weights ({len(w)}) must "
+            "have one entry per measurement"
+        )
+    if len(pairs) and (pairs.min() < 0 or pairs.max() >= n):
+        raise ValueError(f"pair index out of range 0..{n - 1}: {pairs.min()}..{pairs.max()}")
+    loops = pairs[:, 0] == pairs[:, 1]
+    if loops.any():
+        raise ValueError(f"self-loop in pairs at robot {int(pairs[loops, 0][0])}")
+    if not (np.isfinite(dist).all() and (dist > 0).all()):
+        raise ValueError("distances_mm must be positive and finite")
+    if not (np.isfinite(w).all() and (w >= 0).all()):
+        raise ValueError("weights must be non-negative and finite")
+    return pairs, dist, w
+
+
+def _solve_component(m: int, pairs: np.ndarray, dist: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Positions (m, 2) of one connected component: MDS start, then least squares."""
+    from scipy.optimize import least_squares
+    from scipy.sparse import csr_matrix
+
+    i, j = pairs[:, 0], pairs[:, 1]
+    sw = np.sqrt(w)
+    e = len(pairs)
+    rows = np.repeat(np.arange(e), 4)
+    cols = np.stack([2 * i, 2 * i + 1, 2 * j, 2 * j + 1], axis=1).ravel()
+
+    def residuals(x):
+        p = x.reshape(m, 2)
+        diff = p[i] - p[j]
+        return sw * (np.sqrt((diff * diff).sum(axis=1)) - dist)
+
+    def jacobian(x):
+        p = x.reshape(m, 2)
+        diff = p[i] - p[j]
+        norm = np.maximum(np.sqrt((diff * diff).sum(axis=1)), 1e-9)
+        u = diff * (sw / norm)[:, None]
+        vals = np.stack([u[:, 0], u[:, 1], -u[:, 0], -u[:, 1]], axis=1).ravel()
+        return csr_matrix((vals, (rows, cols)), shape=(e, 2 * m))
+
+    start = _mds_start(m, pairs, dist)
+    scale = float(np.median(dist))
+    fit = least_squares(
+        residuals,
+        start.ravel(),
+        jac=jacobian,
+        method="trf",
+        tr_solver="lsmr",
+        x_scale=scale,
+        xtol=1e-10,
+        ftol=1e-12,
+        gtol=1e-12,
+        max_nfev=200,
+    )
+    return fit.x.reshape(m, 2)
+
+
+def _mds_start(m: int, pairs: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Classical MDS of the shortest-path distances through the measured pairs, (m, 2)."""
+    from scipy.linalg import eigh
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import shortest_path
+
+    # Several measurements of one pair: the shortest path takes the smallest; use their mean.
+    a, b = np.minimum(pairs[:, 0], pairs[:, 1]), np.maximum(pairs[:, 0], pairs[:, 1])
+    key = a * m + b
+    unique, inverse = np.unique(key, return_inverse=True)
+    mean = np.bincount(inverse, weights=dist) / np.bincount(inverse)
+    graph = coo_matrix((mean, (unique // m, unique % m)), shape=(m, m)).tocsr()
+    sp = shortest_path(graph, method="D", directed=False)
+    sq = sp * sp
+    centred = sq - sq.mean(axis=0) - sq.mean(axis=1)[:, None] + sq.mean()
+    values, vectors = eigh(-0.5 * centred, subset_by_index=[m - 2, m - 1])
+    return vectors * np.sqrt(np.maximum(values, 0.0))
+
+
+@dataclass(frozen=True)
+class CentralResult:
+    """The centralized reference of one run.
+
+    Attributes
+    ----------
+    rmse_mm : float
+        RMS position error after aligning each solved component to the truth, pooled over
+        every robot in a solved component, mm (NaN if none was solved).
+    localized_fraction : float
+        Share of all robots whose aligned position lies within ``within_mm`` of the truth.
+    localized : (n,) bool array
+        Which robots those are.
+    aligned_mm : (n, 2) array
+        The solved positions after alignment, mm (NaN where unsolved).
+    """
+
+    rmse_mm: float
+    localized_fraction: float
+    localized: np.ndarray
+    aligned_mm: np.ndarray
+
+
+def central_reference(
+    truth_mm: np.ndarray,
+    pairs: np.ndarray,
+    distances_mm: np.ndarray,
+    weights: np.ndarray | None = None,
+    *,
+    within_mm: float = 5.0,
+) -> CentralResult:
+    """Solve the positions from the measured distances and score them against the truth.
+
+    Parameters
+    ----------
+    truth_mm : (n, 2) array
+        True positions, mm (only used to align and score, never to solve).
+    pairs, distances_mm, weights
+        The measurements, as in :func:`solve_positions`.
+    within_mm : float
+        A robot counts as localized when its aligned position is within this of the truth.
+
+    Returns
+    -------
+    CentralResult
+
+    Raises
+    ------
+    ValueError
+        As :func:`solve_positions`, or if ``truth_mm`` is not (n, 2) and finite.
+
+    Examples
+    --------
+    A square with both diagonals measured exactly, and a fifth robot that measured nothing:
+
+    >>> pos = np.array([[0.0, 0.0], [50.0, 0.0], [50.0, 50.0], [0.0, 50.0], [300.0, 0.0]])
+    >>> pairs = np.array([(0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3)])
+    >>> d = np.hypot(*(pos[pairs[:, 0]] - pos[pairs[:, 1]]).T)
+    >>> ref = central_reference(pos, pairs, d)
+    >>> round(ref.rmse_mm, 6), ref.localized_fraction, ref.localized.tolist()
+    (0.0, 0.8, [True, True, True, True, False])
+    """
+    truth = np.asarray(truth_mm, dtype=float)
+    if truth.ndim != 2 or truth.shape[1] != 2 or not np.isfinite(truth).all():
+        raise ValueError(f"truth_mm must be a finite (n, 2) array; got shape {truth.shape}")
+    n = len(truth)
+    solved = solve_positions(n, pairs, distances_mm, weights)
+    pairs_arr = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    labels = np.arange(n)
+    if len(pairs_arr):
+        graph = coo_matrix(
+            (np.ones(len(pairs_arr)), (pairs_arr[:, 0], pairs_arr[:, 1])), shape=(n, n)
+        )
+        _, labels = connected_components(graph, directed=False)
+    labels = np.where(np.isfinite(solved[:, 0]), labels, -1)
+    rmse, aligned = pooled_aligned_rmse(solved, truth, labels)
+    error = np.hypot(*(aligned - truth).T)
+    localized = np.isfinite(error) & (error <= within_mm)
+    return CentralResult(
+        rmse_mm=rmse,
+        localized_fraction=float(localized.sum() / n) if n else 0.0,
+        localized=localized,
+        aligned_mm=aligned,
+    )
+
+
+def pooled_aligned_rmse(
+    estimated_mm: np.ndarray, truth_mm: np.ndarray, labels: np.ndarray
+) -> tuple[float, np.ndarray]:
+    """RMS error of estimates in several frames, each frame aligned to the truth on its own.
+
+    Parameters
+    ----------
+    estimated_mm, truth_mm : (n, 2) arrays
+        Estimates (each in its frame) and true positions, mm.
+    labels : (n,) array
+        Each robot's frame; robots labelled ``-1`` have no estimate.
+
+    Returns
+    -------
+    rmse_mm : float
+        ``sqrt(mean |aligned − true|²)`` over every robot of a frame with at least three
+        robots, after the best rigid alignment of each such frame (reflection allowed); NaN if
+        there is none.
+    aligned_mm : (n, 2) array
+        The aligned estimates; NaN for robots without one or in smaller frames.
+
+    Examples
+    --------
+    >>> truth = np.array([[0.0, 0.0], [40.0, 0.0], [0.0, 30.0], [90.0, 0.0]])
+    >>> est = truth * [-1.0, 1.0] + [5.0, 5.0]
+    >>> rmse, aligned = pooled_aligned_rmse(est, truth, np.array([0, 0, 0, -1]))
+    >>> round(rmse, 9), bool(np.isnan(aligned[3]).all())
+    (0.0, True)
+    """
+    est = np.asarray(estimated_mm, dtype=float)
+    truth = np.asarray(truth_mm, dtype=float)
+    labels = np.asarray(labels)
+    aligned = np.full(truth.shape, np.nan)
+    squared, count = 0.0, 0
+    for label in np.unique(labels[labels != -1]):
+        members = np.flatnonzero(labels == label)
+        if len(members) < MIN_COMPONENT:
+            continue
+        rmse, _, moved = procrustes_rmse(est[members], truth[members])
+        aligned[members] = moved
+        squared += rmse**2 * len(members)
+        count += len(members)
+    return (math.sqrt(squared / count) if count else math.nan), aligned

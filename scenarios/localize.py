@@ -1,0 +1,238 @@
+"""``localize``: one global frame at the Cramér–Rao bound, by the swarm alone.
+
+Runs :class:`protocols.localize.LocalizeRobot` on every robot (``robot.hardware_uids =
+false``: the robots draw their own IDs; ``robot.tx_period_s = 0.2``, the thesis library's
+period, as in ``gcs``) until every running robot is done (the swarm decides: see
+:mod:`protocols.localize_termination`), and scores the result against the truth the robots
+never saw:
+
+* ``frames``, ``localized_fraction``, ``largest_frame_fraction``: robots grouped by the root
+  (election key) their frame grew from; ``rmse_mm`` after the best rigid alignment of each
+  frame (reflection allowed), pooled over located robots; ``within_5mm_fraction``;
+* ``crlb_rmse_mm``: the anchor-free Cramér–Rao bound of the medium's communication graph with one
+  measurement of ``ranging.sigma_mm`` per pair, as ``gcs`` reports it; ``rmse_over_crlb``.
+  The robots average many receptions per pair, so they (and the centralized solver) can beat
+  it; ``crlb_received_rmse_mm`` is the bound for the receptions the robots actually averaged;
+* ``central_rmse_mm``, ``central_localized_fraction`` (:func:`kilonet.central.central_reference`)
+  on the run's own measured distances: for every ordered pair (i, j), the mean of the
+  distance estimates robot i received in j's messages, as i's neighbour record holds it at the
+  end (every reception of every message type counts), weighted by its number of samples; the
+  record's ID is mapped to the robot holding that ID among those i hears, and records marked
+  ambiguous (two robots behind one ID) are left out. ``largest_frame_over_central`` is the
+  largest frame's size over the number of robots the centralized solver localizes;
+* ``phase_times_s``: when the root was elected, when the last robot was located, when the root
+  declared done and when the last robot did (``done_s``, NaN unless every running robot did;
+  ``done_fraction`` is the share of running robots that did);
+  ``hop_diameter`` of the medium's communication graph, and ``done_over_hop_limit``, ``done_s`` over
+  ``hop_diameter × robot.tx_period_s`` (the time information needs to cross the swarm).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from protocols.localize_base import LocalizeParams
+from scenarios.base import RunResult, Scenario
+
+if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
+    import pandas as pd
+
+    from kilonet.simulation import Simulation
+
+__all__ = ["SCENARIO", "estimates_frame", "measured_distances"]
+
+
+def _program(params: Any, positions: np.ndarray):
+    from protocols.localize import LocalizeRobot
+
+    return lambda _i: LocalizeRobot(params.scenario)
+
+
+def _stop_when(sim: Simulation) -> bool:
+    running = sim.world.running
+    return all(r.stage == "done" for i, r in enumerate(sim.robots) if running[i])
+
+
+def estimates_frame(sim: Simulation) -> pd.DataFrame:
+    import pandas as pd
+
+    """Per robot: its ID, role, hop count, estimate, frame label and state at the end."""
+    rows = []
+    for i, r in enumerate(sim.robots):
+        located = r.in_frame
+        role = "root" if r.is_root else "axis" if r.uid == r.spread.axis else "robot"
+        rows.append(
+            {
+                "robot": i,
+                "uid": r.uid,
+                "role": role,
+                "hops": r.hops,
+                "est_x_mm": r.position[0] if located else math.nan,
+                "est_y_mm": r.position[1] if located else math.nan,
+                "frame": f"root{r.root_key:08x}" if located else "",
+                "localized": located,
+                "settled": r.termination.settled,
+                "done": r.termination.done,
+                "neighbours_heard": len(r.neighbours),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def measured_distances(sim: Simulation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The distances the robots measured: ``(pairs (E, 2), mean_mm (E,), samples (E,))`` with
+    one row per ordered pair (receiver, sender), as described in the module docstring."""
+    pairs, means, samples = [], [], []
+    robots = sim.robots
+    heard_by: dict[int, dict[int, int]] = {i: {} for i in range(sim.n_robots)}
+    for s in range(sim.n_robots):
+        for i in sim.medium.receivers_of(s):
+            heard_by[i].setdefault(robots[s].uid, s if robots[s].uid not in heard_by[i] else -1)
+    for i, r in enumerate(robots):
+        for uid, n in r.neighbours.by_id.items():
+            s = heard_by[i].get(uid, -1)
+            if s < 0 or n.ambiguous or n.samples == 0:
+                continue
+            pairs.append((i, s))
+            means.append(n.mean_mm)
+            samples.append(n.samples)
+    return (
+        np.array(pairs, dtype=np.intp).reshape(-1, 2),
+        np.array(means, dtype=float),
+        np.array(samples, dtype=float),
+    )
+
+
+def _hop_diameter(n: int, i: np.ndarray, j: np.ndarray) -> int:
+    """Largest hop distance between two robots of one connected component."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import shortest_path
+
+    if len(i) == 0:
+        return 0
+    graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n)).tocsr()
+    hops = shortest_path(graph, directed=False, unweighted=True)
+    finite = hops[np.isfinite(hops)]
+    return int(finite.max()) if len(finite) else 0
+
+
+def _phase_times(sim: Simulation) -> dict[str, float]:
+    events = sim.trace.events_frame()
+    out: dict[str, float] = {}
+    if not len(events):
+        return out
+    stage = events[events.event == "stage"]
+    roots = stage[stage.data.str.contains('"root": true')]
+    if len(roots):
+        out["elected"] = round(float(roots.t_s.min()), 3)
+    located = events[events.event == "located"]
+    if len(located):
+        out["last_located"] = round(float(located.t_s.max()), 3)
+    done = events[events.event == "done"]
+    if len(done):
+        complete = done[done.data.str.contains('"complete"')]
+        if len(complete):
+            out["root_done"] = round(float(complete.t_s.min()), 3)
+        out["all_done"] = round(float(done.t_s.max()), 3)
+    return out
+
+
+def _metrics(sim: Simulation) -> dict[str, Any]:
+    from kilonet.central import central_reference, pooled_aligned_rmse
+    from kilonet.geometry import crlb_rmse_mm
+
+    truth = sim.world.positions_mm
+    n = sim.n_robots
+    p = sim.params
+    est = estimates_frame(sim)
+    running = sim.world.running
+    done = est[est.localized]
+    codes = {label: k for k, label in enumerate(sorted(done.frame.unique()))}
+    labels = np.full(n, -1)
+    labels[done.robot.to_numpy()] = [codes[f] for f in done.frame]
+    positions = est[["est_x_mm", "est_y_mm"]].to_numpy()
+    rmse, aligned = pooled_aligned_rmse(np.nan_to_num(positions), truth, labels)
+    error = np.hypot(*(aligned - truth).T)
+    sizes = done.groupby("frame").size()
+    links = np.array(sim.medium.graph().edges(), dtype=np.intp).reshape(-1, 2)
+    i, j = links[:, 0], links[:, 1]
+    sigma = p.ranging.sigma_mm
+    pairs, means, samples = measured_distances(sim)
+    out: dict[str, Any] = {
+        "mean_neighbours": 2.0 * len(i) / n,
+        "frames": len(sizes),
+        "localized_fraction": len(done) / n,
+        "largest_frame_fraction": float(sizes.max() / n) if len(sizes) else 0.0,
+        "within_5mm_fraction": float(np.sum(error <= 5.0) / n),
+        # Of the robots still running (a crashed robot is never done).
+        "done_fraction": float(est.done[running].sum() / max(1, running.sum())),
+        "rmse_mm": rmse,
+        "max_error_mm": float(np.nanmax(error)) if len(done) else math.nan,
+    }
+    if len(i) and sigma > 0:
+        out["crlb_rmse_mm"] = crlb_rmse_mm(truth, np.column_stack([i, j]), sigma)
+        out["rmse_over_crlb"] = rmse / out["crlb_rmse_mm"]
+        if len(pairs):
+            repeated = np.repeat(pairs, samples.astype(int), axis=0)
+            out["crlb_received_rmse_mm"] = crlb_rmse_mm(truth, repeated, sigma)
+    if len(pairs):
+        central = central_reference(truth, pairs, means, samples)
+        out["central_rmse_mm"] = central.rmse_mm
+        out["central_localized_fraction"] = central.localized_fraction
+        located_by_central = central.localized.sum()
+        out["largest_frame_over_central"] = (
+            float(sizes.max() / located_by_central) if len(sizes) and located_by_central else 0.0
+        )
+    hop_diameter = _hop_diameter(n, i, j)
+    out["hop_diameter"] = hop_diameter
+    phases = _phase_times(sim)
+    out["phase_times_s"] = phases
+    # Done when the last robot declared itself done (the run itself stops at the next whole
+    # second, when the scenario checks).
+    out["done_s"] = phases.get("all_done", math.nan) if out["done_fraction"] == 1 else math.nan
+    if hop_diameter:
+        out["done_over_hop_limit"] = out["done_s"] / (hop_diameter * p.robot.tx_period_s)
+    out["id_redraws"] = int((sim.trace.events_frame().event == "id").sum())
+    return out
+
+
+def _outputs(result: RunResult, out_dir: Path) -> None:
+    from scenarios.figures import frames_figure
+
+    sim, summary = result.sim, result.summary
+    est = estimates_frame(sim)
+    frames_figure(
+        sim.world.positions_mm,
+        est,
+        est.robot[est.role == "root"].to_numpy(),
+        "root",
+        f"localize: {summary.get('frames', '?')} frame(s), RMSE "
+        f"{summary.get('rmse_mm', math.nan):.2f} mm (CRLB "
+        f"{summary.get('crlb_rmse_mm', math.nan):.2f}, central "
+        f"{summary.get('central_rmse_mm', math.nan):.2f})",
+        out_dir / "localize.png",
+    )
+
+
+SCENARIO = Scenario(
+    name="localize",
+    summary="one global frame by root election, multilateration spreading outward and "
+    "distributed refinement, ended by the swarm itself",
+    program=_program,
+    section=LocalizeParams,
+    robots=100,
+    defaults={
+        "duration_s": 600.0,
+        "robot.hardware_uids": False,
+        "robot.tx_period_s": 0.2,
+        "placement.jitter_mm": 2.0,
+    },
+    metrics=_metrics,
+    stop_when=_stop_when,
+    outputs=_outputs,
+    robot_columns=estimates_frame,
+)
