@@ -7,21 +7,24 @@ without any message. Inside its window each phase runs its own message protocol,
 that has nothing to say stays silent (which keeps the channel free for those that do).
 
 Every message starts with the sender's 16-bit ID field (values drawn from ``id_bits`` bits), so
-each reception also refines the distance table (:mod:`protocols.neighbours`).
+each reception also refines the distance table (:mod:`protocols.neighbours`): layouts are built
+with :func:`gcs_layout`, which puts that field first, and :func:`sender_of` reads it from any
+of them.
 """
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
-from kilonet.message import Message
+from kilonet.message import Layout, Message
 from kilonet.params import param
 
 if TYPE_CHECKING:
     from protocols.gcs import GcsRobot
 
-__all__ = ["PHASES", "GcsParams", "Phase"]
+__all__ = ["PHASES", "GcsParams", "Phase", "gcs_layout", "sender_of"]
 
 #: Phase names in order; ``gcs.until`` names the last one to run.
 PHASES = ("ids", "seeds", "frames", "localization", "groups", "merge")
@@ -32,9 +35,7 @@ class GcsParams:
     """Parameters of the global-coordinate-system protocol (section ``gcs``)."""
 
     section_name = "gcs"
-    until: Literal["ids", "seeds", "frames", "localization", "groups", "merge"] = param(
-        "merge", doc="last phase to run"
-    )
+    until: Literal[PHASES] = param("merge", doc="last phase to run")
     id_bits: int = param(8, lo=2, hi=15, doc="random IDs are drawn from this many bits")
     # Windows sized on lossless runs with a margin: on a 1,000-robot lattice the last frame
     # was built 17.7 s into phase 3, the last robot located 9.0 s into phase 4, the last groups
@@ -102,6 +103,37 @@ class GcsParams:
     )
 
 
+#: The field every message of the protocol starts with: the sender's ID.
+_SENDER_FIELD = ("sender", "H")
+_SENDER = struct.Struct("<H")
+
+
+def gcs_layout(
+    name: str, *, type: int, fields: list[tuple[str, str] | tuple[str, str, float]]
+) -> Layout:
+    """A message layout of the protocol: the sender's ID (``sender``, uint16) and then
+    ``fields`` (as :class:`kilonet.message.Layout` takes them).
+
+    Raises
+    ------
+    kilonet.message.PayloadError
+        If the sender and ``fields`` take more than the 9-byte payload.
+
+    Examples
+    --------
+    >>> HELLO = gcs_layout("hello", type=99, fields=[("hops", "B")])
+    >>> message = HELLO.pack(sender=513, hops=2)
+    >>> len(message.data), sender_of(message)
+    (3, 513)
+    """
+    return Layout(name, type=type, fields=[_SENDER_FIELD, *fields])
+
+
+def sender_of(message: Message) -> int:
+    """The sender's ID of any message built by a :func:`gcs_layout` layout."""
+    return _SENDER.unpack_from(message.data)[0]
+
+
 class Phase:
     """One phase of the protocol on one robot. Subclasses override what they use."""
 
@@ -111,6 +143,18 @@ class Phase:
     def __init__(self, robot: GcsRobot) -> None:
         self.robot = robot
         self.params: GcsParams = robot.params
+
+    @staticmethod
+    def window_s(p: GcsParams) -> float:
+        """Length of the phase's window for parameters ``p``, s (``inf``: the phase ends by
+        itself). Every phase of :data:`protocols.gcs.PHASE_SEQUENCE` defines it.
+
+        Raises
+        ------
+        NotImplementedError
+            On a phase that does not define it.
+        """
+        raise NotImplementedError("a Phase subclass must define window_s(params)")
 
     def start(self) -> None:
         """Called when the phase's window opens on this robot."""

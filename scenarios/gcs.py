@@ -18,6 +18,10 @@ robots build their own IDs) and measures each phase against ground truth:
   the swarm flagged itself (:mod:`protocols.split_detection`); ``recoveries`` and
   ``edge_seeds`` (:mod:`protocols.recovery`). ``robots.csv`` carries the same per robot.
 
+Every figure comes from one read of each robot's :meth:`~protocols.gcs.GcsRobot.outcome` at
+the end of the run (:func:`run_outcomes`), shared by the summary, ``robots.csv``'s columns and
+the figure.
+
 The run ends when every seed is done merging, no recovery is pending, and the robots have had
 a few seconds to check their neighbours without finding a split boundary that a recovery
 would act on (while one lasts, the run waits for it to clear or to start a recovery).
@@ -26,6 +30,8 @@ would act on (while one lasts, the run waits for it to clear or to start a recov
 from __future__ import annotations
 
 import math
+import weakref
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,20 +47,17 @@ from kilonet.geometry import crlb_rmse_mm
 from kilonet.simulation import Simulation
 from kilonet.topology import failure_cases, rigidity_facts
 from kilonet.visibility import communication_graph, visible_pairs
-from protocols.gcs import GcsRobot, phase_windows_s
+from protocols.frame_keys import FrameKey
+from protocols.gcs import GcsRobot, RobotOutcome, phase_windows_s
 from protocols.gcs_base import GcsParams
 from scenarios.base import RunResult, Scenario
 from scenarios.prediction import predict_from_seeds
 
-__all__ = ["SCENARIO", "estimates_frame", "local_frames_frame"]
+__all__ = ["SCENARIO", "RunOutcomes", "estimates_frame", "local_frames_frame", "run_outcomes"]
 
 
 def _program(params: Any, positions: np.ndarray):
     return lambda _i: GcsRobot(params.scenario)
-
-
-def _windows(sim: Simulation) -> list[tuple[str, float, float]]:
-    return phase_windows_s(sim.params.scenario)
 
 
 #: After the last seed is done, the time robots get to exchange positions (a settled robot
@@ -63,8 +66,7 @@ _CHECK_S = 5.0
 
 
 def _stop_when(sim: Simulation) -> bool:
-    windows = _windows(sim)
-    name, start, end = windows[-1]
+    name, start, end = phase_windows_s(sim.params.scenario)[-1]
     now = sim.env.now
     if name != "merge":
         return now >= end + 1.0  # a second more, so every robot has closed the last window
@@ -74,64 +76,95 @@ def _stop_when(sim: Simulation) -> bool:
     if now <= start or not seeds or not all(r.merge_done for r in seeds):
         return False
     # Nothing more will happen: every robot merges in the same epoch, no recovery is announced
-    # or about to be (a split boundary that will be acted on), and since the last seed was done
-    # the robots have had the time to check their neighbours (split_detection).
-    p = sim.params.scenario
-    if len({r.epoch for r in robots}) > 1 or any(
-        r.phase_name != "merge"
-        or r.recovery.pending
-        or (r.check is not None and r.check.boundary_since is not None and r.epoch < p.recoveries)
-        for r in robots
-    ):
+    # or about to be, and since the last seed was done the robots have had the time to check
+    # their neighbours (split_detection).
+    if len({r.epoch for r in robots}) > 1:
         return False
-    settled_s = max(r.phase.done_since for r in seeds) / robots[0].ticks_per_s
-    return now - settled_s >= _CHECK_S
+    if any(r.phase_name != "merge" or r.awaiting_recovery() for r in robots):
+        return False
+    return now - max(r.merge_done_at_s for r in seeds) >= _CHECK_S
 
 
-def _seed_robot_by_key(sim: Simulation) -> dict[int, int]:
-    """Which robot (index) is the seed of each frame key (ground truth, for tables)."""
-    return {r.frame_key(r.uid): i for i, r in enumerate(sim.robots) if r.is_seed}
+@dataclass(frozen=True)
+class RunOutcomes:
+    """The robots' outcomes at the end of a run, and the tables the scenario makes of them.
+
+    Attributes
+    ----------
+    robots : list of RobotOutcome
+        One per robot, by index.
+    seed_robot : dict
+        Which robot (index) is the seed of each frame key (ground truth, for tables).
+    estimates : DataFrame
+        :func:`estimates_frame`'s table.
+    """
+
+    robots: list[RobotOutcome]
+    seed_robot: dict[FrameKey, int]
+    estimates: pd.DataFrame
+
+
+#: Outcomes already read, per simulation: (simulated time they were read at, outcomes).
+_READ: weakref.WeakKeyDictionary[Simulation, tuple[float, RunOutcomes]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def run_outcomes(sim: Simulation) -> RunOutcomes:
+    """Every robot's :meth:`~protocols.gcs.GcsRobot.outcome`, read once per simulated moment:
+    the summary, ``robots.csv`` and the figure of a run all use the same read."""
+    read = _READ.get(sim)
+    if read is not None and read[0] == sim.env.now:
+        return read[1]
+    robots = [r.outcome() for r in sim.robots]
+    seed_robot = {o.own_key: i for i, o in enumerate(robots) if o.is_seed}
+    outcomes = RunOutcomes(robots, seed_robot, _estimates(robots, seed_robot))
+    _READ[sim] = (sim.env.now, outcomes)
+    return outcomes
+
+
+def _estimates(robots: list[RobotOutcome], seed_robot: dict[FrameKey, int]) -> pd.DataFrame:
+    rows = []
+    for i, o in enumerate(robots):
+        est = o.position
+        rows.append(
+            {
+                "robot": i,
+                "uid": o.uid,
+                "role": o.role,
+                "frames": len(o.local_positions),
+                "est_x_mm": est[0] if est else math.nan,
+                "est_y_mm": est[1] if est else math.nan,
+                "frame": "" if o.root is None else f"root{o.root.number}",
+                "localized": est is not None,
+                "seed_of_frame": seed_robot.get(o.own_key, -1) if o.is_seed else -1,
+                # Failure cases as this robot ended (thesis §7) and what the swarm detected.
+                "unlocalizable": not o.local_positions,
+                "isolated_seed": o.isolated_seed,
+                "split_boundary": o.split_boundary,
+                "inconsistent": o.inconsistent,
+                "edge_seed": o.edge_seed,
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def estimates_frame(sim: Simulation) -> pd.DataFrame:
+    """Per robot: truth, role, ID, frames held, global estimate, final frame label (``root``
+    and :attr:`protocols.frame_keys.Root.number`), failure flags: ``robots.csv``'s columns."""
+    return run_outcomes(sim).estimates
 
 
 def local_frames_frame(sim: Simulation) -> pd.DataFrame:
     """Long table of local positions: ``robot, seed_robot, local_x_mm, local_y_mm``."""
-    seeds = _seed_robot_by_key(sim)
+    outcomes = run_outcomes(sim)
+    seeds = outcomes.seed_robot
     rows = [
         (i, seeds.get(key, -1), x, y)
-        for i, r in enumerate(sim.robots)
-        for key, (x, y) in sorted(r.frames.items())
+        for i, o in enumerate(outcomes.robots)
+        for key, (x, y) in sorted(o.local_positions.items())
     ]
     return pd.DataFrame(rows, columns=["robot", "seed_robot", "local_x_mm", "local_y_mm"])
-
-
-def estimates_frame(sim: Simulation) -> pd.DataFrame:
-    """Per robot: truth, role, ID, frames held, global estimate, final frame label."""
-    seeds = _seed_robot_by_key(sim)
-    rows = []
-    for i, r in enumerate(sim.robots):
-        est = r.global_position() if hasattr(r, "transforms") else None
-        root = r.global_root if est is not None else None
-        check = getattr(r, "check", None)
-        rows.append(
-            {
-                "robot": i,
-                "uid": r.uid,
-                "role": r.role,
-                "frames": len(r.frames),
-                "est_x_mm": est[0] if est else math.nan,
-                "est_y_mm": est[1] if est else math.nan,
-                "frame": "" if root is None else f"root{root}",
-                "localized": est is not None,
-                "seed_of_frame": seeds.get(r.frame_key(r.uid), -1) if r.is_seed else -1,
-                # Failure cases as this robot ended (thesis §7) and what the swarm detected.
-                "unlocalizable": not r.frames,
-                "isolated_seed": r.is_seed and not r.partners,
-                "split_boundary": check is not None and check.on_split_boundary,
-                "inconsistent": check is not None and bool(check.inconsistent),
-                "edge_seed": r.edge_seed,
-            }
-        )
-    return pd.DataFrame(rows)
 
 
 def _pooled_rmse(groups: list[tuple[np.ndarray, np.ndarray]]) -> float:
@@ -144,13 +177,19 @@ def _pooled_rmse(groups: list[tuple[np.ndarray, np.ndarray]]) -> float:
     return math.sqrt(squared / count) if count else math.nan
 
 
-def _failures(sim: Simulation) -> dict[str, Any]:
+def _per_frame(table: pd.DataFrame, by: str, xy: list[str], truth: np.ndarray) -> list:
+    """``(estimates, truth)`` per group of ``table`` by column ``by``, for :func:`_pooled_rmse`."""
+    return [(g[xy].to_numpy(), truth[g.robot.to_numpy()]) for _, g in table.groupby(by)]
+
+
+def _failures(sim: Simulation, outcomes: RunOutcomes) -> dict[str, Any]:
     """The thesis's failure cases as this run produced them (robot indices), with the
     communication graph's rigidity facts that explain them."""
-    seeds = _seed_robot_by_key(sim)
-    located = {i: [seeds[k] for k in r.frames if k in seeds] for i, r in enumerate(sim.robots)}
+    seeds = outcomes.seed_robot
+    robots = outcomes.robots
+    located = {i: [seeds[k] for k in o.local_positions if k in seeds] for i, o in enumerate(robots)}
     groups = [
-        (seeds[a], seeds[b]) for r in sim.robots for a, b in r.groups if a in seeds and b in seeds
+        (seeds[a], seeds[b]) for o in robots for a, b in o.groups if a in seeds and b in seeds
     ]
     cases = failure_cases(range(sim.n_robots), located, sorted(seeds.values()), groups)
     p = sim.params.medium
@@ -167,111 +206,115 @@ def _failures(sim: Simulation) -> dict[str, Any]:
     }
 
 
+def _duplicate_ids(uids: np.ndarray, i: np.ndarray, j: np.ndarray) -> int:
+    """Neighbours (pairs ``i``, ``j``) sharing an ID, plus two robots with one ID seen by a
+    common neighbour."""
+    duplicates = int(np.sum(uids[i] == uids[j]))
+    for k in range(len(uids)):
+        near = np.concatenate([j[i == k], i[j == k]])
+        duplicates += len(near) - len(set(uids[near].tolist()))
+    return duplicates
+
+
+def _prediction(sim: Simulation, robots: list[RobotOutcome]) -> dict[str, Any]:
+    """What the geometry and phase 2's election predicted (scenarios.prediction), to report
+    next to what happened: the topology sweep compares the two."""
+    elected = [k for k, o in enumerate(robots) if o.is_seed and not o.edge_seed]
+    keys = {k: robots[k].own_key for k in elected}
+    prediction = predict_from_seeds(sim.world.positions_mm, sim.params, elected, keys)
+    names = ("final_frames", "unlocalizable", "isolated_seeds", "boundary")
+    return {name: prediction[name] for name in names}
+
+
+def _merge_metrics(
+    sim: Simulation, outcomes: RunOutcomes, i: np.ndarray, j: np.ndarray, counts: dict
+) -> dict[str, Any]:
+    """Final frames, localized share, RMSE and the bound, rounds, recoveries, detection."""
+    truth = sim.world.positions_mm
+    robots, est = outcomes.robots, outcomes.estimates
+    done = est[est.localized]
+    sizes = done.groupby("frame").size()
+    seeds = [o for o in robots if o.is_seed]
+    return {
+        "localized_fraction": len(done) / sim.n_robots,
+        "frames": len(sizes),
+        "largest_frame_fraction": float(sizes.max() / sim.n_robots) if len(sizes) else 0,
+        "rmse_mm": _pooled_rmse(_per_frame(done, "frame", ["est_x_mm", "est_y_mm"], truth)),
+        "crlb_rmse_mm": crlb_rmse_mm(truth, np.column_stack([i, j]), sim.params.ranging.sigma_mm),
+        "merge_rounds": int(counts.get("merge_round", 0)),
+        "merge_rounds_max_per_seed": int(max((o.merge_rounds for o in seeds), default=0)),
+        "seeds_done": int(sum(o.merge_done for o in seeds)),
+        "recoveries": int(max(o.epoch for o in robots)),
+        "edge_seeds": int(est.edge_seed.sum()),
+        "detected": {
+            "split_boundary": est.robot[est.split_boundary].tolist(),
+            "inconsistent": est.robot[est.inconsistent].tolist(),
+        },
+    }
+
+
+def _boundary(est: pd.DataFrame, i: np.ndarray, j: np.ndarray) -> list[int]:
+    """The truth the swarm's detection is judged by: robots with a neighbour (line of sight)
+    whose estimate ended in another final frame."""
+    label = est.frame.to_numpy()
+    split = (label[i] != "") & (label[j] != "") & (label[i] != label[j])
+    return sorted({int(k) for k in np.concatenate([i[split], j[split]])})
+
+
 def _metrics(sim: Simulation) -> dict[str, Any]:
-    windows = _windows(sim)
-    robots = sim.robots
+    windows = phase_windows_s(sim.params.scenario)
+    outcomes = run_outcomes(sim)
+    robots = outcomes.robots
     truth = sim.world.positions_mm
     events = sim.trace.events_frame()
     counts = events["event"].value_counts().to_dict() if len(events) else {}
-    i, j, _ = visible_pairs(
-        truth, sim.params.medium.range_mm, line_of_sight=sim.params.medium.line_of_sight
-    )
-    uids = np.array([r.uid for r in robots])
-    # Two robots with one ID seen by a common neighbour, or neighbours sharing an ID.
-    duplicates = int(np.sum(uids[i] == uids[j]))
-    for k in range(sim.n_robots):
-        near = np.concatenate([j[i == k], i[j == k]])
-        duplicates += len(near) - len(set(uids[near].tolist()))
-    phase_times = {}
+    medium = sim.params.medium
+    i, j, _ = visible_pairs(truth, medium.range_mm, line_of_sight=medium.line_of_sight)
     now = sim.env.now
-    for name, start, end in windows:
-        if now >= start:
-            phase_times[name] = round(min(now, end) - start, 3)
+    reached = {name for name, start, _ in windows if now >= start}
     out: dict[str, Any] = {
         "mean_neighbours": 2.0 * len(i) / sim.n_robots,  # in the line-of-sight graph
         "phases_run": [name for name, _, _ in windows],
-        "phase_times_s": phase_times,
-        "ids_duplicate_neighbours": duplicates,
+        "phase_times_s": {
+            name: round(min(now, end) - start, 3) for name, start, end in windows if now >= start
+        },
+        "ids_duplicate_neighbours": _duplicate_ids(np.array([o.uid for o in robots]), i, j),
         "ids_redraws": int(counts.get("id", 0)),
     }
-    reached = {name for name, start, _ in windows if now >= start}
     if "seeds" in reached:
-        out["seeds"] = int(sum(r.is_seed for r in robots))
+        out["seeds"] = int(sum(o.is_seed for o in robots))
         out["seed_check_failed"] = int(counts.get("seed_check_failed", 0))
     if "frames" in reached:
-        out["seeds_with_frame"] = int(sum(bool(r.references) for r in robots))
+        out["seeds_with_frame"] = int(sum(o.has_frame for o in robots))
         out["busy_resets"] = int(counts.get("busy_reset", 0))
     if "localization" in reached:
         local = local_frames_frame(sim)
-        located = local.robot.nunique()
-        per_frame = [
-            (g[["local_x_mm", "local_y_mm"]].to_numpy(), truth[g.robot.to_numpy()])
-            for _, g in local.groupby("seed_robot")
-        ]
-        out["locally_localized_fraction"] = located / sim.n_robots
+        out["locally_localized_fraction"] = local.robot.nunique() / sim.n_robots
         out["mean_frames_per_robot"] = len(local) / sim.n_robots
-        out["local_rmse_mm"] = _pooled_rmse(per_frame)
+        out["local_rmse_mm"] = _pooled_rmse(
+            _per_frame(local, "seed_robot", ["local_x_mm", "local_y_mm"], truth)
+        )
         out["fix_rejections"] = int(counts.get("fix_rejected", 0))
     if "groups" in reached:
-        out["merging_groups"] = int(sum(len(r.groups) for r in robots))
-        out["failures"] = _failures(sim)
-        # What the geometry and phase 2's election predicted (scenarios.prediction), next to
-        # what happened: the topology sweep compares the two.
-        elected = [k for k, r in enumerate(robots) if r.is_seed and not r.edge_seed]
-        keys = {k: robots[k].frame_key(robots[k].uid) for k in elected}
-        prediction = predict_from_seeds(truth, sim.params, elected, keys)
-        out["predicted"] = {
-            "final_frames": prediction["final_frames"],
-            "unlocalizable": prediction["unlocalizable"],
-            "isolated_seeds": prediction["isolated_seeds"],
-            "boundary": prediction["boundary"],
-        }
+        out["merging_groups"] = int(sum(len(o.groups) for o in robots))
+        out["failures"] = _failures(sim, outcomes)
+        out["predicted"] = _prediction(sim, robots)
     if "merge" in reached:
-        est = estimates_frame(sim)
-        done = est[est.localized]
-        per_frame = [
-            (g[["est_x_mm", "est_y_mm"]].to_numpy(), truth[g.robot.to_numpy()])
-            for _, g in done.groupby("frame")
-        ]
-        sizes = done.groupby("frame").size()
-        edges = np.column_stack([i, j])
-        out.update(
-            {
-                "localized_fraction": len(done) / sim.n_robots,
-                "frames": len(sizes),
-                "largest_frame_fraction": float(sizes.max() / sim.n_robots) if len(sizes) else 0,
-                "rmse_mm": _pooled_rmse(per_frame),
-                "crlb_rmse_mm": crlb_rmse_mm(truth, edges, sim.params.ranging.sigma_mm),
-                "merge_rounds": int(counts.get("merge_round", 0)),
-                "merge_rounds_max_per_seed": int(
-                    max((r.phase.rounds for r in robots if r.is_seed and r.phase), default=0)
-                ),
-                "seeds_done": int(sum(r.merge_done for r in robots if r.is_seed)),
-                "recoveries": int(max(r.epoch for r in robots)),
-                "edge_seeds": int(est.edge_seed.sum()),
-                "detected": {
-                    "split_boundary": est.robot[est.split_boundary].tolist(),
-                    "inconsistent": est.robot[est.inconsistent].tolist(),
-                },
-            }
-        )
-        # The truth the swarm's detection is judged by: robots with a neighbour (line of
-        # sight) whose estimate ended in another final frame.
-        label = est.frame.to_numpy()
-        split = (label[i] != "") & (label[j] != "") & (label[i] != label[j])
-        boundary = sorted({int(k) for k in np.concatenate([i[split], j[split]])})
-        out.setdefault("failures", {})["boundary"] = boundary
+        out.update(_merge_metrics(sim, outcomes, i, j, counts))
+        out.setdefault("failures", {})["boundary"] = _boundary(outcomes.estimates, i, j)
     return out
 
 
 def _outputs(result: RunResult, out_dir: Path) -> None:
     sim = result.sim
     local_frames_frame(sim).to_csv(out_dir / "local_frames.csv", index=False)
-    _figure(sim, estimates_frame(sim), out_dir / "gcs.png")
+    _figure(sim, run_outcomes(sim), result.summary, out_dir / "gcs.png")
 
 
-def _figure(sim: Simulation, est: pd.DataFrame, path: Path) -> None:
-    truth = sim.world.positions_mm
+def _figure(sim: Simulation, outcomes: RunOutcomes, summary: dict[str, Any], path: Path) -> None:
+    """Truth, each final frame's estimates aligned to it, and the seeds; the title gives the
+    summary's frame count and RMSE."""
+    truth, est = sim.world.positions_mm, outcomes.estimates
     fig, ax = plt.subplots(figsize=(7, 7))
     ax.scatter(truth[:, 0], truth[:, 1], s=40, facecolors="none", edgecolors="0.6", label="truth")
     done = est[est.localized]
@@ -287,12 +330,11 @@ def _figure(sim: Simulation, est: pd.DataFrame, path: Path) -> None:
         ax.scatter(aligned[:, 0], aligned[:, 1], s=14, color=color, label=f"frame {label}")
         for (x0, y0), (x1, y1) in zip(truth[idx], aligned, strict=True):
             ax.plot([x0, x1], [y0, y1], color="red", lw=0.8)
-    seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
+    seeds = [i for i, o in enumerate(outcomes.robots) if o.is_seed]
     ax.scatter(truth[seeds, 0], truth[seeds, 1], marker="x", s=30, c="k", label="seeds")
     ax.set_aspect("equal")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
-    summary = _metrics(sim)
     ax.set_title(
         f"global coordinate system: {summary.get('frames', '?')} frame(s), "
         f"RMSE {summary.get('rmse_mm', math.nan):.2f} mm"

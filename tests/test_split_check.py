@@ -3,69 +3,58 @@ neighbour stops reporting or the robot itself is merging again, and only a bound
 ``gcs.split_confirm_s`` asks for a recovery.
 
 The robot here is a stand-in exposing exactly what :class:`SplitCheck` reads of a
-:class:`protocols.gcs.GcsRobot` (its clock, table, frames and log); the end-to-end behaviour is
-covered by tests/test_thesis_cases.py.
+:class:`protocols.gcs.GcsRobot` (its clock, table, log and a real
+:class:`~protocols.global_estimate.GlobalEstimate`); the end-to-end behaviour is covered by
+tests/test_thesis_cases.py.
 """
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
+import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
+from protocols.frame_keys import FrameKey, Rank, Root
+from protocols.frame_merging import Transform, version_byte
 from protocols.gcs_base import GcsParams
+from protocols.global_estimate import GlobalEstimate
 from protocols.neighbours import NeighbourTable
 from protocols.split_detection import POS, SplitCheck
 
-OWN_ROOT = 3 << 8
-OTHER_ROOT = 9 << 8
+OWN = FrameKey(3, 0)
+OWN_ROOT = Root(False, OWN)
+OTHER_ROOT = Root(False, FrameKey(9, 0))
 TPS = 32
 
 
 class StandInRobot:
     def __init__(self) -> None:
         self.params = GcsParams(split_confirm_s=20.0, recoveries=2)
+        self.uid = 1
         self.kilo_ticks = 0
         self.ticks_per_s = TPS
         self.epoch = 0
-        # As GcsRobot: merge_state moves whenever what global_frames() reads changes.
-        self.merge_state = 0
-        self.frames = {OWN_ROOT: (0.0, 0.0)}
-        self.settled = True
         self.events: list[str] = []
         self.table = NeighbourTable()
         self.table.heard(5, 40.0)
-        self.transforms = {OWN_ROOT: SimpleNamespace(done=True)}
+        # Located at the origin of its own frame, which is the root and done merging.
+        self.estimate = GlobalEstimate()
+        self.estimate.locate(OWN, (0.0, 0.0))
+        self.estimate.hear_rank(OWN, Rank.own(OWN, edge=False))
+        self.merge_again(done=True)
 
-    @property
-    def settled(self) -> bool:
-        return self._settled
-
-    @settled.setter
-    def settled(self, value: bool) -> None:
-        self._settled = value
-        self.merge_state += 1
-
-    @property
-    def estimate_state(self):
-        return self.merge_state, len(self.frames)
-
-    def global_frames(self):
-        return (OWN_ROOT, [OWN_ROOT]) if self.settled else (None, [])
-
-    @property
-    def global_root(self):
-        return self.global_frames()[0]
-
-    def global_position(self):
-        return (0.0, 0.0)
+    def merge_again(self, *, done: bool) -> None:
+        """Its seed broadcasts a new version of the transform, done or not."""
+        self.estimate.hear_transform(
+            OWN, Transform(np.zeros(3), version_byte(1, done), rotation=Rotation.identity())
+        )
 
     def log(self, event: str, **fields) -> None:
         self.events.append(event)
 
 
-def _pos_from_5(root: int):
-    return POS.pack(sender=5, x_mm=40.0, y_mm=0.0, root=root >> 8, root_salt=root & 0xFF)
+def _pos_from_5(root: Root, x_mm: float = 40.0):
+    return POS.pack(sender=5, x_mm=x_mm, y_mm=0.0, root=root.wire_id, root_salt=root.key.salt)
 
 
 @pytest.fixture
@@ -103,7 +92,8 @@ def test_a_robot_merging_again_drops_its_flags(robot_and_check):
     robot, check = robot_and_check
     check.message_rx(_pos_from_5(OTHER_ROOT))
     _advance(robot, 1.0)
-    robot.settled = False  # one of its seeds resumed merging
+    robot.merge_again(done=False)  # its seed resumed merging
+    assert not robot.estimate.settled()
     assert not check.wants_recovery()
     assert not check.on_split_boundary and check.boundary_since is None
 
@@ -112,7 +102,14 @@ def test_same_root_at_the_measured_distance_is_no_boundary(robot_and_check):
     _, check = robot_and_check
     check.message_rx(_pos_from_5(OWN_ROOT))
     assert not check.on_split_boundary and not check.inconsistent
-    check.message_rx(
-        POS.pack(sender=5, x_mm=60.0, y_mm=0.0, root=OWN_ROOT >> 8, root_salt=0)
-    )  # 60 mm computed, 40 mm measured: more than check_tolerance_mm
+    # 60 mm computed, 40 mm measured: more than check_tolerance_mm
+    check.message_rx(_pos_from_5(OWN_ROOT, x_mm=60.0))
     assert check.inconsistent == {5: pytest.approx(20.0)}
+
+
+def test_an_edge_root_is_another_frame(robot_and_check):
+    # The same frame key as the robot's root, but an edge seed's: ranks order it last, so it
+    # is another merged frame (bit 15 of the POS root field carries it).
+    _, check = robot_and_check
+    check.message_rx(_pos_from_5(Root(True, OWN)))
+    assert check.other_frame == {5: Root(True, OWN)}
