@@ -817,13 +817,24 @@ class SeedRounds:
             return
         if HINT.matches(message):
             self._take_hint(HINT.unpack(message))
-            return
-        if self.asking is None:
-            return
+        elif self.asking is not None and self._collect(message):
+            rot, shift, error = (self.received[k] for k in ("rot", "shift", "error"))
+            self._apply(
+                rotation_from_fields(rot.q0, rot.q1, rot.q2),
+                np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm]),
+                error.error_mm,
+                Rank.from_wire(error.partner_root, error.partner_root_salt, error.partner_hops),
+            )
+
+    def _collect(self, message: Message) -> bool:
+        """Keep ``message`` if it is part of the running round's answer; ``True`` once the
+        answer is complete.
+
+        A member answers one seed at a time, ANS_ERROR first: it names the seed (an answer to
+        another seed that drew the same tag is refused), and the rotation and shift that
+        follow it from that member belong to the same answer.
+        """
         member, _ = self.asking
-        # A member answers one seed at a time, ANS_ERROR first: it names the seed (an answer to
-        # another seed that drew the same tag is refused), and the rotation and shift that
-        # follow it from that member belong to the same answer.
         kind = message.type
         if kind == ANS_ERROR.type:
             m = ANS_ERROR.unpack(message)
@@ -834,14 +845,7 @@ class SeedRounds:
             m = layout.unpack(message)
             if m.sender == member and m.tag == self.tag:
                 self.received[part] = m
-        if len(self.received) == 3:
-            rot, shift, error = (self.received[k] for k in ("rot", "shift", "error"))
-            self._apply(
-                rotation_from_fields(rot.q0, rot.q1, rot.q2),
-                np.array([shift.vx_mm, shift.vy_mm, shift.vz_mm]),
-                error.error_mm,
-                Rank.from_wire(error.partner_root, error.partner_root_salt, error.partner_hops),
-            )
+        return len(self.received) == 3
 
     def _take_hint(self, m) -> None:
         """A member says partner K ranks better than this seed: the next round asks K through

@@ -70,19 +70,23 @@ def _stop_when(sim: Simulation) -> bool:
     now = sim.env.now
     if name != "merge":
         return now >= end + 1.0  # a second more, so every robot has closed the last window
+    if now <= start:
+        return False
     running = sim.world.running
     robots = [r for i, r in enumerate(sim.robots) if running[i]]  # a crashed seed is never done
     seeds = [r for r in robots if r.is_seed]
-    if now <= start or not seeds or not all(r.merge_done for r in seeds):
+    return _merging_over(robots, seeds) and now - max(r.merge_done_at_s for r in seeds) >= _CHECK_S
+
+
+def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
+    """Nothing more will happen: every seed is done, every robot merges in the same epoch, and
+    no recovery is announced or about to be (the robots then get :data:`_CHECK_S` to check
+    their neighbours, :mod:`protocols.split_detection`)."""
+    if not seeds or not all(r.merge_done for r in seeds):
         return False
-    # Nothing more will happen: every robot merges in the same epoch, no recovery is announced
-    # or about to be, and since the last seed was done the robots have had the time to check
-    # their neighbours (split_detection).
     if len({r.epoch for r in robots}) > 1:
         return False
-    if any(r.phase_name != "merge" or r.awaiting_recovery() for r in robots):
-        return False
-    return now - max(r.merge_done_at_s for r in seeds) >= _CHECK_S
+    return not any(r.phase_name != "merge" or r.awaiting_recovery() for r in robots)
 
 
 @dataclass(frozen=True)
@@ -226,31 +230,89 @@ def _prediction(sim: Simulation, robots: list[RobotOutcome]) -> dict[str, Any]:
     return {name: prediction[name] for name in names}
 
 
-def _merge_metrics(
-    sim: Simulation, outcomes: RunOutcomes, i: np.ndarray, j: np.ndarray, counts: dict
-) -> dict[str, Any]:
+@dataclass(frozen=True)
+class _Run:
+    """What the metrics of one run are computed from."""
+
+    sim: Simulation
+    outcomes: RunOutcomes
+    counts: dict[str, int]  # events logged, by name
+    i: np.ndarray  # pairs of robots in range and line of sight
+    j: np.ndarray
+
+    @property
+    def robots(self) -> list[RobotOutcome]:
+        return self.outcomes.robots
+
+    @property
+    def truth(self) -> np.ndarray:
+        return self.sim.world.positions_mm
+
+    def count(self, event: str) -> int:
+        return int(self.counts.get(event, 0))
+
+
+def _seed_metrics(run: _Run, out: dict[str, Any]) -> None:
+    out["seeds"] = int(sum(o.is_seed for o in run.robots))
+    out["seed_check_failed"] = run.count("seed_check_failed")
+
+
+def _frame_metrics(run: _Run, out: dict[str, Any]) -> None:
+    out["seeds_with_frame"] = int(sum(o.has_frame for o in run.robots))
+    out["busy_resets"] = run.count("busy_reset")
+
+
+def _localization_metrics(run: _Run, out: dict[str, Any]) -> None:
+    local, n = local_frames_frame(run.sim), run.sim.n_robots
+    out["locally_localized_fraction"] = local.robot.nunique() / n
+    out["mean_frames_per_robot"] = len(local) / n
+    xy = ["local_x_mm", "local_y_mm"]
+    out["local_rmse_mm"] = _pooled_rmse(_per_frame(local, "seed_robot", xy, run.truth))
+    out["fix_rejections"] = run.count("fix_rejected")
+
+
+def _group_metrics(run: _Run, out: dict[str, Any]) -> None:
+    out["merging_groups"] = int(sum(len(o.groups) for o in run.robots))
+    out["failures"] = _failures(run.sim, run.outcomes)
+    out["predicted"] = _prediction(run.sim, run.robots)
+
+
+def _merge_metrics(run: _Run, out: dict[str, Any]) -> None:
     """Final frames, localized share, RMSE and the bound, rounds, recoveries, detection."""
-    truth = sim.world.positions_mm
-    robots, est = outcomes.robots, outcomes.estimates
+    sim, robots, est = run.sim, run.robots, run.outcomes.estimates
+    n, sigma_mm = sim.n_robots, sim.params.ranging.sigma_mm
     done = est[est.localized]
     sizes = done.groupby("frame").size()
     seeds = [o for o in robots if o.is_seed]
-    return {
-        "localized_fraction": len(done) / sim.n_robots,
-        "frames": len(sizes),
-        "largest_frame_fraction": float(sizes.max() / sim.n_robots) if len(sizes) else 0,
-        "rmse_mm": _pooled_rmse(_per_frame(done, "frame", ["est_x_mm", "est_y_mm"], truth)),
-        "crlb_rmse_mm": crlb_rmse_mm(truth, np.column_stack([i, j]), sim.params.ranging.sigma_mm),
-        "merge_rounds": int(counts.get("merge_round", 0)),
-        "merge_rounds_max_per_seed": int(max((o.merge_rounds for o in seeds), default=0)),
-        "seeds_done": int(sum(o.merge_done for o in seeds)),
-        "recoveries": int(max(o.epoch for o in robots)),
-        "edge_seeds": int(est.edge_seed.sum()),
-        "detected": {
-            "split_boundary": est.robot[est.split_boundary].tolist(),
-            "inconsistent": est.robot[est.inconsistent].tolist(),
-        },
-    }
+    out.update(
+        {
+            "localized_fraction": len(done) / n,
+            "frames": len(sizes),
+            "largest_frame_fraction": float(sizes.max() / n) if len(sizes) else 0,
+            "rmse_mm": _pooled_rmse(_per_frame(done, "frame", ["est_x_mm", "est_y_mm"], run.truth)),
+            "crlb_rmse_mm": crlb_rmse_mm(run.truth, np.column_stack([run.i, run.j]), sigma_mm),
+            "merge_rounds": run.count("merge_round"),
+            "merge_rounds_max_per_seed": int(max((o.merge_rounds for o in seeds), default=0)),
+            "seeds_done": int(sum(o.merge_done for o in seeds)),
+            "recoveries": int(max(o.epoch for o in robots)),
+            "edge_seeds": int(est.edge_seed.sum()),
+            "detected": {
+                "split_boundary": est.robot[est.split_boundary].tolist(),
+                "inconsistent": est.robot[est.inconsistent].tolist(),
+            },
+        }
+    )
+    out.setdefault("failures", {})["boundary"] = _boundary(est, run.i, run.j)
+
+
+#: The metrics of each phase, added to the summary once the run has reached the phase.
+_PHASE_METRICS = (
+    ("seeds", _seed_metrics),
+    ("frames", _frame_metrics),
+    ("localization", _localization_metrics),
+    ("groups", _group_metrics),
+    ("merge", _merge_metrics),
+)
 
 
 def _boundary(est: pd.DataFrame, i: np.ndarray, j: np.ndarray) -> list[int]:
@@ -262,46 +324,27 @@ def _boundary(est: pd.DataFrame, i: np.ndarray, j: np.ndarray) -> list[int]:
 
 
 def _metrics(sim: Simulation) -> dict[str, Any]:
-    windows = phase_windows_s(sim.params.scenario)
-    outcomes = run_outcomes(sim)
-    robots = outcomes.robots
-    truth = sim.world.positions_mm
     events = sim.trace.events_frame()
-    counts = events["event"].value_counts().to_dict() if len(events) else {}
     medium = sim.params.medium
-    i, j, _ = visible_pairs(truth, medium.range_mm, line_of_sight=medium.line_of_sight)
+    i, j, _ = visible_pairs(
+        sim.world.positions_mm, medium.range_mm, line_of_sight=medium.line_of_sight
+    )
+    counts = events["event"].value_counts().to_dict() if len(events) else {}
+    run = _Run(sim, run_outcomes(sim), counts, i, j)
+    windows = phase_windows_s(sim.params.scenario)
     now = sim.env.now
-    reached = {name for name, start, _ in windows if now >= start}
+    reached = [(name, start, end) for name, start, end in windows if now >= start]
     out: dict[str, Any] = {
         "mean_neighbours": 2.0 * len(i) / sim.n_robots,  # in the line-of-sight graph
         "phases_run": [name for name, _, _ in windows],
-        "phase_times_s": {
-            name: round(min(now, end) - start, 3) for name, start, end in windows if now >= start
-        },
-        "ids_duplicate_neighbours": _duplicate_ids(np.array([o.uid for o in robots]), i, j),
-        "ids_redraws": int(counts.get("id", 0)),
+        "phase_times_s": {name: round(min(now, end) - start, 3) for name, start, end in reached},
+        "ids_duplicate_neighbours": _duplicate_ids(np.array([o.uid for o in run.robots]), i, j),
+        "ids_redraws": run.count("id"),
     }
-    if "seeds" in reached:
-        out["seeds"] = int(sum(o.is_seed for o in robots))
-        out["seed_check_failed"] = int(counts.get("seed_check_failed", 0))
-    if "frames" in reached:
-        out["seeds_with_frame"] = int(sum(o.has_frame for o in robots))
-        out["busy_resets"] = int(counts.get("busy_reset", 0))
-    if "localization" in reached:
-        local = local_frames_frame(sim)
-        out["locally_localized_fraction"] = local.robot.nunique() / sim.n_robots
-        out["mean_frames_per_robot"] = len(local) / sim.n_robots
-        out["local_rmse_mm"] = _pooled_rmse(
-            _per_frame(local, "seed_robot", ["local_x_mm", "local_y_mm"], truth)
-        )
-        out["fix_rejections"] = int(counts.get("fix_rejected", 0))
-    if "groups" in reached:
-        out["merging_groups"] = int(sum(len(o.groups) for o in robots))
-        out["failures"] = _failures(sim, outcomes)
-        out["predicted"] = _prediction(sim, robots)
-    if "merge" in reached:
-        out.update(_merge_metrics(sim, outcomes, i, j, counts))
-        out.setdefault("failures", {})["boundary"] = _boundary(outcomes.estimates, i, j)
+    names = {name for name, _, _ in reached}
+    for phase, section in _PHASE_METRICS:
+        if phase in names:
+            section(run, out)
     return out
 
 
