@@ -182,9 +182,10 @@ class GcsRobot(Kilobot):
         The protocol's parameters (time-outs, rules, tolerances).
     """
 
-    # Its state, the phases' shared state included, in slots: with more than 30 attributes an
-    # instance dict is no longer CPython's compact shared-key kind, and every delivery and loop
-    # reads several attributes, robot after robot (docs/gcs.md, "Speed").
+    # Its state, the phases' shared state included, in slots, as FrameMerging's and
+    # SeedRounds': past 30 attributes an instance dict is no longer CPython's compact
+    # shared-key kind, and every delivery and loop reads several attributes, robot after robot
+    # (docs/gcs.md, "Speed").
     __slots__ = (
         "_due_tick",
         "_loops",

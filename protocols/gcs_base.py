@@ -37,12 +37,8 @@ class GcsParams:
     section_name = "gcs"
     until: Literal[PHASES] = param("merge", doc="last phase to run")
     id_bits: int = param(8, lo=2, hi=15, doc="random IDs are drawn from this many bits")
-    # Windows sized on lossless runs with a margin: on a 1,000-robot lattice the last frame
-    # was built 17.7 s into phase 3, the last robot located 9.0 s into phase 4, the last groups
-    # registered 0.1 s into phase 5. Phase 1 keeps its 8 s: IDs settle in 1.3 s, but with 5 s
-    # a 40-robot swarm merged into a frame with a needless recovery epoch, not without. A
-    # lossy channel needs longer ones (20 % loss: ids_s = 12, frames_s = 90,
-    # localization_s = 40).
+    # Windows: lossless runs with a margin; a lossy channel needs longer ones (docs/gcs.md,
+    # "Measured": how much of each window the robots use).
     ids_s: float = param(8.0, lo=0.5, hi=600.0, doc="phase 1 window")
     duplicate_distance_mm: float = param(
         12.0, lo=1.0, hi=200.0, doc="one ID heard at distances this far apart is two robots"
@@ -91,9 +87,8 @@ class GcsParams:
     check_tolerance_mm: float = param(
         8.0, lo=0.1, hi=1000.0, doc="measured and computed neighbour distances agree within this"
     )
-    # Long enough for the root to cross a region that settled on a local root first: at
-    # 1,000 robots a boundary stood for 20 s (and set off a needless recovery) while the root
-    # was still on its way, at about 3 s per frame.
+    # Long enough for the flooding root to cross a region that settled on a local root first
+    # (their boundary looks like a split until it has).
     split_confirm_s: float = param(
         40.0, lo=0.5, hi=3600.0, doc="a split boundary must persist this long to act on it"
     )

@@ -71,11 +71,9 @@ def reference_candidates(
 
     B and C qualify when each lists the other in its table and the two readings of their
     distance agree within ``tolerance_mm``. One direction is not enough: IDs are unique only
-    among neighbours, so B's table may hold a *different* robot with C's ID, two hops from C
-    (measured on a 100-robot lattice: a seed whose references B, C could not see each other,
-    the seed itself standing between them, took the 72 mm from B to C's namesake for |BC| =
-    77 mm; its whole frame came out bent, up to 55 mm off, and merging never settled, 83 mm
-    RMSE). An alias that also lists B, at a matching distance, is far less likely.
+    among neighbours, so B's table may hold a *different* robot with C's ID, two hops from C,
+    and a seed that took that namesake's distance for |BC| bends its whole frame
+    (``docs/gcs.md``). An alias that also lists B, at a matching distance, is far less likely.
 
     Parameters
     ----------
