@@ -1,5 +1,5 @@
-"""Shared parts of the global-coordinate-system program: its parameters, its robot state, and
-the phase interface each phase module implements.
+"""Shared parts of the global-coordinate-system program: its parameters, the layout of its
+messages, and the phase interface each phase module implements.
 
 Phases follow one another on every robot's clock (``kilo_ticks``), as the thesis's counters do:
 the overhead controller starts all robots together, so fixed windows keep the swarm in step
@@ -130,7 +130,13 @@ def sender_of(message: Message) -> int:
 
 
 class Phase:
-    """One phase of the protocol on one robot. Subclasses override what they use."""
+    """One phase of the protocol on one robot.
+
+    A subclass sets ``name`` (one of :data:`PHASES`, or ``"edges"``), defines
+    :meth:`window_s` and overrides the callbacks it uses; :class:`protocols.gcs.GcsRobot`
+    creates it when its window opens and calls :meth:`start`, then the callbacks, then
+    :meth:`finish`.
+    """
 
     __slots__ = ("__dict__", "params", "robot")  # see GcsRobot.__slots__
     name = ""
@@ -162,7 +168,8 @@ class Phase:
         return None
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        """A reception of this phase's message types (the sender's distance is recorded)."""
+        """A reception, of any type, with the measured distance to its sender, mm (the robot
+        records that distance in its neighbour table itself)."""
 
     def loop(self) -> None:
         """Called every loop period while the phase runs."""
