@@ -9,14 +9,13 @@ seed's root and its hops from it (:mod:`protocols.frame_merging`); smaller is be
 
 All three are :class:`~typing.NamedTuple` values, ordered as their fields: ``Rank`` by
 (edge, root ID, root salt, hops), exactly as the integers ``((edge · 2¹⁵ + ID) · 256 + salt) ·
-256 + hops`` the protocol once packed them into. They are dict keys and compared on the
-per-reception path, so they are tuples, whose hashing and comparison run in C: creating one
-costs about 190 ns against 30 ns for packing an int, looking one up in a dict 30 ns against
-13 ns (``timeit`` on the development machine); a frozen dataclass costs 260 ns to create and
-compares in Python. Robots create a neighbour's key once (:meth:`protocols.gcs.GcsRobot.
-frame_key`), and values read off the wire are interned (``from_wire``: a swarm hears the same
-few keys and ranks again and again; a cached one costs 60 ns, building a rank 690 ns), so the
-hot path mostly looks values up.
+256 + hops`` the protocol once packed them into. Why tuples: they are dict keys and compared on
+the per-reception path, and a tuple hashes and compares in C, while a frozen dataclass costs
+more to create and compares in Python; plain ints would be cheaper still but put the packing
+back into every module. To keep creation off that path, robots build a neighbour's key once
+(:meth:`protocols.gcs.GcsRobot.frame_key`) and values read off the wire are interned
+(``from_wire``): a swarm hears the same few keys and ranks again and again. The costs, timed,
+are in ``docs/gcs.md`` ("Speed").
 
 Wire form (little-endian, as :class:`kilonet.message.Layout` packs fields)::
 

@@ -37,8 +37,8 @@ partner is isolated and done at once; after ``gcs.merge_max_rounds`` rounds it g
 stops its rounds if done. ``docs/gcs.md`` says why each rule is there.
 
 Messages (rotations as the three int16 words of :func:`kilonet.alignment.pack_quaternion`;
-shifts int16 in 0.25 mm; frames by their seed's ID and salt, :class:`~protocols.frame_keys.
-FrameKey`; ranks as :meth:`~protocols.frame_keys.Rank.wire`)::
+shifts int16 in 0.25 mm; frames by their seed's ID and salt,
+:class:`~protocols.frame_keys.FrameKey`; ranks as :meth:`~protocols.frame_keys.Rank.wire`)::
 
     type 60 TF_ROT     sender:uint16  version:uint8  q0 q1 q2:int16          9 bytes
     type 61 TF_SHIFT   sender:uint16  version:uint8  vx vy vz:int16          9 bytes
@@ -767,8 +767,9 @@ class SeedRounds:
 
     # -- messages ------------------------------------------------------------------------------
     def message_tx(self) -> Message:
-        """The seed's message at a transmit opportunity (:func:`~protocols.merging_rules.
-        seed_message`); a new round starts first when one is due."""
+        """The seed's message at a transmit opportunity
+        (:func:`~protocols.merging_rules.seed_message`); a new round starts first when one is
+        due."""
         r = self.robot
         now = r.kilo_ticks
         timed_out = now - self.round_start > self.merging.round_ticks

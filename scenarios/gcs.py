@@ -181,7 +181,9 @@ def _pooled_rmse(groups: list[tuple[np.ndarray, np.ndarray]]) -> float:
     return math.sqrt(squared / count) if count else math.nan
 
 
-def _per_frame(table: pd.DataFrame, by: str, xy: list[str], truth: np.ndarray) -> list:
+def _per_frame(
+    table: pd.DataFrame, by: str, xy: list[str], truth: np.ndarray
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """``(estimates, truth)`` per group of ``table`` by column ``by``, for :func:`_pooled_rmse`."""
     return [(g[xy].to_numpy(), truth[g.robot.to_numpy()]) for _, g in table.groupby(by)]
 
