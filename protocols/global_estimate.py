@@ -117,8 +117,8 @@ class GlobalEstimate:
 
     # -- what follows from them --------------------------------------------------------------
     def _refresh(self) -> None:
-        if self._cache_version == self.version:
-            return
+        # Called only when the version moved: asked on every position check heard and every few
+        # loops, a hit must not cost a call.
         self._cache_version = self.version
         self._derived = root, used = self._frames_used()
         self._settled = root is not None and all(self._transforms[k].done for k in used)
@@ -149,12 +149,14 @@ class GlobalEstimate:
         uses: those the robot is located in whose transform and rank it holds, of the smallest
         root (frames of another root have not been merged with them). ``(None, ())`` without
         an estimate."""
-        self._refresh()
+        if self._cache_version != self.version:
+            self._refresh()
         return self._derived
 
     def root(self) -> Root | None:
         """The root of the merged frame the estimate is in (``None`` without an estimate)."""
-        self._refresh()
+        if self._cache_version != self.version:
+            self._refresh()
         return self._derived[0]
 
     def position(self) -> tuple[float, float] | None:
@@ -172,5 +174,6 @@ class GlobalEstimate:
     def settled(self) -> bool:
         """Whether the estimate is final as far as the robot can tell: it has one, and every
         seed whose transform it uses has reported itself done."""
-        self._refresh()
+        if self._cache_version != self.version:
+            self._refresh()
         return self._settled
