@@ -64,8 +64,8 @@ PHASE_SEQUENCE: tuple[type[Phase], ...] = (
     MergingGroups,
     FrameMerging,
 )
-#: gcs_base.sender_of without its Python call: every reception reads the sender (0.8 % of the
-#: instructions of a 100-robot run, docs/gcs.md "Speed").
+#: gcs_base.sender_of without its Python call: every reception reads the sender, and the call
+#: showed in a run's instruction count (docs/gcs.md, "Speed").
 _read_sender = SENDER.unpack_from
 #: What a recovery epoch runs: edge seeds, then phases 3-6 again.
 RECOVERY_SEQUENCE: tuple[type[Phase], ...] = (
