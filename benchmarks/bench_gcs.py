@@ -22,11 +22,11 @@ import argparse
 import dataclasses
 import json
 import os
-import struct
 import time
 
 import scenarios
 from kilonet import Kilobot, Message
+from protocols.gcs_base import gcs_layout, sender_of
 from protocols.neighbours import NeighbourTable
 from scenarios.base import build_params
 
@@ -60,17 +60,18 @@ def run_one(n: int, seed: int, overrides: dict[str, str]) -> dict:
     return figures
 
 
-_SENDER = struct.Struct("<H")
+#: What the floor robots send: their ID first, as every gcs message (4 bytes).
+FLOOR = gcs_layout("floor", type=20, fields=[("padding", "H")])
 
 
 class TrafficFloor(Kilobot):
-    """Offers a 4-byte message (its ID first, as every gcs message) at ``tx_share`` of its
-    transmit opportunities, spread evenly, and counts what it hears."""
+    """Offers a :data:`FLOOR` message at ``tx_share`` of its transmit opportunities, spread
+    evenly, and counts what it hears."""
 
     tx_share = 1.0
 
     def setup(self) -> None:
-        self.message = Message(_SENDER.pack(self._index) + bytes(2), 20)
+        self.message = FLOOR.pack(sender=self._index, padding=0)
         self.opportunities = 0
         self.heard = 0
 
@@ -99,8 +100,7 @@ class TableFloor(LoopFloor):
         self.table = NeighbourTable()
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        (sender,) = _SENDER.unpack_from(message.data)
-        self.table.heard(sender, distance_mm)
+        self.table.heard(sender_of(message), distance_mm)
 
 
 def run_floors(n: int, seed: int, overrides: dict[str, str], gcs: dict) -> list[dict]:

@@ -14,19 +14,29 @@ distances, and :mod:`protocols.recovery` answers a split that persists with a re
 edge seeds (phase ``edges``) and phases 3-6 again, at most ``gcs.recoveries`` times.
 
 ``gcs.until`` stops the program after a phase. The robot's state that phases share lives on
-:class:`GcsRobot` (its ID, neighbour table, seeds in view, local positions, transforms); phases
-hold their own working state. LED: phase 1 white, 2 blue (seeds red), 3 references yellow,
-located robots green, merged robots cyan.
+:class:`GcsRobot` (its ID, neighbour table, seeds in view, groups and partners, and its
+:class:`~protocols.global_estimate.GlobalEstimate`: local positions, transforms, ranks); phases
+hold their own working state. LED (:func:`led_colour`): phase 1 white, 2 blue (seeds red),
+3 references yellow, located robots green, merged robots cyan.
+
+To add a phase: write its module (a :class:`~protocols.gcs_base.Phase` subclass with a
+``name`` and a ``window_s``), add the name to :data:`protocols.gcs_base.PHASES` and the class
+to :data:`PHASE_SEQUENCE` at the same place (and to :data:`RECOVERY_SEQUENCE` if a recovery
+epoch must run it again), and give its window a parameter in
+:class:`~protocols.gcs_base.GcsParams`.
 """
 
 from __future__ import annotations
 
-import struct
+from collections.abc import Mapping
+from dataclasses import dataclass
 
 from kilonet.message import Message
 from kilonet.robot import Kilobot
+from protocols.frame_keys import FrameKey, Root
 from protocols.frame_merging import FrameMerging
-from protocols.gcs_base import PHASES, GcsParams, Phase
+from protocols.gcs_base import PHASES, SENDER, GcsParams, Phase
+from protocols.global_estimate import GlobalEstimate
 from protocols.local_frames import LocalFrames
 from protocols.localization import Localization
 from protocols.merging_groups import MergingGroups
@@ -36,9 +46,17 @@ from protocols.seed_election import SeedElection
 from protocols.split_detection import POS, SplitCheck
 from protocols.unique_ids import UniqueIds
 
-__all__ = ["GcsRobot", "phase_windows_s"]
+__all__ = [
+    "PHASE_SEQUENCE",
+    "RECOVERY_SEQUENCE",
+    "GcsRobot",
+    "RobotOutcome",
+    "led_colour",
+    "phase_windows_s",
+]
 
-_PHASE_CLASSES: tuple[type[Phase], ...] = (
+#: The phases in the order they run, one per name of :data:`protocols.gcs_base.PHASES`.
+PHASE_SEQUENCE: tuple[type[Phase], ...] = (
     UniqueIds,
     SeedElection,
     LocalFrames,
@@ -46,10 +64,11 @@ _PHASE_CLASSES: tuple[type[Phase], ...] = (
     MergingGroups,
     FrameMerging,
 )
-#: Every message's first field, the sender's ID (uint16).
-_SENDER = struct.Struct("<H").unpack_from
+#: gcs_base.sender_of without its Python call: every reception reads the sender, and the call
+#: showed in a run's instruction count (docs/gcs.md, "Speed").
+_read_sender = SENDER.unpack_from
 #: What a recovery epoch runs: edge seeds, then phases 3-6 again.
-_RECOVERY_CLASSES: tuple[type[Phase], ...] = (
+RECOVERY_SEQUENCE: tuple[type[Phase], ...] = (
     EdgeSeeds,
     LocalFrames,
     Localization,
@@ -67,19 +86,94 @@ def phase_windows_s(p: GcsParams) -> list[tuple[str, float, float]]:
     >>> [name for name, _, _ in phase_windows_s(GcsParams(until="frames"))]
     ['ids', 'seeds', 'frames']
     """
-    lengths = {
-        "ids": p.ids_s,
-        "seeds": SeedElection.duration_s(p),
-        "frames": p.frames_s,
-        "localization": p.localization_s,
-        "groups": p.groups_s,
-        "merge": float("inf"),
-    }
     out, t = [], 0.0
-    for name in PHASES[: PHASES.index(p.until) + 1]:
-        out.append((name, t, t + lengths[name]))
-        t += lengths[name]
+    for cls in PHASE_SEQUENCE[: PHASES.index(p.until) + 1]:
+        length = cls.window_s(p)
+        out.append((cls.name, t, t + length))
+        t += length
     return out
+
+
+def led_colour(
+    phase: str, *, seed: bool, merged: bool, located: bool, reference: bool
+) -> tuple[int, int, int]:
+    """The LED (kilolib levels 0-3) of a robot in phase ``phase`` ('' before the first and
+    after the last): seeds red; phase 1 white; phase 2 blue; merged robots (done merging, or
+    holding a global estimate while merging) cyan; located robots green; references yellow;
+    others dim blue.
+
+    Examples
+    --------
+    >>> led_colour("frames", seed=False, merged=False, located=False, reference=True)
+    (3, 3, 0)
+    """
+    if seed:
+        return (3, 0, 0)
+    if phase in ("", "ids"):
+        return (1, 1, 1)
+    if phase == "seeds":
+        return (0, 0, 2)
+    if merged:
+        return (0, 3, 3)
+    if located:
+        return (0, 3, 0)
+    if reference:
+        return (3, 3, 0)
+    return (0, 0, 1)
+
+
+@dataclass(frozen=True, slots=True)
+class RobotOutcome:
+    """What one robot ended a run with, read once from :meth:`GcsRobot.outcome`.
+
+    Parameters
+    ----------
+    uid : int
+        Its ID (phase 1).
+    role : str
+        ``"seed"``, ``"reference"`` or ``"robot"``.
+    is_seed, edge_seed : bool
+        Elected or edge seed (an edge seed is a seed too).
+    own_key : FrameKey
+        The key its own frame has (or would have, as a non-seed).
+    has_frame : bool
+        A seed that built its frame (chose its references).
+    local_positions : Mapping[FrameKey, tuple[float, float]]
+        Its position in each local frame it is located in, mm.
+    groups : tuple of (FrameKey, FrameKey)
+        The frame pairs of its merging groups.
+    isolated_seed : bool
+        A seed no merging group was registered with.
+    position : tuple[float, float] or None
+        Its global estimate, mm.
+    root : Root or None
+        The root of the merged frame its estimate is in.
+    split_boundary, inconsistent : bool
+        What its split check flagged at the end (:mod:`protocols.split_detection`).
+    merge_done : bool
+        A seed done merging.
+    merge_rounds : int
+        Rounds a seed ran in its latest merging phase (0 for others, or outside merging).
+    epoch : int
+        Recovery epochs it started.
+    """
+
+    uid: int
+    role: str
+    is_seed: bool
+    edge_seed: bool
+    own_key: FrameKey
+    has_frame: bool
+    local_positions: Mapping[FrameKey, tuple[float, float]]
+    groups: tuple[tuple[FrameKey, FrameKey], ...]
+    isolated_seed: bool
+    position: tuple[float, float] | None
+    root: Root | None
+    split_boundary: bool
+    inconsistent: bool
+    merge_done: bool
+    merge_rounds: int
+    epoch: int
 
 
 class GcsRobot(Kilobot):
@@ -91,41 +185,37 @@ class GcsRobot(Kilobot):
         The protocol's parameters (time-outs, rules, tolerances).
     """
 
-    # Its state, the phases' shared state included, in slots: with more than 30 attributes an
-    # instance dict is no longer CPython's compact shared-key kind, and every delivery and loop
-    # reads several attributes, robot after robot. Slots here and in FrameMerging cut the CPU
-    # time by 8 % at 300 robots and 2 % at 1,000, with identical results.
+    # Its state, the phases' shared state included, in slots, as FrameMerging's and
+    # SeedRounds': past 30 attributes an instance dict is no longer CPython's compact
+    # shared-key kind, and every delivery and loop reads several attributes, robot after robot
+    # (docs/gcs.md, "Speed").
     __slots__ = (
         "_due_tick",
-        "_frames_cache",
         "_loops",
+        "_neighbour_keys",
         "_phase_index",
         "_polled",
-        "_position_cache",
         "_windows",
         "announced",
         "check",
         "edge_seed",
         "epoch",
-        "frames",
+        "estimate",
         "groups",
         "is_seed",
         "merge_done",
-        "merge_state",
+        "own_key",
         "params",
         "partners",
         "phase",
         "pos_turn",
-        "ranks",
         "recovery",
         "ref_turn",
         "references",
         "role",
         "salt",
-        "salts",
         "seeds",
         "table",
-        "transforms",
         "uid",
     )
 
@@ -135,46 +225,32 @@ class GcsRobot(Kilobot):
     def setup(self) -> None:
         self._polled = self.polled  # fixed for a run; loop() asks many times a second
         self.table = NeighbourTable()
-        self.uid = -1
-        self.salt = 0
-        self.salts: dict[int, int] = {}  # neighbours' salts from phase 1
+        self.take_id(-1, 0)
+        self._neighbour_keys: dict[int, FrameKey] = {}
         self.seeds: set[int] = set()
         self.is_seed = False
         self.role = "robot"
-        # Local positions of this robot, by frame key (see frame_key), mm.
-        self.frames: dict[int, tuple[float, float]] = {}
+        self.estimate = GlobalEstimate()
         # A seed's references: (ID, x, y) in its frame, announced in turn.
         self.references: list[tuple[int, float, float]] = []
         self.ref_turn = 0
         self.pos_turn = 0
         # Phase 5: this robot's groups {(I, K): (Y, Z)}; a seed's partners {K: {members}}.
-        self.groups: dict[tuple[int, int], tuple[int, int]] = {}
-        self.partners: dict[int, set[int]] = {}
-        # Phase 6: transforms heard, by frame key (protocols.frame_merging.Transform).
-        self.transforms: dict = {}
-        self.ranks: dict[int, int] = {}  # merge rank of each seed heard (frame_merging)
-        # Bumped by frame_merging whenever the transform or rank of a frame this robot is
-        # located in is set anew: the global estimate (asked on every POS heard) is recomputed
-        # only when this or the frames change.
-        self.merge_state = 0
-        self._frames_cache: tuple[tuple[int, int], tuple[int | None, list[int]]] = (
-            (-1, -1),
-            (None, []),
-        )
-        self._position_cache: tuple[tuple[int, int], tuple[float, float] | None] = ((-1, -1), None)
-        self.merge_done = False
+        self.groups: dict[tuple[FrameKey, FrameKey], tuple[int, int]] = {}
+        self.partners: dict[FrameKey, set[int]] = {}
+        self.merge_done = False  # a seed done merging (protocols.frame_merging)
         # Checking and recovering (split_detection, recovery): the check runs while merging.
         self.check: SplitCheck | None = None
         self.recovery = RecoveryFlood(self)
         self.epoch = 0  # recovery epochs started so far
         self.edge_seed = False
         # Positions neighbours announced, by frame key then neighbour ID, mm.
-        self.announced: dict[int, dict[int, tuple[float, float]]] = {}
+        self.announced: dict[FrameKey, dict[int, tuple[float, float]]] = {}
         tps = self.ticks_per_s
         self._windows = [
             (cls, round(start * tps), end * tps)
             for cls, (_, start, end) in zip(
-                _PHASE_CLASSES, phase_windows_s(self.params), strict=False
+                PHASE_SEQUENCE, phase_windows_s(self.params), strict=False
             )
         ]
         self._phase_index = -1
@@ -183,6 +259,26 @@ class GcsRobot(Kilobot):
         self._due_tick: float = 0
         self._advance()
 
+    # -- identity and frame keys ---------------------------------------------------------------
+    def take_id(self, uid: int, salt: int) -> None:
+        """This robot's ID and salt are now ``uid`` and ``salt`` (phase 1)."""
+        self.uid, self.salt = uid, salt
+        self.own_key = FrameKey(uid, salt)
+
+    def learn_salts(self, salts: Mapping[int, int]) -> None:
+        """The salts neighbours announced in phase 1, by ID: they name those neighbours'
+        frames from now on (:meth:`frame_key`)."""
+        self._neighbour_keys = {uid: FrameKey(uid, salt) for uid, salt in salts.items()}
+
+    def frame_key(self, seed_uid: int) -> FrameKey:
+        """The key of the frame of seed ``seed_uid``, a neighbour or this robot: its ID and its
+        phase-1 salt (salt 0 for a robot not heard in phase 1)."""
+        if seed_uid == self.uid:
+            return self.own_key
+        key = self._neighbour_keys.get(seed_uid)
+        return FrameKey.from_wire(seed_uid, 0) if key is None else key
+
+    # -- phases --------------------------------------------------------------------------------
     def _advance(self) -> None:
         ticks = self.kilo_ticks
         if ticks < self._due_tick:  # called on every loop and transmit opportunity
@@ -213,44 +309,78 @@ class GcsRobot(Kilobot):
 
     def schedule_recovery(self, epoch: int, start_tick: int) -> None:
         """Run recovery epoch ``epoch`` from ``start_tick``: the running phase (merging) ends
-        there and edge seeds, frames, localization, groups and merging follow in windows of
-        the usual lengths (see :mod:`protocols.recovery`)."""
+        there and :data:`RECOVERY_SEQUENCE` follows in windows of the usual lengths (see
+        :mod:`protocols.recovery`)."""
         self.epoch = epoch
-        p = self.params
-        lengths = (p.elect_s, p.frames_s, p.localization_s, p.groups_s, float("inf"))
         cls, start, _ = self._windows[self._phase_index]
         windows = [*self._windows[: self._phase_index], (cls, start, start_tick)]
         t = start_tick
-        for cls, length in zip(_RECOVERY_CLASSES, lengths, strict=True):
-            end = t + length * self.ticks_per_s
+        for cls in RECOVERY_SEQUENCE:
+            end = t + cls.window_s(self.params) * self.ticks_per_s
             windows.append((cls, round(t), end))
             t = end
         self._windows = windows
         self._due_tick = self._next_window_change()
 
     def _show(self) -> None:
-        """LED by phase and role, as listed in the module docstring."""
         name = self.phase_name
-        if self.is_seed:
-            self.set_color(3, 0, 0)
-        elif name in ("", "ids"):
-            self.set_color(1, 1, 1)
-        elif name == "seeds":
-            self.set_color(0, 0, 2)
-        elif self.merge_done or (name == "merge" and self.global_root is not None):
-            self.set_color(0, 3, 3)
-        elif self.frames:
-            self.set_color(0, 3, 0)
-        elif self.role == "reference":
-            self.set_color(3, 3, 0)
-        else:
-            self.set_color(0, 0, 1)
+        merged = self.merge_done or (name == "merge" and self.estimate.root() is not None)
+        self.set_color(
+            *led_colour(
+                name,
+                seed=self.is_seed,
+                merged=merged,
+                located=bool(self.estimate.frames),
+                reference=self.role == "reference",
+            )
+        )
 
     @property
     def phase_name(self) -> str:
         """Name of the running phase ('' once done)."""
         return self.phase.name if self.phase is not None else ""
 
+    # -- what the run reads ----------------------------------------------------------------------
+    def awaiting_recovery(self) -> bool:
+        """A recovery epoch is announced, or this robot is on a split boundary that one may
+        still be started for (``gcs.recoveries`` not used up)."""
+        check = self.check
+        boundary = check is not None and check.boundary_since is not None
+        return self.recovery.pending or (boundary and self.epoch < self.params.recoveries)
+
+    @property
+    def merge_done_at_s(self) -> float | None:
+        """When this seed was done merging, s on its clock (``None`` unless it is done)."""
+        seed = self.phase.seed if isinstance(self.phase, FrameMerging) else None
+        if seed is None or seed.done_since is None:
+            return None
+        return seed.done_since / self.ticks_per_s
+
+    def outcome(self) -> RobotOutcome:
+        """What this robot holds now, as one value (see :class:`RobotOutcome`)."""
+        estimate, check = self.estimate, self.check
+        position = estimate.position()
+        seed = self.phase.seed if isinstance(self.phase, FrameMerging) else None
+        return RobotOutcome(
+            uid=self.uid,
+            role=self.role,
+            is_seed=self.is_seed,
+            edge_seed=self.edge_seed,
+            own_key=self.own_key,
+            has_frame=bool(self.references),
+            local_positions=dict(estimate.frames),
+            groups=tuple(self.groups),
+            isolated_seed=self.is_seed and not self.partners,
+            position=position,
+            root=estimate.root() if position is not None else None,
+            split_boundary=check is not None and check.on_split_boundary,
+            inconsistent=check is not None and bool(check.inconsistent),
+            merge_done=self.merge_done,
+            merge_rounds=seed.rounds if seed is not None else 0,
+            epoch=self.epoch,
+        )
+
+    # -- kilolib callbacks ---------------------------------------------------------------------
     def loop(self) -> None:
         self._advance()
         if self._polled:
@@ -266,69 +396,6 @@ class GcsRobot(Kilobot):
             self._loops += 1
             if self._loops % 16 == 0:  # refresh the LED now and then, not every loop
                 self._show()
-
-    def frame_key(self, seed_uid: int) -> int:
-        """The key of the frame of seed ``seed_uid``, a neighbour or this robot: its ID and its
-        phase-1 salt. IDs are unique only among a robot's neighbours, so two seeds three hops
-        apart may share one; with the salt, two frames are confused only if both match."""
-        salt = self.salt if seed_uid == self.uid else self.salts.get(seed_uid, 0)
-        return (seed_uid << 8) | salt
-
-    def global_position(self) -> tuple[float, float] | None:
-        """This robot's estimate in the merged frame, mm (None before it has one).
-
-        Among the frames it is located in whose transform it holds, it keeps those of the
-        smallest root (frames of another root have not been merged with them) and averages
-        ``R_S (x, y, 0) + v_S`` over them; 2-D coordinates are those of the common plane laid
-        flat by :func:`kilonet.alignment.level` (see :mod:`protocols.frame_merging`).
-        """
-        state = self.estimate_state
-        if state == self._position_cache[0]:
-            return self._position_cache[1]
-        root, known = self.global_frames()
-        if root is None:
-            self._position_cache = (state, None)
-            return None
-        points = [self.transforms[k].apply_point(*self.frames[k]) for k in known]
-        # Merged frames share one plane, tilted in general, but not one rotation (a frame that
-        # was a mirror image faces the other way). Turning the plane's normal, taken on a fixed
-        # side, onto +z depends on the plane alone, so every robot reads the same 2-D axes.
-        row_x, row_y, _ = self.transforms[known[0]].flat.tolist()
-        mean = [sum(c) / len(points) for c in zip(*points, strict=True)]
-        position = (
-            row_x[0] * mean[0] + row_x[1] * mean[1] + row_x[2] * mean[2],
-            row_y[0] * mean[0] + row_y[1] * mean[1] + row_y[2] * mean[2],
-        )
-        self._position_cache = (state, position)
-        return position
-
-    @property
-    def estimate_state(self) -> tuple[int, int]:
-        """What the global estimate depends on, as a cache key: frames are only ever added,
-        and ``merge_state`` moves with every transform or rank of a frame this robot is in."""
-        return self.merge_state, len(self.frames)
-
-    def global_frames(self) -> tuple[int | None, list[int]]:
-        """The root of the merged frame this robot's estimate is in and the frames (keys, in
-        order) that estimate uses: those it is located in whose transform and rank it holds,
-        of the smallest root. ``(None, [])`` without an estimate."""
-        state = self.estimate_state
-        if state == self._frames_cache[0]:
-            return self._frames_cache[1]
-        self._frames_cache = (state, self._global_frames())
-        return self._frames_cache[1]
-
-    def _global_frames(self) -> tuple[int | None, list[int]]:
-        known = [k for k in sorted(self.frames) if k in self.transforms and k in self.ranks]
-        if not known:
-            return None, []
-        root = min(self.ranks[k] >> 8 for k in known)
-        return root, [k for k in known if self.ranks[k] >> 8 == root]
-
-    @property
-    def global_root(self) -> int | None:
-        """Root of the merged frame this robot's estimate is in (None without an estimate)."""
-        return self.global_frames()[0]
 
     def message_tx(self) -> Message | None:
         self._advance()
@@ -355,6 +422,6 @@ class GcsRobot(Kilobot):
         phase.message_rx(message, distance_mm)
         if kind == POS.type and self.check is not None and phase.name == "merge":
             self.check.message_rx(message)
-        (sender,) = _SENDER(message.data)
+        (sender,) = _read_sender(message.data)
         if sender != self.uid:
             self.table.heard(sender, distance_mm)

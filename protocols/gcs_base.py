@@ -1,5 +1,5 @@
-"""Shared parts of the global-coordinate-system program: its parameters, its robot state, and
-the phase interface each phase module implements.
+"""Shared parts of the global-coordinate-system program: its parameters, the layout of its
+messages, and the phase interface each phase module implements.
 
 Phases follow one another on every robot's clock (``kilo_ticks``), as the thesis's counters do:
 the overhead controller starts all robots together, so fixed windows keep the swarm in step
@@ -7,21 +7,24 @@ without any message. Inside its window each phase runs its own message protocol,
 that has nothing to say stays silent (which keeps the channel free for those that do).
 
 Every message starts with the sender's 16-bit ID field (values drawn from ``id_bits`` bits), so
-each reception also refines the distance table (:mod:`protocols.neighbours`).
+each reception also refines the distance table (:mod:`protocols.neighbours`): layouts are built
+with :func:`gcs_layout`, which puts that field first, and :func:`sender_of` reads it from any
+of them.
 """
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
-from kilonet.message import Message
+from kilonet.message import Layout, Message
 from kilonet.params import param
 
 if TYPE_CHECKING:
     from protocols.gcs import GcsRobot
 
-__all__ = ["PHASES", "GcsParams", "Phase"]
+__all__ = ["PHASES", "SENDER", "GcsParams", "Phase", "gcs_layout", "sender_of"]
 
 #: Phase names in order; ``gcs.until`` names the last one to run.
 PHASES = ("ids", "seeds", "frames", "localization", "groups", "merge")
@@ -32,16 +35,10 @@ class GcsParams:
     """Parameters of the global-coordinate-system protocol (section ``gcs``)."""
 
     section_name = "gcs"
-    until: Literal["ids", "seeds", "frames", "localization", "groups", "merge"] = param(
-        "merge", doc="last phase to run"
-    )
+    until: Literal[PHASES] = param("merge", doc="last phase to run")
     id_bits: int = param(8, lo=2, hi=15, doc="random IDs are drawn from this many bits")
-    # Windows sized on lossless runs with a margin: on a 1,000-robot lattice the last frame
-    # was built 17.7 s into phase 3, the last robot located 9.0 s into phase 4, the last groups
-    # registered 0.1 s into phase 5. Phase 1 keeps its 8 s: IDs settle in 1.3 s, but with 5 s
-    # a 40-robot swarm merged into a frame with a needless recovery epoch, not without. A
-    # lossy channel needs longer ones (20 % loss: ids_s = 12, frames_s = 90,
-    # localization_s = 40).
+    # Windows: lossless runs with a margin; a lossy channel needs longer ones (docs/gcs.md,
+    # "Measured": how much of each window the robots use).
     ids_s: float = param(8.0, lo=0.5, hi=600.0, doc="phase 1 window")
     duplicate_distance_mm: float = param(
         12.0, lo=1.0, hi=200.0, doc="one ID heard at distances this far apart is two robots"
@@ -90,9 +87,8 @@ class GcsParams:
     check_tolerance_mm: float = param(
         8.0, lo=0.1, hi=1000.0, doc="measured and computed neighbour distances agree within this"
     )
-    # Long enough for the root to cross a region that settled on a local root first: at
-    # 1,000 robots a boundary stood for 20 s (and set off a needless recovery) while the root
-    # was still on its way, at about 3 s per frame.
+    # Long enough for the flooding root to cross a region that settled on a local root first
+    # (their boundary looks like a split until it has).
     split_confirm_s: float = param(
         40.0, lo=0.5, hi=3600.0, doc="a split boundary must persist this long to act on it"
     )
@@ -102,8 +98,47 @@ class GcsParams:
     )
 
 
+#: The field every message of the protocol starts with: the sender's ID (uint16).
+_SENDER_FIELD = ("sender", "H")
+#: That field's wire form, for reading it from any message (:func:`sender_of`).
+SENDER = struct.Struct("<" + _SENDER_FIELD[1])
+
+
+def gcs_layout(
+    name: str, *, type: int, fields: list[tuple[str, str] | tuple[str, str, float]]
+) -> Layout:
+    """A message layout of the protocol: the sender's ID (``sender``, uint16) and then
+    ``fields`` (as :class:`kilonet.message.Layout` takes them).
+
+    Raises
+    ------
+    kilonet.message.PayloadError
+        If the sender and ``fields`` take more than the 9-byte payload.
+
+    Examples
+    --------
+    >>> HELLO = gcs_layout("hello", type=99, fields=[("hops", "B")])
+    >>> message = HELLO.pack(sender=513, hops=2)
+    >>> len(message.data), sender_of(message)
+    (3, 513)
+    """
+    return Layout(name, type=type, fields=[_SENDER_FIELD, *fields])
+
+
+def sender_of(message: Message) -> int:
+    """The sender's ID of any message built by a :func:`gcs_layout` layout (the receptions'
+    hot path calls ``SENDER.unpack_from(message.data)`` itself, saving a Python call)."""
+    return SENDER.unpack_from(message.data)[0]
+
+
 class Phase:
-    """One phase of the protocol on one robot. Subclasses override what they use."""
+    """One phase of the protocol on one robot.
+
+    A subclass sets ``name`` (one of :data:`PHASES`, or ``"edges"``), defines
+    :meth:`window_s` and overrides the callbacks it uses; :class:`protocols.gcs.GcsRobot`
+    creates it when its window opens and calls :meth:`start`, then the callbacks, then
+    :meth:`finish`.
+    """
 
     __slots__ = ("__dict__", "params", "robot")  # see GcsRobot.__slots__
     name = ""
@@ -111,6 +146,18 @@ class Phase:
     def __init__(self, robot: GcsRobot) -> None:
         self.robot = robot
         self.params: GcsParams = robot.params
+
+    @staticmethod
+    def window_s(p: GcsParams) -> float:
+        """Length of the phase's window for parameters ``p``, s (``inf``: the phase ends by
+        itself). Every phase of :data:`protocols.gcs.PHASE_SEQUENCE` defines it.
+
+        Raises
+        ------
+        NotImplementedError
+            On a phase that does not define it.
+        """
+        raise NotImplementedError("a Phase subclass must define window_s(params)")
 
     def start(self) -> None:
         """Called when the phase's window opens on this robot."""
@@ -123,7 +170,8 @@ class Phase:
         return None
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        """A reception of this phase's message types (the sender's distance is recorded)."""
+        """A reception, of any type, with the measured distance to its sender, mm (the robot
+        records that distance in its neighbour table itself)."""
 
     def loop(self) -> None:
         """Called every loop period while the phase runs."""

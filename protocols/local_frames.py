@@ -35,8 +35,8 @@ from kilonet.geometry import (
     choose_references_max_angle,
     place_references,
 )
-from kilonet.message import Layout, Message
-from protocols.gcs_base import Phase
+from kilonet.message import Message
+from protocols.gcs_base import GcsParams, Phase, gcs_layout
 
 __all__ = [
     "ASK",
@@ -48,16 +48,14 @@ __all__ = [
     "reference_candidates",
 ]
 
-ASK = Layout("ask", type=30, fields=[("sender", "H"), ("target", "H"), ("chunk", "B")])
-TABLE = Layout(
+ASK = gcs_layout("ask", type=30, fields=[("target", "H"), ("chunk", "B")])
+TABLE = gcs_layout(
     "table",
     type=31,
-    fields=[("sender", "H"), ("chunk", "B"), ("id1", "H"), ("d1", "B"), ("id2", "H"), ("d2", "B")],
+    fields=[("chunk", "B"), ("id1", "H"), ("d1", "B"), ("id2", "H"), ("d2", "B")],
 )
-REF = Layout(
-    "ref",
-    type=32,
-    fields=[("sender", "H"), ("reference", "H"), ("x_mm", "h", 0.1), ("y_mm", "h", 0.1)],
+REF = gcs_layout(
+    "ref", type=32, fields=[("reference", "H"), ("x_mm", "h", 0.1), ("y_mm", "h", 0.1)]
 )
 DONE = 255
 _LAST = 0x80
@@ -73,11 +71,9 @@ def reference_candidates(
 
     B and C qualify when each lists the other in its table and the two readings of their
     distance agree within ``tolerance_mm``. One direction is not enough: IDs are unique only
-    among neighbours, so B's table may hold a *different* robot with C's ID, two hops from C
-    (measured on a 100-robot lattice: a seed whose references B, C could not see each other,
-    the seed itself standing between them, took the 72 mm from B to C's namesake for |BC| =
-    77 mm; its whole frame came out bent, up to 55 mm off, and merging never settled, 83 mm
-    RMSE). An alias that also lists B, at a matching distance, is far less likely.
+    among neighbours, so B's table may hold a *different* robot with C's ID, two hops from C,
+    and a seed that took that namesake's distance for |BC| bends its whole frame
+    (``docs/gcs.md``). An alias that also lists B, at a matching distance, is far less likely.
 
     Parameters
     ----------
@@ -118,6 +114,11 @@ class LocalFrames(Phase):
     """Phase 3 on one robot: every robot answers seeds; seeds also ask and build a frame."""
 
     name = "frames"
+
+    @staticmethod
+    def window_s(p: GcsParams) -> float:
+        """The phase's window, s: ``gcs.frames_s``."""
+        return p.frames_s
 
     def start(self) -> None:
         r = self.robot
@@ -227,7 +228,7 @@ class LocalFrames(Phase):
             return
         self.references = [(b, xb, yb), (c, xc, yc)]
         r.references = self.references
-        r.frames[r.frame_key(r.uid)] = (0.0, 0.0)
+        r.estimate.locate(r.own_key, (0.0, 0.0))
         r.log("frame", b=b, c=c, score=float(score), asked=len(ids), skipped=self.skipped)
 
     def _announce(self) -> Message | None:
@@ -290,8 +291,8 @@ def receive_reference(robot, message: Message) -> None:
         return
     m = REF.unpack(message)
     key = robot.frame_key(m.sender)
-    if m.reference == robot.uid and key not in robot.frames:
-        robot.frames[key] = (m.x_mm, m.y_mm)
+    if m.reference == robot.uid and key not in robot.estimate.frames:
+        robot.estimate.locate(key, (m.x_mm, m.y_mm))
         if not robot.is_seed:
             robot.role = "reference"
         robot.log("reference", seed=m.sender, x_mm=m.x_mm, y_mm=m.y_mm)

@@ -20,47 +20,81 @@ A frame is named by its seed's ID and phase-1 salt (:meth:`protocols.gcs.GcsRobo
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from kilonet.geometry import multilaterate
-from kilonet.message import Layout, Message
-from protocols.gcs_base import Phase
+from kilonet.message import Message
+from protocols.frame_keys import FrameKey
+from protocols.gcs_base import GcsParams, Phase, gcs_layout
 from protocols.local_frames import announce_reference, receive_reference
+from protocols.neighbours import NeighbourTable
 
-__all__ = ["POS", "Localization", "announce_position", "receive_position"]
+__all__ = [
+    "POS",
+    "Localization",
+    "announce_position",
+    "fix_anchors",
+    "receive_position",
+    "worth_a_fix",
+]
 
-POS = Layout(
+POS = gcs_layout(
     "pos",
     type=40,
-    fields=[
-        ("sender", "H"),
-        ("seed", "H"),
-        ("seed_salt", "B"),
-        ("x_mm", "h", 0.1),
-        ("y_mm", "h", 0.1),
-    ],
+    fields=[("seed", "H"), ("seed_salt", "B"), ("x_mm", "h", 0.1), ("y_mm", "h", 0.1)],
 )
 
 
 def announce_position(robot) -> Message | None:
     """The robot's next POS message (its frames in turn), or ``None`` if it is located nowhere."""
-    if not robot.frames:
+    frames = robot.estimate.frames
+    if not frames:
         return None
-    keys = sorted(robot.frames)
+    keys = sorted(frames)
     robot.pos_turn = (robot.pos_turn + 1) % len(keys)
     key = keys[robot.pos_turn]
-    x, y = robot.frames[key]
-    return POS.pack(sender=robot.uid, seed=key >> 8, seed_salt=key & 0xFF, x_mm=x, y_mm=y)
+    x, y = frames[key]
+    return POS.pack(sender=robot.uid, seed=key.uid, seed_salt=key.salt, x_mm=x, y_mm=y)
 
 
-def receive_position(robot, message: Message) -> int | None:
+def receive_position(robot, message: Message) -> FrameKey | None:
     """Store a neighbour's announced position; return the key of the frame it is in."""
     if not POS.matches(message):
         return None
     m = POS.unpack(message)
-    key = (m.seed << 8) | m.seed_salt
+    key = FrameKey.from_wire(m.seed, m.seed_salt)
     robot.announced.setdefault(key, {})[m.sender] = (m.x_mm, m.y_mm)
     return key
+
+
+def fix_anchors(
+    seed: int, located: Mapping[int, tuple[float, float]], table: NeighbourTable
+) -> tuple[list[tuple[float, float]], list[float]]:
+    """The anchors (mm, in the seed's frame) and ranges (mm) of a fix in seed ``seed``'s
+    frame: the seed at the origin, then every neighbour in ``table`` that announced a position
+    in that frame (``located``, by ID, in the order heard), each at its mean measured distance.
+
+    Examples
+    --------
+    >>> t = NeighbourTable(); t.heard(1, 40); t.heard(2, 42); t.heard(3, 39)
+    >>> fix_anchors(1, {2: (40.0, 0.0), 3: (20.0, 35.0), 9: (0.0, 80.0)}, t)
+    ([(0.0, 0.0), (40.0, 0.0), (20.0, 35.0)], [40.0, 42.0, 39.0])
+    """
+    anchors = [(0.0, 0.0)]
+    ranges = [table.distance(seed)]
+    for uid, xy in located.items():
+        if uid in table and uid != seed:
+            anchors.append(xy)
+            ranges.append(table.distance(uid))
+    return anchors, ranges
+
+
+def worth_a_fix(anchors: int, tried_with: int) -> bool:
+    """A fix needs three anchors (the seed and two located neighbours), and is tried again
+    only with more anchors than the last attempt in the same frame had."""
+    return anchors >= 3 and anchors > tried_with
 
 
 class Localization(Phase):
@@ -68,8 +102,13 @@ class Localization(Phase):
 
     name = "localization"
 
+    @staticmethod
+    def window_s(p: GcsParams) -> float:
+        """The phase's window, s: ``gcs.localization_s``."""
+        return p.localization_s
+
     def start(self) -> None:
-        self.tried_with: dict[int, int] = {}  # seed -> anchors used at the last attempt
+        self.tried_with: dict[FrameKey, int] = {}  # frame -> anchors used at the last attempt
         self.rejections = 0
         self.turn = 0
 
@@ -84,18 +123,13 @@ class Localization(Phase):
         r = self.robot
         receive_reference(r, message)
         key = receive_position(r, message)
-        if key is None or key in r.frames:
+        if key is None or key in r.estimate.frames:
             return
-        seed = key >> 8
+        seed = key.uid
         if seed == r.uid or seed not in r.table or r.frame_key(seed) != key:
             return  # this robot does not see that frame's seed
-        anchors = [(0.0, 0.0)]
-        ranges = [r.table.distance(seed)]
-        for uid, xy in r.announced[key].items():
-            if uid in r.table and uid != seed:
-                anchors.append(xy)
-                ranges.append(r.table.distance(uid))
-        if len(anchors) < 3 or len(anchors) <= self.tried_with.get(key, 0):
+        anchors, ranges = fix_anchors(seed, r.announced[key], r.table)
+        if not worth_a_fix(len(anchors), self.tried_with.get(key, 0)):
             return
         self.tried_with[key] = len(anchors)
         fix = multilaterate(
@@ -105,7 +139,7 @@ class Localization(Phase):
             max_rmse_mm=self.params.max_rmse_mm,
         )
         if fix.ok:
-            r.frames[key] = (fix.x_mm, fix.y_mm)
+            r.estimate.locate(key, (fix.x_mm, fix.y_mm))
             r.log("located", seed=seed, x_mm=fix.x_mm, y_mm=fix.y_mm, anchors=len(anchors))
         else:
             self.rejections += 1

@@ -20,17 +20,20 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Mapping
+from typing import TypeVar
 
-from kilonet.message import Layout, Message
-from protocols.gcs_base import Phase
+from kilonet.message import Message
+from protocols.frame_keys import FrameKey
+from protocols.gcs_base import GcsParams, Phase, gcs_layout
 from protocols.localization import announce_position, receive_position
 
 __all__ = ["REGISTER", "MergingGroups", "find_groups"]
 
-REGISTER = Layout(
-    "register",
-    type=50,
-    fields=[("sender", "H"), ("seed", "H"), ("partner", "H"), ("partner_salt", "B")],
+F = TypeVar("F")  # what names a frame
+
+REGISTER = gcs_layout(
+    "register", type=50, fields=[("seed", "H"), ("partner", "H"), ("partner_salt", "B")]
 )
 
 
@@ -39,20 +42,21 @@ def _area(a: tuple[float, float], b: tuple[float, float], c: tuple[float, float]
 
 
 def find_groups(
-    own: dict[int, tuple[float, float]],
-    announced: dict[int, dict[int, tuple[float, float]]],
+    own: Mapping[F, tuple[float, float]],
+    announced: Mapping[F, Mapping[int, tuple[float, float]]],
     neighbours: set[int],
     reach_mm: float,
     min_width_mm: float = 0.0,
-) -> dict[tuple[int, int], tuple[int, int]]:
+) -> dict[tuple[F, F], tuple[int, int]]:
     """Merging groups of a robot: ``{(I, K): (Y, Z)}`` for each pair of its frames I < K.
 
     Parameters
     ----------
-    own : dict
-        The robot's positions by seed (frame), mm.
-    announced : dict
-        Neighbours' positions by seed, then neighbour ID, mm.
+    own : mapping
+        The robot's positions by frame (a :class:`~protocols.frame_keys.FrameKey`, or any
+        ordered name of a frame: the prediction uses seed indices), mm.
+    announced : mapping
+        Neighbours' positions by frame, then neighbour ID, mm.
     neighbours : set
         IDs the robot hears.
     reach_mm : float
@@ -95,18 +99,26 @@ class MergingGroups(Phase):
 
     name = "groups"
 
+    @staticmethod
+    def window_s(p: GcsParams) -> float:
+        """The phase's window, s: ``gcs.groups_s``."""
+        return p.groups_s
+
     def start(self) -> None:
         r = self.robot
         reach = max((r.table.distance(uid) for uid in r.table.ids()), default=0.0)
         self.groups = find_groups(
-            r.frames, r.announced, set(r.table.ids()), reach, self.params.min_group_width_mm
+            r.estimate.frames,
+            r.announced,
+            set(r.table.ids()),
+            reach,
+            self.params.min_group_width_mm,
         )
         r.groups = self.groups
         self.registrations = [(i, k) for i, k in self.groups] + [(k, i) for i, k in self.groups]
         self.turn = 0
-        own = r.frame_key(r.uid)
         for seed, partner in self.registrations:
-            if seed == own:
+            if seed == r.own_key:
                 r.partners.setdefault(partner, set()).add(r.uid)
         if self.groups:
             r.log("groups", count=len(self.groups))
@@ -117,7 +129,7 @@ class MergingGroups(Phase):
         if self.registrations and self.turn % 2 == 0:
             seed, partner = self.registrations[(self.turn // 2) % len(self.registrations)]
             return REGISTER.pack(
-                sender=r.uid, seed=seed >> 8, partner=partner >> 8, partner_salt=partner & 0xFF
+                sender=r.uid, seed=seed.uid, partner=partner.uid, partner_salt=partner.salt
             )
         return announce_position(r)
 
@@ -127,5 +139,5 @@ class MergingGroups(Phase):
         if REGISTER.matches(message):
             m = REGISTER.unpack(message)
             if m.seed == r.uid:
-                partner = (m.partner << 8) | m.partner_salt
+                partner = FrameKey.from_wire(m.partner, m.partner_salt)
                 r.partners.setdefault(partner, set()).add(m.sender)

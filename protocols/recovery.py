@@ -30,16 +30,43 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from kilonet.message import Layout, Message
-from protocols.gcs_base import Phase
+from kilonet.message import Message
+from protocols.gcs_base import GcsParams, Phase, gcs_layout
 
 if TYPE_CHECKING:
     from protocols.gcs import GcsRobot
 
-__all__ = ["EDGE", "RECOVER", "EdgeSeeds", "RecoveryFlood"]
+__all__ = ["EDGE", "RECOVER", "EdgeSeeds", "RecoveryFlood", "adopts_epoch"]
 
-RECOVER = Layout("recover", type=71, fields=[("sender", "H"), ("epoch", "B"), ("start_tick", "I")])
-EDGE = Layout("edge", type=72, fields=[("sender", "H"), ("epoch", "B")])
+RECOVER = gcs_layout("recover", type=71, fields=[("epoch", "B"), ("start_tick", "I")])
+EDGE = gcs_layout("edge", type=72, fields=[("epoch", "B")])
+
+
+def adopts_epoch(
+    epoch: int,
+    start_tick: int,
+    *,
+    own_epoch: int,
+    own_start_tick: int | None,
+    now_tick: int,
+) -> bool:
+    """Whether a robot adopts a heard announcement of recovery epoch ``epoch`` starting at
+    ``start_tick``: it is newer than the robot's own epoch, or the same epoch announced to
+    start earlier than the one it is spreading (``own_start_tick``, ``None`` if none is
+    pending: two robots may ask at once), and its start is still ahead.
+
+    Examples
+    --------
+    >>> adopts_epoch(1, 900, own_epoch=0, own_start_tick=None, now_tick=100)
+    True
+    >>> adopts_epoch(1, 900, own_epoch=1, own_start_tick=800, now_tick=100)
+    False
+    >>> adopts_epoch(1, 700, own_epoch=1, own_start_tick=800, now_tick=100)
+    True
+    """
+    newer = epoch > own_epoch
+    earlier = epoch == own_epoch and own_start_tick is not None and start_tick < own_start_tick
+    return (newer or earlier) and start_tick > now_tick
 
 
 class RecoveryFlood:
@@ -77,9 +104,14 @@ class RecoveryFlood:
             return
         m = RECOVER.unpack(message)
         r = self.robot
-        newer = m.epoch > r.epoch
-        earlier = m.epoch == r.epoch and self.pending and m.start_tick < self.start_tick
-        if (newer or earlier) and m.start_tick > r.kilo_ticks:
+        pending_start = self.start_tick if self.pending else None
+        if adopts_epoch(
+            m.epoch,
+            m.start_tick,
+            own_epoch=r.epoch,
+            own_start_tick=pending_start,
+            now_tick=r.kilo_ticks,
+        ):
             self._adopt(m.epoch, m.start_tick)
 
 
@@ -87,6 +119,11 @@ class EdgeSeeds(Phase):
     """Phase ``edges`` of a recovery epoch: robots on a split boundary elect new seeds."""
 
     name = "edges"
+
+    @staticmethod
+    def window_s(p: GcsParams) -> float:
+        """The phase's window, s: ``gcs.elect_s``, as long as one election."""
+        return p.elect_s
 
     def start(self) -> None:
         r = self.robot

@@ -21,13 +21,26 @@ Message (type 20 ELECT, 4 bytes)::
 
 from __future__ import annotations
 
-from kilonet.message import Layout, Message
-from protocols.gcs_base import Phase
+from kilonet.message import Message
+from protocols.gcs_base import GcsParams, Phase, gcs_layout
 
-__all__ = ["ELECT", "SeedElection"]
+__all__ = ["ELECT", "SeedElection", "seed_condition_met"]
 
-ELECT = Layout("elect", type=20, fields=[("sender", "H"), ("round", "B"), ("status", "B")])
+ELECT = gcs_layout("elect", type=20, fields=[("round", "B"), ("status", "B")])
 CANDIDATE, SEED, NON_SEED, REQUEST = 0, 1, 2, 3
+
+
+def seed_condition_met(seeds_heard: int, *, is_seed: bool) -> bool:
+    """The seed check (thesis §4.2): a non-seed must hear at least two seeds and a seed at
+    least one other seed, "to ensure that enough of these local coordinate systems are
+    distributed amongst the swarm" (a robot located in two frames can link them in phase 5).
+
+    Examples
+    --------
+    >>> seed_condition_met(1, is_seed=True), seed_condition_met(1, is_seed=False)
+    (True, False)
+    """
+    return seeds_heard >= (1 if is_seed else 2)
 
 
 class SeedElection(Phase):
@@ -59,8 +72,9 @@ class SeedElection(Phase):
         self.stage_index = 0
 
     @staticmethod
-    def duration_s(p) -> float:
-        """Length of the whole phase for parameters ``p`` (s)."""
+    def window_s(p: GcsParams) -> float:
+        """The phase's window, s: the top election, then ``gcs.reelections`` + 1 bottom
+        elections, each followed by a check."""
         return p.elect_s * (p.reelections + 2) + p.check_s * (p.reelections + 1)
 
     def loop(self) -> None:
@@ -90,7 +104,7 @@ class SeedElection(Phase):
 
     def _satisfied(self) -> bool:
         r = self.robot
-        return len(r.seeds) >= (1 if r.is_seed else 2)
+        return seed_condition_met(len(r.seeds), is_seed=r.is_seed)
 
     def _end_check(self) -> None:
         r = self.robot

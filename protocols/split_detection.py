@@ -5,10 +5,10 @@ marked done by its seed — it broadcasts that position now and then::
 
     type 70 POS  sender:uint16  x:int16  y:int16 (0.5 mm)  root:uint16  root_salt:uint8  9 bytes
 
-``root`` is the frame key of the merged frame its estimate is in (see
-:mod:`protocols.frame_merging`). A settled robot that hears a settled neighbour compares, as
-the thesis proposes, the distance computed from both global positions with the distance it
-measures (the running mean of its neighbour table):
+``root`` and ``root_salt`` name the root of the merged frame its estimate is in
+(:class:`protocols.frame_keys.Root`; bit 15 of ``root``: an edge seed's frame). A settled robot
+that hears a settled neighbour compares, as the thesis proposes, the distance computed from
+both global positions with the distance it measures (the running mean of its neighbour table):
 
 * the neighbour is in **another merged frame** (another root) — the two frames were never
   merged, and the computed distance means nothing: this robot is on the boundary of a split;
@@ -18,11 +18,10 @@ measures (the running mean of its neighbour table):
 The flags describe the latest message from each neighbour, so they clear when merging goes
 on and the frames meet after all. They also lapse: a neighbour's flag when it has sent no POS
 for ``_FRESH_S`` (it is merging again), and all of them when this robot stops being settled
-(its own frame is moving). Without that, a flag raised while a 1,000-robot swarm was still
-flooding its root stayed up long after both robots had joined that root, and set off a needless
-recovery epoch. A robot that has been on a split boundary for ``gcs.split_confirm_s`` without
-interruption asks for a recovery (:mod:`protocols.recovery`) — unless ``gcs.recoveries`` have
-been run already.
+(its own frame is moving): a flag raised while the root is still flooding the swarm must not
+outlive the moment both robots have joined that root. A robot that has been on a split boundary
+for ``gcs.split_confirm_s`` without interruption asks for a recovery (:mod:`protocols.recovery`)
+— unless ``gcs.recoveries`` have been run already.
 
 The comparison uses only what the robot heard: its neighbours' messages and its own ranging.
 """
@@ -32,27 +31,37 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from kilonet.message import Layout, Message
+from kilonet.message import Message
+from protocols.frame_keys import Root
+from protocols.gcs_base import gcs_layout
 
 if TYPE_CHECKING:
     from protocols.gcs import GcsRobot
 
-__all__ = ["POS", "SplitCheck"]
+__all__ = ["POS", "SplitCheck", "distance_mismatch_mm"]
 
-POS = Layout(
+POS = gcs_layout(
     "pos",
     type=70,
-    fields=[
-        ("sender", "H"),
-        ("x_mm", "h", 0.5),
-        ("y_mm", "h", 0.5),
-        ("root", "H"),
-        ("root_salt", "B"),
-    ],
+    fields=[("x_mm", "h", 0.5), ("y_mm", "h", 0.5), ("root", "H"), ("root_salt", "B")],
 )
 _POS_EVERY = 4  # one message opportunity in this many carries a POS (others are free)
 _LIMIT_MM = 16383.0  # int16 in 0.5 mm
 _FRESH_S = 5.0  # a neighbour's flag lapses after this long without a POS from it
+
+
+def distance_mismatch_mm(
+    xy_mm: tuple[float, float], neighbour_xy_mm: tuple[float, float], measured_mm: float
+) -> float:
+    """How far the distance computed from two global positions is from the measured one, mm.
+
+    Examples
+    --------
+    >>> distance_mismatch_mm((0.0, 0.0), (30.0, 40.0), 45.0)
+    5.0
+    """
+    computed = math.hypot(neighbour_xy_mm[0] - xy_mm[0], neighbour_xy_mm[1] - xy_mm[1])
+    return abs(computed - measured_mm)
 
 
 class SplitCheck:
@@ -60,7 +69,7 @@ class SplitCheck:
 
     Attributes
     ----------
-    other_frame : dict[int, int]
+    other_frame : dict[int, Root]
         Neighbour ID → root of the other merged frame it reported.
     inconsistent : dict[int, float]
         Neighbour ID → |computed − measured| distance, mm, where above the tolerance.
@@ -71,24 +80,13 @@ class SplitCheck:
     def __init__(self, robot: GcsRobot) -> None:
         self.robot = robot
         self.params = robot.params
-        self.other_frame: dict[int, int] = {}
+        self.other_frame: dict[int, Root] = {}
         self.inconsistent: dict[int, float] = {}
         self.boundary_since: int | None = None
         self.pos_heard_at: dict[int, int] = {}  # neighbour ID -> tick of its latest POS
         self.turn = 0
-        self._settled: tuple[tuple[int, int], bool] = ((-1, -1), False)  # (state, settled)
 
     # -- own state ---------------------------------------------------------------------------
-    def settled(self) -> bool:
-        """Whether this robot's global position is final as far as it can tell: it has one,
-        and every seed whose transform it uses has reported itself done."""
-        r = self.robot
-        state = r.estimate_state
-        if state != self._settled[0]:
-            root, frames = r.global_frames()
-            self._settled = (state, root is not None and all(r.transforms[k].done for k in frames))
-        return self._settled[1]
-
     @property
     def on_split_boundary(self) -> bool:
         """A neighbour's estimate is in another merged frame."""
@@ -108,7 +106,7 @@ class SplitCheck:
     def _lapse(self) -> None:
         """Drop flags that no longer describe the present (see the module docstring)."""
         r = self.robot
-        if not self.settled():
+        if not r.estimate.settled():
             self.other_frame.clear()
             self.inconsistent.clear()
             self.pos_heard_at.clear()
@@ -133,14 +131,16 @@ class SplitCheck:
     def message_tx(self) -> Message | None:
         """A POS now and then, once settled."""
         self.turn += 1
-        if self.turn % _POS_EVERY or not self.settled():
+        estimate = self.robot.estimate
+        if self.turn % _POS_EVERY or not estimate.settled():
             return None
-        r = self.robot
-        x, y = r.global_position()
+        x, y = estimate.position()
         if abs(x) > _LIMIT_MM or abs(y) > _LIMIT_MM:
             return None  # a frame still far off its partners' (it will not stay settled)
-        root = r.global_root
-        return POS.pack(sender=r.uid, x_mm=x, y_mm=y, root=root >> 8, root_salt=root & 0xFF)
+        root = estimate.root()
+        return POS.pack(
+            sender=self.robot.uid, x_mm=x, y_mm=y, root=root.wire_id, root_salt=root.key.salt
+        )
 
     def message_rx(self, message: Message) -> None:
         """Compare a settled neighbour's POS with this robot's own estimate and ranging."""
@@ -148,17 +148,18 @@ class SplitCheck:
             return
         r = self.robot
         m = POS.unpack(message)
-        if m.sender not in r.table or not self.settled():
+        estimate = r.estimate
+        if m.sender not in r.table or not estimate.settled():
             return
-        root = (m.root << 8) | m.root_salt
+        root = Root.from_wire(m.root, m.root_salt)
         self.pos_heard_at[m.sender] = r.kilo_ticks
         self.other_frame.pop(m.sender, None)
         self.inconsistent.pop(m.sender, None)
-        if root != r.global_root:
+        if root != estimate.root():
             self.other_frame[m.sender] = root
         else:
-            x, y = r.global_position()
-            mismatch = abs(math.hypot(m.x_mm - x, m.y_mm - y) - r.table.distance(m.sender))
+            xy = estimate.position()
+            mismatch = distance_mismatch_mm(xy, (m.x_mm, m.y_mm), r.table.distance(m.sender))
             if mismatch > self.params.check_tolerance_mm:
                 self.inconsistent[m.sender] = mismatch
         self._update_boundary()

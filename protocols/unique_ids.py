@@ -23,14 +23,44 @@ are repeated at three transmit opportunities.
 
 from __future__ import annotations
 
-from kilonet.message import Layout, Message
-from protocols.gcs_base import Phase
+from kilonet.message import Message
+from protocols.gcs_base import GcsParams, Phase, gcs_layout
 
-__all__ = ["CONFLICT", "ID", "UniqueIds"]
+__all__ = ["CONFLICT", "ID", "UniqueIds", "is_duplicate"]
 
-ID = Layout("id", type=10, fields=[("sender", "H"), ("salt", "B"), ("previous", "H")])
-CONFLICT = Layout("conflict", type=11, fields=[("sender", "H"), ("duplicate", "H")])
+ID = gcs_layout("id", type=10, fields=[("salt", "B"), ("previous", "H")])
+CONFLICT = gcs_layout("conflict", type=11, fields=[("duplicate", "H")])
 _REPEATS = 3
+#: Readings of one ID, at least, before their distances may tell two robots apart.
+_MIN_SAMPLES = 2
+
+
+def is_duplicate(
+    known_salt: int,
+    salt: int,
+    known_distance_mm: float | None,
+    samples: int,
+    distance_mm: float,
+    duplicate_distance_mm: float,
+) -> bool:
+    """Whether an ID heard again belongs to a second robot: it comes with another salt than
+    the first time, or (the thesis's rule) at a distance more than ``duplicate_distance_mm``
+    from the mean of at least two earlier readings (``known_distance_mm``, ``None`` if never
+    ranged).
+
+    Examples
+    --------
+    >>> is_duplicate(7, 7, 40.0, 2, 55.0, 12.0), is_duplicate(7, 7, 40.0, 1, 55.0, 12.0)
+    (True, False)
+    >>> is_duplicate(7, 8, None, 0, 40.0, 12.0)
+    True
+    """
+    far_apart = (
+        known_distance_mm is not None
+        and samples >= _MIN_SAMPLES
+        and abs(distance_mm - known_distance_mm) > duplicate_distance_mm
+    )
+    return salt != known_salt or far_apart
 
 
 class UniqueIds(Phase):
@@ -38,19 +68,24 @@ class UniqueIds(Phase):
 
     name = "ids"
 
+    @staticmethod
+    def window_s(p: GcsParams) -> float:
+        """The phase's window, s: ``gcs.ids_s``."""
+        return p.ids_s
+
     def start(self) -> None:
         r = self.robot
         self.salts: dict[int, int] = {}  # ID -> salt heard with it
         self.pending_conflicts: list[int] = []
         self.previous: int | None = None
         self.announce = 0
-        r.uid = self._draw()
-        r.salt = int(r.rand.integers(256))
+        uid = self._draw()
+        r.take_id(uid, int(r.rand.integers(256)))
         self.redraws = 0
 
     def _draw(self) -> int:
         r = self.robot
-        taken = set(r.table.ids()) | {getattr(r, "uid", -1)}
+        taken = set(r.table.ids()) | {r.uid}
         space = 1 << self.params.id_bits
         free = space - len(taken)
         for _ in range(64):
@@ -63,8 +98,8 @@ class UniqueIds(Phase):
         r = self.robot
         self.previous = r.uid
         self.announce = _REPEATS
-        r.uid = self._draw()
-        r.salt = int(r.rand.integers(256))
+        uid = self._draw()
+        r.take_id(uid, int(r.rand.integers(256)))
         self.redraws += 1
         r.log("id", uid=r.uid, previous=self.previous)
 
@@ -90,12 +125,14 @@ class UniqueIds(Phase):
                 return
             salt = self.salts.setdefault(m.sender, m.salt)
             known = r.table.get(m.sender)
-            far_apart = (
-                known is not None
-                and known.samples >= 2
-                and abs(distance_mm - known.distance_mm) > self.params.duplicate_distance_mm
-            )
-            if salt != m.salt or far_apart:
+            if is_duplicate(
+                salt,
+                m.salt,
+                None if known is None else known.distance_mm,
+                0 if known is None else known.samples,
+                distance_mm,
+                self.params.duplicate_distance_mm,
+            ):
                 self._report(m.sender)
         elif CONFLICT.matches(message):
             m = CONFLICT.unpack(message)
@@ -107,7 +144,7 @@ class UniqueIds(Phase):
 
     def finish(self) -> None:
         r = self.robot
-        r.salts = {uid: salt for uid, salt in self.salts.items() if uid in r.table}
+        r.learn_salts({uid: salt for uid, salt in self.salts.items() if uid in r.table})
 
     def _report(self, uid: int) -> None:
         r = self.robot

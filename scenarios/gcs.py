@@ -18,6 +18,10 @@ robots build their own IDs) and measures each phase against ground truth:
   the swarm flagged itself (:mod:`protocols.split_detection`); ``recoveries`` and
   ``edge_seeds`` (:mod:`protocols.recovery`). ``robots.csv`` carries the same per robot.
 
+Every figure comes from one read of each robot's :meth:`~protocols.gcs.GcsRobot.outcome` at
+the end of the run (:func:`run_outcomes`), shared by the summary, ``robots.csv``'s columns and
+the figure.
+
 The run ends when every seed is done merging, no recovery is pending, and the robots have had
 a few seconds to check their neighbours without finding a split boundary that a recovery
 would act on (while one lasts, the run waits for it to clear or to start a recovery).
@@ -26,6 +30,8 @@ would act on (while one lasts, the run waits for it to clear or to start a recov
 from __future__ import annotations
 
 import math
+import weakref
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -39,8 +45,10 @@ if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios 
 
     from kilonet.params import Params
     from kilonet.simulation import Simulation
+    from protocols.frame_keys import FrameKey
+    from protocols.gcs import GcsRobot, RobotOutcome
 
-__all__ = ["SCENARIO", "estimates_frame", "local_frames_frame"]
+__all__ = ["SCENARIO", "RunOutcomes", "estimates_frame", "local_frames_frame", "run_outcomes"]
 
 
 def _program(params: Any, positions: np.ndarray):
@@ -49,41 +57,35 @@ def _program(params: Any, positions: np.ndarray):
     return lambda _i: GcsRobot(params.scenario)
 
 
-def _windows(sim: Simulation) -> list[tuple[str, float, float]]:
-    from protocols.gcs import phase_windows_s
-
-    return phase_windows_s(sim.params.scenario)
-
-
 #: After the last seed is done, the time robots get to exchange positions (a settled robot
 #: sends one at every fourth transmit opportunity, about one a second) and flag a boundary.
 _CHECK_S = 5.0
 
 
 def _stop_when(sim: Simulation) -> bool:
-    windows = _windows(sim)
-    name, start, end = windows[-1]
+    from protocols.gcs import phase_windows_s
+
+    name, start, end = phase_windows_s(sim.params.scenario)[-1]
     now = sim.env.now
     if name != "merge":
         return now >= end + 1.0  # a second more, so every robot has closed the last window
+    if now <= start:
+        return False
     running = sim.world.running
     robots = [r for i, r in enumerate(sim.robots) if running[i]]  # a crashed seed is never done
     seeds = [r for r in robots if r.is_seed]
-    if now <= start or not seeds or not all(r.merge_done for r in seeds):
+    return _merging_over(robots, seeds) and now - max(r.merge_done_at_s for r in seeds) >= _CHECK_S
+
+
+def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
+    """Nothing more will happen: every seed is done, every robot merges in the same epoch, and
+    no recovery is announced or about to be (the robots then get :data:`_CHECK_S` to check
+    their neighbours, :mod:`protocols.split_detection`)."""
+    if not seeds or not all(r.merge_done for r in seeds):
         return False
-    # Nothing more will happen: every robot merges in the same epoch, no recovery is announced
-    # or about to be (a split boundary that will be acted on), and since the last seed was done
-    # the robots have had the time to check their neighbours (split_detection).
-    p = sim.params.scenario
-    if len({r.epoch for r in robots}) > 1 or any(
-        r.phase_name != "merge"
-        or r.recovery.pending
-        or (r.check is not None and r.check.boundary_since is not None and r.epoch < p.recoveries)
-        for r in robots
-    ):
+    if len({r.epoch for r in robots}) > 1:
         return False
-    settled_s = max(r.phase.done_since for r in seeds) / robots[0].ticks_per_s
-    return now - settled_s >= _CHECK_S
+    return not any(r.phase_name != "merge" or r.awaiting_recovery() for r in robots)
 
 
 def _expected_end_s(params: Params) -> float | None:
@@ -96,9 +98,10 @@ def _expected_end_s(params: Params) -> float | None:
 
 def _phase_note(sim: Simulation) -> str:
     """The phase the run is in, for the progress display: ``phase 3/6 frames (to 41 s)``."""
+    from protocols.gcs import phase_windows_s
     from protocols.gcs_base import PHASES
 
-    windows = _windows(sim)
+    windows = phase_windows_s(sim.params.scenario)
     now = sim.env.now
     k, (name, _, end) = next(
         ((k, w) for k, w in enumerate(windows) if now < w[2]), (len(windows) - 1, windows[-1])
@@ -107,54 +110,90 @@ def _phase_note(sim: Simulation) -> str:
     return f"phase {k + 1}/{len(PHASES)} {name}{until}"
 
 
-def _seed_robot_by_key(sim: Simulation) -> dict[int, int]:
-    """Which robot (index) is the seed of each frame key (ground truth, for tables)."""
-    return {r.frame_key(r.uid): i for i, r in enumerate(sim.robots) if r.is_seed}
+@dataclass(frozen=True)
+class RunOutcomes:
+    """The robots' outcomes at the end of a run, and the tables the scenario makes of them.
+
+    Attributes
+    ----------
+    robots : list of RobotOutcome
+        One per robot, by index.
+    seed_robot : dict
+        Which robot (index) is the seed of each frame key (ground truth, for tables).
+    estimates : DataFrame
+        :func:`estimates_frame`'s table.
+    """
+
+    robots: list[RobotOutcome]
+    seed_robot: dict[FrameKey, int]
+    estimates: pd.DataFrame
+
+
+#: Outcomes already read, per simulation: (simulated time they were read at, outcomes).
+_READ: weakref.WeakKeyDictionary[Simulation, tuple[float, RunOutcomes]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def run_outcomes(sim: Simulation) -> RunOutcomes:
+    """Every robot's :meth:`~protocols.gcs.GcsRobot.outcome`, read once per simulated moment:
+    the summary, ``robots.csv`` and the figure of a run all use the same read."""
+    read = _READ.get(sim)
+    if read is not None and read[0] == sim.env.now:
+        return read[1]
+    robots = [r.outcome() for r in sim.robots]
+    seed_robot = {o.own_key: i for i, o in enumerate(robots) if o.is_seed}
+    outcomes = RunOutcomes(robots, seed_robot, _estimates(robots, seed_robot))
+    _READ[sim] = (sim.env.now, outcomes)
+    return outcomes
+
+
+def _estimates(robots: list[RobotOutcome], seed_robot: dict[FrameKey, int]) -> pd.DataFrame:
+    import pandas as pd
+
+    rows = []
+    for i, o in enumerate(robots):
+        est = o.position
+        rows.append(
+            {
+                "robot": i,
+                "uid": o.uid,
+                "role": o.role,
+                "frames": len(o.local_positions),
+                "est_x_mm": est[0] if est else math.nan,
+                "est_y_mm": est[1] if est else math.nan,
+                "frame": "" if o.root is None else f"root{o.root.number}",
+                "localized": est is not None,
+                "seed_of_frame": seed_robot.get(o.own_key, -1) if o.is_seed else -1,
+                # Failure cases as this robot ended (thesis §7) and what the swarm detected.
+                "unlocalizable": not o.local_positions,
+                "isolated_seed": o.isolated_seed,
+                "split_boundary": o.split_boundary,
+                "inconsistent": o.inconsistent,
+                "edge_seed": o.edge_seed,
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def estimates_frame(sim: Simulation) -> pd.DataFrame:
+    """Per robot: truth, role, ID, frames held, global estimate, final frame label (``root``
+    and :attr:`protocols.frame_keys.Root.number`), failure flags: ``robots.csv``'s columns."""
+    return run_outcomes(sim).estimates
 
 
 def local_frames_frame(sim: Simulation) -> pd.DataFrame:
     """Long table of local positions: ``robot, seed_robot, local_x_mm, local_y_mm``."""
     import pandas as pd
 
-    seeds = _seed_robot_by_key(sim)
+    outcomes = run_outcomes(sim)
+    seeds = outcomes.seed_robot
     rows = [
         (i, seeds.get(key, -1), x, y)
-        for i, r in enumerate(sim.robots)
-        for key, (x, y) in sorted(r.frames.items())
+        for i, o in enumerate(outcomes.robots)
+        for key, (x, y) in sorted(o.local_positions.items())
     ]
     return pd.DataFrame(rows, columns=["robot", "seed_robot", "local_x_mm", "local_y_mm"])
-
-
-def estimates_frame(sim: Simulation) -> pd.DataFrame:
-    """Per robot: truth, role, ID, frames held, global estimate, final frame label."""
-    import pandas as pd
-
-    seeds = _seed_robot_by_key(sim)
-    rows = []
-    for i, r in enumerate(sim.robots):
-        est = r.global_position() if hasattr(r, "transforms") else None
-        root = r.global_root if est is not None else None
-        check = getattr(r, "check", None)
-        rows.append(
-            {
-                "robot": i,
-                "uid": r.uid,
-                "role": r.role,
-                "frames": len(r.frames),
-                "est_x_mm": est[0] if est else math.nan,
-                "est_y_mm": est[1] if est else math.nan,
-                "frame": "" if root is None else f"root{root}",
-                "localized": est is not None,
-                "seed_of_frame": seeds.get(r.frame_key(r.uid), -1) if r.is_seed else -1,
-                # Failure cases as this robot ended (thesis §7) and what the swarm detected.
-                "unlocalizable": not r.frames,
-                "isolated_seed": r.is_seed and not r.partners,
-                "split_boundary": check is not None and check.on_split_boundary,
-                "inconsistent": check is not None and bool(check.inconsistent),
-                "edge_seed": r.edge_seed,
-            }
-        )
-    return pd.DataFrame(rows)
 
 
 def _pooled_rmse(groups: list[tuple[np.ndarray, np.ndarray]]) -> float:
@@ -169,15 +208,23 @@ def _pooled_rmse(groups: list[tuple[np.ndarray, np.ndarray]]) -> float:
     return math.sqrt(squared / count) if count else math.nan
 
 
-def _failures(sim: Simulation) -> dict[str, Any]:
+def _per_frame(
+    table: pd.DataFrame, by: str, xy: list[str], truth: np.ndarray
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(estimates, truth)`` per group of ``table`` by column ``by``, for :func:`_pooled_rmse`."""
+    return [(g[xy].to_numpy(), truth[g.robot.to_numpy()]) for _, g in table.groupby(by)]
+
+
+def _failures(sim: Simulation, outcomes: RunOutcomes) -> dict[str, Any]:
     """The thesis's failure cases as this run produced them (robot indices), with the
     communication graph's rigidity facts that explain them."""
     from scenarios.topology import failure_cases, rigidity_facts
 
-    seeds = _seed_robot_by_key(sim)
-    located = {i: [seeds[k] for k in r.frames if k in seeds] for i, r in enumerate(sim.robots)}
+    seeds = outcomes.seed_robot
+    robots = outcomes.robots
+    located = {i: [seeds[k] for k in o.local_positions if k in seeds] for i, o in enumerate(robots)}
     groups = [
-        (seeds[a], seeds[b]) for r in sim.robots for a, b in r.groups if a in seeds and b in seeds
+        (seeds[a], seeds[b]) for o in robots for a, b in o.groups if a in seeds and b in seeds
     ]
     cases = failure_cases(range(sim.n_robots), located, sorted(seeds.values()), groups)
     facts = rigidity_facts(sim.medium.graph())
@@ -191,116 +238,163 @@ def _failures(sim: Simulation) -> dict[str, Any]:
     }
 
 
-def _metrics(sim: Simulation) -> dict[str, Any]:
-    from kilonet.geometry import crlb_rmse_mm
-    from kilonet.visibility import LinkModel
-    from scenarios.prediction import predict_from_seeds
-
-    windows = _windows(sim)
-    robots = sim.robots
-    truth = sim.world.positions_mm
-    events = sim.trace.events_frame()
-    counts = events["event"].value_counts().to_dict() if len(events) else {}
-    links = LinkModel.from_params(sim.params.medium, sim.world.radius_mm).links(truth)
-    i, j = links.i, links.j
-    uids = np.array([r.uid for r in robots])
-    # Two robots with one ID seen by a common neighbour, or neighbours sharing an ID.
+def _duplicate_ids(uids: np.ndarray, i: np.ndarray, j: np.ndarray) -> int:
+    """Neighbours (pairs ``i``, ``j``) sharing an ID, plus two robots with one ID seen by a
+    common neighbour."""
     duplicates = int(np.sum(uids[i] == uids[j]))
-    for k in range(sim.n_robots):
+    for k in range(len(uids)):
         near = np.concatenate([j[i == k], i[j == k]])
         duplicates += len(near) - len(set(uids[near].tolist()))
-    phase_times = {}
-    now = sim.env.now
-    for name, start, end in windows:
-        if now >= start:
-            phase_times[name] = round(min(now, end) - start, 3)
-    out: dict[str, Any] = {
-        "mean_neighbours": 2.0 * len(i) / sim.n_robots,  # in the line-of-sight graph
-        "phases_run": [name for name, _, _ in windows],
-        "phase_times_s": phase_times,
-        "ids_duplicate_neighbours": duplicates,
-        "ids_redraws": int(counts.get("id", 0)),
-    }
-    reached = {name for name, start, _ in windows if now >= start}
-    if "seeds" in reached:
-        out["seeds"] = int(sum(r.is_seed for r in robots))
-        out["seed_check_failed"] = int(counts.get("seed_check_failed", 0))
-    if "frames" in reached:
-        out["seeds_with_frame"] = int(sum(bool(r.references) for r in robots))
-        out["busy_resets"] = int(counts.get("busy_reset", 0))
-    if "localization" in reached:
-        local = local_frames_frame(sim)
-        located = local.robot.nunique()
-        per_frame = [
-            (g[["local_x_mm", "local_y_mm"]].to_numpy(), truth[g.robot.to_numpy()])
-            for _, g in local.groupby("seed_robot")
-        ]
-        out["locally_localized_fraction"] = located / sim.n_robots
-        out["mean_frames_per_robot"] = len(local) / sim.n_robots
-        out["local_rmse_mm"] = _pooled_rmse(per_frame)
-        out["fix_rejections"] = int(counts.get("fix_rejected", 0))
-    if "groups" in reached:
-        out["merging_groups"] = int(sum(len(r.groups) for r in robots))
-        out["failures"] = _failures(sim)
-        # What the geometry and phase 2's election predicted (scenarios.prediction), next to
-        # what happened: the topology sweep compares the two.
-        elected = [k for k, r in enumerate(robots) if r.is_seed and not r.edge_seed]
-        keys = {k: robots[k].frame_key(robots[k].uid) for k in elected}
-        prediction = predict_from_seeds(truth, sim.params, elected, keys)
-        out["predicted"] = {
-            "final_frames": prediction["final_frames"],
-            "unlocalizable": prediction["unlocalizable"],
-            "isolated_seeds": prediction["isolated_seeds"],
-            "boundary": prediction["boundary"],
+    return duplicates
+
+
+def _prediction(sim: Simulation, robots: list[RobotOutcome]) -> dict[str, Any]:
+    """What the geometry and phase 2's election predicted (scenarios.prediction), to report
+    next to what happened: the topology sweep compares the two."""
+    from scenarios.prediction import predict_from_seeds
+
+    elected = [k for k, o in enumerate(robots) if o.is_seed and not o.edge_seed]
+    keys = {k: robots[k].own_key for k in elected}
+    prediction = predict_from_seeds(sim.world.positions_mm, sim.params, elected, keys)
+    names = ("final_frames", "unlocalizable", "isolated_seeds", "boundary")
+    return {name: prediction[name] for name in names}
+
+
+@dataclass(frozen=True)
+class _Run:
+    """What the metrics of one run are computed from."""
+
+    sim: Simulation
+    outcomes: RunOutcomes
+    counts: dict[str, int]  # events logged, by name
+    i: np.ndarray  # pairs of robots in range and line of sight
+    j: np.ndarray
+
+    @property
+    def robots(self) -> list[RobotOutcome]:
+        return self.outcomes.robots
+
+    @property
+    def truth(self) -> np.ndarray:
+        return self.sim.world.positions_mm
+
+    def count(self, event: str) -> int:
+        return int(self.counts.get(event, 0))
+
+
+def _seed_metrics(run: _Run, out: dict[str, Any]) -> None:
+    out["seeds"] = int(sum(o.is_seed for o in run.robots))
+    out["seed_check_failed"] = run.count("seed_check_failed")
+
+
+def _frame_metrics(run: _Run, out: dict[str, Any]) -> None:
+    out["seeds_with_frame"] = int(sum(o.has_frame for o in run.robots))
+    out["busy_resets"] = run.count("busy_reset")
+
+
+def _localization_metrics(run: _Run, out: dict[str, Any]) -> None:
+    local, n = local_frames_frame(run.sim), run.sim.n_robots
+    out["locally_localized_fraction"] = local.robot.nunique() / n
+    out["mean_frames_per_robot"] = len(local) / n
+    xy = ["local_x_mm", "local_y_mm"]
+    out["local_rmse_mm"] = _pooled_rmse(_per_frame(local, "seed_robot", xy, run.truth))
+    out["fix_rejections"] = run.count("fix_rejected")
+
+
+def _group_metrics(run: _Run, out: dict[str, Any]) -> None:
+    out["merging_groups"] = int(sum(len(o.groups) for o in run.robots))
+    out["failures"] = _failures(run.sim, run.outcomes)
+    out["predicted"] = _prediction(run.sim, run.robots)
+
+
+def _merge_metrics(run: _Run, out: dict[str, Any]) -> None:
+    """Final frames, localized share, RMSE and the bound, rounds, recoveries, detection."""
+    from kilonet.geometry import crlb_rmse_mm
+
+    sim, robots, est = run.sim, run.robots, run.outcomes.estimates
+    n, sigma_mm = sim.n_robots, sim.params.ranging.sigma_mm
+    done = est[est.localized]
+    sizes = done.groupby("frame").size()
+    seeds = [o for o in robots if o.is_seed]
+    out.update(
+        {
+            "localized_fraction": len(done) / n,
+            "frames": len(sizes),
+            "largest_frame_fraction": float(sizes.max() / n) if len(sizes) else 0,
+            "rmse_mm": _pooled_rmse(_per_frame(done, "frame", ["est_x_mm", "est_y_mm"], run.truth)),
+            # No two robots in range: nothing is measured, the bound is infinite (null).
+            "crlb_rmse_mm": crlb_rmse_mm(run.truth, np.column_stack([run.i, run.j]), sigma_mm)
+            if len(run.i)
+            else None,
+            "merge_rounds": run.count("merge_round"),
+            "merge_rounds_max_per_seed": int(max((o.merge_rounds for o in seeds), default=0)),
+            "seeds_done": int(sum(o.merge_done for o in seeds)),
+            "recoveries": int(max(o.epoch for o in robots)),
+            "edge_seeds": int(est.edge_seed.sum()),
+            "detected": {
+                "split_boundary": est.robot[est.split_boundary].tolist(),
+                "inconsistent": est.robot[est.inconsistent].tolist(),
+            },
         }
-    if "merge" in reached:
-        est = estimates_frame(sim)
-        done = est[est.localized]
-        per_frame = [
-            (g[["est_x_mm", "est_y_mm"]].to_numpy(), truth[g.robot.to_numpy()])
-            for _, g in done.groupby("frame")
-        ]
-        sizes = done.groupby("frame").size()
-        edges = np.column_stack([i, j])
-        out.update(
-            {
-                "localized_fraction": len(done) / sim.n_robots,
-                "frames": len(sizes),
-                "largest_frame_fraction": float(sizes.max() / sim.n_robots) if len(sizes) else 0,
-                "rmse_mm": _pooled_rmse(per_frame),
-                # No two robots in range: nothing is measured, the bound is infinite (null).
-                "crlb_rmse_mm": crlb_rmse_mm(truth, edges, sim.params.ranging.sigma_mm)
-                if len(edges)
-                else None,
-                "merge_rounds": int(counts.get("merge_round", 0)),
-                "merge_rounds_max_per_seed": int(
-                    max((r.phase.rounds for r in robots if r.is_seed and r.phase), default=0)
-                ),
-                "seeds_done": int(sum(r.merge_done for r in robots if r.is_seed)),
-                "recoveries": int(max(r.epoch for r in robots)),
-                "edge_seeds": int(est.edge_seed.sum()),
-                "detected": {
-                    "split_boundary": est.robot[est.split_boundary].tolist(),
-                    "inconsistent": est.robot[est.inconsistent].tolist(),
-                },
-            }
-        )
-        # The truth the swarm's detection is judged by: robots with a neighbour (line of
-        # sight) whose estimate ended in another final frame.
-        label = est.frame.to_numpy()
-        split = (label[i] != "") & (label[j] != "") & (label[i] != label[j])
-        boundary = sorted({int(k) for k in np.concatenate([i[split], j[split]])})
-        out.setdefault("failures", {})["boundary"] = boundary
+    )
+    out.setdefault("failures", {})["boundary"] = _boundary(est, run.i, run.j)
+
+
+#: The metrics of each phase, added to the summary once the run has reached the phase.
+_PHASE_METRICS = (
+    ("seeds", _seed_metrics),
+    ("frames", _frame_metrics),
+    ("localization", _localization_metrics),
+    ("groups", _group_metrics),
+    ("merge", _merge_metrics),
+)
+
+
+def _boundary(est: pd.DataFrame, i: np.ndarray, j: np.ndarray) -> list[int]:
+    """The truth the swarm's detection is judged by: robots with a neighbour (line of sight)
+    whose estimate ended in another final frame."""
+    label = est.frame.to_numpy()
+    split = (label[i] != "") & (label[j] != "") & (label[i] != label[j])
+    return sorted({int(k) for k in np.concatenate([i[split], j[split]])})
+
+
+def _metrics(sim: Simulation) -> dict[str, Any]:
+    from kilonet.visibility import LinkModel
+    from protocols.gcs import phase_windows_s
+
+    events = sim.trace.events_frame()
+    links = LinkModel.from_params(sim.params.medium, sim.world.radius_mm).links(
+        sim.world.positions_mm
+    )
+    i, j = links.i, links.j
+    counts = events["event"].value_counts().to_dict() if len(events) else {}
+    run = _Run(sim, run_outcomes(sim), counts, i, j)
+    windows = phase_windows_s(sim.params.scenario)
+    now = sim.env.now
+    reached = [(name, start, end) for name, start, end in windows if now >= start]
+    out: dict[str, Any] = {
+        "mean_neighbours": 2.0 * len(i) / sim.n_robots,  # in the communication graph
+        "phases_run": [name for name, _, _ in windows],
+        "phase_times_s": {name: round(min(now, end) - start, 3) for name, start, end in reached},
+        "ids_duplicate_neighbours": _duplicate_ids(np.array([o.uid for o in run.robots]), i, j),
+        "ids_redraws": run.count("id"),
+    }
+    names = {name for name, _, _ in reached}
+    for phase, section in _PHASE_METRICS:
+        if phase in names:
+            section(run, out)
     return out
 
 
 def _outputs(result: RunResult, out_dir: Path) -> None:
     sim = result.sim
     local_frames_frame(sim).to_csv(out_dir / "local_frames.csv", index=False)
-    _figure(sim, estimates_frame(sim), out_dir / "gcs.png")
+    _figure(sim, run_outcomes(sim), result.summary, out_dir / "gcs.png")
 
 
-def _figure(sim: Simulation, est: pd.DataFrame, path: Path) -> None:
+def _figure(sim: Simulation, outcomes: RunOutcomes, summary: dict[str, Any], path: Path) -> None:
+    """Truth, each final frame's estimates aligned to it, and the seeds; the title gives the
+    summary's frame count and RMSE."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -308,7 +402,7 @@ def _figure(sim: Simulation, est: pd.DataFrame, path: Path) -> None:
 
     from kilonet.alignment import procrustes_rmse
 
-    truth = sim.world.positions_mm
+    truth, est = sim.world.positions_mm, outcomes.estimates
     fig, ax = plt.subplots(figsize=(7, 7))
     ax.scatter(truth[:, 0], truth[:, 1], s=40, facecolors="none", edgecolors="0.6", label="truth")
     done = est[est.localized]
@@ -324,12 +418,11 @@ def _figure(sim: Simulation, est: pd.DataFrame, path: Path) -> None:
         ax.scatter(aligned[:, 0], aligned[:, 1], s=14, color=color, label=f"frame {label}")
         for (x0, y0), (x1, y1) in zip(truth[idx], aligned, strict=True):
             ax.plot([x0, x1], [y0, y1], color="red", lw=0.8)
-    seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
+    seeds = [i for i, o in enumerate(outcomes.robots) if o.is_seed]
     ax.scatter(truth[seeds, 0], truth[seeds, 1], marker="x", s=30, c="k", label="seeds")
     ax.set_aspect("equal")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
-    summary = _metrics(sim)
     ax.set_title(
         f"global coordinate system: {summary.get('frames', '?')} frame(s), "
         f"RMSE {summary.get('rmse_mm', math.nan):.2f} mm"

@@ -18,6 +18,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import networkx as nx
 import numpy as np
 
 from kilonet.geometry import (
@@ -28,6 +29,8 @@ from kilonet.geometry import (
 )
 from kilonet.params import Params
 from kilonet.visibility import LinkModel, communication_graph
+from protocols.frame_keys import FrameKey
+from protocols.gcs_base import GcsParams
 from protocols.merging_groups import find_groups
 from scenarios.topology import failure_cases, rigidity_facts
 
@@ -38,7 +41,7 @@ def predict_from_seeds(
     pos: np.ndarray,
     params: Params,
     seeds: Sequence[int],
-    frame_keys: Mapping[int, int] | None = None,
+    frame_keys: Mapping[int, FrameKey] | None = None,
 ) -> dict[str, Any]:
     """The failure cases phases 3–6 will meet, predicted from geometry.
 
@@ -52,10 +55,10 @@ def predict_from_seeds(
     seeds : sequence of int
         Robot indices elected seeds in phase 2.
     frame_keys : mapping, optional
-        Seed index → its frame key (ID and salt, :meth:`protocols.gcs.GcsRobot.frame_key`).
-        A robot located in frames of several components reports the one of the smallest key
-        (the merged frame's root, as :mod:`protocols.frame_merging` ranks them); without keys,
-        the largest.
+        Seed index → its frame key (:class:`protocols.frame_keys.FrameKey`). A robot located in
+        frames of several components reports the one of the smallest key (the merged frame's
+        root, as :mod:`protocols.frame_merging` ranks elected seeds); without keys, the
+        largest.
 
     Returns
     -------
@@ -70,66 +73,15 @@ def predict_from_seeds(
     p = params
     n = len(pos)
     graph = communication_graph(pos, LinkModel.from_params(p.medium))
-    rule = (
-        choose_references_max_angle
-        if p.scenario.reference_rule == "max_angle"
-        else choose_references_best_conditioned
-    )
     members: dict[int, set[int]] = {}
     for s in seeds:
-        near = sorted(graph[s])
-        candidates = {
-            (b, c): (
-                math.dist(pos[s], pos[b]),
-                math.dist(pos[s], pos[c]),
-                math.dist(pos[b], pos[c]),
-            )
-            for k, b in enumerate(near)
-            for c in near[k + 1 :]
-            if graph.has_edge(b, c)
-        }
-        try:
-            (b, c), _ = rule(candidates)
-        except GeometryError:
-            continue
-        inside = {s, b, c}
-        changed = True
-        while changed:  # localization spreads among robots that see the seed
-            changed = False
-            for robot in near:
-                anchors = sorted(inside & set(graph[robot]))
-                if robot in inside or len(anchors) < 3:
-                    continue
-                # The robot's own test (protocols.localization), on true distances: a fix from
-                # nearly collinear anchors, or one with a mirror image, is rejected there too.
-                fix = multilaterate(
-                    pos[anchors],
-                    np.linalg.norm(pos[anchors] - pos[robot], axis=1),
-                    sigma_mm=p.scenario.sigma_mm,
-                    max_rmse_mm=p.scenario.max_rmse_mm,
-                )
-                if fix.ok:
-                    inside.add(robot)
-                    changed = True
-        members[s] = inside
+        inside = _frame_members(pos, graph, s, p.scenario)
+        if inside is not None:
+            members[s] = inside
     located = {i: sorted(s for s, m in members.items() if i in m) for i in range(n)}
-    groups = []
-    reach = p.medium.range_mm
-    for i in range(n):
-        own = {s: tuple(pos[i]) for s in located[i]}
-        announced = {s: {j: tuple(pos[j]) for j in members[s]} for s in located[i]}
-        found = find_groups(own, announced, set(graph[i]), reach, p.scenario.min_group_width_mm)
-        groups.extend(found)
+    groups = _groups(pos, graph, located, members, p.medium.range_mm, p.scenario)
     cases = failure_cases(range(n), located, list(seeds), groups)
-    component_of = {s: c for c, frames in enumerate(cases["frames"]) for s in frames}
-    if frame_keys is None:
-        order = {c: c for c in range(len(cases["frames"]))}  # largest first
-    else:
-        order = {c: min(frame_keys[s] for s in frames) for c, frames in enumerate(cases["frames"])}
-    final = {
-        i: min((component_of[s] for s in located[i]), key=order.__getitem__, default=None)
-        for i in range(n)
-    }
+    final = _final_frames(cases["frames"], located, frame_keys)
     boundary = sorted(
         i
         for i in range(n)
@@ -145,4 +97,87 @@ def predict_from_seeds(
         "final_frames": len({c for c in final.values() if c is not None}),
         "boundary": boundary,
         **rigidity_facts(graph),
+    }
+
+
+def _frame_members(pos: np.ndarray, graph: nx.Graph, seed: int, gcs: GcsParams) -> set[int] | None:
+    """The robots seed ``seed``'s frame will hold: the seed, the references its rule would
+    choose from true distances among neighbours that see each other, and every robot that sees
+    the seed and passes the robots' own fix test with the frame's robots it sees, repeated until
+    nothing changes (as localization spreads); ``None`` if no reference pair is usable."""
+    rule = (
+        choose_references_max_angle
+        if gcs.reference_rule == "max_angle"
+        else choose_references_best_conditioned
+    )
+    near = sorted(graph[seed])
+    candidates = {
+        (b, c): (
+            math.dist(pos[seed], pos[b]),
+            math.dist(pos[seed], pos[c]),
+            math.dist(pos[b], pos[c]),
+        )
+        for k, b in enumerate(near)
+        for c in near[k + 1 :]
+        if graph.has_edge(b, c)
+    }
+    try:
+        (b, c), _ = rule(candidates)
+    except GeometryError:
+        return None
+    inside = {seed, b, c}
+    changed = True
+    while changed:  # localization spreads among robots that see the seed
+        changed = False
+        for robot in near:
+            anchors = sorted(inside & set(graph[robot]))
+            if robot in inside or len(anchors) < 3:
+                continue
+            # The robot's own test (protocols.localization), on true distances: a fix from
+            # nearly collinear anchors, or one with a mirror image, is rejected there too.
+            fix = multilaterate(
+                pos[anchors],
+                np.linalg.norm(pos[anchors] - pos[robot], axis=1),
+                sigma_mm=gcs.sigma_mm,
+                max_rmse_mm=gcs.max_rmse_mm,
+            )
+            if fix.ok:
+                inside.add(robot)
+                changed = True
+    return inside
+
+
+def _groups(
+    pos: np.ndarray,
+    graph: nx.Graph,
+    located: Mapping[int, list[int]],
+    members: Mapping[int, set[int]],
+    reach_mm: float,
+    gcs: GcsParams,
+) -> list[tuple[int, int]]:
+    """The merging groups' frame pairs (seed indices), as the robots would find them."""
+    groups = []
+    for i in range(len(pos)):
+        own = {s: tuple(pos[i]) for s in located[i]}
+        announced = {s: {j: tuple(pos[j]) for j in members[s]} for s in located[i]}
+        groups.extend(find_groups(own, announced, set(graph[i]), reach_mm, gcs.min_group_width_mm))
+    return groups
+
+
+def _final_frames(
+    frames: list[list[int]],
+    located: Mapping[int, list[int]],
+    frame_keys: Mapping[int, FrameKey] | None,
+) -> dict[int, int | None]:
+    """Robot → index into ``frames`` (the frame graph's components) of the merged frame it will
+    report: of the components its frames are in, the one whose smallest frame key is smallest
+    (the root that wins), or without keys the first (largest)."""
+    component_of = {s: c for c, seeds in enumerate(frames) for s in seeds}
+    if frame_keys is None:
+        order = {c: c for c in range(len(frames))}  # largest first
+    else:
+        order = {c: min(frame_keys[s] for s in seeds) for c, seeds in enumerate(frames)}
+    return {
+        i: min((component_of[s] for s in located[i]), key=order.__getitem__, default=None)
+        for i in located
     }

@@ -128,10 +128,10 @@ def _local_rmse_per_frame(result) -> list[float]:
     for r in sim.robots:
         if not r.is_seed:
             continue
-        key = r.frame_key(r.uid)
-        members = [i for i, q in enumerate(sim.robots) if key in q.frames]
+        key = r.own_key
+        members = [i for i, q in enumerate(sim.robots) if key in q.estimate.frames]
         if len(members) >= 3:
-            est = np.array([sim.robots[i].frames[key] for i in members])
+            est = np.array([sim.robots[i].estimate.frames[key] for i in members])
             errors.append(procrustes_rmse(est, truth[members])[0])
     return errors
 
@@ -244,26 +244,27 @@ def test_merge_small_swarm_ends_by_itself_in_one_frame_per_group_component():
     # Frames merge exactly within the components of the merging-group graph (thesis case 3):
     # robots' final frames are as many as the components their roots lie in.
     groups = nx.Graph()
-    keys = {r.frame_key(r.uid): i for i, r in enumerate(sim.robots) if r.is_seed}
+    keys = {r.own_key: i for i, r in enumerate(sim.robots) if r.is_seed}
     groups.add_nodes_from(keys.values())
     for r in sim.robots:
         for a, b in r.groups:
             if a in keys and b in keys:
                 groups.add_edge(keys[a], keys[b])
     component = {i: k for k, c in enumerate(nx.connected_components(groups)) for i in c}
-    roots = {r.global_root for r in sim.robots if r.global_root is not None}  # frame keys
-    assert frames == len(roots) == len({component[keys[k]] for k in roots})
+    roots = {o.root for o in (r.outcome() for r in sim.robots) if o.root is not None}
+    assert frames == len(roots) == len({component[keys[root.key]] for root in roots})
 
 
 def test_robot_and_merging_state_sit_in_slots():
     """GcsRobot and FrameMerging keep every attribute in __slots__ (more than 30 attributes in
     an instance dict cost measurable time at 1,000 robots): an attribute added without its
-    slot lands in the instance dict and fails here."""
+    slot lands in the instance dict and fails here (SeedRounds has no dict at all)."""
     result = run(40, "merge")
     for robot in result.sim.robots:
         assert vars(robot) == {}
         assert type(robot.phase).__name__ == "FrameMerging"
         assert vars(robot.phase) == {}
+        assert (robot.phase.seed is not None) == robot.is_seed
 
 
 def test_a_partner_that_never_answers_stops_holding_up_done():
@@ -282,7 +283,7 @@ def test_a_partner_that_never_answers_stops_holding_up_done():
     sim.run(merge_start - 0.5)
     seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
     crashed = max(seeds, key=lambda i: len(sim.robots[i].partners))
-    crashed_key = sim.robots[crashed].frame_key(sim.robots[crashed].uid)
+    crashed_key = sim.robots[crashed].own_key
     waiting = [i for i in seeds if crashed_key in sim.robots[i].partners]
     assert waiting
     sim.faults.crash_at(crashed, merge_start - 0.4)
@@ -290,7 +291,7 @@ def test_a_partner_that_never_answers_stops_holding_up_done():
     assert sim.env.now < merge_start + 600.0  # the swarm ended merging by itself
     events = sim.trace.events_frame()
     silent = events[events.event == "merge_partner_silent"]
-    about = [json.loads(d)["partner"] == crashed_key >> 8 for d in silent.data]
+    about = [json.loads(d)["partner"] == crashed_key.uid for d in silent.data]
     # Every seed that waited for it gave up on it (others registered it late: clocks drift, so
     # robots close phase 5 at slightly different times).
     assert set(waiting) <= set(silent.robot[about])
@@ -311,9 +312,9 @@ def test_a_done_seed_that_uses_up_its_rounds_stays_done_and_is_not_reported_as_g
         assert not (how == "gave_up" and last.get(row.robot) == "agreed"), row.robot
         last[row.robot] = how
     seeds = [r for r in result.sim.robots if r.is_seed]
-    capped = [r for r in seeds if r.phase.rounds >= 20]
+    capped = [r for r in seeds if r.phase.seed.rounds >= 20]
     assert len(capped) >= len(seeds) // 2  # many seeds reached the cap: the case was exercised
-    assert all(r.phase.final and r.merge_done for r in capped)
+    assert all(r.phase.seed.final and r.merge_done for r in capped)
 
 
 @pytest.mark.slow
