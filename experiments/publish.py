@@ -215,24 +215,97 @@ def _clock_drift_block(context: Context) -> str:
     return "\n".join([*_markdown_table(wide), "", f"Mean over {runs} seeds per row."])
 
 
+def _benchmark(name: str):
+    """The module ``benchmarks/<name>.py`` (benchmarks are scripts, not a package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _medium_block(context: Context) -> str:
+    bench = _benchmark("bench_medium")
+    rows = []
+    for n in (100, 1000, 5000):
+        runs = [bench.run_one(n, 60.0) for _ in range(3)]
+        rows.append(min(runs, key=lambda r: r["wall_s"]))
+    lines = [
+        "| robots | wall s for 60 simulated s | × real time | deliveries / wall s "
+        "| receivers / message | receptions collided |",
+        "|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['robots']:,} | {r['wall_s']:.2f} | {r['realtime_x']:.1f} "
+            f"| {r['deliveries_per_s']:,.0f} | {r['receivers_per_msg']:.1f} "
+            f"| {r['collision_share']:.1%} |"
+        )
+    by = {r["robots"]: r["wall_s"] for r in rows}
+    ratio = by[5000] / by[1000]
+    lines += ["", f"5,000 robots cost {ratio:.1f}× the wall time of 1,000 (fastest of 3 runs)."]
+    return "\n".join(lines)
+
+
+def _startup_block(context: Context) -> str:
+    bench = _benchmark("bench_startup")
+    lines = ["| command | wall s | CPU s |", "|---|---:|---:|"]
+    for argv in (["--help"], ["scenarios"], ["params"]):
+        r = bench.listing(argv, 5, None)
+        lines.append(f"| `kilonet {' '.join(argv)}` | {r['wall_s']:.2f} | {r['cpu_s']:.2f} |")
+    r = bench.first_event("gradient", 100, 5, None)
+    heavy = ", ".join(r["heavy"]) or "none"
+    lines += [
+        "",
+        f"`kilonet run gradient --robots 100` reaches its first simulated event "
+        f"{r['first_event_s']:.2f} s after the process starts ({r['cpu_s']:.2f} s of CPU, "
+        f"{r['rss_mb']:.0f} MB); heavy libraries loaded by then: {heavy}. Best of 5.",
+    ]
+    return "\n".join(lines)
+
+
+def _testkit_block(context: Context) -> str:
+    bench = _benchmark("bench_testkit")
+    lines = ["| test | CPU ms per test |", "|---|---:|"]
+    for name, tests in (("single", 200), ("neighbours", 200), ("swarm", 20)):
+        ms = bench.per_test_s(getattr(bench, name), tests, 5) * 1000
+        lines.append(f"| {name} | {ms:.2f} |")
+    lines += ["", "Fastest of 5 batches; `single` is docs/testing.md's ten-line test."]
+    return "\n".join(lines)
+
+
 #: Generated blocks by name.
 BLOCKS: dict[str, Block] = {
     "clock-drift": Block("docs/model.md", _clock_drift_block),
+    "medium-throughput": Block("docs/performance.md", _medium_block),
+    "startup": Block("docs/performance.md", _startup_block),
+    "testkit-speed": Block("docs/performance.md", _testkit_block),
 }
 
 
-def _blocks(context: Context) -> None:
+def _blocks(
+    context: Context, *, pages_wanted: set[str] | None = None, skip: set[str] = frozenset()
+) -> None:
     pages: dict[str, list[str]] = {}
     for name, block in BLOCKS.items():
-        pages.setdefault(block.page, []).append(name)
+        if (pages_wanted is None or block.page in pages_wanted) and block.page not in skip:
+            pages.setdefault(block.page, []).append(name)
     for page, names in pages.items():
         path = ROOT / page
         text = path.read_text()
         for name in names:
             content = BLOCKS[name].make(context)
-            line = stamp(f"python -m experiments.publish docs  # block {name}")
+            line = stamp(f"python -m experiments.publish {_publication_of(BLOCKS[name])}")
             text = replace_block(text, name, f"{content}\n\n*{line}*")
         path.write_text(text)
+
+
+_PERFORMANCE = "docs/performance.md"
+
+
+def _publication_of(block: Block) -> str:
+    return "performance" if block.page == _PERFORMANCE else "docs"
 
 
 def _sweeps_with_reports() -> list[str]:
@@ -259,9 +332,15 @@ PUBLICATIONS: dict[str, Publication] = {
     ),
     "docs": Publication(
         "docs",
-        "the generated blocks of the docs pages",
-        tuple(sorted({b.page for b in BLOCKS.values()})),
-        _blocks,
+        "the generated blocks of the docs pages (performance aside)",
+        tuple(sorted({b.page for b in BLOCKS.values()} - {_PERFORMANCE})),
+        lambda context: _blocks(context, skip={_PERFORMANCE}),
+    ),
+    "performance": Publication(
+        "performance",
+        "the benchmarks' figures in docs/performance.md (run it on a quiet machine)",
+        (_PERFORMANCE,),
+        lambda context: _blocks(context, pages_wanted={_PERFORMANCE}),
     ),
     "default-gif": Publication(
         "default-gif",
