@@ -16,12 +16,14 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from kilonet.message import Layout, Message
 from kilonet.params import param
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from protocols.gcs import GcsRobot
 
 __all__ = ["PHASES", "SENDER", "GcsParams", "Phase", "gcs_layout", "sender_of"]
@@ -147,17 +149,14 @@ class Phase:
         self.robot = robot
         self.params: GcsParams = robot.params
 
-    @staticmethod
-    def window_s(p: GcsParams) -> float:
-        """Length of the phase's window for parameters ``p``, s (``inf``: the phase ends by
-        itself). Every phase of :data:`protocols.gcs.PHASE_SEQUENCE` defines it.
+    #: ``window_s(p: GcsParams) -> float``, a static method every phase defines: the length of
+    #: its window for parameters ``p``, s (``inf``: the phase ends by itself).
+    window_s: Callable[[GcsParams], float]
 
-        Raises
-        ------
-        NotImplementedError
-            On a phase that does not define it.
-        """
-        raise NotImplementedError("a Phase subclass must define window_s(params)")
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if not callable(getattr(cls, "window_s", None)):
+            raise TypeError(f"phase {cls.__name__} must define window_s(params) -> float")
 
     def start(self) -> None:
         """Called when the phase's window opens on this robot."""

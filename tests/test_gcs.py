@@ -368,3 +368,12 @@ def test_analyze_predicts_the_lone_robot_before_a_full_run(tmp_path, capsys):
     assert report["isolated_seeds"] == [19]
     assert [len(c) for c in report["frames"]][-1] == 1 and report["split"]
     assert (tmp_path / "a.png").stat().st_size > 1000
+
+
+def test_a_phase_class_without_a_window_is_refused_when_it_is_defined():
+    from protocols.gcs_base import Phase
+
+    with pytest.raises(TypeError, match="phase Unbounded must define window_s"):
+
+        class Unbounded(Phase):
+            name = "unbounded"
