@@ -43,6 +43,15 @@ class Gradient(Kilobot):
         0 for the monotone rule, else the self-healing window length in seconds.
     """
 
+    LED_KEY = (
+        ((3, 3, 3), "source"),
+        ((0, 0, 0), "no gradient yet"),
+        *(
+            (c, f"gradient {k or len(_PALETTE)}, {k + len(_PALETTE)}, …")
+            for k, c in enumerate(_PALETTE)
+        ),
+    )
+
     def __init__(self, *, is_source: bool = False, refresh_s: float = 0.0) -> None:
         self.is_source = is_source
         self.refresh_s = refresh_s

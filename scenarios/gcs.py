@@ -167,7 +167,7 @@ def _estimates(
                 "frames": len(o.local_positions),
                 "est_x_mm": est[0] if est else math.nan,
                 "est_y_mm": est[1] if est else math.nan,
-                "frame": "" if o.root is None else f"root{o.root.number}",
+                "frame": "" if o.root is None else o.root.label,
                 "root_robot": -1 if o.root is None else seed_robot.get(o.root.key, -1),
                 "localized": est is not None,
                 "seed_of_frame": seed_robot.get(o.own_key, -1) if o.is_seed else -1,
@@ -183,8 +183,8 @@ def _estimates(
 
 
 def estimates_frame(sim: Simulation) -> pd.DataFrame:
-    """Per robot: role, ID, frames held, global estimate, final frame label (``root`` and
-    :attr:`protocols.frame_keys.Root.number`) and the robot that seeded that root's frame
+    """Per robot: role, ID, frames held, global estimate, final frame label
+    (:attr:`protocols.frame_keys.Root.label`) and the robot that seeded that root's frame
     (``root_robot``), the estimate aligned to the truth and its error
     (:func:`scenarios.estimates.with_alignment`), failure flags: ``robots.csv``'s columns."""
     return run_outcomes(sim).estimates

@@ -78,7 +78,7 @@ def estimates_frame(sim: Simulation) -> pd.DataFrame:
                 "hops": r.hops,
                 "est_x_mm": r.position[0] if located else math.nan,
                 "est_y_mm": r.position[1] if located else math.nan,
-                "frame": f"root{r.root_key:08x}" if located else "",
+                "frame": r.frame_label if located else "",
                 "root_robot": roots.get(r.root_key, -1) if located else -1,
                 "localized": located,
                 "settled": r.termination.settled,

@@ -20,6 +20,7 @@ import pytest
 
 import kilonet.cli
 import scenarios
+from protocols.localize import LocalizeRobot
 
 pytestmark = pytest.mark.browser
 
@@ -130,6 +131,16 @@ def test_the_replay_renders_its_robots_and_controls(browser, replay_file, tmp_pa
     assert toggles.count() == len(p.evaluate("D.overlays")) >= 2
     # Each robot is drawn in its LED colour at the start.
     assert page.drawn_leds() == page.led_colours("D.start_s")
+    # The LED key: a disc in each colour of the program's key, and what it means.
+    key = p.locator("#key > span")
+    meanings = [meaning for _, meaning in LocalizeRobot.LED_KEY]
+    assert [key.nth(k).inner_text().strip() for k in range(key.count())] == meanings
+    discs = p.locator("#key .led")
+    colours = [discs.nth(k).evaluate("d => getComputedStyle(d).backgroundColor") for k in
+               range(discs.count())]  # fmt: skip
+    assert colours == [
+        f"rgb({r * 85}, {g * 85}, {b * 85})" for (r, g, b), _ in LocalizeRobot.LED_KEY
+    ]
     p.screenshot(path=tmp_path / "replay.png")
     assert page.errors == []
 
