@@ -32,6 +32,17 @@ UNKNOWN = 0xFFFF
 _PALETTE = [(3, 0, 0), (0, 3, 0), (0, 0, 3), (3, 3, 0), (3, 0, 3), (0, 3, 3)]
 
 
+def _palette_key() -> list[tuple[tuple[int, int, int], str]]:
+    """What each palette colour shows: the gradients that are equal modulo its length (0 is
+    the source, shown white).
+
+    >>> _palette_key()[:2]
+    [((3, 0, 0), 'gradient 6, 12, …'), ((0, 3, 0), 'gradient 1, 7, …')]
+    """
+    n = len(_PALETTE)
+    return [(c, f"gradient {k or n}, {(k or n) + n}, …") for k, c in enumerate(_PALETTE)]
+
+
 class Gradient(Kilobot):
     """One robot of the gradient; ``is_source`` marks the robot flashed as the source.
 
@@ -46,10 +57,7 @@ class Gradient(Kilobot):
     LED_KEY = (
         ((3, 3, 3), "source"),
         ((0, 0, 0), "no gradient yet"),
-        *(
-            (c, f"gradient {k or len(_PALETTE)}, {k + len(_PALETTE)}, …")
-            for k, c in enumerate(_PALETTE)
-        ),
+        *_palette_key(),
     )
 
     def __init__(self, *, is_source: bool = False, refresh_s: float = 0.0) -> None:

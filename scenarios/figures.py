@@ -152,7 +152,8 @@ def frames_figure(
         linewidths=0.8,
         zorder=1,
     )
-    handles.append(_handle("robot (true position, to scale)", "o", "none", "0.6", 9))
+    if localized.any():
+        handles.append(_handle("robot (true position, to scale)", "o", "none", "0.6", 9))
     if (~localized).any():
         ax.scatter(
             truth[rows[~localized], 0],
@@ -186,17 +187,11 @@ def frames_figure(
     ax.add_collection(
         LineCollection(np.stack([start, end], axis=1), colors="tab:red", linewidths=1.0, zorder=2)
     )
-    error = estimates.error_mm[alignable]
-    vector = f"error × {factor:g}" if factor != 1 else "error (true scale)"
-    handles.append(
-        Line2D(
-            [],
-            [],
-            color="tab:red",
-            lw=1.0,
-            label=f"{vector}: true position → aligned estimate (RMS {_rms(error):.2f} mm)",
-        )
-    )
+    if alignable.any():
+        error = estimates.error_mm[alignable]
+        vector = f"error × {factor:g}" if factor != 1 else "error (true scale)"
+        label = f"{vector}: true position → aligned estimate (RMS {_rms(error):.2f} mm)"
+        handles.append(Line2D([], [], color="tab:red", lw=1.0, label=label))
 
     cmap = colormaps["tab10"]
     frames = frame_legend_labels(estimates[alignable])

@@ -405,10 +405,25 @@ def _outputs(result: RunResult, out_dir: Path) -> None:
         outcomes.estimates,
         np.array([i for i, o in enumerate(outcomes.robots) if o.is_seed], dtype=int),
         "seed",
-        f"global coordinate system: {summary.get('frames', '?')} frame(s), "
-        f"RMSE {summary.get('rmse_mm', math.nan):.2f} mm",
+        _figure_title(summary),
         out_dir / "gcs.png",
     )
+
+
+def _figure_title(summary: dict[str, Any]) -> str:
+    """The figure's title: frames and RMSE, or where a run that stopped early stopped.
+
+    >>> _figure_title({"frames": 1, "rmse_mm": 2.414})
+    'global coordinate system: 1 frame, RMSE 2.41 mm'
+    >>> _figure_title({"phases_run": ["ids", "seeds"]})
+    'global coordinate system: stopped after phase seeds, before any global estimate'
+    """
+    if "frames" not in summary:
+        last = summary.get("phases_run", ["?"])[-1]
+        return f"global coordinate system: stopped after phase {last}, before any global estimate"
+    frames, rmse = summary["frames"], summary.get("rmse_mm")
+    error = f"RMSE {rmse:.2f} mm" if rmse is not None and math.isfinite(rmse) else "no RMSE"
+    return f"global coordinate system: {frames} frame{'s' if frames != 1 else ''}, {error}"
 
 
 SCENARIO = Scenario(

@@ -36,14 +36,16 @@ CHROMIUM_ARGS = [
     "--disable-sync",
 ]
 
+# Three cells of one seed each, 3 s of 12 robots: a report with a table of three rows.
 SWEEP = """
+name = "browser"
 scenario = "gradient"
-seeds = 2
+seeds = 1
 [fixed]
-duration_s = 5.0
-"placement.robots" = 20
+duration_s = 3.0
+"placement.robots" = 12
 [grid]
-"medium.loss_prob" = [0.0, 0.3]
+"medium.loss_prob" = [0.0, 0.2, 0.4]
 """
 
 
@@ -192,16 +194,16 @@ def test_the_sweep_report_renders_its_figures_and_tables(browser, tmp_path):
     assert kilonet.cli.main(["report", str(out), "--out", str(report)]) == 0
     page = Page(browser, report)
     p = page.page
-    assert p.locator("h1").inner_text() == "Sweep small"
+    assert p.locator("h1").inner_text() == "Sweep browser"
     figures = p.locator("img")
     assert figures.count() >= 1
     for k in range(figures.count()):  # every figure decoded, at its size
         size = figures.nth(k).evaluate("i => [i.complete, i.naturalWidth, i.naturalHeight]")
         assert size[0] and size[1] > 100 and size[2] > 100
-    # One table row per cell (two loss values) under each metric's heading.
+    # One table row per cell (three loss values) under each metric's heading.
     metrics = p.locator("h2")
     assert metrics.count() >= 1
     first_table = p.locator("h2 ~ table").first
-    assert first_table.locator("tbody tr").count() == 2
+    assert first_table.locator("tbody tr").count() == 3
     p.screenshot(path=tmp_path / "report.png", full_page=True)
     assert page.errors == []
