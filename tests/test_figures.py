@@ -143,3 +143,20 @@ def test_large_errors_are_drawn_at_true_scale_and_many_frames_share_an_entry(tmp
     assert any(label.startswith("error (true scale): ") for label in labels)
     assert sum(label.startswith("frame ") for label in labels) == MAX_LEGEND_FRAMES
     assert f"{10 - MAX_LEGEND_FRAMES} smaller frames" in labels
+
+
+@pytest.mark.parametrize("run_dir", ["gcs"], indirect=True)
+def test_gcs_records_no_global_estimate_before_merging(run_dir):
+    from protocols.gcs import phase_windows_s
+
+    result, out = run_dir
+    start = {name: start for name, start, _ in phase_windows_s(result.params.scenario)}
+    held = pd.read_csv(out / "estimates.csv")
+    # Each robot enters merging on its own drifting clock, a second or so around the nominal
+    # window: none holds a global estimate in phases 1-4.
+    assert len(held) and start["groups"] < held.t_s.min() <= start["merge"] + 2.0
+    # What each robot held last is what robots.csv reports, in the same frame.
+    last = held.groupby("robot").last()
+    robots = pd.read_csv(out / "robots.csv").set_index("robot")
+    np.testing.assert_allclose(last.x_mm, robots.est_x_mm[last.index], atol=0.05)
+    assert (last.frame == robots.frame[last.index]).all()
