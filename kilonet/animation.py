@@ -92,6 +92,7 @@ _TABLES: dict[str, tuple[str, ...]] = {
     "stops": ("t_s", "robot", "cause"),
     "events": ("t_s", "robot", "event", "data"),
     "messages": ("t_s", "sender", "delivered"),
+    "estimates": ("t_s", "robot", "x_mm", "y_mm", "frame"),
 }
 
 # Colours (RGB 0-255). The table is light so that dark (unset) LEDs and white ones both show.
@@ -104,11 +105,15 @@ _PATH = (31, 119, 180)
 _ESTIMATE = (148, 103, 189)
 _TEXT = (0, 0, 0)
 _BOX = (255, 255, 255)
+# Frame halos: matplotlib's tab10 without its red and purple, which mark stopped robots and
+# estimates.
 _FRAME_COLOURS = (
-    (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
+    (31, 119, 180), (255, 127, 14), (44, 160, 44), (140, 86, 75), (227, 119, 194),
+    (127, 127, 127), (188, 189, 34), (23, 190, 207),
 )  # fmt: skip
 
+
+_FRAME_RGBA = np.array([(r / 255, g / 255, b / 255, 1.0) for r, g, b in _FRAME_COLOURS])
 
 _SCALE_BARS_MM = (10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 2000.0, 5000.0)
 
@@ -161,6 +166,8 @@ class RunData:
     stops: pd.DataFrame
     events: pd.DataFrame
     messages: pd.DataFrame
+    estimates: pd.DataFrame
+    led_key: list[tuple[tuple[int, int, int], str]] = field(default_factory=list)
     params: dict[str, Any] = field(default_factory=dict)
     summary: dict[str, Any] = field(default_factory=dict)
 
@@ -246,10 +253,25 @@ def load_run(run_dir: str | Path) -> RunData:
     return RunData(
         path=path,
         robots=robots,
+        led_key=_led_key(_read_table(path, "led_key"), path / "led_key"),
         params=_read_json(path / "params.json"),
         summary=_read_json(path / "summary.json"),
         **tables,
     )
+
+
+def _led_key(table: pd.DataFrame | None, where: Path) -> list[tuple[tuple[int, int, int], str]]:
+    """The ``led_key`` table's entries: ``((r, g, b) levels 0-3, meaning)``; none without it."""
+    if table is None:
+        return []
+    _require(table, ("r", "g", "b", "meaning"), where)
+    levels = table[["r", "g", "b"]].to_numpy()
+    if len(levels) and not np.isin(levels, (0, 1, 2, 3)).all():
+        raise AnimationError(f"{where}: LED levels must be 0, 1, 2 or 3")
+    return [
+        ((int(r), int(g), int(b)), str(meaning))
+        for (r, g, b), meaning in zip(levels, table["meaning"], strict=True)
+    ]
 
 
 def _require(table: pd.DataFrame, columns: Iterable[str], where: Path) -> None:
@@ -274,11 +296,13 @@ class Replay:
     window_s : float
         Length of the window (s) for :meth:`senders`.
     align_estimates : bool
-        Draw the estimates (robots table ``est_x_mm``, ``est_y_mm``: end-of-run values) after
-        the best rigid alignment of each frame onto the true final positions (rotation, shift,
-        reflection; :func:`kilonet.alignment.procrustes_rmse`), as the position metrics do;
-        groups of fewer than three estimates are then left out. ``False`` draws them as
-        recorded, for estimates already in table coordinates.
+        Draw the estimates after the best rigid alignment of each frame onto the truth
+        (rotation, shift, reflection; :func:`kilonet.alignment.procrustes_rmse`), as the
+        position metrics do; groups of fewer than three estimates are then left out. ``False``
+        draws them as recorded, for estimates already in table coordinates. The estimates are
+        those the robots held at each moment (the run's ``estimates`` table) where the run
+        recorded them, else the robots table's end-of-run ``est_x_mm``, ``est_y_mm`` and
+        ``frame``, drawn throughout and labelled final.
     """
 
     def __init__(
@@ -347,6 +371,25 @@ class Replay:
                     float(np.sqrt(np.mean(errors**2))) if len(errors) else math.nan
                 )
             self.estimates_mm = est
+        self.led_key = run.led_key
+        #: What the ``estimates`` and ``frames`` overlays draw at each moment.
+        self.steps: EstimateSteps | None = None
+        if len(run.estimates):
+            self.steps = held_estimates(run.estimates, self.n, self.positions, align_estimates)
+        elif self.estimates_mm is not None or self.frame_rank is not None:
+            self.steps = EstimateSteps.final(
+                self.n, self.estimates_mm, self.frame_rank, self.estimate_rmse_mm
+            )
+
+    @property
+    def has_estimates(self) -> bool:
+        """Whether the run has estimates to draw (held over time, or final)."""
+        return self.estimates_mm is not None or (self.steps is not None and self.steps.held)
+
+    @property
+    def has_frames(self) -> bool:
+        """Whether the run has frame memberships to draw (held over time, or final)."""
+        return self.frame_rank is not None or (self.steps is not None and self.steps.held)
 
     def leds(self, t_s: float) -> np.ndarray:
         """(N, 3) kilolib LED levels at ``t_s``: the last change at or before it (0 before)."""
@@ -475,6 +518,118 @@ def aligned_estimates(
     return out
 
 
+@dataclass(frozen=True)
+class EstimateSteps:
+    """The robots' position estimates and frames as step functions of time: step ``k`` holds
+    from ``t_s[k]`` until the next step (nothing before the first).
+
+    Attributes
+    ----------
+    t_s : (K,) array
+        Step times, s, increasing (``-inf`` for end-of-run values shown throughout).
+    xy_mm : (K, N, 2) array
+        Each robot's estimate (aligned per frame when asked), mm; NaN for none.
+    frame : (K, N) array of int
+        Each robot's frame, numbered by first appearance; -1 for none.
+    rmse_mm : (K,) array
+        RMS error of the aligned estimates at each step, mm (NaN when nothing is aligned).
+    held : bool
+        Whether these are what the robots held at each moment (else end-of-run values).
+    aligned : bool
+        Whether each frame was aligned onto the truth.
+    """
+
+    t_s: np.ndarray
+    xy_mm: np.ndarray
+    frame: np.ndarray
+    rmse_mm: np.ndarray
+    held: bool
+    aligned: bool
+
+    @classmethod
+    def final(
+        cls, n: int, xy_mm: np.ndarray | None, frame: np.ndarray | None, rmse_mm: float
+    ) -> EstimateSteps:
+        """End-of-run estimates and frames (either may be missing), shown throughout."""
+        xy = np.full((1, n, 2), np.nan) if xy_mm is None else xy_mm[None].astype(float)
+        ranks = np.full((1, n), -1) if frame is None else frame[None]
+        return cls(np.array([-math.inf]), xy, ranks, np.array([rmse_mm]), False, True)
+
+    def index(self, t_s: float) -> int:
+        """The step in force at ``t_s``, or -1 before the first."""
+        return int(np.searchsorted(self.t_s, t_s, side="right")) - 1
+
+    def note(self, k: int) -> str:
+        """The corner line that says what the estimates drawn at step ``k`` are."""
+        if not self.held:
+            what = "final estimates"
+        elif k < 0 or not np.isfinite(self.xy_mm[k]).any():
+            return "estimates held: none yet"
+        else:
+            what = "estimates held"
+        if not self.aligned:
+            return f"{what}, as recorded"
+        if math.isnan(self.rmse_mm[max(k, 0)]):
+            return f"{what}: no frame of 3 to align"
+        return f"{what}, aligned per frame: RMSE {self.rmse_mm[max(k, 0)]:.1f} mm"
+
+
+def held_estimates(table: pd.DataFrame, n: int, truth_at: Any, align: bool = True) -> EstimateSteps:
+    """The estimates robots held over a run, from its ``estimates`` table (one row per change:
+    ``t_s, robot, x_mm, y_mm, frame``; NaN position or empty frame: none from then on).
+
+    ``truth_at(t_s)`` gives the (N, 2) true positions (mm) each step is aligned onto.
+
+    Examples
+    --------
+    >>> rows = pd.DataFrame({"t_s": [1.0, 1.0, 1.0, 2.0], "robot": [0, 1, 2, 1],
+    ...                      "x_mm": [10.0, 50.0, 10.0, 54.0], "y_mm": [5.0, 5.0, 45.0, 5.0],
+    ...                      "frame": ["a", "a", "a", "a"]})
+    >>> truth = np.array([[0.0, 0.0], [40.0, 0.0], [0.0, 40.0], [90.0, 0.0]])
+    >>> steps = held_estimates(rows, 4, lambda t: truth)
+    >>> steps.t_s.tolist(), steps.index(0.5), steps.index(1.5)
+    ([1.0, 2.0], -1, 0)
+    >>> (steps.xy_mm[0, :3].round(9) + 0.0).tolist()  # shifted frame, aligned back exactly
+    [[0.0, 0.0], [40.0, 0.0], [0.0, 40.0]]
+    >>> steps.frame[1].tolist(), bool(np.isnan(steps.xy_mm[1, 3]).all())
+    ([0, 0, 0, -1], True)
+    """
+    rows = table.sort_values("t_s", kind="stable")
+    labels = rows["frame"].astype("string").fillna("").str.strip()
+    xy_rows = rows[["x_mm", "y_mm"]].to_numpy(dtype=float)
+    none = (labels == "").to_numpy() | ~np.isfinite(xy_rows).all(axis=1)
+    codes, _ = pd.factorize(labels.where(~none))  # by first appearance; -1: none
+    robot = rows["robot"].to_numpy(dtype=np.intp)
+    times, starts = np.unique(rows["t_s"].to_numpy(dtype=float), return_index=True)
+    bounds = [*starts.tolist(), len(rows)]
+    held = np.full((n, 2), np.nan)
+    frame = np.full(n, -1)
+    xy, frames, rmse = [], [], []
+    for k, t in enumerate(times):
+        block = slice(bounds[k], bounds[k + 1])
+        held[robot[block]] = np.where(none[block, None], np.nan, xy_rows[block])
+        frame[robot[block]] = codes[block]
+        shown, error = held.copy(), math.nan
+        if align:
+            truth = truth_at(float(t))
+            shown = aligned_estimates(held, truth, frame)
+            errors = np.hypot(*(shown - truth).T)
+            errors = errors[np.isfinite(errors)]
+            error = float(np.sqrt(np.mean(errors**2))) if len(errors) else math.nan
+        xy.append(shown)
+        frames.append(frame.copy())
+        rmse.append(error)
+    shape = (len(times), n)
+    return EstimateSteps(
+        times,
+        np.array(xy).reshape(*shape, 2),
+        np.array(frames, dtype=int).reshape(shape),
+        np.array(rmse),
+        True,
+        align,
+    )
+
+
 def _tracks(
     poses: pd.DataFrame, start_mm: np.ndarray, step_s: float
 ) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -507,6 +662,53 @@ def _rgb(colour: tuple[int, int, int], alpha: float = 1.0) -> tuple[float, float
     return (colour[0] / 255, colour[1] / 255, colour[2] / 255, alpha)
 
 
+#: The LED key's disc radius and line height, pixels; the width of a character of its text
+#: (8 pt sans-serif at 100 dpi), for laying entries out before they are drawn.
+_KEY_DISC_PX = 5
+_KEY_LINE_PX = 16
+_KEY_CHAR_PX = 6.0
+
+
+@dataclass(frozen=True)
+class _KeyLayout:
+    """Where the LED key's entries go: ``(levels, meaning, (column of the disc's centre,
+    row of entries))``, and the height of the strip along the image's bottom edge (pixels)."""
+
+    entries: list[tuple[tuple[int, int, int], str, tuple[float, int]]]
+    height_px: int
+
+    def row_px(self, row: int, image_height_px: int) -> float:
+        """The pixel row (from the top) of the centre of entry row ``row``."""
+        return image_height_px - self.height_px + 5 + _KEY_LINE_PX * (row + 0.5)
+
+
+def _key_layout(key: list[tuple[tuple[int, int, int], str]], width_px: int) -> _KeyLayout:
+    """Entries left to right after an ``LED:`` title, wrapping onto new rows.
+
+    Examples
+    --------
+    >>> layout = _key_layout([((3, 0, 0), "seed"), ((0, 3, 0), "located")], 640)
+    >>> layout.height_px, [xy for _, _, xy in layout.entries]
+    (26, [(45.0, 0), (95.0, 0)])
+    >>> _key_layout([((3, 3, 3), "x" * 60)] * 3, 640).height_px  # one entry a row
+    58
+    >>> _key_layout([], 640).height_px
+    0
+    """
+    if not key:
+        return _KeyLayout([], 0)
+    left = 8 + 4 * _KEY_CHAR_PX + 8  # after "LED:"
+    x, row = left, 0
+    entries = []
+    for levels, meaning in key:
+        width = 2 * _KEY_DISC_PX + 4 + len(meaning) * _KEY_CHAR_PX + 12
+        if x + width > width_px - 8 and x > left:
+            x, row = left, row + 1
+        entries.append((levels, meaning, (x + _KEY_DISC_PX, row)))
+        x += width
+    return _KeyLayout(entries, (row + 1) * _KEY_LINE_PX + 10)
+
+
 class FrameRenderer:
     """A matplotlib figure of the swarm whose artists are updated in place for each frame.
 
@@ -532,23 +734,27 @@ class FrameRenderer:
         self.title = title
         xmin, xmax, ymin, ymax = replay.extent_mm()
         # A strip above the swarm for the corner text, one line per thing it may show.
+        steps = replay.steps
+        self._frames_shown = "frames" in self.overlays and steps is not None
+        self._estimates_shown = "estimates" in self.overlays and steps is not None
         lines = 1 + sum(
             (
                 "messages" in self.overlays,
-                "frames" in self.overlays and replay.frame_rank is not None,
-                "estimates" in self.overlays and replay.estimates_mm is not None,
+                self._frames_shown,
+                self._estimates_shown,
                 len(replay._phase_t) > 0,
             )
         )
         strip_px = 15 * lines + 10
         width_px = 2 * round(width_px / 2)
+        key = _key_layout(replay.led_key, width_px)
         swarm_px = min(max(width_px * (ymax - ymin) / (xmax - xmin), 160), 2 * width_px)
-        height_px = 2 * round((swarm_px + strip_px) / 2)
+        height_px = 2 * round((swarm_px + strip_px + key.height_px) / 2)
         # Widen the shorter side so one mm is the same number of pixels both ways.
         scale = min(width_px / (xmax - xmin), swarm_px / (ymax - ymin))
         cx, cy = (xmin + xmax) / 2, (ymin + ymax) / 2
         half_w = width_px / scale / 2
-        bottom = cy - swarm_px / scale / 2
+        bottom = cy - (swarm_px / 2 + key.height_px) / scale
         self.size_px = (width_px, height_px)
         self.fig = Figure(figsize=(width_px / self.DPI, height_px / self.DPI), dpi=self.DPI)
         FigureCanvasAgg(self.fig)
@@ -558,7 +764,8 @@ class FrameRenderer:
         ax.set_xlim(cx - half_w, cx + half_w)
         ax.set_ylim(bottom, bottom + height_px / scale)
         self.ax = ax
-        self._scale_bar(ax, cx + half_w, bottom, 1 / scale)
+        self._scale_bar(ax, cx + half_w, bottom + key.height_px / scale, 1 / scale)
+        self._draw_key(key, height_px)
 
         n = replay.n
         start = replay.start_mm
@@ -571,27 +778,14 @@ class FrameRenderer:
         if "paths" in self.overlays and len(replay.moving):
             self._paths = LineCollection([], colors=[_rgb(_PATH)], linewidths=1.5, zorder=1.2)
             ax.add_collection(self._paths)
-        if "frames" in self.overlays and replay.frame_rank is not None:
-            self._members = np.flatnonzero(replay.frame_rank >= 0)
-            ranks = replay.frame_rank[self._members]
-            self._halo_colours = np.array(
-                [_rgb(_FRAME_COLOURS[k % len(_FRAME_COLOURS)]) for k in ranks]
-            ).reshape(-1, 4)
-            self._halos = self._discs(d + 6, start[self._members], self._halo_colours, 1.4)
+        if self._frames_shown:
+            self._halos = self._discs(d + 6, start, np.zeros((n, 4)), 1.4)
             self._halos.set_linewidths(0)
-        if "estimates" in self.overlays and replay.estimates_mm is not None:
-            est = replay.estimates_mm
-            self._estimated = np.flatnonzero(np.isfinite(est).all(axis=1))
+        if self._estimates_shown:
             self._errors = LineCollection([], colors=[_rgb(_ESTIMATE)], linewidths=1.2, zorder=1.6)
             ax.add_collection(self._errors)
             self._marks = ax.scatter(
-                est[self._estimated, 0],
-                est[self._estimated, 1],
-                marker="x",
-                s=30,
-                c=[_rgb(_ESTIMATE)],
-                linewidths=1.5,
-                zorder=3,
+                [], [], marker="x", s=30, c=[_rgb(_ESTIMATE)], linewidths=1.5, zorder=3
             )
         self._bodies = self._discs(d, start, np.zeros((n, 4)), zorder=2)
         self._bodies.set_linewidths(0.8)
@@ -611,6 +805,39 @@ class FrameRenderer:
             zorder=5,
             bbox={"facecolor": _rgb(_BOX), "edgecolor": _rgb(_RIM), "boxstyle": "square,pad=0.3"},
         )
+
+    def _draw_key(self, key: _KeyLayout, height_px: int) -> None:
+        """The LED key along the bottom edge: a disc in each LED colour and what it means."""
+        from matplotlib.patches import Ellipse
+
+        width_px = self.size_px[0]
+        #: (colour levels, meaning, (column, row from the top) of the disc's centre), pixels.
+        self.key_entries: list[tuple[tuple[int, int, int], str, tuple[float, float]]] = []
+        if not key.entries:
+            return
+
+        def text(x: float, y: float, words: str) -> None:
+            self.fig.text(
+                x / width_px, 1 - y / height_px, words, ha="left", va="center", fontsize=8,
+                color=_rgb(_TEXT),
+            )  # fmt: skip
+
+        text(8, key.row_px(0, height_px), "LED:")
+        for levels, meaning, (x, row) in key.entries:
+            y = key.row_px(row, height_px)
+            colour = tuple(int(v) for v in level_to_rgb(np.array([levels]))[0])
+            disc = Ellipse(
+                (x / width_px, 1 - y / height_px),
+                2 * _KEY_DISC_PX / width_px,
+                2 * _KEY_DISC_PX / height_px,
+                transform=self.fig.transFigure,
+                facecolor=_rgb(colour),
+                edgecolor=_rgb(_RIM),
+                linewidth=0.8,
+            )
+            self.fig.patches.append(disc)
+            text(x + _KEY_DISC_PX + 4, y, meaning)
+            self.key_entries.append((levels, meaning, (x, y)))
 
     def _discs(
         self, diameter_mm: float, offsets: np.ndarray, colours: np.ndarray, zorder: float
@@ -703,17 +930,23 @@ class FrameRenderer:
                 self._edges.set_segments(pos[pairs])
         if self._paths is not None:
             self._paths.set_segments([r.path(k, t_s) for k in r.moving if present[k]])
+        steps = r.steps
+        k = steps.index(t_s) if steps is not None else -1
         if self._halos is not None:
-            colours = self._halo_colours.copy()
-            colours[~present[self._members], 3] = 0.0
-            self._halos.set_offsets(pos[self._members])
+            frame = steps.frame[k] if k >= 0 else np.full(r.n, -1)
+            member = (frame >= 0) & present
+            colours = np.zeros((r.n, 4))
+            colours[member] = _FRAME_RGBA[frame[member] % len(_FRAME_COLOURS)]
+            self._halos.set_offsets(pos)
             self._halos.set_facecolors(colours)
-            lines.append(f"final frames: {r.frame_count}")
+            count = len(np.unique(frame[member]))
+            lines.append(f"{'frames' if steps.held else 'final frames'}: {count}")
         if self._errors is not None:
-            k = self._estimated[present[self._estimated]]
-            est = r.estimates_mm
-            self._errors.set_segments(np.stack([pos[k], est[k]], axis=1))
-            lines.append(_estimates_note(r))
+            est = steps.xy_mm[k] if k >= 0 else np.full((r.n, 2), np.nan)
+            shown = np.flatnonzero(np.isfinite(est).all(axis=1) & present)
+            self._errors.set_segments(np.stack([pos[shown], est[shown]], axis=1))
+            self._marks.set_offsets(est[shown] if len(shown) else np.empty((0, 2)))
+            lines.append(steps.note(k))
         phase = r.phase(t_s)
         if phase is not None:
             lines.append(f"phase: {phase}")
@@ -732,15 +965,6 @@ class FrameRenderer:
         return Image.frombuffer(
             "RGBA", self.size_px, canvas.buffer_rgba(), "raw", "RGBA", 0, 1
         ).convert("RGB")
-
-
-def _estimates_note(replay: Replay) -> str:
-    """The corner line that says what the drawn estimates are."""
-    if not replay.align_estimates:
-        return "final estimates, as recorded"
-    if math.isnan(replay.estimate_rmse_mm):
-        return "final estimates: no frame of 3 to align"
-    return f"final estimates, aligned per frame: RMSE {replay.estimate_rmse_mm:.1f} mm"
 
 
 def _format_time(t_s: float) -> str:
@@ -953,19 +1177,35 @@ def replay_data(
             keys.append(round(float(t), 5))
             lists.append(pairs)
         data["edges"] = {"t": keys, "pairs": lists}
-    if "estimates" in overlays and r.estimates_mm is not None:
-        est = r.estimates_mm
-        data["estimates"] = {
-            "note": _estimates_note(r),
-            "x": [None if not np.isfinite(v) else round(float(v), 2) for v in est[:, 0]],
-            "y": [None if not np.isfinite(v) else round(float(v), 2) for v in est[:, 1]],
-        }
-    if "frames" in overlays and r.frame_rank is not None:
-        data["frames"] = {
-            "rank": r.frame_rank.tolist(),
-            "colours": [_css(c) for c in _FRAME_COLOURS],
-        }
+    steps = r.steps
+    if steps is not None and ({"estimates", "frames"} & overlays):
+        # Step k holds from t[k] on; end-of-run values hold from the start.
+        times = [round(float(t), 5) if np.isfinite(t) else -1.0 for t in steps.t_s]
+        if "estimates" in overlays:
+            data["estimates"] = {
+                "t": times,
+                "x": [_nullable(xy[:, 0]) for xy in steps.xy_mm],
+                "y": [_nullable(xy[:, 1]) for xy in steps.xy_mm],
+                "note": [steps.note(k) for k in range(len(times))],
+                "before": steps.note(-1),
+            }
+        if "frames" in overlays:
+            data["frames"] = {
+                "t": times,
+                "rank": steps.frame.tolist(),
+                "label": "frames" if steps.held else "final frames",
+                "colours": [_css(c) for c in _FRAME_COLOURS],
+            }
+    data["led_key"] = [
+        [_css(tuple(int(v) for v in level_to_rgb(np.array([levels]))[0])), meaning]
+        for levels, meaning in r.led_key
+    ]
     return data
+
+
+def _nullable(values: np.ndarray) -> list[float | None]:
+    """Values rounded to 0.01 (mm), ``None`` for NaN (JSON has no NaN)."""
+    return [round(float(v), 2) if np.isfinite(v) else None for v in values]
 
 
 def _rounded(values: np.ndarray, decimals: int) -> list[float]:
@@ -1015,6 +1255,9 @@ _HTML = """<!DOCTYPE html>
   #controls { margin-top: 8px; display: flex; gap: 10px; align-items: center; flex-wrap: wrap; }
   #scrub { flex: 1 1 300px; }
   #clock { font-family: monospace; min-width: 9em; }
+  #key { margin-top: 8px; display: flex; gap: 4px 14px; flex-wrap: wrap; align-items: center; }
+  #key .led { display: inline-block; width: 11px; height: 11px; border-radius: 50%;
+              border: 1px solid #333; vertical-align: -1px; margin-right: 4px; }
 </style>
 </head>
 <body>
@@ -1026,6 +1269,7 @@ _HTML = """<!DOCTYPE html>
   <label>speed <select id="speed"></select></label>
   <span id="toggles"></span>
 </div>
+<div id="key"></div>
 <script id="kilonet-data" type="application/json">__DATA__</script>
 <script>
 "use strict";
@@ -1048,7 +1292,6 @@ const px = x => (x - xmin) * scale;
 const py = y => (ymax - y) * scale + strip;
 const shown = {};
 for (const name of D.overlays) shown[name] = true;
-const frameCount = D.frames ? D.frames.rank.reduce((a, b) => Math.max(a, b), -1) + 1 : 0;
 
 // Index of the last value <= t in sorted a[lo, hi), or lo - 1.
 function lastAtOrBefore(a, t, lo, hi) {
@@ -1111,19 +1354,26 @@ function draw(t) {
       ctx.lineTo(px(x[i]), py(y[i])); ctx.stroke();
     }
   }
-  if (shown.frames && D.frames) {
+  // Frames and estimates: the step in force at t (none before the first).
+  const fk = D.frames ? lastAtOrBefore(D.frames.t, t, 0, D.frames.t.length) : -1;
+  const ranks = fk >= 0 ? D.frames.rank[fk] : null;
+  const inFrames = new Set();
+  if (shown.frames && ranks) {
     for (let i = 0; i < N; i++) {
-      const r = D.frames.rank[i]; if (r < 0 || !present(i)) continue;
+      const r = ranks[i]; if (r < 0 || !present(i)) continue;
+      inFrames.add(r);
       ctx.fillStyle = D.frames.colours[r % D.frames.colours.length];
       ctx.beginPath(); ctx.arc(px(x[i]), py(y[i]), R + 3 * scale, 0, 2 * Math.PI); ctx.fill();
     }
   }
   const est = shown.estimates && D.estimates;
-  if (est) {
+  const ek = est ? lastAtOrBefore(D.estimates.t, t, 0, D.estimates.t.length) : -1;
+  const ex = ek >= 0 ? D.estimates.x[ek] : null, ey = ek >= 0 ? D.estimates.y[ek] : null;
+  if (ex) {
     ctx.strokeStyle = C.estimate; ctx.lineWidth = 1.2; ctx.beginPath();
     for (let i = 0; i < N; i++) {
-      if (D.estimates.x[i] === null || !present(i)) continue;
-      ctx.moveTo(px(x[i]), py(y[i])); ctx.lineTo(px(D.estimates.x[i]), py(D.estimates.y[i]));
+      if (ex[i] === null || !present(i)) continue;
+      ctx.moveTo(px(x[i]), py(y[i])); ctx.lineTo(px(ex[i]), py(ey[i]));
     }
     ctx.stroke();
   }
@@ -1151,13 +1401,13 @@ function draw(t) {
     if (D.stop_s[i] !== null && D.stop_s[i] <= t) ring(i, C.crashed);
     if (sender[i]) ring(i, C.sender);
   }
-  if (est) {
+  if (ex) {
     ctx.strokeStyle = C.estimate; ctx.lineWidth = 1.5; ctx.beginPath();
     for (let i = 0; i < N; i++) {
-      if (D.estimates.x[i] === null) continue;
-      const ex = px(D.estimates.x[i]), ey = py(D.estimates.y[i]);
-      ctx.moveTo(ex - 3, ey - 3); ctx.lineTo(ex + 3, ey + 3);
-      ctx.moveTo(ex - 3, ey + 3); ctx.lineTo(ex + 3, ey - 3);
+      if (ex[i] === null || !present(i)) continue;
+      const cx = px(ex[i]), cy = py(ey[i]);
+      ctx.moveTo(cx - 3, cy - 3); ctx.lineTo(cx + 3, cy + 3);
+      ctx.moveTo(cx - 3, cy + 3); ctx.lineTo(cx + 3, cy - 3);
     }
     ctx.stroke();
   }
@@ -1165,8 +1415,8 @@ function draw(t) {
   if (shown.messages && D.messages) {
     lines.push("senders in last " + D.messages.window_s + " s: " + senders);
   }
-  if (shown.frames && D.frames) lines.push("final frames: " + frameCount);
-  if (est) lines.push(D.estimates.note);
+  if (shown.frames && D.frames) lines.push(D.frames.label + ": " + inFrames.size);
+  if (est) lines.push(ek >= 0 ? D.estimates.note[ek] : D.estimates.before);
   const ph = lastAtOrBefore(D.phase.t, t, 0, D.phase.t.length);
   if (ph >= 0) lines.push("phase: " + D.phase.label[ph]);
   ctx.font = "12px monospace";
@@ -1193,6 +1443,13 @@ for (const name of D.overlays) {
   box.type = "checkbox"; box.checked = true;
   box.addEventListener("change", () => { shown[name] = box.checked; draw(now); });
   label.append(box, " " + name); toggles.append(label, " ");
+}
+const key = document.getElementById("key");
+if (D.led_key.length) key.append("LED:");
+for (const [colour, meaning] of D.led_key) {
+  const entry = document.createElement("span"), disc = document.createElement("span");
+  disc.className = "led"; disc.style.background = colour;
+  entry.append(disc, meaning); key.append(entry);
 }
 let now = D.start_s, playing = false, last = null;
 const span = D.duration_s - D.start_s;
@@ -1233,9 +1490,9 @@ def _choose_overlays(run: RunData, replay: Replay, overlays: Iterable[str] | Non
         chosen = {"paths"} if len(replay.moving) else set()
         if run.messages_traced and len(run.messages):
             chosen.add("messages")
-        if replay.estimates_mm is not None:
+        if replay.has_estimates:
             chosen.add("estimates")
-        if replay.frame_rank is not None:
+        if replay.has_frames:
             chosen.add("frames")
         return chosen
     chosen = set(overlays) - {"none"}
@@ -1249,12 +1506,16 @@ def _choose_overlays(run: RunData, replay: Replay, overlays: Iterable[str] | Non
         raise AnimationError(
             f"{where}: overlay 'messages' needs a run recorded with --set trace.messages=true"
         )
-    if "estimates" in chosen and replay.estimates_mm is None:
+    if "estimates" in chosen and not replay.has_estimates:
         raise AnimationError(
-            f"{where}: overlay 'estimates' needs est_x_mm and est_y_mm in the robots table"
+            f"{where}: overlay 'estimates' needs an estimates table, or est_x_mm and est_y_mm "
+            "in the robots table"
         )
-    if "frames" in chosen and replay.frame_rank is None:
-        raise AnimationError(f"{where}: overlay 'frames' needs a frame column in the robots table")
+    if "frames" in chosen and not replay.has_frames:
+        raise AnimationError(
+            f"{where}: overlay 'frames' needs an estimates table, or a frame column in the "
+            "robots table"
+        )
     return chosen
 
 

@@ -224,6 +224,13 @@ class TraceParams:
     """What a run records beyond LED changes, protocol events, poses and stops."""
 
     messages: bool = param(False, doc="record every transmission (t_s, sender, receptions)")
+    estimates_period_s: float = param(
+        1.0,
+        lo=0.0,
+        hi=3600.0,
+        doc="sample each program's position_estimate() this often into the estimates table "
+        "(s; 0: never)",
+    )
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ what arrives through the medium. It has no handle on the world.
 from __future__ import annotations
 
 from collections import deque
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -104,6 +104,10 @@ class Kilobot:
     _index: int
     rand: np.random.Generator
 
+    #: What the program's LED colours mean, for the key of a run's animations:
+    #: ``((r, g, b), meaning)`` pairs, kilolib levels 0-3 per channel, in the order to show.
+    LED_KEY: ClassVar[tuple[tuple[tuple[int, int, int], str], ...]] = ()
+
     # -- callbacks a program overrides -------------------------------------------------------
     def setup(self) -> Any:
         """Called once when the robot starts (may be a generator that yields delays)."""
@@ -122,6 +126,18 @@ class Kilobot:
     def message_rx(self, message: Message, distance: int | DistanceMeasurement) -> None:
         """Called on every reception in callback mode: the distance estimate in mm (or the raw
         :class:`~kilonet.ranging.DistanceMeasurement` with ``robot.rx_distance = "raw"``)."""
+
+    def position_estimate(self) -> tuple[float, float, str] | None:
+        """What a program believes its position is now: ``(x_mm, y_mm, frame)`` in the
+        coordinates of its frame, named by ``frame`` (robots of one frame share coordinates),
+        or ``None`` while it has no estimate.
+
+        Not a kilolib callback: an instrument. The simulation samples it every
+        ``trace.estimates_period_s`` for programs that override it, into the run's
+        ``estimates`` table, so that animations show what each robot held at each moment. It
+        must not change the program's state.
+        """
+        return None
 
     # -- attachment (the simulation calls this) ----------------------------------------------
     def _attach(self, sim: Simulation, index: int, rng: np.random.Generator) -> None:

@@ -17,6 +17,7 @@ True
 from __future__ import annotations
 
 import inspect
+import math
 import time
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
@@ -45,7 +46,11 @@ if TYPE_CHECKING:
     from kilonet.reception import ReceptionModel
     from kilonet.visibility import LinkModel
 
-__all__ = ["STREAMS", "Simulation", "World", "stream_for"]
+__all__ = ["ESTIMATE_CHANGE_MM", "STREAMS", "Simulation", "World", "stream_for"]
+
+#: A held position estimate is recorded again once it has moved this far (mm): finer steps
+#: (a refinement's last digits) would not show in an animation and would fill the table.
+ESTIMATE_CHANGE_MM = 0.05
 
 #: Independent random streams of a run, spawned from its seed in this order.
 STREAMS = (
@@ -178,6 +183,8 @@ class Simulation:
         self.stop_causes: dict[int, str] = {}
         self.wall_time_s = 0.0
         self._started = False
+        self._estimating: list[int] = []  # robots whose position_estimate() is sampled
+        self._held: dict[int, tuple[float, float, str]] = {}  # what each held when last sampled
         self._handlers = [self._handler(i) for i in range(n)]
         self.medium.set_handlers(self._handlers)
 
@@ -211,6 +218,50 @@ class Simulation:
                 period = loop_ticks / self.clocks.rate_hz(i)
                 loops.add(self.clocks.first_mid_tick_s(i), period, self._loop_call(i))
         loops.start()
+        self._sample_estimates()
+
+    def _sample_estimates(self) -> None:
+        """Every ``trace.estimates_period_s`` from the start, and whenever :meth:`run` returns,
+        record each running robot's :meth:`~kilonet.robot.Kilobot.position_estimate` where it
+        changed (by more than :data:`ESTIMATE_CHANGE_MM`, or to another frame, or to none);
+        robots whose program does not override it are not asked. The sampler only reads, so
+        the run is the same with it or without it."""
+        period = self.params.trace.estimates_period_s
+        self._estimating = [
+            i
+            for i, r in enumerate(self.robots)
+            if type(r).position_estimate is not Kilobot.position_estimate
+        ]
+        if period <= 0 or not self._estimating:
+            self._estimating = []
+            return
+
+        def every_period() -> Generator[Any, Any, None]:
+            while True:
+                self._record_estimates()
+                yield self.env.timeout(period)
+
+        self.env.process(every_period())
+
+    def _record_estimates(self) -> None:
+        """One sample of :meth:`_sample_estimates`."""
+        running, held, now = self.world.running, self._held, self.env.now
+        for i in self._estimating:
+            if not running[i]:
+                continue
+            estimate = self.robots[i].position_estimate()
+            last = held.get(i)
+            if estimate is None:
+                if last is not None:
+                    del held[i]
+                    self.trace.estimate(now, i, math.nan, math.nan, "")
+            elif (
+                last is None
+                or estimate[2] != last[2]
+                or math.hypot(estimate[0] - last[0], estimate[1] - last[1]) > ESTIMATE_CHANGE_MM
+            ):
+                held[i] = estimate
+                self.trace.estimate(now, i, *estimate)
 
     def _loop_call(self, i: int) -> Callable[[], bool]:
         """Robot ``i``'s turn in the loop schedule: its ``loop()`` while it runs."""
@@ -302,6 +353,8 @@ class Simulation:
         else:
             while self.env.now < until and not stop_when():
                 self.env.run(until=min(until, self.env.now + 1.0))
+        if self._estimating:
+            self._record_estimates()  # what the robots hold where the run stops
         self.wall_time_s += time.perf_counter() - started
 
     # -- receptions and stops ------------------------------------------------------------------
@@ -369,6 +422,21 @@ class Simulation:
         self.medium.forget_receiver(robot)
 
     # -- results -------------------------------------------------------------------------------
+    def led_key_frame(self) -> pd.DataFrame:
+        """What the LED colours of this run's programs mean (:attr:`Kilobot.LED_KEY`):
+        ``r, g, b, meaning``, one row per colour in the order the programs list them (programs
+        of several kinds: the first robot's first; one colour meaning two things says both)."""
+        import pandas as pd
+
+        meanings: dict[tuple[int, int, int], list[str]] = {}
+        for cls in dict.fromkeys(type(r) for r in self.robots):
+            for colour, meaning in cls.LED_KEY:
+                said = meanings.setdefault(tuple(colour), [])
+                if meaning not in said:
+                    said.append(meaning)
+        rows = [(*colour, " / ".join(said)) for colour, said in meanings.items()]
+        return pd.DataFrame(rows, columns=["r", "g", "b", "meaning"])
+
     def robots_frame(self) -> pd.DataFrame:
         """One row per robot: start and final pose, clock, state, LED, battery and message
         counters."""

@@ -1,4 +1,5 @@
-"""What a run records: LED changes, protocol events, poses of moving robots, robot stops.
+"""What a run records: LED changes, protocol events, poses of moving robots, robot stops,
+and what programs estimated their positions to be.
 
 Everything is stored as events (not per frame), so a long run stays small; the tables come
 out as tidy pandas DataFrames with times in simulated seconds.
@@ -33,6 +34,7 @@ class Trace:
         self._stops: list[tuple[float, int, str]] = []
         self._messages: list[tuple[float, int, int, int]] = []
         self._battery: list[tuple[float, int, float, float, float]] = []
+        self._estimates: list[tuple[float, int, float, float, str]] = []
 
     def led(self, t_s: float, robot: int, color: tuple[int, int, int]) -> None:
         """Record that ``robot`` set its LED to ``color`` (kilolib 0–3 per channel)."""
@@ -60,6 +62,11 @@ class Trace:
         """Record a change of ``robot``'s battery degradation ``level`` (0 fine, 1 cut-off) and
         the LED brightness factor that goes with it (animations dim the LED by it)."""
         self._battery.append((t_s, robot, float(voltage_v), float(level), float(led_factor)))
+
+    def estimate(self, t_s: float, robot: int, x_mm: float, y_mm: float, frame: str) -> None:
+        """Record the position ``robot`` holds from ``t_s`` on, in the coordinates of its
+        ``frame`` (NaN and ``""``: it no longer has one)."""
+        self._estimates.append((t_s, robot, float(x_mm), float(y_mm), frame))
 
     def led_since(self, start: int) -> list[tuple[float, int, int, int, int]]:
         """LED changes from the ``start``-th on, as recorded: ``(t_s, robot, r, g, b)`` (for
@@ -96,6 +103,11 @@ class Trace:
         """Battery degradation changes: ``t_s, robot, voltage_v, level, led_factor``."""
         return _table(self._battery, ["t_s", "robot", "voltage_v", "level", "led_factor"])
 
+    def estimates_frame(self) -> pd.DataFrame:
+        """Position estimates as programs held them (``trace.estimates_period_s``), one row
+        per change: ``t_s, robot, x_mm, y_mm, frame``."""
+        return _table(self._estimates, ["t_s", "robot", "x_mm", "y_mm", "frame"])
+
     def frames(self) -> dict[str, pd.DataFrame]:
         """All tables by name."""
         return {
@@ -105,4 +117,5 @@ class Trace:
             "poses": self.poses_frame(),
             "stops": self.stops_frame(),
             "messages": self.messages_frame(),
+            "estimates": self.estimates_frame(),
         }

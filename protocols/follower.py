@@ -525,6 +525,8 @@ class _FrameMember(Kilobot):
 class Origin(_FrameMember):
     """Robot 1, the frame's origin: coordinates (0, 0) from the start; white on send."""
 
+    LED_KEY = (((3, 3, 3), "robot 1 (origin) sending"),)
+
     role = ORIGIN
     tx_color = (3, 3, 3)
 
@@ -536,6 +538,8 @@ class Origin(_FrameMember):
 class XAxisRobot(_FrameMember):
     """Robot 2, on the frame's +x axis: (d12, 0) once it has averaged ``samples`` readings of
     robot 1. Blue on send, yellow on handling a message from the origin."""
+
+    LED_KEY = (((0, 0, 3), "robot 2 sending"), ((3, 3, 0), "heard robot 1"))
 
     role = X_AXIS
     tx_color = (0, 0, 3)
@@ -562,6 +566,12 @@ class ThirdRobot(_FrameMember):
     """Robot 3: ``(x3, y3)`` from d12 (robot 2's flagged report) and its own averaged readings
     of robots 1 and 2 (the seed's triangle equations). Green on send, yellow on a message from
     robot 1, purple on one from robot 2."""
+
+    LED_KEY = (
+        ((0, 3, 0), "robot 3 sending"),
+        ((3, 3, 0), "heard robot 1"),
+        ((3, 0, 3), "heard robot 2"),
+    )
 
     role = THIRD
     tx_color = (0, 3, 0)

@@ -89,9 +89,15 @@ class Root(NamedTuple):
 
     @property
     def number(self) -> int:
-        """One integer per root, ``wire_id · 256 + salt``: how merged frames are labelled in
-        ``robots.csv`` (``root<number>``)."""
+        """One integer per root, ``wire_id · 256 + salt``: how merged frames are labelled
+        (:attr:`label`)."""
         return (self.wire_id << 8) | self.key.salt
+
+    @property
+    def label(self) -> str:
+        """The merged frame's name in ``robots.csv`` and the estimates table:
+        ``root<number>``."""
+        return f"root{self.number}"
 
     @staticmethod
     @lru_cache(maxsize=_INTERNED)

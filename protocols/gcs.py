@@ -185,6 +185,16 @@ class GcsRobot(Kilobot):
         The protocol's parameters (time-outs, rules, tolerances).
     """
 
+    LED_KEY = (
+        ((1, 1, 1), "phase 1: drawing IDs"),
+        ((0, 0, 2), "phase 2: electing seeds"),
+        ((3, 0, 0), "seed"),
+        ((3, 3, 0), "reference of a seed's frame"),
+        ((0, 0, 1), "not located yet"),
+        ((0, 3, 0), "located in a local frame"),
+        ((0, 3, 3), "global estimate (merged)"),
+    )  # led_colour's rules
+
     # Its state, the phases' shared state included, in slots, as FrameMerging's and
     # SeedRounds': past 30 attributes an instance dict is no longer CPython's compact
     # shared-key kind, and every delivery and loop reads several attributes, robot after robot
@@ -355,6 +365,12 @@ class GcsRobot(Kilobot):
         if seed is None or seed.done_since is None:
             return None
         return seed.done_since / self.ticks_per_s
+
+    def position_estimate(self) -> tuple[float, float, str] | None:
+        """The global estimate now and the merged frame it is in (:attr:`Root.label`), for the
+        run's estimates table; ``None`` before the robot has one."""
+        position = self.estimate.position()
+        return None if position is None else (*position, self.estimate.root().label)
 
     def outcome(self) -> RobotOutcome:
         """What this robot holds now, as one value (see :class:`RobotOutcome`)."""

@@ -32,6 +32,17 @@ UNKNOWN = 0xFFFF
 _PALETTE = [(3, 0, 0), (0, 3, 0), (0, 0, 3), (3, 3, 0), (3, 0, 3), (0, 3, 3)]
 
 
+def _palette_key() -> list[tuple[tuple[int, int, int], str]]:
+    """What each palette colour shows: the gradients that are equal modulo its length (0 is
+    the source, shown white).
+
+    >>> _palette_key()[:2]
+    [((3, 0, 0), 'gradient 6, 12, …'), ((0, 3, 0), 'gradient 1, 7, …')]
+    """
+    n = len(_PALETTE)
+    return [(c, f"gradient {k or n}, {(k or n) + n}, …") for k, c in enumerate(_PALETTE)]
+
+
 class Gradient(Kilobot):
     """One robot of the gradient; ``is_source`` marks the robot flashed as the source.
 
@@ -42,6 +53,12 @@ class Gradient(Kilobot):
     refresh_s : float
         0 for the monotone rule, else the self-healing window length in seconds.
     """
+
+    LED_KEY = (
+        ((3, 3, 3), "source"),
+        ((0, 0, 0), "no gradient yet"),
+        *_palette_key(),
+    )
 
     def __init__(self, *, is_source: bool = False, refresh_s: float = 0.0) -> None:
         self.is_source = is_source

@@ -82,6 +82,14 @@ class LocalizeRobot(Kilobot):
         The ranging noise per reception as this robot has measured it (mm).
     """
 
+    LED_KEY = (
+        ((0, 0, 2), "electing, or not located yet"),
+        ((3, 3, 3), "root"),
+        ((0, 3, 0), "located"),
+        ((0, 3, 3), "settled"),
+        ((0, 0, 0), "done"),
+    )
+
     def __init__(self, params: LocalizeParams) -> None:
         self.params = params
 
@@ -224,6 +232,17 @@ class LocalizeRobot(Kilobot):
         if self.is_root:
             return self.spread.frame_started
         return self.position is not None
+
+    @property
+    def frame_label(self) -> str:
+        """The name of the frame this robot is in: ``root`` and the root's election key in
+        hex (as in ``robots.csv``)."""
+        return f"root{self.root_key:08x}"
+
+    def position_estimate(self) -> tuple[float, float, str] | None:
+        """Its position in the frame now (``None`` until it holds one), for the run's estimates
+        table."""
+        return (*self.position, self.frame_label) if self.in_frame else None
 
     @property
     def flags(self) -> int:

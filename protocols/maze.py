@@ -385,6 +385,13 @@ class MazeRobot(MazeKilobot):
         beacons' messages instead.
     """
 
+    LED_KEY = (
+        ((0, 0, 1), "listening"),
+        ((0, 1, 1), "moving"),
+        ((0, 3, 0), "maze covered"),
+        ((3, 0, 0), "step limit reached"),
+    )
+
     def __init__(
         self, hardware: MazeHardware, params: MazeParams, maze: Maze, landmarks_mm: np.ndarray
     ) -> None:
@@ -557,6 +564,11 @@ class LandmarkBeacon(Kilobot):
     broadcast : bool
         Whether it transmits (infrared mode).
     """
+
+    LED_KEY = tuple(
+        (c, f"landmark {name}")
+        for c, name in zip(LANDMARK_COLORS, ("SW", "SE", "NE", "NW"), strict=True)
+    )
 
     def __init__(self, landmark: int, position_mm: tuple[float, float], broadcast: bool) -> None:
         self.landmark = landmark

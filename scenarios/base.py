@@ -335,7 +335,7 @@ def write_run_files(result: RunResult, directory: str | Path, *, fmt: str = "csv
     robots = sim.robots_frame()
     if result.scenario.robot_columns is not None:
         robots = robots.merge(result.scenario.robot_columns(sim), on="robot", how="left")
-    tables = {"robots": robots, **sim.trace.frames()}
+    tables = {"robots": robots, **sim.trace.frames(), "led_key": sim.led_key_frame()}
     for name, frame in tables.items():
         if fmt == "csv":
             frame.to_csv(out / f"{name}.csv", index=False)

@@ -143,13 +143,18 @@ def run_outcomes(sim: Simulation) -> RunOutcomes:
         return read[1]
     robots = [r.outcome() for r in sim.robots]
     seed_robot = {o.own_key: i for i, o in enumerate(robots) if o.is_seed}
-    outcomes = RunOutcomes(robots, seed_robot, _estimates(robots, seed_robot))
+    estimates = _estimates(robots, seed_robot, sim.world.positions_mm)
+    outcomes = RunOutcomes(robots, seed_robot, estimates)
     _READ[sim] = (sim.env.now, outcomes)
     return outcomes
 
 
-def _estimates(robots: list[RobotOutcome], seed_robot: dict[FrameKey, int]) -> pd.DataFrame:
+def _estimates(
+    robots: list[RobotOutcome], seed_robot: dict[FrameKey, int], truth_mm: np.ndarray
+) -> pd.DataFrame:
     import pandas as pd
+
+    from scenarios.estimates import with_alignment
 
     rows = []
     for i, o in enumerate(robots):
@@ -162,7 +167,8 @@ def _estimates(robots: list[RobotOutcome], seed_robot: dict[FrameKey, int]) -> p
                 "frames": len(o.local_positions),
                 "est_x_mm": est[0] if est else math.nan,
                 "est_y_mm": est[1] if est else math.nan,
-                "frame": "" if o.root is None else f"root{o.root.number}",
+                "frame": "" if o.root is None else o.root.label,
+                "root_robot": -1 if o.root is None else seed_robot.get(o.root.key, -1),
                 "localized": est is not None,
                 "seed_of_frame": seed_robot.get(o.own_key, -1) if o.is_seed else -1,
                 # Failure cases as this robot ended (thesis §7) and what the swarm detected.
@@ -173,12 +179,14 @@ def _estimates(robots: list[RobotOutcome], seed_robot: dict[FrameKey, int]) -> p
                 "edge_seed": o.edge_seed,
             }
         )
-    return pd.DataFrame(rows)
+    return with_alignment(pd.DataFrame(rows), truth_mm)
 
 
 def estimates_frame(sim: Simulation) -> pd.DataFrame:
-    """Per robot: truth, role, ID, frames held, global estimate, final frame label (``root``
-    and :attr:`protocols.frame_keys.Root.number`), failure flags: ``robots.csv``'s columns."""
+    """Per robot: role, ID, frames held, global estimate, final frame label
+    (:attr:`protocols.frame_keys.Root.label`) and the robot that seeded that root's frame
+    (``root_robot``), the estimate aligned to the truth and its error
+    (:func:`scenarios.estimates.with_alignment`), failure flags: ``robots.csv``'s columns."""
     return run_outcomes(sim).estimates
 
 
@@ -387,50 +395,35 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
 
 
 def _outputs(result: RunResult, out_dir: Path) -> None:
-    sim = result.sim
+    from scenarios.figures import frames_figure
+
+    sim, summary = result.sim, result.summary
     local_frames_frame(sim).to_csv(out_dir / "local_frames.csv", index=False)
-    _figure(sim, run_outcomes(sim), result.summary, out_dir / "gcs.png")
-
-
-def _figure(sim: Simulation, outcomes: RunOutcomes, summary: dict[str, Any], path: Path) -> None:
-    """Truth, each final frame's estimates aligned to it, and the seeds; the title gives the
-    summary's frame count and RMSE."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from kilonet.alignment import procrustes_rmse
-
-    truth, est = sim.world.positions_mm, outcomes.estimates
-    fig, ax = plt.subplots(figsize=(7, 7))
-    ax.scatter(truth[:, 0], truth[:, 1], s=40, facecolors="none", edgecolors="0.6", label="truth")
-    done = est[est.localized]
-    cmap = plt.get_cmap("tab10")
-    for n, (label, g) in enumerate(done.groupby("frame")):
-        idx = g.robot.to_numpy()
-        pts = g[["est_x_mm", "est_y_mm"]].to_numpy()
-        if len(pts) >= 3:
-            _, _, aligned = procrustes_rmse(pts, truth[idx])
-        else:
-            aligned = truth[idx]
-        color = cmap(n % 10)
-        ax.scatter(aligned[:, 0], aligned[:, 1], s=14, color=color, label=f"frame {label}")
-        for (x0, y0), (x1, y1) in zip(truth[idx], aligned, strict=True):
-            ax.plot([x0, x1], [y0, y1], color="red", lw=0.8)
-    seeds = [i for i, o in enumerate(outcomes.robots) if o.is_seed]
-    ax.scatter(truth[seeds, 0], truth[seeds, 1], marker="x", s=30, c="k", label="seeds")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_title(
-        f"global coordinate system: {summary.get('frames', '?')} frame(s), "
-        f"RMSE {summary.get('rmse_mm', math.nan):.2f} mm"
+    outcomes = run_outcomes(sim)
+    frames_figure(
+        sim.world.positions_mm,
+        outcomes.estimates,
+        np.array([i for i, o in enumerate(outcomes.robots) if o.is_seed], dtype=int),
+        "seed",
+        _figure_title(summary),
+        out_dir / "gcs.png",
     )
-    ax.legend(loc="upper right", fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+
+
+def _figure_title(summary: dict[str, Any]) -> str:
+    """The figure's title: frames and RMSE, or where a run that stopped early stopped.
+
+    >>> _figure_title({"frames": 1, "rmse_mm": 2.414})
+    'global coordinate system: 1 frame, RMSE 2.41 mm'
+    >>> _figure_title({"phases_run": ["ids", "seeds"]})
+    'global coordinate system: stopped after phase seeds, before any global estimate'
+    """
+    if "frames" not in summary:
+        last = summary.get("phases_run", ["?"])[-1]
+        return f"global coordinate system: stopped after phase {last}, before any global estimate"
+    frames, rmse = summary["frames"], summary.get("rmse_mm")
+    error = f"RMSE {rmse:.2f} mm" if rmse is not None and math.isfinite(rmse) else "no RMSE"
+    return f"global coordinate system: {frames} frame{'s' if frames != 1 else ''}, {error}"
 
 
 SCENARIO = Scenario(

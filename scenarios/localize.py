@@ -58,9 +58,14 @@ def _stop_when(sim: Simulation) -> bool:
 
 
 def estimates_frame(sim: Simulation) -> pd.DataFrame:
+    """Per robot: its ID, role, hop count, estimate, frame label, the robot that is its
+    frame's root (``root_robot``), the estimate aligned to the truth and its error
+    (:func:`scenarios.estimates.with_alignment`) and its state at the end."""
     import pandas as pd
 
-    """Per robot: its ID, role, hop count, estimate, frame label and state at the end."""
+    from scenarios.estimates import with_alignment
+
+    roots = {r.root_key: i for i, r in enumerate(sim.robots) if r.is_root}
     rows = []
     for i, r in enumerate(sim.robots):
         located = r.in_frame
@@ -73,14 +78,15 @@ def estimates_frame(sim: Simulation) -> pd.DataFrame:
                 "hops": r.hops,
                 "est_x_mm": r.position[0] if located else math.nan,
                 "est_y_mm": r.position[1] if located else math.nan,
-                "frame": f"root{r.root_key:08x}" if located else "",
+                "frame": r.frame_label if located else "",
+                "root_robot": roots.get(r.root_key, -1) if located else -1,
                 "localized": located,
                 "settled": r.termination.settled,
                 "done": r.termination.done,
                 "neighbours_heard": len(r.neighbours),
             }
         )
-    return pd.DataFrame(rows)
+    return with_alignment(pd.DataFrame(rows), sim.world.positions_mm)
 
 
 def measured_distances(sim: Simulation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

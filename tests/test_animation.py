@@ -388,7 +388,7 @@ def test_user_errors_are_one_line_with_nothing_written(
         ([str(tmp_path / "nowhere")], "no such run directory"),
         ([str(gradient_dir), "--out", str(tmp_path / "a.avi")], "unknown animation format"),
         ([str(gradient_dir), "--overlay", "wind"], "unknown overlay 'wind'"),
-        ([str(gradient_dir), "--overlay", "estimates"], "needs est_x_mm and est_y_mm"),
+        ([str(gradient_dir), "--overlay", "estimates"], "'estimates' needs an estimates table"),
         ([str(no_messages), "--overlay", "messages"], "--set trace.messages=true"),
         ([str(gradient_dir), "--fps", "0"], "--fps must be a positive number"),
         ([str(gradient_dir), "--start", "4", "--end", "2"], "0 <= start <= end"),
@@ -426,3 +426,138 @@ def test_cli_writes_the_default_file(gradient_dir: Path, monkeypatch: pytest.Mon
         assert f"wrote {out}" in capsys.readouterr().err
     finally:
         out.unlink(missing_ok=True)
+
+
+# ------------------------------------------------------------- estimates held over time
+
+
+def _held_run(path: Path) -> Path:
+    """Four robots; robots 0-2 get estimates in frame "a" at 1 s (shifted 200 mm: aligned
+    back exactly), robot 0 moves 3 mm at 2 s; robot 3 never has one. Final estimates in the
+    robots table are far off, so drawing them would show."""
+    truth = [(0.0, 0.0), (60.0, 0.0), (0.0, 60.0), (60.0, 60.0)]
+    robots = _robots(truth, est_x_mm=[500.0] * 4, est_y_mm=[500.0] * 4, frame=["z", "z", "z", ""])
+    run_dir = _write_run(path, robots, led=[(0.0, r, 3, 3, 0) for r in range(4)])
+    rows = [(1.0, r, truth[r][0] + 200.0, truth[r][1], "a") for r in range(3)]
+    rows.append((2.0, 0, 203.0, 0.0, "a"))
+    columns = ["t_s", "robot", "x_mm", "y_mm", "frame"]
+    pd.DataFrame(rows, columns=columns).to_csv(run_dir / "estimates.csv", index=False)
+    return run_dir
+
+
+def test_estimates_are_drawn_as_held_at_each_moment(tmp_path: Path):
+    run_dir = _held_run(tmp_path / "run")
+    replay = Replay(load_run(run_dir))
+    steps = replay.steps
+    assert steps.held and steps.t_s.tolist() == [1.0, 2.0]
+    assert steps.index(0.5) == -1 and steps.note(-1) == "estimates held: none yet"
+    np.testing.assert_allclose(steps.xy_mm[0, :3], [[0, 0], [60, 0], [0, 60]], atol=1e-9)
+    assert np.isnan(steps.xy_mm[:, 3]).all()
+    assert steps.frame.tolist() == [[0, 0, 0, -1], [0, 0, 0, -1]]
+    # At 2 s robot 0's estimate is 3 mm off: the alignment spreads it over the frame.
+    rmse, _, _ = procrustes_rmse(np.array([[203.0, 0], [260, 0], [200, 60]]), steps.xy_mm[0, :3])
+    assert steps.rmse_mm[1] == pytest.approx(rmse)
+    assert steps.note(1) == f"estimates held, aligned per frame: RMSE {rmse:.1f} mm"
+
+    out = animate_run(run_dir, tmp_path / "o.gif", fps=2, speed=1.0, end_s=2.0)
+    renderer = FrameRenderer(replay, {"estimates", "frames"}, width_px=640)
+    yellow, blue = (255, 255, 0), (31, 119, 180)
+
+    def at(frame: Image.Image, x: float, y: float) -> tuple[int, int, int]:
+        col, row = np.round(renderer.pixel_xy([[x, y]])[0]).astype(int)
+        return frame.getpixel((col, row))
+
+    def crossed(frame: Image.Image, x: float, y: float) -> bool:
+        """An estimate's cross on the yellow body at (x, y): its centre is not yellow."""
+        return at(frame, x, y) != yellow
+
+    with Image.open(out) as gif:
+        frames = []
+        for k in range(gif.n_frames):
+            gif.seek(k)
+            frames.append(gif.convert("RGB"))
+    assert len(frames) == 5  # 0, 0.5, 1, 1.5, 2 s
+    halo = 16.5 + 1.5
+    # Before 1 s: no estimate cross and no frame halo anywhere, final or not.
+    for frame in frames[:2]:
+        assert not crossed(frame, 0, 0) and at(frame, -halo, 0) != blue
+    # From 1 s: robots 0-2 show their aligned estimates (on the truth until 2 s, when robot
+    # 0's 3 mm step moves every aligned estimate off it) in frame "a"'s colour.
+    for frame in frames[2:4]:
+        assert crossed(frame, 0, 0) and crossed(frame, 60, 0)
+    assert not crossed(frames[4], 0, 0)
+    for frame in frames[2:]:
+        assert at(frame, -halo, 0) == blue and at(frame, 60 + halo, 60) != blue
+    assert not any(crossed(frame, 60, 60) for frame in frames)
+
+
+def test_the_html_replay_carries_the_estimates_as_steps(tmp_path: Path):
+    run_dir = _held_run(tmp_path / "run")
+    out = animate_run(run_dir, tmp_path / "r.html", speed=1.0)
+    text = out.read_text()
+    data = json.loads(re.search(r'id="kilonet-data"[^>]*>(.*?)</script>', text, re.S)[1])
+    est = data["estimates"]
+    assert est["t"] == [1.0, 2.0] and est["before"] == "estimates held: none yet"
+    assert est["x"][0] == [0.0, 60.0, 0.0, None] and est["y"][0] == [0.0, 0.0, 60.0, None]
+    assert data["frames"] == {
+        "t": [1.0, 2.0],
+        "rank": [[0, 0, 0, -1], [0, 0, 0, -1]],
+        "label": "frames",
+        "colours": data["frames"]["colours"],
+    }
+
+
+def test_a_real_run_records_what_robots_held_without_changing_the_run(tmp_path: Path):
+    runs = {}
+    for period in (0.0, 1.0):
+        overrides = {"placement.robots": 14, "trace.estimates_period_s": period}
+        runs[period] = scenarios.run(scenarios.get("localize"), overrides, seed=4)
+    quiet, sampled = runs[0.0], runs[1.0]
+    assert quiet.sim.trace.estimates_frame().empty
+    table = sampled.sim.trace.estimates_frame()
+    assert len(table) >= 14
+    for name in ("led", "events", "poses", "messages"):
+        pd.testing.assert_frame_equal(
+            quiet.sim.trace.frames()[name], sampled.sim.trace.frames()[name]
+        )
+    assert {k: v for k, v in quiet.summary.items() if k != "wall_time_s"} == {
+        k: v for k, v in sampled.summary.items() if k != "wall_time_s"
+    }
+    # Samples start at 0 s, one a second, and one where the run stopped: the last row of each
+    # robot is what it ended with (within the recording threshold), in robots.csv's frame.
+    end = sampled.sim.env.now
+    assert set(np.round(table.t_s[table.t_s < end] % 1.0, 9)) == {0.0}
+    last = table.groupby("robot").last()
+    final = scenarios.get("localize").robot_columns(sampled.sim).set_index("robot")
+    np.testing.assert_allclose(last.x_mm, final.est_x_mm[last.index], atol=0.05)
+    np.testing.assert_allclose(last.y_mm, final.est_y_mm[last.index], atol=0.05)
+    assert (last.frame == final.frame[last.index]).all()
+
+
+# ------------------------------------------------------------------------------ LED key
+
+
+def test_the_gif_has_a_key_of_the_led_colours(tmp_path: Path):
+    result = scenarios.run(scenarios.get("localize"), {"placement.robots": 14}, seed=4)
+    scenarios.write_outputs(result, tmp_path / "run")
+    key = pd.read_csv(tmp_path / "run" / "led_key.csv")
+    assert key.meaning.tolist() == [m for _, m in type(result.sim.robots[0]).LED_KEY]
+    out = animate_run(tmp_path / "run", tmp_path / "o.gif", fps=1, speed=100.0, overlays=["none"])
+    renderer = FrameRenderer(Replay(load_run(tmp_path / "run")), set(), width_px=640)
+    assert [m for _, m, _ in renderer.key_entries] == key.meaning.tolist()
+    with Image.open(out) as gif:
+        assert gif.size == renderer.size_px
+        frame = gif.convert("RGB")
+    for levels, _, (col, row) in renderer.key_entries:
+        expected = tuple(int(v) * 85 for v in levels)
+        assert frame.getpixel((round(col), round(row))) == expected
+        assert row > renderer.size_px[1] - 30  # along the bottom edge, below the swarm
+    # The key's strip is below every robot.
+    lowest = renderer.pixel_xy(result.sim.world.positions_mm)[:, 1].max() + 16.5
+    assert lowest < min(row for _, _, (_, row) in renderer.key_entries) - 5
+
+
+def test_a_run_without_a_key_draws_none(tmp_path: Path):
+    run_dir = _write_run(tmp_path / "run", _robots([(0, 0), (60, 0)]))
+    renderer = FrameRenderer(Replay(load_run(run_dir)), set(), width_px=640)
+    assert renderer.key_entries == []

@@ -15,6 +15,7 @@ import sys
 import time
 from pathlib import Path
 
+import dask
 import numpy as np
 import pandas as pd
 import pytest
@@ -406,24 +407,58 @@ def _rows(db: Path) -> int:
         return 0
 
 
-def test_dask_local_cluster_gives_the_same_rows_as_the_local_pool(tmp_path):
-    distributed = pytest.importorskip("distributed")
-    sweep = parse_sweep(SMALL, name="small")
-    with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
-    ) as cluster:
-        outcome = run_sweep(
-            sweep, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False
+def _stored_results(directory: Path) -> dict[str, tuple]:
+    """Each stored run by id: what a sweep computes (cell, seed, status, error, summary), not
+    where or how fast (worker, wall times, finish time)."""
+    with ResultStore.open(directory) as store:
+        records = store.records()
+    return {
+        r.run_id: (
+            r.cell,
+            r.seed,
+            r.status,
+            r.error,
+            {k: v for k, v in (r.summary or {}).items() if k != "wall_time_s"},
         )
-    assert (outcome.ok, outcome.failed) == (4, 0)
-    run_sweep(sweep, tmp_path / "local", workers=2, progress=False)
-    _, on_dask = load(tmp_path / "dask")
-    _, local = load(tmp_path / "local")
-    columns = ["run_id", "medium.loss_prob", "messages_sent", "receptions_delivered", "lost_random"]
-    pd.testing.assert_frame_equal(
-        on_dask.sort_values("run_id")[columns].reset_index(drop=True),
-        local.sort_values("run_id")[columns].reset_index(drop=True),
-    )
+        for r in records
+    }
+
+
+def test_sweep_on_a_local_dask_cluster_stores_what_the_local_pool_stores(tmp_path, capsys):
+    # The real path of `kilonet sweep --scheduler ADDRESS`: a scheduler and two worker processes
+    # on this machine, tasks and records pickled across processes as on a cluster.
+    from distributed import LocalCluster
+
+    sweep_file = tmp_path / "small.toml"
+    sweep_file.write_text(SMALL)
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster:
+        argv = ["sweep", str(sweep_file), "--out", str(tmp_path / "dask"), "--no-progress"]
+        assert kilonet.cli.main([*argv, "--scheduler", cluster.scheduler_address]) == 0
+        with ResultStore.open(tmp_path / "dask") as store:
+            workers = {r.worker for r in store.records()}
+    assert "sweep small: 4 runs; 4 run now (0 failed)" in capsys.readouterr().err
+    assert all(int(w.rpartition(":")[2]) != os.getpid() for w in workers)  # not in this process
+    local = ["sweep", str(sweep_file), "--out", str(tmp_path / "local"), "--no-progress"]
+    assert kilonet.cli.main([*local, "--workers", "2"]) == 0
+    on_dask, on_pool = _stored_results(tmp_path / "dask"), _stored_results(tmp_path / "local")
+    assert sorted(on_dask) == sorted(r.run_id for r in parse_sweep(SMALL, name="small").runs())
+    assert on_dask == on_pool
+    assert {s[2] for s in on_dask.values()} == {"ok"}
+    assert all(s[4]["messages_sent"] > 0 for s in on_dask.values())
+
+
+def test_sweep_with_an_unreachable_scheduler_stops_with_one_line(tmp_path, capsys):
+    sweep_file = tmp_path / "small.toml"
+    sweep_file.write_text(SMALL)
+    argv = ["sweep", str(sweep_file), "--out", str(tmp_path / "out"), "--no-progress"]
+    # A port nothing listens on; the client retries for its connect time-out (30 s by default).
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        assert kilonet.cli.main([*argv, "--scheduler", "tcp://127.0.0.1:9"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("kilonet: sweep stopped: cannot reach the Dask scheduler at tcp://")
+    assert "Traceback" not in err
 
 
 # ---------------------------------------------------------------------------- report

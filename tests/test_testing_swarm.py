@@ -69,7 +69,15 @@ def test_a_swarm_stops_when_its_condition_holds_and_hands_back_tables_and_states
     result = run_swarm(hops, hex_lattice(7, spacing_mm=40.0), stop_when=all_known, until_s=30)
     assert result.stopped and result.t_s < 30
     assert [p.hops for p in result.programs] == [0, 1, 1, 1, 1, 1, 1]
-    assert set(result.tables) == {"battery", "led", "events", "poses", "stops", "messages"}
+    assert set(result.tables) == {
+        "battery",
+        "led",
+        "events",
+        "poses",
+        "stops",
+        "messages",
+        "estimates",
+    }
     assert sorted(result.tables["events"].robot) == [1, 2, 3, 4, 5, 6]
     assert result.robots.sent.sum() > 0
     assert result.final[3] == {"hops": 1}

@@ -52,7 +52,7 @@ class SwarmResult:
     @property
     def tables(self) -> dict[str, pd.DataFrame]:
         """The trace's tables by name (``led``, ``events``, ``poses``, ``stops``,
-        ``messages``, ``battery``)."""
+        ``messages``, ``battery``, ``estimates``)."""
         return self.sim.trace.frames()
 
     @property
