@@ -65,7 +65,8 @@ def test_the_phase_sequence_is_the_named_phases_and_gcs_until_offers_them():
     until = typing.get_type_hints(GcsParams)["until"]
     assert typing.get_args(until) == PHASES
     for cls in {*PHASE_SEQUENCE, *RECOVERY_SEQUENCE}:
-        assert cls.window_s is not Phase.window_s, cls.name
+        assert "window_s" in vars(cls) or callable(cls.window_s), cls.name
+    assert not hasattr(Phase, "window_s")  # each phase defines its own (checked at definition)
 
 
 def test_phase_windows_come_from_each_phase():
@@ -79,8 +80,6 @@ def test_phase_windows_come_from_each_phase():
         ("merge", 25.5, math.inf),
     ]
     assert [cls.window_s(p) for cls in RECOVERY_SEQUENCE] == [1, 10, 6, 3, math.inf]
-    with pytest.raises(NotImplementedError):
-        Phase.window_s(p)
 
 
 # -- smaller rules ---------------------------------------------------------------------------
