@@ -65,8 +65,8 @@ def predict_from_seeds(
     frame_keys : mapping, optional
         Seed index → its frame key (:class:`protocols.frame_keys.FrameKey`). A robot located in
         frames of several components reports the one of the smallest key (the merged frame's
-        root, as :mod:`protocols.frame_merging` ranks elected seeds); without keys, the
-        largest.
+        root, as :mod:`protocols.frame_merging` ranks elected seeds), an isolated seed's only
+        if it has no other; without keys, the largest.
 
     Returns
     -------
@@ -89,7 +89,7 @@ def predict_from_seeds(
     located = {i: sorted(s for s, m in members.items() if i in m) for i in range(n)}
     groups = _groups(pos, graph, located, members, p.medium.range_mm, p.scenario)
     cases = failure_cases(range(n), located, list(seeds), groups)
-    final = _final_frames(cases["frames"], located, frame_keys)
+    final = _final_frames(cases["frames"], located, frame_keys, cases["isolated_seeds"])
     boundary = sorted(
         i
         for i in range(n)
@@ -186,15 +186,20 @@ def _final_frames(
     frames: list[list[int]],
     located: Mapping[int, list[int]],
     frame_keys: Mapping[int, FrameKey] | None,
+    isolated: Sequence[int] = (),
 ) -> dict[int, int | None]:
     """Robot → index into ``frames`` (the frame graph's components) of the merged frame it will
     report: of the components its frames are in, the one whose smallest frame key is smallest
-    (the root that wins), or without keys the first (largest)."""
+    (the root that wins), or without keys the first (largest); an ``isolated`` seed's frame
+    only if it has no other (its root ranks last, :mod:`protocols.frame_merging`)."""
     component_of = {s: c for c, seeds in enumerate(frames) for s in seeds}
+    alone = {component_of[s] for s in isolated}
     if frame_keys is None:
-        order = {c: c for c in range(len(frames))}  # largest first
+        order = {c: (c in alone, c) for c in range(len(frames))}  # largest first
     else:
-        order = {c: min(frame_keys[s] for s in seeds) for c, seeds in enumerate(frames)}
+        order = {
+            c: (c in alone, min(frame_keys[s] for s in seeds)) for c, seeds in enumerate(frames)
+        }
     return {
         i: min((component_of[s] for s in located[i]), key=order.__getitem__, default=None)
         for i in located

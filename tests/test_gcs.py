@@ -267,6 +267,35 @@ def test_robot_and_merging_state_sit_in_slots():
         assert (robot.phase.seed is not None) == robot.is_seed
 
 
+def test_an_isolated_seeds_root_ranks_last_so_it_wins_no_robot_of_a_merged_frame():
+    """Without occlusion the thesis's reference rule leaves isolated seeds on a 40-robot lattice
+    (docs/gcs.md, "On the robot model"). Their roots rank last, as edge seeds' do: a robot whose
+    frames include one that can merge never takes an isolated seed's root (before, the smaller
+    key won, and an isolated seed's references left the merged frame with it)."""
+    from kilonet import Simulation
+    from scenarios.base import build_params, place
+
+    # Seed 4: isolated seeds with smaller keys than the frames their references share.
+    params = build_params(GCS, {"placement.robots": 40}, seed=4)
+    positions = place(GCS, params, None)
+    sim = Simulation(positions, GCS.program(params, positions), params)
+    sim.run(phase_windows_s(params.scenario)[-1][1] + 10.0)  # 10 s into merging
+    isolated = {r.own_key for r in sim.robots if r.is_seed and not r.partners}
+    assert len(isolated) >= 3
+    for r in sim.robots:
+        if r.is_seed and r.own_key in isolated:
+            assert r.phase.seed.rank.root.edge and r.merge_done
+    taken = 0
+    for r in sim.robots:
+        held = [
+            k for k in r.estimate.frames if k in r.estimate.ranks and k in r.estimate.transforms
+        ]
+        if any(k in isolated for k in held) and not all(k in isolated for k in held):
+            taken += 1
+            assert r.estimate.root().key not in isolated
+    assert taken >= 3  # robots in an isolated frame and a merged one: the case was exercised
+
+
 def test_a_partner_that_never_answers_stops_holding_up_done():
     """A seed crashes just before merging, so no member ever holds its transform: rounds
     about it time out, and after gcs.merge_silent_rounds of them its partners are done

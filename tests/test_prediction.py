@@ -14,9 +14,10 @@ from kilonet.geometry import (
     multilaterate,
     place_references,
 )
+from protocols.frame_keys import FrameKey
 from protocols.local_frames import reference_candidates
 from scenarios.base import build_params
-from scenarios.prediction import predict_from_seeds
+from scenarios.prediction import _final_frames, predict_from_seeds
 
 #: Seed 0 with robots 1 and 2 on opposite sides, 176° apart seen from it: |BC| = 72.54 mm reaches
 #: the seed as 73 mm, longer than |AB| + |AC| = 72.59 mm, so the triangle the seed holds does not
@@ -59,3 +60,12 @@ def test_robots_are_located_where_the_seeds_frame_puts_their_anchors():
     params = build_params(scenarios.get("gcs"), {"medium.range_mm": 85})
     prediction = predict_from_seeds(pos, params, [0])
     assert prediction["located_in"] == {0: [0], 1: [0], 2: [0], 3: [0]}
+
+
+def test_a_robot_reports_an_isolated_seeds_frame_only_when_it_has_no_other():
+    # Components: seeds 1 and 2 merged, seed 0 isolated with the smallest key. Robot 5 is in
+    # frames 0 and 1, robot 6 in frame 0 alone (the protocol ranks isolated roots last).
+    frames, keys = [[1, 2], [0]], {0: FrameKey(3, 0), 1: FrameKey(7, 0), 2: FrameKey(9, 0)}
+    located = {5: [0, 1], 6: [0], 7: []}
+    assert _final_frames(frames, located, keys, isolated=[0]) == {5: 0, 6: 1, 7: None}
+    assert _final_frames(frames, located, keys)[5] == 1  # by keys alone the isolated one wins
