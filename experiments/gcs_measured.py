@@ -62,9 +62,10 @@ class GcsRun:
         ∠BAC of every seed that built a frame, degrees.
     isolated : int
         Seeds no merging group was registered with.
-    isolated_thin : int
-        Of those, seeds whose frame holds only the seed and its two references, with the
-        references at least :data:`THIN_DEG` apart.
+    isolated_alone : int
+        Of those, seeds whose frame holds only the seed and its two references.
+    isolated_alone_thin : int
+        Of those, seeds whose references are at least :data:`THIN_DEG` apart.
     pairs_with_group : int
         Frame pairs (elected seeds) some robot found a merging group for.
     pairs_unregistered : int
@@ -78,7 +79,8 @@ class GcsRun:
     cpu_s: float
     reference_angles_deg: tuple[float, ...]
     isolated: int
-    isolated_thin: int
+    isolated_alone: int
+    isolated_alone_thin: int
     pairs_with_group: int
     pairs_unregistered: int
     error_bands: tuple[tuple[int, int, int, float], ...]
@@ -109,7 +111,7 @@ def _read(result: Any, cpu_s: float) -> GcsRun:
     sim, summary = result.sim, result.summary
     outcomes = run_outcomes(sim)
     robots = outcomes.robots
-    angles, isolated, thin = [], 0, 0
+    angles, isolated, alone, alone_thin = [], 0, 0, 0
     for i, o in enumerate(robots):
         if not o.is_seed:
             continue
@@ -118,8 +120,9 @@ def _read(result: Any, cpu_s: float) -> GcsRun:
             angles.append(angle)
         if o.isolated_seed:
             isolated += 1
-            members = sum(o.own_key in other.local_positions for other in robots)
-            thin += members == 3 and angle is not None and angle >= THIN_DEG
+            if sum(o.own_key in other.local_positions for other in robots) == 3:
+                alone += 1
+                alone_thin += angle is not None and angle >= THIN_DEG
     found = {
         frozenset(pair)
         for o in robots
@@ -138,7 +141,8 @@ def _read(result: Any, cpu_s: float) -> GcsRun:
         cpu_s,
         tuple(angles),
         isolated,
-        thin,
+        alone,
+        alone_thin,
         len(found),
         unregistered,
         _error_bands(sim, outcomes),
@@ -408,30 +412,31 @@ _ISOLATION_VARIANTS = (
 
 
 def isolated_seeds_block(seeds: Sequence[int] = tuple(range(1, 9))) -> str:
-    """Isolated seeds on 40-robot lattices under each suspect's variant, summed over seeds."""
+    """Isolated seeds at the end of phase 5 on 40-robot lattices under each suspect's variant,
+    summed over seeds."""
     header = [
-        f"40 robots, seeds {seeds[0]}–{seeds[-1]}",
+        f"40 robots, seeds {seeds[0]}–{seeds[-1]}, after phase 5",
         "seeds",
         f"references ≥ {THIN_DEG:g}° apart",
         "isolated seeds",
-        "isolated, frame of seed and references only, ≥ " + f"{THIN_DEG:g}°",
+        "isolated, frame of seed and references only",
+        f"of which references ≥ {THIN_DEG:g}° apart",
         "frame pairs with a group",
         "of which a seed got no registration",
-        "runs ending in one frame",
     ]
     rows = []
     for label, overrides in _ISOLATION_VARIANTS:
-        runs = [gcs_run(40, seed, _key(overrides)) for seed in seeds]
+        runs = [gcs_run(40, seed, _key({**overrides, "gcs.until": "groups"})) for seed in seeds]
         rows.append(
             [
                 label,
                 sum(r.summary["seeds"] for r in runs),
                 sum(r.thin_frames for r in runs),
                 sum(r.isolated for r in runs),
-                sum(r.isolated_thin for r in runs),
+                sum(r.isolated_alone for r in runs),
+                sum(r.isolated_alone_thin for r in runs),
                 sum(r.pairs_with_group for r in runs),
                 sum(r.pairs_unregistered for r in runs),
-                sum(r.summary["frames"] == 1 for r in runs),
             ]
         )
     return "\n".join(_table(header, rows))
