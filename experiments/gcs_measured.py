@@ -72,7 +72,7 @@ class GcsRun:
         Of those, pairs at least one of whose two seeds received no registration for the other.
     error_bands : tuple of (int, int, int, float)
         ``(from_mm, to_mm, robots, rmse_mm)``: error after the best rigid alignment of the
-        localized robots, by distance from the seed of the root of the first robot's frame.
+        robots of the final frame that holds the most, by distance from its root's seed.
     """
 
     summary: dict[str, Any]
@@ -168,9 +168,10 @@ def _error_bands(sim: Any, outcomes: Any) -> tuple[tuple[int, int, int, float], 
 
     from kilonet.alignment import procrustes_rmse
 
-    done = outcomes.estimates[outcomes.estimates.localized]
-    if len(done) < 3:
+    localized = outcomes.estimates[outcomes.estimates.localized]
+    if len(localized) < 3:
         return ()
+    done = localized[localized.frame == localized.frame.mode().iloc[0]]  # the largest frame
     truth = sim.world.positions_mm[done.robot.to_numpy()]
     _, _, aligned = procrustes_rmse(done[["est_x_mm", "est_y_mm"]].to_numpy(), truth)
     root = outcomes.robots[int(done.robot.iloc[0])].root
