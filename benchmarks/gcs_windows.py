@@ -7,6 +7,9 @@ last robot located (phase 4). A window much longer than its last event is time t
 waits; one barely longer risks cutting the phase short on another placement or channel.
 
     python benchmarks/gcs_windows.py [--sizes 100 300] [--seeds 1 2 3] [--set key=value ...]
+
+docs/gcs.md's table of the same is made by ``python -m experiments.publish docs --block
+gcs-windows`` (:func:`experiments.gcs_measured.windows_block`).
 """
 
 from __future__ import annotations
@@ -14,35 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 
-import scenarios
-from protocols.gcs import phase_windows_s
-
-#: The events that mark progress in each phase.
-PHASE_EVENTS = {
-    "ids": ("id", "duplicate"),
-    "frames": ("frame", "frame_failed"),
-    "localization": ("located",),
-}
-
-
-def last_events(n: int, seed: int, overrides: dict[str, str]) -> dict:
-    """One run of ``n`` robots up to localization: per phase, its window and the time of its
-    last progress event from the window's start (``None`` if nothing happened), s."""
-    result = scenarios.run(
-        scenarios.get("gcs"),
-        {"placement.robots": n, **overrides, "gcs.until": "localization"},
-        seed=seed,
-    )
-    events = result.sim.trace.events_frame()
-    row: dict = {"robots": n, "seed": seed}
-    for name, start, end in phase_windows_s(result.params.scenario):
-        if name not in PHASE_EVENTS:
-            continue
-        inside = events[(events.t_s >= start) & (events.t_s < end)]
-        times = inside.t_s[inside.event.isin(PHASE_EVENTS[name])]
-        last = round(float(times.max()) - start, 2) if len(times) else None
-        row[name] = {"window_s": end - start, "last_s": last}
-    return row
+from experiments.gcs_measured import last_events
 
 
 def main() -> None:

@@ -4,6 +4,7 @@ README's animation. One command, so that no number in the repository drifts from
     python -m experiments.publish            # everything (hours on two cores)
     python -m experiments.publish --list     # what there is, and what each writes
     python -m experiments.publish loss docs  # some of it
+    python -m experiments.publish docs --block gcs-runs  # one generated block
 
 Each publication stamps what it writes with the date, the machine, the Python and kilonet
 versions and the git commit (:func:`stamp`), so a reader sees where a figure came from. Sweeps
@@ -34,6 +35,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
+
+from experiments import gcs_measured
 
 __all__ = [
     "BLOCKS",
@@ -116,10 +119,12 @@ def replace_block(text: str, name: str, content: str) -> str:
 
 @dataclass(frozen=True)
 class Context:
-    """What a publication may use: where sweeps run and how many workers they get."""
+    """What a publication may use: where sweeps run, how many workers they get, and which
+    generated blocks ``docs`` makes (``None``: all of them)."""
 
     runs: Path
     workers: int | None
+    blocks: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -275,12 +280,25 @@ def _testkit_block(context: Context) -> str:
     return "\n".join(lines)
 
 
+def _gcs_page(make: Callable[[], str]) -> Block:
+    """A block of ``docs/gcs.md`` made by ``make``, one of :mod:`experiments.gcs_measured`'s
+    functions (they run their own simulations, no sweep)."""
+    return Block("docs/gcs.md", lambda _context: make())
+
+
 #: Generated blocks by name.
 BLOCKS: dict[str, Block] = {
     "clock-drift": Block("docs/model.md", _clock_drift_block),
     "medium-throughput": Block("docs/performance.md", _medium_block),
     "startup": Block("docs/performance.md", _startup_block),
     "testkit-speed": Block("docs/performance.md", _testkit_block),
+    # docs/gcs.md: experiments/gcs_measured.py
+    "gcs-robot-model": _gcs_page(gcs_measured.robot_model_block),
+    "gcs-isolated-seeds": _gcs_page(gcs_measured.isolated_seeds_block),
+    "gcs-runs": _gcs_page(gcs_measured.runs_block),
+    "gcs-error-by-distance": _gcs_page(gcs_measured.error_by_distance_block),
+    "gcs-merging-choices": _gcs_page(gcs_measured.merging_choices_block),
+    "gcs-windows": _gcs_page(gcs_measured.windows_block),
 }
 
 
@@ -289,7 +307,8 @@ def _blocks(
 ) -> None:
     pages: dict[str, list[str]] = {}
     for name, block in BLOCKS.items():
-        if (pages_wanted is None or block.page in pages_wanted) and block.page not in skip:
+        wanted = pages_wanted is None or block.page in pages_wanted
+        if wanted and block.page not in skip and (context.blocks is None or name in context.blocks):
             pages.setdefault(block.page, []).append(name)
     for page, names in pages.items():
         path = ROOT / page
@@ -351,19 +370,28 @@ PUBLICATIONS: dict[str, Publication] = {
 }
 
 
-def publish(names: list[str] | None = None, *, workers: int | None = None) -> None:
-    """Make the publications ``names`` (all by default), in registry order.
+def publish(
+    names: list[str] | None = None,
+    *,
+    workers: int | None = None,
+    blocks: list[str] | None = None,
+) -> None:
+    """Make the publications ``names`` (all by default), in registry order; ``docs`` makes only
+    the generated ``blocks`` if they are given (and then only ``docs`` by default).
 
     Raises
     ------
     KeyError
-        For a name that is not in :data:`PUBLICATIONS`.
+        For a name that is not in :data:`PUBLICATIONS`, or a block not in :data:`BLOCKS`.
     """
-    chosen = names or list(PUBLICATIONS)
+    chosen = names or (["docs"] if blocks else list(PUBLICATIONS))
     for name in chosen:
         if name not in PUBLICATIONS:
             raise KeyError(name)
-    context = Context(RUNS, workers)
+    for name in blocks or []:
+        if name not in BLOCKS:
+            raise KeyError(name)
+    context = Context(RUNS, workers, tuple(blocks) if blocks else None)
     for name in chosen:
         print(f"publish: {name}: {PUBLICATIONS[name].summary}", file=sys.stderr)
         PUBLICATIONS[name].make(context)
@@ -374,6 +402,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("names", nargs="*", help="publications to make (default: all)")
     parser.add_argument("--list", action="store_true", help="list the publications and stop")
     parser.add_argument("--workers", type=int, help="worker processes for the sweeps")
+    parser.add_argument(
+        "--block",
+        action="append",
+        metavar="NAME",
+        help="with docs: make only this generated block (repeatable; see BLOCKS)",
+    )
     args = parser.parse_args(argv)
     if args.list:
         for p in PUBLICATIONS.values():
@@ -386,7 +420,14 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    publish(args.names, workers=args.workers)
+    unknown = [b for b in args.block or [] if b not in BLOCKS]
+    if unknown:
+        print(
+            f"publish: error: unknown block {unknown[0]!r}; known: {', '.join(BLOCKS)}",
+            file=sys.stderr,
+        )
+        return 2
+    publish(args.names, workers=args.workers, blocks=args.block)
     return 0
 
 

@@ -72,9 +72,9 @@ class Root(NamedTuple):
     Parameters
     ----------
     edge : bool
-        The root's seed is an edge seed (a recovery epoch's): it ranks after every elected one,
-        so a new frame that merges with nothing cannot win robots over from the frame they
-        were in.
+        The root ranks after every elected seed's: its seed is an edge seed (a recovery
+        epoch's), or an isolated seed (no merging group). A new frame, or one that merges with
+        nothing, cannot win robots over from a merged frame they are located in too.
     key : FrameKey
         The root's frame.
     """

@@ -33,8 +33,8 @@ once per pair and ``gcs.merge_round_s``), and I asks K through it in its next ro
 done when ``gcs.merge_stable_rounds`` answers in a row agree and every partner has answered
 (or timed out ``gcs.merge_silent_rounds`` rounds without ever answering); it keeps running
 rounds and resumes on a new rank, a far-off parent or repeated disagreement. A seed with no
-partner is isolated and done at once; after ``gcs.merge_max_rounds`` rounds it gives up, or
-stops its rounds if done. ``docs/gcs.md`` says why each rule is there.
+partner is isolated and done at once, its root ranked last; after ``gcs.merge_max_rounds``
+rounds it gives up, or stops its rounds if done. ``docs/gcs.md`` says why each rule is there.
 
 Messages (rotations as the three int16 words of :func:`kilonet.alignment.pack_quaternion`;
 shifts int16 in 0.25 mm; frames by their seed's ID and salt,
@@ -607,9 +607,17 @@ class SeedRounds:
         self.turn = 0  # transmit opportunities
 
     def start(self) -> None:
-        """Publish the initial transform; a seed without partners is isolated, done at once."""
+        """Publish the initial transform; a seed without partners is isolated, done at once.
+
+        An isolated seed's root ranks last, as an edge seed's: its frame merges with nothing,
+        so it must not win over a robot located in a merged frame too (with the smaller key it
+        took its seed and references out of the merged frame).
+        """
+        isolated = not self.robot.partners
+        if isolated:
+            self.rank = Rank.own(self.key, edge=True)
         self._publish()
-        if not self.robot.partners:
+        if isolated:
             self._finish("isolated")
 
     # -- state ---------------------------------------------------------------------------------

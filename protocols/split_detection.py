@@ -6,7 +6,8 @@ marked done by its seed — it broadcasts that position now and then::
     type 70 POS  sender:uint16  x:int16  y:int16 (0.5 mm)  root:uint16  root_salt:uint8  9 bytes
 
 ``root`` and ``root_salt`` name the root of the merged frame its estimate is in
-(:class:`protocols.frame_keys.Root`; bit 15 of ``root``: an edge seed's frame). A settled robot
+(:class:`protocols.frame_keys.Root`; bit 15 of ``root``: an edge or isolated
+seed's frame). A settled robot
 that hears a settled neighbour compares, as the thesis proposes, the distance computed from
 both global positions with the distance it measures (the running mean of its neighbour table):
 

@@ -1,12 +1,19 @@
 """Predicting the global coordinate system's outcome from the geometry and an election.
 
 Given true positions, the parameters and the seeds phase 2 elected, phases 3–5 are predicted
-from the geometry alone: each seed takes the reference pair its rule would choose from true
-distances; robots join a seed's frame when they see the seed and at least two robots already in
-that frame and the robots' own fix test accepts those anchors (repeated until nothing changes,
-as localization spreads); merging groups are found
-as the robots would find them (:func:`protocols.merging_groups.find_groups`). The frame graph's
-components (:func:`scenarios.topology.failure_cases`) are the global frames merging can reach.
+from the geometry alone: each seed takes the reference pair its rule would choose from the
+distances it will hold, and places its references as it will (:func:`_frame_members`); robots
+join a seed's frame when they see the seed and at least two robots already in that frame and
+the robots' own fix test accepts those anchors where the seed's frame puts them (repeated until
+nothing changes, as localization spreads); merging groups are found as the robots would find
+them (:func:`protocols.merging_groups.find_groups`). The frame graph's components
+(:func:`scenarios.topology.failure_cases`) are the global frames merging can reach.
+
+The distances a seed holds are true ones but for |BC|, which reaches it in whole millimetres
+(phase 3's TABLE carries ``d:uint8``). That matters for nearly collinear references, which the
+thesis's largest-angle rule picks once bodies no longer block the link between two robots on
+opposite sides of the seed: a few tenths of a millimetre then decide whether the triangle
+exists at all, and how wide the seed's frame makes it (``docs/gcs.md``, "On the robot model").
 
 Used before a run (``kilonet analyze``) and after one (the ``gcs`` scenario reports the
 prediction next to what it observed).
@@ -26,6 +33,7 @@ from kilonet.geometry import (
     choose_references_best_conditioned,
     choose_references_max_angle,
     multilaterate,
+    place_references,
 )
 from kilonet.params import Params
 from kilonet.visibility import LinkModel, communication_graph
@@ -57,8 +65,8 @@ def predict_from_seeds(
     frame_keys : mapping, optional
         Seed index → its frame key (:class:`protocols.frame_keys.FrameKey`). A robot located in
         frames of several components reports the one of the smallest key (the merged frame's
-        root, as :mod:`protocols.frame_merging` ranks elected seeds); without keys, the
-        largest.
+        root, as :mod:`protocols.frame_merging` ranks elected seeds), an isolated seed's only
+        if it has no other; without keys, the largest.
 
     Returns
     -------
@@ -73,7 +81,7 @@ def predict_from_seeds(
     p = params
     n = len(pos)
     graph = communication_graph(pos, LinkModel.from_params(p.medium))
-    members: dict[int, set[int]] = {}
+    members: dict[int, dict[int, tuple[float, float]]] = {}
     for s in seeds:
         inside = _frame_members(pos, graph, s, p.scenario)
         if inside is not None:
@@ -81,7 +89,7 @@ def predict_from_seeds(
     located = {i: sorted(s for s, m in members.items() if i in m) for i in range(n)}
     groups = _groups(pos, graph, located, members, p.medium.range_mm, p.scenario)
     cases = failure_cases(range(n), located, list(seeds), groups)
-    final = _final_frames(cases["frames"], located, frame_keys)
+    final = _final_frames(cases["frames"], located, frame_keys, cases["isolated_seeds"])
     boundary = sorted(
         i
         for i in range(n)
@@ -100,11 +108,20 @@ def predict_from_seeds(
     }
 
 
-def _frame_members(pos: np.ndarray, graph: nx.Graph, seed: int, gcs: GcsParams) -> set[int] | None:
-    """The robots seed ``seed``'s frame will hold: the seed, the references its rule would
-    choose from true distances among neighbours that see each other, and every robot that sees
-    the seed and passes the robots' own fix test with the frame's robots it sees, repeated until
-    nothing changes (as localization spreads); ``None`` if no reference pair is usable."""
+def _frame_members(
+    pos: np.ndarray, graph: nx.Graph, seed: int, gcs: GcsParams
+) -> dict[int, tuple[float, float]] | None:
+    """The robots seed ``seed``'s frame will hold, with their positions in it, mm: the seed at
+    the origin, the references its rule would choose, placed as the seed will place them, and
+    every robot that sees the seed and passes the robots' own fix test with the frame's robots
+    it sees, repeated until nothing changes (as localization spreads); ``None`` if no reference
+    pair is usable.
+
+    The seed's distances to its neighbours are true; |BC| is rounded to whole millimetres, as
+    the neighbours' tables carry it (:mod:`protocols.local_frames`). A fix uses true ranges and
+    the anchors' positions in the frame, so a frame the rounding has bent or widened admits the
+    robots it will admit.
+    """
     rule = (
         choose_references_max_angle
         if gcs.reference_rule == "max_angle"
@@ -115,7 +132,7 @@ def _frame_members(pos: np.ndarray, graph: nx.Graph, seed: int, gcs: GcsParams) 
         (b, c): (
             math.dist(pos[seed], pos[b]),
             math.dist(pos[seed], pos[c]),
-            math.dist(pos[b], pos[c]),
+            float(round(math.dist(pos[b], pos[c]))),
         )
         for k, b in enumerate(near)
         for c in near[k + 1 :]
@@ -125,24 +142,25 @@ def _frame_members(pos: np.ndarray, graph: nx.Graph, seed: int, gcs: GcsParams) 
         (b, c), _ = rule(candidates)
     except GeometryError:
         return None
-    inside = {seed, b, c}
+    placed_b, placed_c = place_references(*candidates[(b, c)])
+    inside = {seed: (0.0, 0.0), b: placed_b, c: placed_c}
     changed = True
     while changed:  # localization spreads among robots that see the seed
         changed = False
         for robot in near:
-            anchors = sorted(inside & set(graph[robot]))
+            anchors = sorted(set(inside) & set(graph[robot]))
             if robot in inside or len(anchors) < 3:
                 continue
-            # The robot's own test (protocols.localization), on true distances: a fix from
-            # nearly collinear anchors, or one with a mirror image, is rejected there too.
+            # The robot's own test (protocols.localization): a fix from nearly collinear
+            # anchors, or one with a mirror image, is rejected there too.
             fix = multilaterate(
-                pos[anchors],
+                np.array([inside[a] for a in anchors]),
                 np.linalg.norm(pos[anchors] - pos[robot], axis=1),
                 sigma_mm=gcs.sigma_mm,
                 max_rmse_mm=gcs.max_rmse_mm,
             )
             if fix.ok:
-                inside.add(robot)
+                inside[robot] = (fix.x_mm, fix.y_mm)
                 changed = True
     return inside
 
@@ -151,7 +169,7 @@ def _groups(
     pos: np.ndarray,
     graph: nx.Graph,
     located: Mapping[int, list[int]],
-    members: Mapping[int, set[int]],
+    members: Mapping[int, Mapping[int, tuple[float, float]]],
     reach_mm: float,
     gcs: GcsParams,
 ) -> list[tuple[int, int]]:
@@ -168,15 +186,20 @@ def _final_frames(
     frames: list[list[int]],
     located: Mapping[int, list[int]],
     frame_keys: Mapping[int, FrameKey] | None,
+    isolated: Sequence[int] = (),
 ) -> dict[int, int | None]:
     """Robot → index into ``frames`` (the frame graph's components) of the merged frame it will
     report: of the components its frames are in, the one whose smallest frame key is smallest
-    (the root that wins), or without keys the first (largest)."""
+    (the root that wins), or without keys the first (largest); an ``isolated`` seed's frame
+    only if it has no other (its root ranks last, :mod:`protocols.frame_merging`)."""
     component_of = {s: c for c, seeds in enumerate(frames) for s in seeds}
+    alone = {component_of[s] for s in isolated}
     if frame_keys is None:
-        order = {c: c for c in range(len(frames))}  # largest first
+        order = {c: (c in alone, c) for c in range(len(frames))}  # largest first
     else:
-        order = {c: min(frame_keys[s] for s in seeds) for c, seeds in enumerate(frames)}
+        order = {
+            c: (c in alone, min(frame_keys[s] for s in seeds)) for c, seeds in enumerate(frames)
+        }
     return {
         i: min((component_of[s] for s in located[i]), key=order.__getitem__, default=None)
         for i in located

@@ -1,0 +1,21 @@
+"""Tests for experiments.gcs_measured: what docs/gcs.md's blocks read from a run."""
+
+from __future__ import annotations
+
+import pytest
+
+from experiments.gcs_measured import THIN_DEG, gcs_run
+
+
+@pytest.mark.slow
+def test_isolated_seeds_on_a_40_robot_lattice_are_thin_frames_of_seed_and_references():
+    """docs/gcs.md, "On the robot model": without occlusion the thesis's rule leaves seeds whose
+    references are nearly collinear with them and whose frames hold nobody else, and those are
+    the isolated ones after phase 5; the widest-triangle rule leaves none."""
+    run = gcs_run(40, 1, (("gcs.until", "groups"),))
+    assert run.isolated >= 3
+    assert run.isolated_alone_thin == run.isolated_alone == run.isolated
+    assert run.thin_frames >= run.isolated
+    assert max(run.reference_angles_deg) >= THIN_DEG
+    widest = gcs_run(40, 1, (("gcs.reference_rule", "best_conditioned"), ("gcs.until", "groups")))
+    assert widest.isolated == 0

@@ -1,0 +1,71 @@
+"""Tests for scenarios.prediction: the prediction follows what the seeds will hold."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import scenarios
+from kilonet.geometry import (
+    GeometryError,
+    choose_references_max_angle,
+    multilaterate,
+    place_references,
+)
+from protocols.frame_keys import FrameKey
+from protocols.local_frames import reference_candidates
+from scenarios.base import build_params
+from scenarios.prediction import _final_frames, predict_from_seeds
+
+#: Seed 0 with robots 1 and 2 on opposite sides, 176° apart seen from it: |BC| = 72.54 mm reaches
+#: the seed as 73 mm, longer than |AB| + |AC| = 72.59 mm, so the triangle the seed holds does not
+#: exist. Robots 3-5 stand around the seed.
+THIN = np.array([[0.0, 0.0], [36.0, 0.0], [-36.5, 2.5], [0.0, 36.0], [5.0, -34.0], [30.0, 30.0]])
+
+
+def _distances(pos: np.ndarray, seed: int, b: int, c: int) -> tuple[float, float, float]:
+    return math.dist(pos[seed], pos[b]), math.dist(pos[seed], pos[c]), math.dist(pos[b], pos[c])
+
+
+def test_a_pair_that_whole_millimetres_make_degenerate_is_skipped_as_the_seed_skips_it():
+    d_ab, d_ac, d_bc = _distances(THIN, 0, 1, 2)
+    place_references(d_ab, d_ac, d_bc)  # with true distances the thin triangle exists ...
+    with pytest.raises(GeometryError):  # ... with the tables' whole millimetres it does not
+        place_references(d_ab, d_ac, round(d_bc))
+    # The seed's own choice, from its distances and its neighbours' whole-mm tables:
+    ids = range(1, len(THIN))
+    tables = {b: {c: round(math.dist(THIN[b], THIN[c])) for c in ids if c != b} for b in ids}
+    own = {b: math.dist(THIN[0], THIN[b]) for b in ids}
+    (b, c), _ = choose_references_max_angle(reference_candidates(own, tables, tolerance_mm=5.0))
+    assert {b, c} != {1, 2}
+    # The prediction skips the pair too, so every robot is located in seed 0's frame; with the
+    # thin pair, three nearly collinear anchors would have left robots 3-5 unlocalizable.
+    params = build_params(scenarios.get("gcs"), {"medium.range_mm": 85})
+    prediction = predict_from_seeds(THIN, params, [0])
+    assert prediction["located_in"] == {i: [0] for i in range(len(THIN))}
+    assert prediction["unlocalizable"] == []
+
+
+def test_robots_are_located_where_the_seeds_frame_puts_their_anchors():
+    # References 174° apart: |BC| = 66.08 mm reaches the seed as 66 mm, which puts C 4.5 mm off
+    # line AB instead of 3.3 mm. In that wider frame robot 3's fix from the seed and the two
+    # references passes the mirror test; with the anchors where they truly are it does not.
+    pos = np.array([[0.0, 0.0], [36.0, 0.0], [-30.0, 3.3], [0.0, 38.0]])
+    anchors, ranges = pos[:3], np.linalg.norm(pos[:3] - pos[3], axis=1)
+    assert multilaterate(anchors, ranges, max_rmse_mm=4.0).reason == "mirror_ambiguity"
+    b, c = place_references(*_distances(pos, 0, 1, 2)[:2], round(math.dist(pos[1], pos[2])))
+    assert multilaterate(np.array([(0.0, 0.0), b, c]), ranges, max_rmse_mm=4.0).ok
+    params = build_params(scenarios.get("gcs"), {"medium.range_mm": 85})
+    prediction = predict_from_seeds(pos, params, [0])
+    assert prediction["located_in"] == {0: [0], 1: [0], 2: [0], 3: [0]}
+
+
+def test_a_robot_reports_an_isolated_seeds_frame_only_when_it_has_no_other():
+    # Components: seeds 1 and 2 merged, seed 0 isolated with the smallest key. Robot 5 is in
+    # frames 0 and 1, robot 6 in frame 0 alone (the protocol ranks isolated roots last).
+    frames, keys = [[1, 2], [0]], {0: FrameKey(3, 0), 1: FrameKey(7, 0), 2: FrameKey(9, 0)}
+    located = {5: [0, 1], 6: [0], 7: []}
+    assert _final_frames(frames, located, keys, isolated=[0]) == {5: 0, 6: 1, 7: None}
+    assert _final_frames(frames, located, keys)[5] == 1  # by keys alone the isolated one wins
