@@ -35,6 +35,8 @@ FIELDS = (
     "rmse_mm",
     "crlb_rmse_mm",
     "rmse_over_crlb",
+    "crlb_received_rmse_mm",
+    "rmse_over_crlb_received",
     "central_rmse_mm",
     "central_localized_fraction",
     "largest_frame_over_central",
