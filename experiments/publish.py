@@ -38,6 +38,7 @@ from pathlib import Path
 __all__ = [
     "BLOCKS",
     "PUBLICATIONS",
+    "STUDY_SWEEPS",
     "Block",
     "Publication",
     "blocks_in",
@@ -174,6 +175,17 @@ def _topology(context: Context) -> None:
     )
 
 
+def _localization(context: Context) -> None:
+    from experiments.localization_study import write_report
+
+    write_report(
+        _sweep(context, "localization_gcs"),
+        _sweep(context, "localization_localize"),
+        REPORTS,
+        stamp=stamp("python -m experiments.publish localization"),
+    )
+
+
 def _default_gif(context: Context) -> None:
     import scenarios
     from kilonet.animation import animate_run
@@ -235,9 +247,18 @@ def _blocks(context: Context) -> None:
         path.write_text(text)
 
 
+#: Studies (publications below) by name, and the sweeps each one runs and reports on instead of
+#: their standard reports.
+STUDY_SWEEPS: dict[str, tuple[str, ...]] = {
+    "topology": ("topology",),
+    "localization": ("localization_gcs", "localization_localize"),
+}
+
+
 def _sweeps_with_reports() -> list[str]:
     names = sorted(p.stem for p in (ROOT / "experiments").glob("*.toml"))
-    return [n for n in names if n != "topology"]
+    studied = {sweep for sweeps in STUDY_SWEEPS.values() for sweep in sweeps}
+    return [n for n in names if n not in studied]
 
 
 #: Everything ``python -m experiments.publish`` makes, by name.
@@ -256,6 +277,13 @@ PUBLICATIONS: dict[str, Publication] = {
         "the topology sweep and its study (python -m experiments.topology_study)",
         ("experiments/reports/topology.md", "experiments/reports/topology_files/"),
         _topology,
+    ),
+    "localization": Publication(
+        "localization",
+        "the sweeps localization_gcs and localization_localize and their study "
+        "(python -m experiments.localization_study)",
+        ("experiments/reports/localization.md", "experiments/reports/localization_files/"),
+        _localization,
     ),
     "docs": Publication(
         "docs",
