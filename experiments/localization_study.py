@@ -40,10 +40,12 @@ from experiments.report import _markdown_table, load
 __all__ = [
     "FACTORS",
     "VARIANTS",
+    "base_table",
     "comparison",
     "joined",
     "lattice_table",
     "summary_table",
+    "targets_table",
     "write_report",
 ]
 
@@ -75,6 +77,7 @@ _NUMERIC = (
     "central_localized_fraction",
     "done_over_hop_limit",
     "mean_neighbours",
+    "largest_frame_over_central",
 )
 
 
@@ -155,6 +158,25 @@ def comparison(table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def base_table(table: pd.DataFrame, **case: float) -> pd.DataFrame:
+    """:func:`joined`'s runs of the base case, with the factors in ``case`` (dotted names as
+    keywords cannot be: pass them as ``**{"medium.loss_prob": 0.2}``) changed: a row per
+    variant with the number of runs and the mean over seeds of each measure."""
+    random = table[table.placement == "random"]
+    chosen = {**_base(random), **case}
+    keep = np.logical_and.reduce([random[f] == v for f, v in chosen.items()])
+    rows = []
+    for variant in VARIANTS:
+        runs = random[keep & (random.variant == variant)]
+        if not len(runs):
+            continue
+        row = {"variant": variant, "runs": len(runs)}
+        for measure, title in MEASURES.items():
+            row[title] = _cell(runs[measure].mean(), 1 if measure == "done_over_hop_limit" else 2)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def lattice_table(table: pd.DataFrame) -> pd.DataFrame:
     """The lattice case (``placement.kind = hex``): per variant, the runs and the means over
     seeds of frames-related shares, RMSE, both bounds and the ratios, and time to done."""
@@ -181,6 +203,46 @@ def lattice_table(table: pd.DataFrame) -> pd.DataFrame:
             }
         )
     return pd.DataFrame(rows)
+
+
+def targets_table(localize: pd.DataFrame, *, min_neighbours: float = 6.0) -> pd.DataFrame:
+    """Issue 20's targets for ``localize`` on the random placements with at least
+    ``min_neighbours`` mean neighbours, by case: the runs, their mean neighbour count, the worst
+    run of each figure (largest frame over the robots the centralized solver localizes, RMSE
+    over either bound, time to done over the hop limit) and how many runs meet every target —
+    largest frame ≥ 0.95 of the solver's, RMSE ≤ 1.5 × the bound, done ≤ 20 × the hop limit —
+    judged against the bound of one reading per pair (the issue's) and against the bound of
+    the receptions averaged."""
+    runs = _ok(localize)
+    runs = runs[(runs.placement == "random") & (runs.mean_neighbours >= min_neighbours)].copy()
+    for column in ("largest_frame_over_central", "rmse_over_crlb", "rmse_over_crlb_received"):
+        runs[column] = pd.to_numeric(runs[column], errors="coerce")
+    frame_ok = runs.largest_frame_over_central >= 0.95
+    time_ok = runs.done_over_hop_limit <= 20
+    runs["met"] = frame_ok & time_ok & (runs.rmse_over_crlb <= 1.5)
+    runs["met_received"] = frame_ok & time_ok & (runs.rmse_over_crlb_received <= 1.5)
+    base = _base(_ok(localize).query("placement == 'random'"))
+    rows = []
+    for values, group in runs.groupby(list(FACTORS)):
+        case = dict(zip(FACTORS, values, strict=True))
+        changed = [f for f in FACTORS if case[f] != base[f]]
+        order = (list(FACTORS).index(changed[0]) + 1, case[changed[0]]) if changed else (0, 0)
+        rows.append(
+            {
+                "order": order,
+                "case": ", ".join(f"{FACTORS[f]} {case[f]:g}" for f in changed) or "base",
+                "runs": len(group),
+                "mean neighbours": _cell(group.mean_neighbours.mean(), 1),
+                "largest frame / central (min)": _cell(group.largest_frame_over_central.min(), 3),
+                "RMSE / CRLB (max)": _cell(group.rmse_over_crlb.max()),
+                "RMSE / CRLB received (max)": _cell(group.rmse_over_crlb_received.max()),
+                "done / hop limit (max)": _cell(group.done_over_hop_limit.max(), 1),
+                "targets met": f"{int(group.met.sum())} of {len(group)}",
+                "met, received bound": f"{int(group.met_received.sum())} of {len(group)}",
+            }
+        )
+    table = pd.DataFrame(rows)
+    return table.sort_values("order").drop(columns="order").reset_index(drop=True)
 
 
 def _cell(value: float, digits: int = 2) -> str:

@@ -227,9 +227,62 @@ def _clock_drift_block(context: Context) -> str:
     return "\n".join([*_markdown_table(wide), "", f"Mean over {runs} seeds per row."])
 
 
+def _localization_runs(context: Context):
+    """The localization study's runs, joined (:func:`experiments.localization_study.joined`),
+    and the localize sweep's own results."""
+    from experiments.localization_study import joined
+    from experiments.report import load
+
+    _, gcs = load(_sweep(context, "localization_gcs"))
+    _, localize = load(_sweep(context, "localization_localize"))
+    return joined(gcs, localize), localize
+
+
+def _localization_block(table: Callable) -> Callable[[Context], str]:
+    """A block of docs/localize.md: ``table(joined, localize_results)`` as Markdown, with the
+    study named."""
+
+    def make(context: Context) -> str:
+        from experiments.report import _markdown_table
+
+        rows = table(*_localization_runs(context))
+        note = "From the localization study (`python -m experiments.publish localization`)."
+        return "\n".join([*_markdown_table(rows), "", note])
+
+    return make
+
+
+def _localize_lattice(joined, localize):
+    from experiments.localization_study import lattice_table
+
+    return lattice_table(joined)
+
+
+def _localize_random(joined, localize):
+    from experiments.localization_study import targets_table
+
+    return targets_table(localize)
+
+
+def _localize_compared(joined, localize):
+    import pandas as pd
+
+    from experiments.localization_study import base_table
+
+    parts = []
+    for label, case in (("no loss", {}), ("20 % loss", {"medium.loss_prob": 0.2})):
+        part = base_table(joined, **case)
+        part.insert(0, "base case", label)
+        parts.append(part)
+    return pd.concat(parts, ignore_index=True)
+
+
 #: Generated blocks by name.
 BLOCKS: dict[str, Block] = {
     "clock-drift": Block("docs/model.md", _clock_drift_block),
+    "localize-lattice": Block("docs/localize.md", _localization_block(_localize_lattice)),
+    "localize-random": Block("docs/localize.md", _localization_block(_localize_random)),
+    "localize-compared": Block("docs/localize.md", _localization_block(_localize_compared)),
 }
 
 
