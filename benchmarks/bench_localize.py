@@ -12,7 +12,9 @@ the figure to compare: the development machine is shared.
 ``--set placement.kind=random`` runs random placements instead (the issue's irregular swarms);
 each size and seed prints one line, and with several seeds a last line counts the runs that
 meet the issue's targets (largest frame at least 95 % of the robots the centralized solver
-localizes, RMSE at most 1.5 x the bound, done within 20 x the hop-diameter limit).
+localizes, RMSE at most 1.5 x the bound, done within 20 x the hop-diameter limit), judged
+against the bound of one reading per pair (``meet_targets``, the issue's) and against the bound
+of the receptions averaged (``meet_targets_received``).
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ FIELDS = (
     "rmse_mm",
     "crlb_rmse_mm",
     "rmse_over_crlb",
+    "crlb_received_rmse_mm",
+    "rmse_over_crlb_received",
     "central_rmse_mm",
     "central_localized_fraction",
     "largest_frame_over_central",
@@ -73,22 +77,25 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = parser.parse_args()
     overrides = dict(item.split("=", 1) for item in args.set)
-    met, runs = 0, 0
+    met, met_received, runs = 0, 0, 0
     for n in args.sizes:
         for seed in args.seeds:
             figures = run_one(n, seed, overrides)
             print(json.dumps(figures), flush=True)
             runs += 1
             met += meets_targets(figures)
+            met_received += meets_targets(figures, ratio="rmse_over_crlb_received")
     if runs > 1:
-        print(json.dumps({"runs": runs, "meet_targets": met}))
+        print(
+            json.dumps({"runs": runs, "meet_targets": met, "meet_targets_received": met_received})
+        )
 
 
-def meets_targets(figures: dict) -> bool:
-    """Issue 20's targets for one run."""
+def meets_targets(figures: dict, ratio: str = "rmse_over_crlb") -> bool:
+    """Issue 20's targets for one run, the RMSE judged by ``figures[ratio]``."""
     return (
         (figures["largest_frame_over_central"] or 0) >= 0.95
-        and (figures["rmse_over_crlb"] or float("inf")) <= 1.5
+        and (figures[ratio] or float("inf")) <= 1.5
         and (figures["done_over_hop_limit"] or float("inf")) <= 20
     )
 

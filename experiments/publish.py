@@ -41,6 +41,7 @@ from experiments import gcs_measured
 __all__ = [
     "BLOCKS",
     "PUBLICATIONS",
+    "STUDY_SWEEPS",
     "Block",
     "Publication",
     "blocks_in",
@@ -179,6 +180,18 @@ def _topology(context: Context) -> None:
     )
 
 
+def _localization(context: Context) -> None:
+    from experiments.localization_study import write_report
+
+    write_report(
+        _sweep(context, "localization_gcs"),
+        _sweep(context, "localization_localize"),
+        REPORTS,
+        stamp=stamp("python -m experiments.publish localization"),
+    )
+    _blocks(context, pages_wanted={_LOCALIZE})
+
+
 def _default_gif(context: Context) -> None:
     import scenarios
     from kilonet.animation import animate_run
@@ -286,6 +299,56 @@ def _gcs_page(make: Callable[[], str]) -> Block:
     return Block("docs/gcs.md", lambda _context: make())
 
 
+def _localization_runs(context: Context):
+    """The localization study's runs, joined (:func:`experiments.localization_study.joined`),
+    and the localize sweep's own results."""
+    from experiments.localization_study import joined
+    from experiments.report import load
+
+    _, gcs = load(_sweep(context, "localization_gcs"))
+    _, localize = load(_sweep(context, "localization_localize"))
+    return joined(gcs, localize), localize
+
+
+def _localization_block(table: Callable) -> Callable[[Context], str]:
+    """A block of docs/localize.md: ``table(joined, localize_results)`` as Markdown, with the
+    study named."""
+
+    def make(context: Context) -> str:
+        from experiments.report import _markdown_table
+
+        rows = table(*_localization_runs(context))
+        note = "From the localization study (`python -m experiments.publish localization`)."
+        return "\n".join([*_markdown_table(rows), "", note])
+
+    return make
+
+
+def _localize_lattice(joined, localize):
+    from experiments.localization_study import lattice_table
+
+    return lattice_table(joined)
+
+
+def _localize_random(joined, localize):
+    from experiments.localization_study import targets_table
+
+    return targets_table(localize)
+
+
+def _localize_compared(joined, localize):
+    import pandas as pd
+
+    from experiments.localization_study import base_table
+
+    parts = []
+    for label, case in (("no loss", {}), ("20 % loss", {"medium.loss_prob": 0.2})):
+        part = base_table(joined, **case)
+        part.insert(0, "base case", label)
+        parts.append(part)
+    return pd.concat(parts, ignore_index=True)
+
+
 #: Generated blocks by name.
 BLOCKS: dict[str, Block] = {
     "clock-drift": Block("docs/model.md", _clock_drift_block),
@@ -299,6 +362,9 @@ BLOCKS: dict[str, Block] = {
     "gcs-error-by-distance": _gcs_page(gcs_measured.error_by_distance_block),
     "gcs-merging-choices": _gcs_page(gcs_measured.merging_choices_block),
     "gcs-windows": _gcs_page(gcs_measured.windows_block),
+    "localize-lattice": Block("docs/localize.md", _localization_block(_localize_lattice)),
+    "localize-random": Block("docs/localize.md", _localization_block(_localize_random)),
+    "localize-compared": Block("docs/localize.md", _localization_block(_localize_compared)),
 }
 
 
@@ -321,15 +387,27 @@ def _blocks(
 
 
 _PERFORMANCE = "docs/performance.md"
+_LOCALIZE = "docs/localize.md"
+#: Pages whose blocks another publication than ``docs`` makes, by page.
+_PAGE_PUBLICATION = {_PERFORMANCE: "performance", _LOCALIZE: "localization"}
 
 
 def _publication_of(block: Block) -> str:
-    return "performance" if block.page == _PERFORMANCE else "docs"
+    return _PAGE_PUBLICATION.get(block.page, "docs")
+
+
+#: Studies (publications below) by name, and the sweeps each one runs and reports on instead of
+#: their standard reports.
+STUDY_SWEEPS: dict[str, tuple[str, ...]] = {
+    "topology": ("topology",),
+    "localization": ("localization_gcs", "localization_localize"),
+}
 
 
 def _sweeps_with_reports() -> list[str]:
     names = sorted(p.stem for p in (ROOT / "experiments").glob("*.toml"))
-    return [n for n in names if n != "topology"]
+    studied = {sweep for sweeps in STUDY_SWEEPS.values() for sweep in sweeps}
+    return [n for n in names if n not in studied]
 
 
 #: Everything ``python -m experiments.publish`` makes, by name.
@@ -349,11 +427,22 @@ PUBLICATIONS: dict[str, Publication] = {
         ("experiments/reports/topology.md", "experiments/reports/topology_files/"),
         _topology,
     ),
+    "localization": Publication(
+        "localization",
+        "the sweeps localization_gcs and localization_localize and their study "
+        "(python -m experiments.localization_study)",
+        (
+            "experiments/reports/localization.md",
+            "experiments/reports/localization_files/",
+            _LOCALIZE,
+        ),
+        _localization,
+    ),
     "docs": Publication(
         "docs",
-        "the generated blocks of the docs pages (performance aside)",
-        tuple(sorted({b.page for b in BLOCKS.values()} - {_PERFORMANCE})),
-        lambda context: _blocks(context, skip={_PERFORMANCE}),
+        "the generated blocks of the docs pages (performance and localize aside)",
+        tuple(sorted({b.page for b in BLOCKS.values()} - set(_PAGE_PUBLICATION))),
+        lambda context: _blocks(context, skip=set(_PAGE_PUBLICATION)),
     ),
     "performance": Publication(
         "performance",

@@ -285,6 +285,7 @@ class FrameMerging(Phase):
 
     __slots__ = (  # see GcsRobot.__slots__
         "answers",
+        "finish_ticks",
         "fresh_ticks",
         "heard_at",
         "hint_scanned",
@@ -294,6 +295,7 @@ class FrameMerging(Phase):
         "pending_query",
         "round_ticks",
         "seed",
+        "settled_since",
     )
     name = "merge"
 
@@ -326,10 +328,35 @@ class FrameMerging(Phase):
         # The latest query to this robot it could not answer yet: (seed, partner, version, tag).
         self.pending_query: tuple[FrameKey, FrameKey, int, int] | None = None
         r.merge_done = False
+        r.refined = None  # an estimate refined before a recovery epoch is void
+        self.settled_since: int | None = None
+        self.finish_ticks = self.params.refine_after_s * tps
         r.check = SplitCheck(r)
         self.seed: SeedRounds | None = SeedRounds(self) if r.is_seed else None
         if self.seed is not None:
             self.seed.start()
+
+    def finished(self) -> bool:
+        """Whether merging is over for this robot, so that the refinement (phase 7) may start:
+        for ``gcs.refine_after_s`` its estimate has been settled and the seed of every frame it
+        is located in done (a robot stays a member for a frame whose seed still merges), no
+        recovery is announced or awaited, and a seed's own rounds are done."""
+        r = self.robot
+        estimate = r.estimate
+        transforms = estimate.transforms
+        over = (
+            estimate.settled()
+            and all(k in transforms and transforms[k].done for k in estimate.frames)
+            and not r.awaiting_recovery()
+            and (self.seed is None or self.seed.done)
+        )
+        if not over:
+            self.settled_since = None
+            return False
+        now = r.kilo_ticks
+        if self.settled_since is None:
+            self.settled_since = now
+        return now - self.settled_since >= self.finish_ticks
 
     def _own_frame(self) -> FrameKey | None:
         """The frame this robot merges as a seed (``None`` on non-seeds)."""

@@ -7,11 +7,16 @@ The phases (one module each) run in windows on the robot's own clock, in order:
 3. :mod:`protocols.local_frames` — each seed's frame from two references;
 4. :mod:`protocols.localization` — trilateration into the frames of seeds in view;
 5. :mod:`protocols.merging_groups` — groups of three robots located in the same two frames;
-6. :mod:`protocols.frame_merging` — rounds of half-way transforms until partners agree.
+6. :mod:`protocols.frame_merging` — rounds of half-way transforms until partners agree;
+7. :mod:`protocols.global_refinement` — with ``gcs.refine = true`` only (not the thesis's): the
+   merged estimates refined from neighbours' global positions and measured distances. Merging's
+   window never closes, so a robot leaves it when merging reports itself finished for it
+   (:meth:`~protocols.gcs_base.Phase.finished`).
 
 Alongside merging, :mod:`protocols.split_detection` checks the merged frame against measured
 distances, and :mod:`protocols.recovery` answers a split that persists with a recovery epoch:
-edge seeds (phase ``edges``) and phases 3-6 again, at most ``gcs.recoveries`` times.
+edge seeds (phase ``edges``) and phases 3-6 again (and 7, when it runs), at most
+``gcs.recoveries`` times.
 
 ``gcs.until`` stops the program after a phase. The robot's state that phases share lives on
 :class:`GcsRobot` (its ID, neighbour table, seeds in view, groups and partners, and its
@@ -23,11 +28,13 @@ To add a phase: write its module (a :class:`~protocols.gcs_base.Phase` subclass 
 ``name`` and a ``window_s``), add the name to :data:`protocols.gcs_base.PHASES` and the class
 to :data:`PHASE_SEQUENCE` at the same place (and to :data:`RECOVERY_SEQUENCE` if a recovery
 epoch must run it again), and give its window a parameter in
-:class:`~protocols.gcs_base.GcsParams`.
+:class:`~protocols.gcs_base.GcsParams`. A phase after one whose window never closes starts
+when that phase's :meth:`~protocols.gcs_base.Phase.finished` says so.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -37,6 +44,7 @@ from protocols.frame_keys import FrameKey, Root
 from protocols.frame_merging import FrameMerging
 from protocols.gcs_base import PHASES, SENDER, GcsParams, Phase
 from protocols.global_estimate import GlobalEstimate
+from protocols.global_refinement import GlobalRefinement
 from protocols.local_frames import LocalFrames
 from protocols.localization import Localization
 from protocols.merging_groups import MergingGroups
@@ -52,6 +60,7 @@ __all__ = [
     "GcsRobot",
     "RobotOutcome",
     "led_colour",
+    "phase_sequence",
     "phase_windows_s",
 ]
 
@@ -63,11 +72,13 @@ PHASE_SEQUENCE: tuple[type[Phase], ...] = (
     Localization,
     MergingGroups,
     FrameMerging,
+    GlobalRefinement,
 )
 #: gcs_base.sender_of without its Python call: every reception reads the sender, and the call
 #: showed in a run's instruction count (docs/gcs.md, "Speed").
 _read_sender = SENDER.unpack_from
-#: What a recovery epoch runs: edge seeds, then phases 3-6 again.
+#: What a recovery epoch runs: edge seeds, then phases 3-6 again (and the refinement after them
+#: when the run refines, :func:`phase_sequence`).
 RECOVERY_SEQUENCE: tuple[type[Phase], ...] = (
     EdgeSeeds,
     LocalFrames,
@@ -77,9 +88,27 @@ RECOVERY_SEQUENCE: tuple[type[Phase], ...] = (
 )
 
 
+def phase_sequence(p: GcsParams) -> tuple[type[Phase], ...]:
+    """The phases a run with parameters ``p`` runs: up to ``p.until``, the refinement only when
+    ``p.refine`` is on (and ``p.until`` is merge) or ``p.until`` names it.
+
+    Examples
+    --------
+    >>> [cls.name for cls in phase_sequence(GcsParams(until="frames", refine=True))]
+    ['ids', 'seeds', 'frames']
+    >>> [cls.name for cls in phase_sequence(GcsParams(refine=True))][-2:]
+    ['merge', 'refine']
+    >>> phase_sequence(GcsParams())[-1].name, phase_sequence(GcsParams(until="refine"))[-1].name
+    ('merge', 'refine')
+    """
+    last = "refine" if p.refine and p.until == "merge" else p.until
+    return PHASE_SEQUENCE[: PHASES.index(last) + 1]
+
+
 def phase_windows_s(p: GcsParams) -> list[tuple[str, float, float]]:
-    """``(phase, start_s, end_s)`` of each phase up to ``p.until``; merging has no end
-    (``inf``): it ends when the seeds agree.
+    """``(phase, start_s, end_s)`` of each phase of :func:`phase_sequence`; merging has no end
+    (``inf``): it ends when the seeds agree, and the refinement after it starts when merging
+    is over for a robot (``inf`` here too).
 
     Examples
     --------
@@ -87,11 +116,16 @@ def phase_windows_s(p: GcsParams) -> list[tuple[str, float, float]]:
     ['ids', 'seeds', 'frames']
     """
     out, t = [], 0.0
-    for cls in PHASE_SEQUENCE[: PHASES.index(p.until) + 1]:
+    for cls in phase_sequence(p):
         length = cls.window_s(p)
         out.append((cls.name, t, t + length))
         t += length
     return out
+
+
+def _start_tick(ticks: float) -> float:
+    """A window's first tick: whole ticks, or ``inf`` after a window that never closes."""
+    return ticks if math.isinf(ticks) else round(ticks)
 
 
 def led_colour(
@@ -145,7 +179,12 @@ class RobotOutcome:
     isolated_seed : bool
         A seed no merging group was registered with.
     position : tuple[float, float] or None
-        Its global estimate, mm.
+        Its global estimate, mm: the refined one once it has refined (phase 7), else the
+        merged one.
+    merged_position : tuple[float, float] or None
+        Its global estimate as merging left it, mm.
+    refined : bool
+        It refined its estimate (phase 7).
     root : Root or None
         The root of the merged frame its estimate is in.
     split_boundary, inconsistent : bool
@@ -168,6 +207,8 @@ class RobotOutcome:
     groups: tuple[tuple[FrameKey, FrameKey], ...]
     isolated_seed: bool
     position: tuple[float, float] | None
+    merged_position: tuple[float, float] | None
+    refined: bool
     root: Root | None
     split_boundary: bool
     inconsistent: bool
@@ -202,6 +243,7 @@ class GcsRobot(Kilobot):
     __slots__ = (
         "_due_tick",
         "_loops",
+        "_may_finish",
         "_neighbour_keys",
         "_phase_index",
         "_polled",
@@ -222,6 +264,7 @@ class GcsRobot(Kilobot):
         "recovery",
         "ref_turn",
         "references",
+        "refined",
         "role",
         "salt",
         "seeds",
@@ -256,14 +299,16 @@ class GcsRobot(Kilobot):
         self.edge_seed = False
         # Positions neighbours announced, by frame key then neighbour ID, mm.
         self.announced: dict[FrameKey, dict[int, tuple[float, float]]] = {}
+        self.refined: tuple[float, float] | None = None  # phase 7's estimate, mm
         tps = self.ticks_per_s
         self._windows = [
-            (cls, round(start * tps), end * tps)
+            (cls, _start_tick(start * tps), end * tps)
             for cls, (_, start, end) in zip(
-                PHASE_SEQUENCE, phase_windows_s(self.params), strict=False
+                phase_sequence(self.params), phase_windows_s(self.params), strict=True
             )
         ]
         self._phase_index = -1
+        self._may_finish = False
         self._loops = 0
         self.phase: Phase | None = None
         self._due_tick: float = 0
@@ -305,10 +350,33 @@ class GcsRobot(Kilobot):
             self.log("phase", name=cls.name)
             self.phase.start()
             self._show()
+            # A window that never closes, with a phase after it: the phase ends by itself.
+            following = self._phase_index + 1 < len(self._windows)
+            self._may_finish = following and self._windows[self._phase_index][2] == math.inf
         if self.phase is not None and ticks >= self._windows[self._phase_index][2]:
             self.phase.finish()
             self.phase = None  # past the last phase asked for: the robot falls silent
         self._due_tick = self._next_window_change()
+
+    def _end_phase_now(self) -> None:
+        """The running phase reports itself finished: the next one's window opens now (for
+        its usual length), and the phase after that follows it."""
+        i, ticks = self._phase_index, self.kilo_ticks
+        windows = self._windows
+        if i + 1 >= len(windows):
+            return
+        cls, start, _ = windows[i]
+        following = windows[i + 1][0]
+        end = ticks + following.window_s(self.params) * self.ticks_per_s
+        self._windows = [
+            *windows[:i],
+            (cls, start, ticks),
+            (following, ticks, end),
+            *windows[i + 2 :],
+        ]
+        self._may_finish = False
+        self._due_tick = 0
+        self._advance()
 
     def _next_window_change(self) -> float:
         """The tick at which the next phase starts or the running one ends."""
@@ -318,23 +386,25 @@ class GcsRobot(Kilobot):
         return min(start, end)
 
     def schedule_recovery(self, epoch: int, start_tick: int) -> None:
-        """Run recovery epoch ``epoch`` from ``start_tick``: the running phase (merging) ends
-        there and :data:`RECOVERY_SEQUENCE` follows in windows of the usual lengths (see
-        :mod:`protocols.recovery`)."""
+        """Run recovery epoch ``epoch`` from ``start_tick``: the running phase (merging, or the
+        refinement) ends there and :data:`RECOVERY_SEQUENCE` follows in windows of the usual
+        lengths, the refinement after it when the run refines (see :mod:`protocols.recovery`)."""
         self.epoch = epoch
         cls, start, _ = self._windows[self._phase_index]
         windows = [*self._windows[: self._phase_index], (cls, start, start_tick)]
         t = start_tick
-        for cls in RECOVERY_SEQUENCE:
+        refines = phase_sequence(self.params)[-1] is GlobalRefinement
+        for cls in (*RECOVERY_SEQUENCE, GlobalRefinement) if refines else RECOVERY_SEQUENCE:
             end = t + cls.window_s(self.params) * self.ticks_per_s
-            windows.append((cls, round(t), end))
+            windows.append((cls, _start_tick(t), end))
             t = end
         self._windows = windows
         self._due_tick = self._next_window_change()
 
     def _show(self) -> None:
         name = self.phase_name
-        merged = self.merge_done or (name == "merge" and self.estimate.root() is not None)
+        merging = name in ("merge", "refine")
+        merged = self.merge_done or (merging and self.estimate.root() is not None)
         self.set_color(
             *led_colour(
                 name,
@@ -375,7 +445,8 @@ class GcsRobot(Kilobot):
     def outcome(self) -> RobotOutcome:
         """What this robot holds now, as one value (see :class:`RobotOutcome`)."""
         estimate, check = self.estimate, self.check
-        position = estimate.position()
+        merged = estimate.position()
+        position = merged if self.refined is None else self.refined
         seed = self.phase.seed if isinstance(self.phase, FrameMerging) else None
         return RobotOutcome(
             uid=self.uid,
@@ -388,6 +459,8 @@ class GcsRobot(Kilobot):
             groups=tuple(self.groups),
             isolated_seed=self.is_seed and not self.partners,
             position=position,
+            merged_position=merged,
+            refined=self.refined is not None,
             root=estimate.root() if position is not None else None,
             split_boundary=check is not None and check.on_split_boundary,
             inconsistent=check is not None and bool(check.inconsistent),
@@ -405,6 +478,8 @@ class GcsRobot(Kilobot):
         phase = self.phase
         if phase is not None:
             phase.loop()
+            if self._may_finish and phase.finished():
+                self._end_phase_now()
             check = self.check
             merging = phase.name == "merge"
             if merging and check and not self.recovery.pending and check.wants_recovery():

@@ -28,8 +28,9 @@ if TYPE_CHECKING:
 
 __all__ = ["PHASES", "SENDER", "GcsParams", "Phase", "gcs_layout", "sender_of"]
 
-#: Phase names in order; ``gcs.until`` names the last one to run.
-PHASES = ("ids", "seeds", "frames", "localization", "groups", "merge")
+#: Phase names in order; ``gcs.until`` names the last one to run. The refinement runs only
+#: when ``gcs.refine`` is on or ``gcs.until`` names it (:func:`protocols.gcs.phase_sequence`).
+PHASES = ("ids", "seeds", "frames", "localization", "groups", "merge", "refine")
 
 
 @dataclass(frozen=True)
@@ -98,6 +99,24 @@ class GcsParams:
     recover_flood_s: float = param(
         20.0, lo=1.0, hi=600.0, doc="a recovery epoch starts this long after it is requested"
     )
+    # Phase 7 (protocols.global_refinement): off in the thesis's pipeline.
+    refine: bool = param(False, doc="refine the merged estimates after merging (phase 7)")
+    refine_after_s: float = param(
+        5.0, lo=0.0, hi=3600.0, doc="a robot refines once its estimate has been settled this long"
+    )
+    refine_round_s: float = param(0.2, lo=0.01, hi=10.0, doc="a refining robot steps this often")
+    refine_momentum: float = param(
+        0.5, lo=0.0, hi=0.99, doc="share of its previous step a refinement step adds"
+    )
+    refine_settle_mm: float = param(
+        0.1, lo=0.0, hi=100.0, doc="settled: moved less than this over refine_settle_rounds"
+    )
+    refine_settle_rounds: int = param(
+        10, lo=1, hi=10_000, doc="rounds the refinement's settle test looks back"
+    )
+    refine_timeout_s: float = param(
+        120.0, lo=1.0, hi=86_400.0, doc="a refining robot stops after this anyway"
+    )
 
 
 #: The field every message of the protocol starts with: the sender's ID (uint16).
@@ -160,6 +179,12 @@ class Phase:
 
     def start(self) -> None:
         """Called when the phase's window opens on this robot."""
+
+    def finished(self) -> bool:
+        """Whether the phase is over on this robot before its window closes: the next phase
+        then starts at once (:meth:`protocols.gcs.GcsRobot.loop` asks every loop). Default:
+        never, the window decides."""
+        return False
 
     def finish(self) -> None:
         """Called when the window closes (before the next phase starts)."""

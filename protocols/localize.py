@@ -11,7 +11,7 @@ not in fixed windows:
    neighbours' candidate pairs where three anchors are missing;
 3. :mod:`protocols.refinement` — from the moment it has a position, every robot keeps
    improving it from its neighbours' announced positions and the distances both ends measured
-   (:mod:`protocols.localize_base`'s DIST reports), while
+   (:mod:`protocols.refinement`'s DIST reports), while
    :mod:`protocols.localize_termination` climbs settledness back to the root, which floods
    DONE; every robot then freezes its estimate and falls silent.
 
@@ -37,7 +37,6 @@ from kilonet.message import Message
 from kilonet.robot import Kilobot
 from protocols.localize_base import (
     COMPLETE,
-    DIST,
     DONE,
     LOCALIZED,
     MAX_COORDINATE_MM,
@@ -52,7 +51,7 @@ from protocols.localize_base import (
 from protocols.localize_election import ELECT, MAX_HOPS, Election
 from protocols.localize_spread import CAND, POS, ROOT, VOTE, Spread
 from protocols.localize_termination import Termination
-from protocols.refinement import SettleWindow, gauss_newton_step
+from protocols.refinement import DIST, Refiner, next_report
 
 __all__ = ["LocalizeRobot"]
 
@@ -116,14 +115,19 @@ class LocalizeRobot(Kilobot):
         self.election = Election(self)
         self.spread = Spread(self)
         self.termination = Termination(self)
-        self.settle = SettleWindow(settle_mm=p.settle_mm, rounds=p.settle_rounds)
+        self.refiner = Refiner(
+            huber_mm=p.huber_mm,
+            max_step_mm=p.max_step_mm,
+            momentum=p.momentum,
+            settle_mm=p.settle_mm,
+            settle_rounds=p.settle_rounds,
+        )
         self._round_ticks = p.round_s * tps
         self._next_round = 0.0
         self._round = 0  # rounds of work done: the neighbour records' time stamps
         self._news = False  # a neighbour's echo or flags changed since the last work
         self._urgent = False  # this robot's own state changed: send it next
         self._turn = 0
-        self._dist_turn = 0
         self._handlers = {
             ELECT.type: self._elect_rx,
             DIST.type: self._dist_rx,
@@ -259,7 +263,7 @@ class LocalizeRobot(Kilobot):
         """Take a position in the frame (the spread's rules or the root's origin)."""
         self.position = (x_mm, y_mm)
         self.located_tick = self.kilo_ticks
-        self.settle.reset()
+        self.refiner.reset()
 
     def _enter_localize(self) -> None:
         if not self.is_root:
@@ -270,32 +274,25 @@ class LocalizeRobot(Kilobot):
     # -- refinement ----------------------------------------------------------------------------
     def _refine(self, fresh: list[Neighbour]) -> None:
         x, y = self.position
-        if not self.is_root:
-            links = [(n.x_mm, n.y_mm, n.range_mm) for n in fresh if n.x_mm is not None]
-            p = self.params
-            x, y, _ = gauss_newton_step(
-                x,
-                y,
-                links,
-                huber_mm=p.huber_mm,
-                max_step_mm=p.max_step_mm,
-                fix_y=self.uid == self.spread.axis,
-            )
-            # Messages carry ±3276.7 mm: a frame that large is out of the protocol's range.
-            x = min(max(x, -MAX_COORDINATE_MM), MAX_COORDINATE_MM)
-            y = min(max(y, -MAX_COORDINATE_MM), MAX_COORDINATE_MM)
-            self.position = (x, y)
-        self.settle.add(x, y)
+        if self.is_root:
+            self.refiner.hold(x, y)
+            return
+        links = [(n.x_mm, n.y_mm, n.range_mm) for n in fresh if n.x_mm is not None]
+        x, y = self.refiner.step(x, y, links, fix_y=self.uid == self.spread.axis)
+        # Messages carry ±3276.7 mm: a frame that large is out of the protocol's range.
+        x = min(max(x, -MAX_COORDINATE_MM), MAX_COORDINATE_MM)
+        y = min(max(y, -MAX_COORDINATE_MM), MAX_COORDINATE_MM)
+        self.position = (x, y)
 
     # -- distance reports ----------------------------------------------------------------------
     def _dist_tx(self) -> Message | None:
-        """A distance report about the next neighbour in turn (by ID; not about an ID two
-        robots share), or None with no neighbour yet."""
-        heard = [n for _, n in sorted(self.neighbours.by_id.items()) if not n.ambiguous]
-        if not heard:
+        """A distance report about the neighbour :func:`next_report` picks (never about an ID
+        two robots share), or None with no neighbour yet."""
+        n = next_report(self.neighbours.by_id.values())
+        if n is None:
             return None
-        self._dist_turn = (self._dist_turn + 1) % len(heard)
-        return distance_report(self.uid, self.position, heard[self._dist_turn])
+        n.sent_round = self._round
+        return distance_report(self.uid, self.position, n)
 
     def _dist_rx(self, n: Neighbour, message: Message) -> None:
         m = DIST.unpack(message)

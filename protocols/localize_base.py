@@ -3,26 +3,16 @@ neighbour, and the distance reports that make every measured distance symmetric.
 
 Every message of the protocol starts with the sender's 16-bit ID, so every reception adds a
 distance sample to the sender's :class:`Neighbour` record (its running mean averages the
-ranging noise down). A distance is measured at both ends, independently: robot i averages what
-it receives from j, j what it receives from i. A distributed refinement in which i fits
-``d_ij`` and j fits ``d_ji`` has no common objective: the two ends pull the pair towards
-different lengths, and the whole swarm creeps (on a 1,000-robot lattice its error grew without
-bound while it "converged"). So robots report their means to each other in DIST messages, and
-both ends fit the average of the two.
-
-Messages, one of which takes one transmit opportunity in ``localize.dist_every`` (each about
-the next neighbour in turn)::
+ranging noise down). Both ends of a pair fit the same distance, agreed through the symmetric
+distance reports of :mod:`protocols.refinement` (DIST, and the choice of neighbour of
+:func:`~protocols.refinement.next_report`); one transmit opportunity in ``localize.dist_every``
+carries a report::
 
     NBR  (85)  sender:uint16  neighbour:uint16  distance:uint16 (0.01 mm)            6 bytes
-    DIST (83)  sender:uint16  x:int16  y:int16 (0.1 mm)  neighbour:uint16  distance:uint8
-                                                                                   9 bytes
 
-A robot without a position sends NBR; once it has one, DIST, which carries the position too
-and so must squeeze the distance into one byte: tenths of a millimetre modulo 256 (a 25.6 mm
-cycle). The neighbour it is about measured the same distance itself and takes the value of
-that cycle nearest to its own mean (:func:`unwrap_distance`): a 0.1 mm resolution as long as
-the two means differ by less than 12.8 mm. NBR's full distances also tell the root, while it
-is elected, how far apart its neighbours are (:mod:`protocols.localize_spread`).
+A robot without a position reports in NBR, whose full distances also tell the root, while it
+is elected, how far apart its neighbours are (:mod:`protocols.localize_spread`); once it has
+one, in DIST, which carries the position too (:func:`distance_report`).
 
 Every robot measures its own ranging noise, as the median spread of the samples it gets from
 each neighbour (:meth:`Neighbours.noise_mm`), and scales its tolerances by it (the duplicate
@@ -43,10 +33,16 @@ from dataclasses import dataclass
 
 from kilonet.message import Layout, Message
 from kilonet.params import param
+from protocols.refinement import (
+    DIST,
+    DISTANCE_STEP_MM,
+    agreed_range_mm,
+    distance_code,
+    unwrap_distance,
+)
 
 __all__ = [
     "COMPLETE",
-    "DIST",
     "DONE",
     "LOCALIZED",
     "MAX_COORDINATE_MM",
@@ -57,18 +53,13 @@ __all__ = [
     "Neighbour",
     "Neighbours",
     "children_complete",
-    "distance_code",
     "distance_report",
-    "unwrap_distance",
 ]
 
 #: No robot: an empty ID field (IDs are drawn from 0 .. 0xFFFE).
 NO_ID = 0xFFFF
 #: Largest coordinate a message can carry, mm (int16 tenths of a millimetre).
 MAX_COORDINATE_MM = 3276.7
-#: One step of the DIST distance code, and its cycle, mm.
-DISTANCE_STEP_MM = 0.1
-DISTANCE_CYCLE_MM = 256 * DISTANCE_STEP_MM
 
 # State flags of POS and ROOT messages (protocols.localize_termination sets the last three).
 #: The sender has a position in the frame.
@@ -84,17 +75,6 @@ NBR = Layout(
     "nbr",
     type=85,
     fields=[("sender", "H"), ("neighbour", "H"), ("distance_mm", "H", 0.01)],
-)
-DIST = Layout(
-    "dist",
-    type=83,
-    fields=[
-        ("sender", "H"),
-        ("x_mm", "h", 0.1),
-        ("y_mm", "h", 0.1),
-        ("neighbour", "H"),
-        ("distance", "B"),
-    ],
 )
 
 
@@ -152,6 +132,9 @@ class LocalizeParams:
         3.0, lo=0.01, hi=100.0, doc="refinement down-weights residuals beyond this"
     )
     max_step_mm: float = param(5.0, lo=0.01, hi=100.0, doc="largest refinement step per round")
+    momentum: float = param(
+        0.5, lo=0.0, hi=0.99, doc="share of its previous step a refinement step adds"
+    )
     settle_mm: float = param(
         0.5, lo=0.0, hi=100.0, doc="settled: moved less than this over settle_rounds rounds"
     )
@@ -171,33 +154,6 @@ class LocalizeParams:
     )
 
 
-def distance_code(distance_mm: float) -> int:
-    """A mean distance as DIST's one-byte code (tenths of a mm, modulo 256).
-
-    Examples
-    --------
-    >>> distance_code(40.0), distance_code(65.6), distance_code(25.6)
-    (144, 144, 0)
-    """
-    return round(distance_mm / DISTANCE_STEP_MM) % 256
-
-
-def unwrap_distance(code: int, near_mm: float) -> float:
-    """The distance with DIST code ``code`` nearest to ``near_mm``, mm.
-
-    Examples
-    --------
-    >>> round(unwrap_distance(distance_code(61.37), near_mm=60.2), 6)
-    61.4
-    >>> round(unwrap_distance(distance_code(61.37), near_mm=49.0), 6)  # 12.4 mm off: still
-    61.4
-    >>> round(unwrap_distance(distance_code(61.37), near_mm=48.0), 6)  # 13.4 mm off: next cycle
-    35.8
-    """
-    base = code * DISTANCE_STEP_MM
-    return base + round((near_mm - base) / DISTANCE_CYCLE_MM) * DISTANCE_CYCLE_MM
-
-
 class Neighbour:
     """What a robot knows about one neighbour ID.
 
@@ -207,6 +163,10 @@ class Neighbour:
         Sum, sum of squares and count of the distance estimates received from it (mm, mm²).
     reported_mm : float or None
         Its own mean distance to this robot, from its DIST reports (mm).
+    sent_mm : float or None
+        This robot's mean distance to it when this robot last reported it (None: never), mm.
+    sent_round : int
+        This robot's round at that report (-1: never).
     x_mm, y_mm : float or None
         Its position as last announced (None: it has none).
     hops : int
@@ -231,6 +191,8 @@ class Neighbour:
         "key",
         "reported_mm",
         "samples",
+        "sent_mm",
+        "sent_round",
         "uid",
         "x_mm",
         "y_mm",
@@ -242,6 +204,8 @@ class Neighbour:
         self.distance_sq_sum_mm2 = 0.0
         self.samples = 0
         self.reported_mm: float | None = None
+        self.sent_mm: float | None = None
+        self.sent_round = -1
         self.x_mm: float | None = None
         self.y_mm: float | None = None
         self.hops = 255
@@ -260,11 +224,8 @@ class Neighbour:
 
     @property
     def range_mm(self) -> float:
-        """The distance both ends agree on: the mean of the two ends' means when this
-        neighbour has reported its own, else this robot's mean, mm."""
-        own = self.distance_sum_mm / self.samples
-        reported = self.reported_mm
-        return own if reported is None else 0.5 * (own + reported)
+        """The distance both ends fit (:func:`~protocols.refinement.agreed_range_mm`), mm."""
+        return agreed_range_mm(self.distance_sum_mm / self.samples, self.sent_mm, self.reported_mm)
 
     @property
     def position(self) -> tuple[float, float] | None:
@@ -385,6 +346,8 @@ class Neighbours:
 
 def distance_report(uid: int, position: tuple[float, float] | None, n: Neighbour) -> Message:
     """This robot's report of its mean distance to ``n``: NBR without a position, else DIST.
+    Stamps ``n.sent_mm`` with the value as ``n`` will decode it (``n.sent_round`` is the
+    caller's).
 
     Examples
     --------
@@ -397,7 +360,9 @@ def distance_report(uid: int, position: tuple[float, float] | None, n: Neighbour
     (10.0, -2.5, 9, 61.7)
     """
     if position is None:
+        n.sent_mm = round(n.mean_mm, 2)
         return NBR.pack(sender=uid, neighbour=n.uid, distance_mm=n.mean_mm)
+    n.sent_mm = round(n.mean_mm / DISTANCE_STEP_MM) * DISTANCE_STEP_MM
     return DIST.pack(
         sender=uid,
         x_mm=position[0],

@@ -4,8 +4,11 @@ multilateration, with collinearity and flip (mirror) checks.
 **Start.** The root is the origin. From its neighbours' NBR reports it knows which of its
 neighbours hear each other and how far apart they are, so it chooses the frame's other two
 robots itself (:func:`choose_frame`): an *axis* robot B and a *third* robot C that see each
-other, form a triangle at least ``localize.min_height_mm`` high, and share the most common
-neighbours with the root (each of those can place itself from R, B and C at once). ROOT
+other, form a triangle at least ``localize.min_height_mm`` high even when each of its three
+distances is off by the ranging noise the root has measured (a nearly collinear triple, whose
+height the noise makes up, would start the frame from a line and set its handedness by
+chance), and share the most common neighbours with the root (each of those can place itself
+from R, B and C at once). ROOT
 messages name them. B places itself at ``(|RB|, 0)``; C, once it has heard B's position, at
 ``(x, +y)`` from ``|RC|``, ``|BC|`` and B's x (:func:`~kilonet.geometry.place_references`; the
 positive root of y picks the frame's handedness). If B or C is not placed within
@@ -85,6 +88,7 @@ __all__ = [
     "circle_candidates",
     "fix_with_candidates",
     "overlap_vote",
+    "robust_height",
 ]
 
 ROOT = Layout(
@@ -133,6 +137,7 @@ def choose_frame(
     min_height_mm: float,
     *,
     axis: int | None = None,
+    margin_mm: float = 0.0,
 ) -> tuple[int, int] | None:
     """The root's axis and third robot, or None if no pair qualifies.
 
@@ -146,6 +151,9 @@ def choose_frame(
         Least height of the third robot above the root–axis line.
     axis : int, optional
         The axis robot already placed: only a third robot is chosen.
+    margin_mm : float
+        How far each of the triangle's three distances may be off, mm: the triangle must be
+        ``min_height_mm`` high at every corner of that box (:func:`robust_height`).
 
     Returns
     -------
@@ -166,6 +174,14 @@ def choose_frame(
     (3, 1)
     >>> choose_frame(ranges, {1: {2: 80.0}}, 10.0) is None  # 1, root, 2 on one line
     True
+
+    Measured 1.2 mm short, that line looks like a triangle 13.6 mm high; with a margin of 1.5 mm
+    it is seen for what it is:
+
+    >>> choose_frame({1: 40.0, 2: 40.0}, {1: {2: 78.8}}, 10.0)
+    (1, 2)
+    >>> choose_frame({1: 40.0, 2: 40.0}, {1: {2: 78.8}}, 10.0, margin_mm=1.5) is None
+    True
     """
     adjacent: dict[int, set[int]] = {u: set() for u in ranges_mm}
     lengths: dict[tuple[int, int], list[float]] = {}
@@ -182,16 +198,40 @@ def choose_frame(
         for b, c in orders:
             if axis is not None and axis not in (low, high):
                 continue
-            try:
-                _, (_, height) = place_references(
-                    ranges_mm[b], ranges_mm[c], d_bc, min_height_mm=min_height_mm
-                )
-            except GeometryError:
+            height = robust_height(ranges_mm[b], ranges_mm[c], d_bc, margin_mm)
+            if height < min_height_mm:
                 continue
             score = (len(adjacent[b] & adjacent[c]), round(height, 1), -b, -c)
             if best is None or score > best[0]:
                 best = (score, b, c)
     return None if best is None else (best[1], best[2])
+
+
+def robust_height(d_ab_mm: float, d_ac_mm: float, d_bc_mm: float, margin_mm: float) -> float:
+    """The least height of C above line AB when each distance may be off by ``margin_mm``:
+    the smallest height over the eight corners of the box of distances (0 where a corner
+    forms no triangle), mm.
+
+    Near collinearity the height is ill-conditioned: a triple on one line, 40 + 40 = 80 mm,
+    measured 1 mm short, looks 12.5 mm high.
+
+    Examples
+    --------
+    >>> round(robust_height(40.0, 40.0, 79.0, 0.0), 1), robust_height(40.0, 40.0, 79.0, 1.0)
+    (12.5, 0.0)
+    >>> round(robust_height(40.0, 40.0, 40.0, 1.0), 1)  # equilateral: 34.6 mm at no margin
+    33.2
+    """
+    least = math.inf
+    for da, db, dc in itertools.product((-margin_mm, margin_mm), repeat=3):
+        try:
+            _, (_, height) = place_references(
+                d_ab_mm + da, d_ac_mm + db, d_bc_mm + dc, min_height_mm=0.0
+            )
+        except GeometryError:
+            return 0.0
+        least = min(least, height)
+    return least
 
 
 def circle_candidates(
@@ -486,6 +526,7 @@ class Spread:
             reports,
             self.robot.params.min_height_mm,
             axis=self.axis if axis_placed else None,
+            margin_mm=self.robot.sigma_mm,
         )
         if chosen is not None:
             self.axis, self.third = chosen

@@ -107,7 +107,7 @@ class Termination:
             self.complete = subtree_complete(self.settled, r.hops, fresh)
             return
         if r.position is not None:
-            self.settled = r.settle.settled or tick - r.located_tick >= self.settle_ticks
+            self.settled = r.refiner.settled or tick - r.located_tick >= self.settle_ticks
         else:
             quiet = tick - r.spread.news_tick >= self.give_up_ticks
             self.settled = gives_up(fresh, quiet)

@@ -3,11 +3,16 @@
 Every message of the global-coordinate-system protocol starts with the sender's ID, so each
 reception refines the running mean of the distance to that neighbour (averaging the ranging
 noise down). Only the robot's own receptions feed it.
+
+The records offer the neighbour-record interface ``localize``'s offer too (``by_id``; a record's
+``mean_mm``, ``samples`` and ``ambiguous``), so the scenarios read the distances the robots
+measured the same way for both programs (:func:`scenarios.reference.measured_distances`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import MappingProxyType
 
 __all__ = ["Neighbour", "NeighbourTable"]
 
@@ -18,6 +23,13 @@ class Neighbour:
 
     distance_mm: float
     samples: int
+    #: Never: phase 1 makes IDs unique among neighbours, and a duplicate is forgotten.
+    ambiguous = False
+
+    @property
+    def mean_mm(self) -> float:
+        """The mean measured distance, mm (``distance_mm``)."""
+        return self.distance_mm
 
 
 class NeighbourTable:
@@ -29,10 +41,14 @@ class NeighbourTable:
     >>> t.heard(7, 40); t.heard(7, 42)
     >>> t.distance(7), t[7].samples, 7 in t, 8 in t
     (41.0, 2, True, False)
+    >>> sorted(t.by_id), t.by_id[7].mean_mm
+    ([7], 41.0)
     """
 
     def __init__(self) -> None:
         self._by_id: dict[int, Neighbour] = {}
+        #: The records by ID (read-only view).
+        self.by_id = MappingProxyType(self._by_id)
 
     def heard(self, uid: int, distance_mm: float) -> None:
         """Record a reception from ``uid`` at ``distance_mm``."""

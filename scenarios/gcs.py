@@ -11,7 +11,15 @@ robots build their own IDs) and measures each phase against ground truth:
 * groups — merging groups;
 * merge — final global frames (robots grouped by the root their estimate is in), localized
   share, RMSE of the global estimates after aligning each final frame to the truth, pooled
-  over robots, and the anchor-free Cramér–Rao bound for the same graph and noise;
+  over robots; beside it the bound and the optimum (:mod:`scenarios.reference`: the
+  anchor-free Cramér–Rao bound for the same graph and noise, ``rmse_over_crlb``, the bound for
+  the receptions averaged, the centralized solver on the run's measured distances) and
+  ``done_s``, when the last seed was done merging (``done_over_hop_limit``: over
+  ``hop_diameter × robot.tx_period_s``);
+* refine (``gcs.refine = true``, :mod:`protocols.global_refinement`) — the summary's estimates,
+  ``rmse_mm`` and the figures are the refined ones; ``merge_rmse_mm`` keeps the RMSE the merged
+  estimates had, ``refined_fraction`` the share of robots that refined, and ``done_s`` is when
+  the last robot stopped refining;
 * failures (thesis §7) — ``failures``: what the run built (unlocalizable robots, isolated seeds,
   the frame graph's components, robots next to another final frame); ``predicted``: what the
   geometry and phase 2's election predicted (:mod:`scenarios.prediction`); ``detected``: what
@@ -24,7 +32,8 @@ the figure.
 
 The run ends when every seed is done merging, no recovery is pending, and the robots have had
 a few seconds to check their neighbours without finding a split boundary that a recovery
-would act on (while one lasts, the run waits for it to clear or to start a recovery).
+would act on (while one lasts, the run waits for it to clear or to start a recovery). With the
+refinement, it ends when every robot that refines has stopped and none is about to start.
 """
 
 from __future__ import annotations
@@ -37,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from protocols.gcs_base import GcsParams
+from protocols.gcs_base import PHASES, GcsParams
 from scenarios.base import RunResult, Scenario, ScenarioOption
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
@@ -65,16 +74,42 @@ _CHECK_S = 5.0
 def _stop_when(sim: Simulation) -> bool:
     from protocols.gcs import phase_windows_s
 
-    name, start, end = phase_windows_s(sim.params.scenario)[-1]
+    windows = phase_windows_s(sim.params.scenario)
+    name, _, end = windows[-1]
     now = sim.env.now
-    if name != "merge":
+    if name not in ("merge", "refine"):
         return now >= end + 1.0  # a second more, so every robot has closed the last window
-    if now <= start:
+    merge_start = windows[PHASES.index("merge")][1]
+    if now <= merge_start:
         return False
     running = sim.world.running
     robots = [r for i, r in enumerate(sim.robots) if running[i]]  # a crashed seed is never done
+    if name == "refine":
+        return _refinement_over(robots)
     seeds = [r for r in robots if r.is_seed]
     return _merging_over(robots, seeds) and now - max(r.merge_done_at_s for r in seeds) >= _CHECK_S
+
+
+def _refinement_over(robots: list[GcsRobot]) -> bool:
+    """Nothing more will happen in a run that refines: every robot refining has stopped, no
+    robot still merging is about to refine (its estimate settled, :meth:`FrameMerging.finished`
+    counting) or is a seed not done, all merge in one epoch, and no recovery is announced or
+    awaited."""
+    if len({r.epoch for r in robots}) > 1 or any(r.awaiting_recovery() for r in robots):
+        return False
+    for r in robots:
+        name = r.phase_name
+        if name == "refine" and not r.phase.done:
+            return False
+        if name == "merge" and (
+            r.phase.settled_since is not None or (r.is_seed and not r.merge_done)
+        ):
+            return False
+        if name not in ("merge", "refine", ""):
+            return False
+    return any(r.phase_name != "merge" for r in robots) or not any(
+        r.estimate.settled() for r in robots
+    )
 
 
 def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
@@ -92,14 +127,13 @@ def _expected_end_s(params: Params) -> float | None:
     """Where :func:`_stop_when` ends a run that stops before merging; merging has no known end."""
     from protocols.gcs import phase_windows_s
 
-    name, _, end = phase_windows_s(params.scenario)[-1]
-    return None if name == "merge" else end + 1.0
+    end = phase_windows_s(params.scenario)[-1][2]
+    return end + 1.0 if math.isfinite(end) else None
 
 
 def _phase_note(sim: Simulation) -> str:
     """The phase the run is in, for the progress display: ``phase 3/6 frames (to 41 s)``."""
     from protocols.gcs import phase_windows_s
-    from protocols.gcs_base import PHASES
 
     windows = phase_windows_s(sim.params.scenario)
     now = sim.env.now
@@ -107,7 +141,8 @@ def _phase_note(sim: Simulation) -> str:
         ((k, w) for k, w in enumerate(windows) if now < w[2]), (len(windows) - 1, windows[-1])
     )
     until = f" (to {end:g} s)" if math.isfinite(end) else ""
-    return f"phase {k + 1}/{len(PHASES)} {name}{until}"
+    phases = len(PHASES) if windows[-1][0] == "refine" else len(PHASES) - 1  # 7 with phase 7
+    return f"phase {k + 1}/{phases} {name}{until}"
 
 
 @dataclass(frozen=True)
@@ -317,10 +352,8 @@ def _group_metrics(run: _Run, out: dict[str, Any]) -> None:
 
 def _merge_metrics(run: _Run, out: dict[str, Any]) -> None:
     """Final frames, localized share, RMSE and the bound, rounds, recoveries, detection."""
-    from kilonet.geometry import crlb_rmse_mm
-
     sim, robots, est = run.sim, run.robots, run.outcomes.estimates
-    n, sigma_mm = sim.n_robots, sim.params.ranging.sigma_mm
+    n = sim.n_robots
     done = est[est.localized]
     sizes = done.groupby("frame").size()
     seeds = [o for o in robots if o.is_seed]
@@ -330,10 +363,6 @@ def _merge_metrics(run: _Run, out: dict[str, Any]) -> None:
             "frames": len(sizes),
             "largest_frame_fraction": float(sizes.max() / n) if len(sizes) else 0,
             "rmse_mm": _pooled_rmse(_per_frame(done, "frame", ["est_x_mm", "est_y_mm"], run.truth)),
-            # No two robots in range: nothing is measured, the bound is infinite (null).
-            "crlb_rmse_mm": crlb_rmse_mm(run.truth, np.column_stack([run.i, run.j]), sigma_mm)
-            if len(run.i)
-            else None,
             "merge_rounds": run.count("merge_round"),
             "merge_rounds_max_per_seed": int(max((o.merge_rounds for o in seeds), default=0)),
             "seeds_done": int(sum(o.merge_done for o in seeds)),
@@ -348,6 +377,48 @@ def _merge_metrics(run: _Run, out: dict[str, Any]) -> None:
     out.setdefault("failures", {})["boundary"] = _boundary(est, run.i, run.j)
 
 
+def _reference_metrics(run: _Run, out: dict[str, Any]) -> None:
+    """The bound and the optimum beside the swarm's result (:mod:`scenarios.reference`; no two
+    robots in range: nothing is measured, ``crlb_rmse_mm`` is null), and when the swarm was
+    done: the last seed done merging, or the last robot done refining."""
+    from scenarios.reference import reference_metrics
+
+    sim, est = run.sim, run.outcomes.estimates
+    sizes = est[est.localized].groupby("frame").size()
+    out.update(
+        reference_metrics(
+            sim,
+            [r.table for r in sim.robots],
+            (run.i, run.j),
+            rmse_mm=out["rmse_mm"],
+            largest_frame=int(sizes.max()) if len(sizes) else 0,
+        )
+    )
+    events = sim.trace.events_frame()
+    last = "refine_done" if out["phases_run"][-1] == "refine" else "merge_done"
+    times = events.t_s[events.event == last] if len(events) else []
+    stopped = sim.env.now < sim.params.duration_s  # the run ended by itself
+    out["done_s"] = round(float(max(times)), 3) if len(times) and stopped else math.nan
+    if out["hop_diameter"]:
+        limit = out["hop_diameter"] * sim.params.robot.tx_period_s
+        out["done_over_hop_limit"] = out["done_s"] / limit
+
+
+def _refine_metrics(run: _Run, out: dict[str, Any]) -> None:
+    """The merged estimates' RMSE (before refinement) and the share of robots that refined."""
+    robots = run.robots
+    merged = [(i, o) for i, o in enumerate(robots) if o.merged_position is not None]
+    groups: dict[str, list[int]] = {}
+    for i, o in merged:
+        groups.setdefault(f"root{o.root.number}", []).append(i)
+    pairs = [
+        (np.array([robots[i].merged_position for i in members]), run.truth[members])
+        for members in groups.values()
+    ]
+    out["merge_rmse_mm"] = _pooled_rmse(pairs)
+    out["refined_fraction"] = sum(o.refined for o in robots) / len(robots)
+
+
 #: The metrics of each phase, added to the summary once the run has reached the phase.
 _PHASE_METRICS = (
     ("seeds", _seed_metrics),
@@ -355,6 +426,8 @@ _PHASE_METRICS = (
     ("localization", _localization_metrics),
     ("groups", _group_metrics),
     ("merge", _merge_metrics),
+    ("merge", _reference_metrics),
+    ("refine", _refine_metrics),
 )
 
 
@@ -388,6 +461,8 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
         "ids_redraws": run.count("id"),
     }
     names = {name for name, _, _ in reached}
+    if "merge" in names and windows[-1][0] == "refine":
+        names.add("refine")  # its window opens on each robot when merging is over there
     for phase, section in _PHASE_METRICS:
         if phase in names:
             section(run, out)

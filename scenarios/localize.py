@@ -9,21 +9,15 @@ never saw:
 * ``frames``, ``localized_fraction``, ``largest_frame_fraction``: robots grouped by the root
   (election key) their frame grew from; ``rmse_mm`` after the best rigid alignment of each
   frame (reflection allowed), pooled over located robots; ``within_5mm_fraction``;
-* ``crlb_rmse_mm``: the anchor-free Cramér–Rao bound of the medium's communication graph with one
-  measurement of ``ranging.sigma_mm`` per pair, as ``gcs`` reports it; ``rmse_over_crlb``.
-  The robots average many receptions per pair, so they (and the centralized solver) can beat
-  it; ``crlb_received_rmse_mm`` is the bound for the receptions the robots actually averaged;
-* ``central_rmse_mm``, ``central_localized_fraction`` (:func:`kilonet.central.central_reference`)
-  on the run's own measured distances: for every ordered pair (i, j), the mean of the
-  distance estimates robot i received in j's messages, as i's neighbour record holds it at the
-  end (every reception of every message type counts), weighted by its number of samples; the
-  record's ID is mapped to the robot holding that ID among those i hears, and records marked
-  ambiguous (two robots behind one ID) are left out. ``largest_frame_over_central`` is the
-  largest frame's size over the number of robots the centralized solver localizes;
+* the bound and the optimum beside them (:mod:`scenarios.reference`, as ``gcs`` reports them):
+  ``crlb_rmse_mm`` and ``rmse_over_crlb``, ``crlb_received_rmse_mm`` and
+  ``rmse_over_crlb_received``, ``central_rmse_mm``, ``central_localized_fraction`` and
+  ``largest_frame_over_central``, on the distances the robots' neighbour records hold (every
+  reception of every message type counts; records marked ambiguous are left out);
 * ``phase_times_s``: when the root was elected, when the last robot was located, when the root
   declared done and when the last robot did (``done_s``, NaN unless every running robot did;
   ``done_fraction`` is the share of running robots that did);
-  ``hop_diameter`` of the medium's communication graph, and ``done_over_hop_limit``, ``done_s`` over
+  ``hop_diameter`` of the communication graph, and ``done_over_hop_limit``, ``done_s`` over
   ``hop_diameter × robot.tx_period_s`` (the time information needs to cross the swarm).
 """
 
@@ -43,7 +37,7 @@ if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios 
 
     from kilonet.simulation import Simulation
 
-__all__ = ["SCENARIO", "estimates_frame", "measured_distances"]
+__all__ = ["SCENARIO", "estimates_frame"]
 
 
 def _program(params: Any, positions: np.ndarray):
@@ -89,43 +83,6 @@ def estimates_frame(sim: Simulation) -> pd.DataFrame:
     return with_alignment(pd.DataFrame(rows), sim.world.positions_mm)
 
 
-def measured_distances(sim: Simulation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The distances the robots measured: ``(pairs (E, 2), mean_mm (E,), samples (E,))`` with
-    one row per ordered pair (receiver, sender), as described in the module docstring."""
-    pairs, means, samples = [], [], []
-    robots = sim.robots
-    heard_by: dict[int, dict[int, int]] = {i: {} for i in range(sim.n_robots)}
-    for s in range(sim.n_robots):
-        for i in sim.medium.receivers_of(s):
-            heard_by[i].setdefault(robots[s].uid, s if robots[s].uid not in heard_by[i] else -1)
-    for i, r in enumerate(robots):
-        for uid, n in r.neighbours.by_id.items():
-            s = heard_by[i].get(uid, -1)
-            if s < 0 or n.ambiguous or n.samples == 0:
-                continue
-            pairs.append((i, s))
-            means.append(n.mean_mm)
-            samples.append(n.samples)
-    return (
-        np.array(pairs, dtype=np.intp).reshape(-1, 2),
-        np.array(means, dtype=float),
-        np.array(samples, dtype=float),
-    )
-
-
-def _hop_diameter(n: int, i: np.ndarray, j: np.ndarray) -> int:
-    """Largest hop distance between two robots of one connected component."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import shortest_path
-
-    if len(i) == 0:
-        return 0
-    graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n)).tocsr()
-    hops = shortest_path(graph, directed=False, unweighted=True)
-    finite = hops[np.isfinite(hops)]
-    return int(finite.max()) if len(finite) else 0
-
-
 def _phase_times(sim: Simulation) -> dict[str, float]:
     events = sim.trace.events_frame()
     out: dict[str, float] = {}
@@ -148,8 +105,8 @@ def _phase_times(sim: Simulation) -> dict[str, float]:
 
 
 def _metrics(sim: Simulation) -> dict[str, Any]:
-    from kilonet.central import central_reference, pooled_aligned_rmse
-    from kilonet.geometry import crlb_rmse_mm
+    from kilonet.central import pooled_aligned_rmse
+    from scenarios.reference import reference_metrics
 
     truth = sim.world.positions_mm
     n = sim.n_robots
@@ -166,8 +123,6 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
     sizes = done.groupby("frame").size()
     links = np.array(sim.medium.graph().edges(), dtype=np.intp).reshape(-1, 2)
     i, j = links[:, 0], links[:, 1]
-    sigma = p.ranging.sigma_mm
-    pairs, means, samples = measured_distances(sim)
     out: dict[str, Any] = {
         "mean_neighbours": 2.0 * len(i) / n,
         "frames": len(sizes),
@@ -179,22 +134,16 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
         "rmse_mm": rmse,
         "max_error_mm": float(np.nanmax(error)) if len(done) else math.nan,
     }
-    if len(i) and sigma > 0:
-        out["crlb_rmse_mm"] = crlb_rmse_mm(truth, np.column_stack([i, j]), sigma)
-        out["rmse_over_crlb"] = rmse / out["crlb_rmse_mm"]
-        if len(pairs):
-            repeated = np.repeat(pairs, samples.astype(int), axis=0)
-            out["crlb_received_rmse_mm"] = crlb_rmse_mm(truth, repeated, sigma)
-    if len(pairs):
-        central = central_reference(truth, pairs, means, samples)
-        out["central_rmse_mm"] = central.rmse_mm
-        out["central_localized_fraction"] = central.localized_fraction
-        located_by_central = central.localized.sum()
-        out["largest_frame_over_central"] = (
-            float(sizes.max() / located_by_central) if len(sizes) and located_by_central else 0.0
+    out.update(
+        reference_metrics(
+            sim,
+            [r.neighbours for r in sim.robots],
+            (i, j),
+            rmse_mm=rmse,
+            largest_frame=int(sizes.max()) if len(sizes) else 0,
         )
-    hop_diameter = _hop_diameter(n, i, j)
-    out["hop_diameter"] = hop_diameter
+    )
+    hop_diameter = out["hop_diameter"]
     phases = _phase_times(sim)
     out["phase_times_s"] = phases
     # Done when the last robot declared itself done (the run itself stops at the next whole

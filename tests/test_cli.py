@@ -362,14 +362,14 @@ def test_run_help_says_defaults_repeats_and_where_parameters_are(capsys):
     assert "default: gcs" in text and "(default: 1)" in text  # scenario and seed
     assert "repeat for more" in text and "kilonet params" in text
     assert "examples:" in text and "kilonet run --program" in text
-    assert "--until {ids,seeds,frames,localization,groups,merge}" in text
+    assert "--until {ids,seeds,frames,localization,groups,merge,refine}" in text
     assert "gcs: stop after this phase (gcs.until, default merge)" in text
 
 
 def test_params_shows_types_and_allowed_values(capsys):
     assert main(["params", "gcs"]) == 0
     rows = {line.split()[0]: line for line in capsys.readouterr().out.splitlines()}
-    assert "one of: ids, seeds, frames, localization, groups, merge" in rows["gcs.until"]
+    assert "one of: ids, seeds, frames, localization, groups, merge, refine" in rows["gcs.until"]
     assert "float, 33 to 1000" in rows["medium.range_mm"]
     assert " bool " in rows["medium.csma"]
     assert "int >= 0" in rows["seed"]

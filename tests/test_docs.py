@@ -43,6 +43,7 @@ def summaries(tmp_path_factory) -> dict[str, set[str]]:
     program.write_text("from kilonet.robot import Kilobot\n\n\nclass Idle(Kilobot):\n    pass\n")
     runs = {
         "gcs": (scenarios.get("gcs"), {"placement.robots": 12}),
+        "gcs_refine": (scenarios.get("gcs"), {"placement.robots": 12, "gcs.refine": True}),
         "gradient": (scenarios.get("gradient"), {"duration_s": 5.0}),
         "follower": (scenarios.get("follower"), {}),
         "maze": (scenarios.get("maze"), {"maze.size": "2x2"}),

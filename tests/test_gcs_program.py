@@ -9,6 +9,7 @@ import typing
 import pytest
 
 import protocols.frame_merging
+import protocols.global_refinement
 import protocols.local_frames
 import protocols.localization
 import protocols.merging_groups
@@ -37,6 +38,7 @@ MODULES = [
     protocols.frame_merging,
     protocols.split_detection,
     protocols.recovery,
+    protocols.global_refinement,
 ]
 LAYOUTS = list(
     {id(v): v for m in MODULES for v in vars(m).values() if isinstance(v, Layout)}.values()
@@ -44,7 +46,7 @@ LAYOUTS = list(
 
 
 def test_every_layout_starts_with_the_sender_and_sender_of_reads_it():
-    assert len(LAYOUTS) == 19
+    assert len(LAYOUTS) == 21  # phase 7's GPOS, and the refinement's DIST it sends
     assert len({layout.type for layout in LAYOUTS}) == len(LAYOUTS)
     for layout in LAYOUTS:
         names = layout.record._fields

@@ -32,7 +32,9 @@ def test_every_shipped_report_is_stamped_by_the_command_that_publishes_it():
 
 def test_every_sweep_file_is_published():
     sweeps = {p.stem for p in (ROOT / "experiments").glob("*.toml")}
-    assert sweeps <= set(publish.PUBLICATIONS)
+    studied = {sweep for names in publish.STUDY_SWEEPS.values() for sweep in names}
+    assert sweeps <= set(publish.PUBLICATIONS) | studied
+    assert studied <= sweeps and set(publish.STUDY_SWEEPS) <= set(publish.PUBLICATIONS)
 
 
 def test_a_block_is_replaced_whole_and_only_its_own():

@@ -1,0 +1,136 @@
+"""The bound and the optimum beside a swarm's localization, for every localization scenario.
+
+A localization run (``gcs``, ``localize``) reports, next to its own RMSE:
+
+* ``crlb_rmse_mm``: the anchor-free Cramér–Rao bound of the communication graph with one
+  measurement of ``ranging.sigma_mm`` per pair (:func:`kilonet.geometry.crlb_rmse_mm`), and
+  ``rmse_over_crlb``;
+* ``crlb_received_rmse_mm``: the bound for the receptions the robots actually averaged (each
+  ordered pair weighted by its number of samples: the robots average many receptions per pair,
+  so they and the centralized solver can beat the first bound; rounding to whole millimetres
+  adds 1/12 mm² of variance that it leaves out), and ``rmse_over_crlb_received``;
+* ``central_rmse_mm``, ``central_localized_fraction``: the centralized solver
+  (:func:`kilonet.central.central_reference`) on the run's own measured distances, and
+  ``largest_frame_over_central``, the largest frame's size over the number of robots the solver
+  localizes;
+* ``hop_diameter`` of the communication graph: ``hop_diameter × robot.tx_period_s`` is the
+  time information needs to cross the swarm.
+
+The measured distances (:func:`measured_distances`): for every ordered pair (i, j), the mean of
+the distance estimates robot i received in j's messages, as i's neighbour record holds it at the
+end, weighted by its number of samples. A record's ID is mapped to the robot holding that ID
+among those i hears; IDs two of them share, and records marked ambiguous, are left out. Both
+programs' neighbour tables offer the same record interface: ``by_id``, and per record
+``mean_mm``, ``samples`` and ``ambiguous``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from kilonet.simulation import Simulation
+
+__all__ = ["NeighbourRecords", "hop_diameter", "measured_distances", "reference_metrics"]
+
+
+class _Record(Protocol):
+    samples: int
+    ambiguous: bool
+
+    @property
+    def mean_mm(self) -> float: ...
+
+
+class NeighbourRecords(Protocol):
+    """A robot's neighbour table as :func:`measured_distances` reads it."""
+
+    @property
+    def by_id(self) -> Mapping[int, _Record]: ...
+
+
+def measured_distances(
+    sim: Simulation, tables: Sequence[NeighbourRecords]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The distances the robots measured: ``(pairs (E, 2), mean_mm (E,), samples (E,))``, one
+    row per ordered pair (receiver, sender); ``tables[i]`` is robot i's neighbour table and
+    ``sim.robots[k].uid`` robot k's ID (see the module docstring)."""
+    pairs, means, samples = [], [], []
+    robots = sim.robots
+    heard_by: dict[int, dict[int, int]] = {i: {} for i in range(sim.n_robots)}
+    for s in range(sim.n_robots):
+        uid = robots[s].uid
+        for i in sim.medium.receivers_of(s):
+            heard_by[i][uid] = s if uid not in heard_by[i] else -1
+    for i, table in enumerate(tables):
+        for uid, n in table.by_id.items():
+            s = heard_by[i].get(uid, -1)
+            if s < 0 or n.ambiguous or n.samples == 0:
+                continue
+            pairs.append((i, s))
+            means.append(n.mean_mm)
+            samples.append(n.samples)
+    return (
+        np.array(pairs, dtype=np.intp).reshape(-1, 2),
+        np.array(means, dtype=float),
+        np.array(samples, dtype=float),
+    )
+
+
+def hop_diameter(n: int, i: np.ndarray, j: np.ndarray) -> int:
+    """Largest hop distance between two of ``n`` robots of one connected component of the
+    graph with edges ``(i, j)``.
+
+    Examples
+    --------
+    >>> hop_diameter(5, np.array([0, 1, 2]), np.array([1, 2, 3]))  # a path; robot 4 alone
+    3
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import shortest_path
+
+    if len(i) == 0:
+        return 0
+    graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n)).tocsr()
+    hops = shortest_path(graph, directed=False, unweighted=True)
+    finite = hops[np.isfinite(hops)]
+    return int(finite.max()) if len(finite) else 0
+
+
+def reference_metrics(
+    sim: Simulation,
+    tables: Sequence[NeighbourRecords],
+    links: tuple[np.ndarray, np.ndarray],
+    *,
+    rmse_mm: float,
+    largest_frame: int,
+) -> dict[str, Any]:
+    """The keys of the module docstring for a run whose swarm ended at ``rmse_mm`` with
+    ``largest_frame`` robots in its largest frame; ``links`` are the communication graph's
+    pairs ``(i, j)``. Keys whose inputs are missing (no link, no measurement, no noise) are
+    left out, except ``crlb_rmse_mm`` (None without a link: the bound is infinite)."""
+    from kilonet.central import central_reference
+    from kilonet.geometry import crlb_rmse_mm
+
+    truth = sim.world.positions_mm
+    sigma = sim.params.ranging.sigma_mm
+    i, j = links
+    out: dict[str, Any] = {"crlb_rmse_mm": None, "hop_diameter": hop_diameter(sim.n_robots, i, j)}
+    pairs, means, samples = measured_distances(sim, tables)
+    if len(i) and sigma > 0:
+        out["crlb_rmse_mm"] = crlb_rmse_mm(truth, np.column_stack([i, j]), sigma)
+        out["rmse_over_crlb"] = rmse_mm / out["crlb_rmse_mm"]
+        if len(pairs):
+            received = crlb_rmse_mm(truth, pairs, sigma, weights=samples)
+            out["crlb_received_rmse_mm"] = received
+            out["rmse_over_crlb_received"] = rmse_mm / received
+    if len(pairs):
+        central = central_reference(truth, pairs, means, samples)
+        out["central_rmse_mm"] = central.rmse_mm
+        out["central_localized_fraction"] = central.localized_fraction
+        located = int(central.localized.sum())
+        out["largest_frame_over_central"] = largest_frame / located if located else 0.0
+    return out

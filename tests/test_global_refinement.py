@@ -1,0 +1,127 @@
+"""Phase 7 of gcs (``gcs.refine = true``): entering it, its messages, and what it does to a
+run's estimates and summary."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import scenarios
+from kilonet.simulation import Simulation
+from protocols.frame_keys import FrameKey, Root
+from protocols.gcs import GcsRobot, phase_sequence
+from protocols.gcs_base import GcsParams
+from protocols.global_refinement import DONE, GPOS, SETTLED, GlobalRefinement, root_tag
+from scenarios.base import build_params, place
+
+GCS = scenarios.get("gcs")
+
+
+@pytest.fixture(scope="module")
+def refined():
+    """A 40-robot lattice run with the refinement (about 1.5 s of CPU)."""
+    return scenarios.run(GCS, {"placement.robots": 40, "gcs.refine": True}, seed=1)
+
+
+def test_gpos_carries_position_root_and_flags():
+    root = Root(edge=True, key=FrameKey(200, 0xAB))
+    wire, salt = root_tag(root)
+    assert (wire, salt) == (root.wire_id, 0x2B)
+    message = GPOS.pack(sender=7, x_mm=-3276.7, y_mm=12.3, root=wire, flags=DONE | salt << 2)
+    assert len(message.data) == 9
+    m = GPOS.unpack(message)
+    assert (m.x_mm, m.y_mm, m.root) == (pytest.approx(-3276.7), pytest.approx(12.3), wire)
+    assert (m.flags & 3, m.flags >> 2) == (DONE, salt)
+    assert SETTLED | DONE == 3
+
+
+def test_the_refinement_runs_only_when_asked():
+    assert phase_sequence(GcsParams())[-1].name == "merge"
+    assert phase_sequence(GcsParams(refine=True))[-1] is GlobalRefinement
+    assert phase_sequence(GcsParams(until="refine"))[-1] is GlobalRefinement
+    assert phase_sequence(GcsParams(until="groups", refine=True))[-1].name == "groups"
+
+
+def test_a_recovery_epoch_refines_again():
+    params = build_params(GCS, {"placement.robots": 7, "gcs.refine": True})
+    positions = place(GCS, params)
+    sim = Simulation(positions, GCS.program(params, positions), params)
+    robot: GcsRobot = sim.robots[0]
+    sim.run(100.0)  # into merging
+    assert robot.phase_name == "merge"
+    robot.schedule_recovery(1, robot.kilo_ticks + 10)
+    names = [cls.name for cls, _, _ in robot._windows]
+    assert names[-6:] == ["edges", "frames", "localization", "groups", "merge", "refine"]
+
+
+def test_refinement_lowers_the_rmse_and_the_run_ends_by_itself(refined):
+    s = refined.summary
+    assert s["phases_run"][-1] == "refine"
+    assert s["refined_fraction"] == 1.0
+    assert s["frames"] == 1 and s["localized_fraction"] == 1.0
+    # Merging leaves 1.8 mm; the refinement takes the swarm to within a few times the optimum.
+    assert s["merge_rmse_mm"] > 1.0
+    assert s["rmse_mm"] < s["merge_rmse_mm"] / 10
+    assert s["rmse_mm"] < 5 * s["central_rmse_mm"]
+    assert s["sim_time_s"] < refined.params.duration_s
+    events = refined.sim.trace.events_frame()
+    causes = [json.loads(d)["cause"] for d in events.data[events.event == "refine_done"]]
+    assert causes == ["settled"] * 40
+    assert s["done_s"] == pytest.approx(events.t_s[events.event == "refine_done"].max(), abs=1e-3)
+
+
+def test_robots_refine_only_after_their_seeds_are_done(refined):
+    sim = refined.sim
+    events = sim.trace.events_frame()
+    seed_of = {r.own_key: k for k, r in enumerate(sim.robots) if r.is_seed}
+    done_at = events[events.event == "merge_done"].groupby("robot").t_s.max()
+    starts = events[(events.event == "phase") & events.data.str.contains('"refine"')]
+    after_s = refined.params.scenario.refine_after_s
+    for k, robot in enumerate(sim.robots):
+        seeds = [seed_of[key] for key in robot.outcome().local_positions]
+        start = starts.t_s[starts.robot == k].min()
+        # On the robot's own clock, which runs within a few per cent of the simulation's.
+        assert start >= max(done_at[s] for s in seeds) + 0.95 * after_s
+
+
+def test_summary_reports_the_reference_and_both_bounds(refined):
+    s = refined.summary
+    for key in ("central_rmse_mm", "central_localized_fraction", "rmse_over_crlb"):
+        assert key in s
+    assert s["central_localized_fraction"] == 1.0
+    assert s["rmse_over_crlb"] == pytest.approx(s["rmse_mm"] / s["crlb_rmse_mm"])
+    # Hundreds of receptions per pair: the bound for them is far below one reading's.
+    assert s["crlb_received_rmse_mm"] < s["crlb_rmse_mm"] / 10
+    assert s["rmse_over_crlb_received"] == pytest.approx(s["rmse_mm"] / s["crlb_received_rmse_mm"])
+
+
+def test_robots_csv_holds_the_refined_estimates(refined):
+    est = scenarios.get("gcs").robot_columns(refined.sim)
+    outcomes = [r.outcome() for r in refined.sim.robots]
+    refined_xy = np.array([o.position for o in outcomes])
+    merged_xy = np.array([o.merged_position for o in outcomes])
+    assert np.allclose(est[["est_x_mm", "est_y_mm"]].to_numpy(), refined_xy)
+    assert not np.allclose(refined_xy, merged_xy)
+
+
+def test_both_ends_of_most_pairs_fit_the_same_distance(refined):
+    robots = refined.sim.robots
+    peers = {r.uid: r.phase.peers for r in robots if isinstance(r.phase, GlobalRefinement)}
+    same = [
+        abs(n.range_mm - peers[uid][me].range_mm) < 1e-9
+        for me, mine in peers.items()
+        for uid, n in mine.items()
+        if uid in peers and me in peers[uid]
+    ]
+    assert len(same) > 300
+    assert np.mean(same) > 0.5
+
+
+@pytest.mark.slow
+def test_refinement_on_100_robots_reaches_the_bound():
+    s = scenarios.run(GCS, {"placement.robots": 100, "gcs.refine": True}, seed=1).summary
+    assert s["frames"] == 1
+    assert s["rmse_over_crlb"] <= 1.5
+    assert s["rmse_mm"] < s["merge_rmse_mm"] / 10
