@@ -293,6 +293,23 @@ def _testkit_block(context: Context) -> str:
     return "\n".join(lines)
 
 
+def _localize_speed_block(context: Context) -> str:
+    bench = _benchmark("bench_localize")
+    lines = [
+        "| robots | simulation CPU s | scoring CPU s | simulated s to done | × hop limit "
+        "| frames | localized |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for n in (100, 1000):
+        r = bench.run_one(n, 1, {})
+        lines.append(
+            f"| {n:,} | {r['sim_cpu_s']:.1f} | {r['metrics_cpu_s']:.1f} | {r['done_s']:.1f} "
+            f"| {r['done_over_hop_limit']:.1f} | {r['frames']} | {r['localized_fraction']:.1%} |"
+        )
+    lines += ["", "Jittered hex lattice, σ = 1 mm, seed 1, one core."]
+    return "\n".join(lines)
+
+
 def _gcs_page(make: Callable[[], str]) -> Block:
     """A block of ``docs/gcs.md`` made by ``make``, one of :mod:`experiments.gcs_measured`'s
     functions (they run their own simulations, no sweep)."""
@@ -355,6 +372,7 @@ BLOCKS: dict[str, Block] = {
     "medium-throughput": Block("docs/performance.md", _medium_block),
     "startup": Block("docs/performance.md", _startup_block),
     "testkit-speed": Block("docs/performance.md", _testkit_block),
+    "localize-speed": Block("docs/performance.md", _localize_speed_block),
     # docs/gcs.md: experiments/gcs_measured.py
     "gcs-robot-model": _gcs_page(gcs_measured.robot_model_block),
     "gcs-isolated-seeds": _gcs_page(gcs_measured.isolated_seeds_block),
