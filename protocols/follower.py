@@ -84,6 +84,14 @@ from kilonet.geometry import GeometryError, place_references, trilaterate_linear
 from kilonet.message import Layout, Message
 from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
+from protocols.pivot_turns import (
+    PIVOT_LEG_MM,
+    PivotMove,
+    best_pivot_move,
+    handedness_vote,
+    pivot_displacement,
+    turn_rate_ratio,
+)
 from protocols.turn_calibration import TurnCalibration
 
 __all__ = [
@@ -142,11 +150,6 @@ FRAME_WIDE = Layout(
 )
 
 Point = tuple[float, float]
-
-#: The Kilobot's left rear leg in its body frame (forward, left), mm: 16.5 mm out at 125.5° from
-#: the heading (Kilombo, from the PCB design files). A one-motor turn pivots about the rear leg
-#: on the side it turns to, which a program has to know to aim (:func:`pivot_displacement`).
-PIVOT_LEG_MM = (16.5 * math.cos(math.radians(125.5)), 16.5 * math.sin(math.radians(125.5)))
 
 #: Physical turns (counter-clockwise positive, rad) of successive escapes from a body the
 #: robot is stuck against: round first, then sideways.
@@ -276,42 +279,6 @@ def frame_direction(alpha_rad: float, mirrored: bool) -> int:
         return 0
     side = 1 if alpha_rad > 0 else -1
     return -side if mirrored else side
-
-
-def pivot_displacement(heading: Point, turn_rad: float, leg_mm: Point = None) -> Point:
-    """How far a turn moves the robot's centre, in the frame's axes (mm).
-
-    A Kilobot turning on one motor pivots about its rear leg on the side it turns to
-    (:data:`PIVOT_LEG_MM`), so its centre swings round that leg. Seen in a frame, mirrored or
-    not, the robot turns ``turn_rad`` about the leg on the side it turns toward: a physical
-    left turn in a mirrored frame is a frame right turn about the frame's right-hand leg.
-
-    Parameters
-    ----------
-    heading : (float, float)
-        Unit heading before the turn, frame axes.
-    turn_rad : float
-        The turn as the frame sees it (counter-clockwise positive).
-    leg_mm : (float, float), optional
-        The left rear leg in the body frame (forward, left), mm; default the Kilobot's.
-
-    Examples
-    --------
-    A quarter turn left, heading along +x, about a leg 10 mm back and 10 mm left:
-
-    >>> [round(c, 9) for c in pivot_displacement((1.0, 0.0), math.pi / 2, (-10.0, 10.0))]
-    [0.0, 20.0]
-    >>> pivot_displacement((1.0, 0.0), 0.0)
-    (0.0, 0.0)
-    """
-    if turn_rad == 0:
-        return (0.0, 0.0)
-    forward, left = leg_mm or PIVOT_LEG_MM
-    side = 1.0 if turn_rad > 0 else -1.0
-    ux, uy = heading
-    ox, oy = forward * ux - side * left * uy, forward * uy + side * left * ux
-    rx, ry = rotate((ox, oy), turn_rad)
-    return (ox - rx, oy - ry)
 
 
 def rotate(u: Point, angle_rad: float) -> Point:
@@ -615,6 +582,11 @@ class ThirdRobot(_FrameMember):
 GUARD_S = 0.1
 #: Turns smaller than this are skipped, degrees.
 MIN_TURN_DEG = 2.0
+#: Relative error of a turn the planner assumes before the turning motor's rate is learned
+#: (two turns of it seen), and after: the calibration is made on another robot, about 10 %
+#: off, and what is learned is good to a few per cent.
+TURN_SD_UNLEARNED = 0.1
+TURN_SD_LEARNED = 0.04
 
 
 @dataclass(frozen=True)
@@ -726,6 +698,7 @@ class Follower(Kilobot):
         self.position: Point | None = None
         self._heading: Point | None = None
         self._heading_measured = False
+        self._heading_chord_mm = 0.0  # the step the heading was measured from
         self._last_turn_rad = 0.0  # physical, counter-clockwise positive, as intended
         self._last_step_mm = 0.0
         self._last_step_ticks = 0
@@ -739,8 +712,11 @@ class Follower(Kilobot):
         self._blocked_steps = 0  # consecutive steps that did not move the robot
         self._speed_samples: list[tuple[float, float]] = []  # (mm moved, s) of clean steps
         self.speed_mm_s = self.nominal_speed_mm_s
-        self._rate_samples: list[float] = []
-        self.turn_gain = 1.0  # real turn rate / calibrated rate, as learned
+        # Real turn rate / calibrated rate, as learned, per motor (+1 left, -1 right): each
+        # motor has its own curve and stored value, so the two turn at different rates.
+        self._rate_samples: dict[int, list[float]] = {1: [], -1: []}
+        self.turn_gains = {1: 1.0, -1: 1.0}
+        self._last_turn_gain = 1.0
         # Walking toward the nearest robot when no fix is possible yet.
         self._approach: dict[str, float] | None = None
 
@@ -947,37 +923,58 @@ class Follower(Kilobot):
             else:
                 self._plan(0.0, self._short_step_mm(to_target), "first")
             return True
-        # Far from the goal, longer steps: fewer of them, and a longer baseline for the heading
-        # where the fixes are least precise.
-        step = min(max(self.params.step_mm, self.params.step_fraction * to_target), to_target)
+        # Aim at the goal if the straight line is clear, else at a waypoint a step along the
+        # detour; the turn that faces the aim takes the pivot's swing into account.
+        step = self._goal_step_mm(to_target)
         direction, self._side = plan_direction(
             position, target, obstacles, radius, step, self._side
         )
-        alpha = turn_angle(heading, direction)
-        for _ in range(3):
-            # The pivot moves the centre: aim from where the turn will leave the robot.
-            dx, dy = pivot_displacement(heading, alpha)
-            start = (position[0] + dx, position[1] + dy)
-            to_target = _dist(start, target)
-            step = min(max(self.params.step_mm, self.params.step_fraction * to_target), to_target)
-            direction, self._side = plan_direction(
-                start, target, obstacles, radius, step, self._side
-            )
-            alpha = turn_angle(heading, direction)
+        line = (target[0] - position[0], target[1] - position[1])
+        detour = abs(turn_angle(line, direction)) > 1e-9
+        aim = (position[0] + step * direction[0], position[1] + step * direction[1])
+        if detour:
+            move = self._aim(position, heading, aim, step)
+        else:
+            c = self.params
+            move = self._aim(position, heading, target, max(c.step_mm, c.step_fraction * to_target))
+        alpha, step = move.turn_rad, move.step_mm
         mode = "goal"
         if not self.handedness_settled:
             # Handedness not settled: make this turn big enough to tell, and the step short.
-            step = min(step, self._short_step_mm(to_target))
+            step = self._short_step_mm(to_target)
             alpha = self._probe_turn(position, heading, alpha, step, obstacles, radius)
             mode = "probe"
-        elif abs(alpha) > math.pi / 2:
-            step = min(step, self._short_step_mm(to_target))  # a long turn is least accurate
         if abs(alpha) < math.radians(MIN_TURN_DEG):
             alpha = 0.0
         # α is in the frame; the pivot is physical, and flips in a mirrored frame.
         physical = abs(alpha) * frame_direction(alpha, self.mirrored)
         self._plan(physical, step, mode)
         return True
+
+    def _goal_step_mm(self, to_target_mm: float) -> float:
+        """Length of an ordinary step ``to_target_mm`` from the target: up to ``step_mm``, or
+        far away ``step_fraction`` of the way (fewer steps, and a longer baseline for the
+        heading where fixes are least precise), never past the target."""
+        c = self.params
+        return min(max(c.step_mm, c.step_fraction * to_target_mm), to_target_mm)
+
+    def _aim(
+        self, position: Point, heading: Point, aim: Point, max_step_mm: float
+    ) -> PivotMove:
+        """The next move toward ``aim`` (:func:`best_pivot_move`), with the uncertainties this
+        robot has: its heading from the chord of its last step (fixes about 0.7 mm off per
+        axis), its turns from how many it has learned from."""
+        learned = min(len(samples) for samples in self._rate_samples.values())
+        return best_pivot_move(
+            position,
+            heading,
+            aim,
+            max_step_mm,
+            turn_sd=TURN_SD_LEARNED if learned >= 2 else TURN_SD_UNLEARNED,
+            heading_sd_rad=max(0.03, 1.0 / max(self._heading_chord_mm, 1.0)),
+            obstacles=list(self._anchors().values()),
+            radius_mm=self.body_mm + self.params.clearance_mm,
+        )
 
     def _short_step_mm(self, to_target_mm: float) -> float:
         """Length of a first, probe or after-long-turn step: ``first_step_mm``, longer far
@@ -1007,7 +1004,13 @@ class Follower(Kilobot):
         valid = [a for a in candidates if probe - 1e-9 <= abs(a) <= limit]
         for a in valid:
             if not any(
-                _segment_blocked(position, rotate(heading, sign * a), step_mm, c, radius_mm)
+                _segment_blocked(
+                    _moved(position, pivot_displacement(heading, sign * a)),
+                    rotate(heading, sign * a),
+                    step_mm,
+                    c,
+                    radius_mm,
+                )
                 for sign in (1, -1)
                 for c in obstacles
             ):
@@ -1020,9 +1023,15 @@ class Follower(Kilobot):
             self._heading, self._heading_measured = None, False
             return
         dx, dy = position[0] - self.position[0], position[1] - self.position[1]
+        step_s = self._last_step_ticks / self.ticks_per_s
+        expected = self._last_step_mm
+        # A step that went much less far than timed touched a body and slid: its direction is
+        # not the heading, so it tells nothing about the turn before it.
+        clean = expected * 0.7
         if self._fixed_after_turn:
             self._fixed_after_turn = False
-            if self._heading is not None and self._heading_measured and self._last_turn_rad:
+            turned = self._heading is not None and self._heading_measured and self._last_turn_rad
+            if turned and math.hypot(dx, dy) >= clean:
                 seen = _turn_seen(self._heading, (dx, dy))  # a straight step after the turn
                 self._vote(seen, seen)
         elif self._heading is not None and self._last_turn_rad:
@@ -1031,13 +1040,17 @@ class Follower(Kilobot):
             for mirrored in (False, True):
                 px, py = pivot_displacement(self._heading, self._frame_turn(mirrored))
                 steps[mirrored] = (dx - px, dy - py)
-            if self._heading_measured:
+            if self._heading_measured and min(math.hypot(*v) for v in steps.values()) >= clean:
                 self._vote(*(_turn_seen(self._heading, steps[m]) for m in (False, True)))
             dx, dy = steps[self.mirrored]
         moved = math.hypot(dx, dy)
-        step_s = self._last_step_ticks / self.ticks_per_s
-        expected = self._last_step_mm
-        if moved >= max(3.0, 0.4 * expected):
+        if expected < 1.0:
+            # A turn alone (the planner's pivot onto the aim): the heading is the old one
+            # turned, as far as the handedness is known.
+            trusted = self.handedness_settled and self._heading is not None
+            self._heading = self._heading_after_turn() if trusted else None
+            self._heading_measured = False
+        elif moved >= max(3.0, 0.4 * expected):
             measured = (dx / moved, dy / moved)
             if moved >= 0.7 * expected and step_s > 0:
                 self._speed_samples.append((moved, step_s))
@@ -1045,6 +1058,7 @@ class Follower(Kilobot):
                 total_s = sum(s for _, s in self._speed_samples)
                 self.speed_mm_s = total_mm / total_s
             self._heading, self._heading_measured = measured, True
+            self._heading_chord_mm = moved
             self._blocked_steps = 0
         else:
             # Blocked (contact) or too short to tell. Dead reckoning is only trusted once the
@@ -1056,30 +1070,36 @@ class Follower(Kilobot):
 
     def _vote(self, observed_floor_rad: float | None, observed_mirror_rad: float | None) -> None:
         """Compare the rotation seen in the frame with the physical turn commanded, under each
-        handedness (whose pivot displacement differs; ``None`` where the step was too short)."""
+        handedness (whose pivot displacement differs; ``None`` where the step was too short),
+        and learn the turning motor's rate from it (:func:`handedness_vote`,
+        :func:`turn_rate_ratio`)."""
         commanded = self._last_turn_rad
         if observed_floor_rad is None or observed_mirror_rad is None:
             return
-        observed_rad = observed_mirror_rad if self.mirrored else observed_floor_rad
-        if abs(commanded) < math.radians(25) or abs(observed_rad) > math.radians(165):
+        verdict = handedness_vote(commanded, observed_floor_rad, observed_mirror_rad)
+        if verdict is not None:
+            self._votes[verdict] += 1
+            mirrored = self._votes[True] > self._votes[False]
+            if mirrored != self.mirrored or sum(self._votes.values()) == 1:
+                self.mirrored = mirrored
+                self.log(
+                    "handedness",
+                    mirrored=mirrored,
+                    floor=self._votes[False],
+                    mirror=self._votes[True],
+                )
+        if not (self.params.adapt_turns and self.handedness_settled):
             return
-        floor_err = abs(wrap_angle(observed_floor_rad - commanded))
-        mirror_err = abs(wrap_angle(observed_mirror_rad + commanded))
-        if abs(floor_err - mirror_err) < math.radians(20):
+        if not math.radians(40) <= abs(commanded) <= math.radians(150):
             return
-        verdict = mirror_err < floor_err
-        self._votes[verdict] += 1
-        mirrored = self._votes[True] > self._votes[False]
-        if mirrored != self.mirrored or sum(self._votes.values()) == 1:
-            self.mirrored = mirrored
-            self.log(
-                "handedness", mirrored=mirrored, floor=self._votes[False], mirror=self._votes[True]
-            )
-        if self.params.adapt_turns and math.radians(40) <= abs(commanded) <= math.radians(150):
-            # The turn was timed for commanded / gain, so the real rate is ratio × gain.
-            ratio = abs(observed_rad) / abs(commanded) * self.turn_gain
-            self._rate_samples.append(min(2.0, max(0.5, ratio)))
-            self.turn_gain = median(self._rate_samples)
+        seen = -observed_mirror_rad if self.mirrored else observed_floor_rad
+        # The turn was timed for commanded / gain, so the real rate is ratio × gain.
+        ratio = turn_rate_ratio(commanded, seen) * self._last_turn_gain
+        if 0.5 <= ratio <= 2.0:  # else a misread turn (a heading off by a bump)
+            side = 1 if commanded > 0 else -1
+            self._rate_samples[side].append(ratio)
+            self.turn_gains[side] = median(self._rate_samples[side])
+            self.log("turn_rate", side=side, ratio=ratio, gain=self.turn_gains[side])
 
     def _approach_step(self, usable: dict[int, float]) -> None:
         """No fix yet: walk to reduce the distance to the nearest robot heard."""
@@ -1104,10 +1124,12 @@ class Follower(Kilobot):
     def _plan(self, physical_turn_rad: float, step_mm: float, mode: str) -> None:
         """Start the move: a physical pivot (counter-clockwise positive), then a step."""
         tps = self.ticks_per_s
-        turn_s = self.calibration.turn_time_s(physical_turn_rad / self.turn_gain)
+        gain = self.turn_gains[1 if physical_turn_rad > 0 else -1]
+        turn_s = self.calibration.turn_time_s(physical_turn_rad / gain)
         turn_ticks = round(turn_s * tps) if physical_turn_rad else 0
         step_ticks = max(1, round(step_mm / self.speed_mm_s * tps))
         self._last_turn_rad = physical_turn_rad if turn_ticks else 0.0
+        self._last_turn_gain = gain
         self._last_step_mm = step_mm
         self._last_step_ticks = step_ticks
         self._last_mode = mode
@@ -1148,6 +1170,10 @@ class Follower(Kilobot):
         self.outcome = outcome
         self.phase = "done"
         self.log(outcome, steps=self.steps, mirrored=self.mirrored, **fields)
+
+
+def _moved(p: Point, by: Point) -> Point:
+    return (p[0] + by[0], p[1] + by[1])
 
 
 def _dist(a: Point, b: Point) -> float:

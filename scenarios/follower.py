@@ -412,6 +412,11 @@ def path_length_mm(sim: Simulation) -> float:
     return float(np.hypot(*np.diff(poses[["x_mm", "y_mm"]].to_numpy(), axis=0).T).sum())
 
 
+def _turn_deg_s(sim: Simulation, motor: int, duty: int) -> float:
+    """The follower's true pivot rate on ``motor`` (0 left, 1 right) at ``duty``, deg/s."""
+    return math.degrees(sim.motion.pivot_rate_rad_s(FOLLOWER_INDEX, motor, duty))
+
+
 def _metrics(sim: Simulation) -> dict[str, Any]:
     import pandas as pd
 
@@ -444,15 +449,10 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
         "handedness_settled": bool(follower.handedness_settled),
         "final_estimate_error_mm": None if estimate_error is None else round(estimate_error, 3),
         "calibration_deg_s": round(follower.calibration.deg_per_s, 3),
-        "follower_turn_deg_s": round(
-            math.degrees(
-                sim.motion.pivot_rate_rad_s(
-                    FOLLOWER_INDEX, 0, sim.robots[FOLLOWER_INDEX].kilo_turn_left
-                )
-            ),
-            3,
-        ),
-        "follower_turn_gain": round(follower.turn_gain, 3),
+        "follower_turn_deg_s": round(_turn_deg_s(sim, 0, follower.kilo_turn_left), 3),
+        "follower_turn_right_deg_s": round(_turn_deg_s(sim, 1, follower.kilo_turn_right), 3),
+        "follower_turn_gain": round(follower.turn_gains[1], 3),
+        "follower_turn_gain_right": round(follower.turn_gains[-1], 3),
     }
 
 

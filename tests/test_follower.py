@@ -203,8 +203,8 @@ def test_placement_must_have_four_rows(tmp_path):
 
 
 def test_placement_with_a_deaf_follower_is_refused():
-    far = np.vstack([FRAME, [[37.5, -70.0]]])  # 130 mm from robot 3
-    with pytest.raises(ScenarioError, match="the follower does not hear robot 3"):
+    far = np.vstack([FRAME, [[37.5, -70.0]]])  # 135 mm from robot 3
+    with pytest.raises(ScenarioError, match=r"the follower stands 135.0 mm from robot 3, beyond medium.range_mm = 85"):
         run(SCENARIO, seed=1, placement=far)
 
 
@@ -376,7 +376,7 @@ def test_outputs_trajectory_figure_and_summary(tmp_path):
     assert colours[1] == {(0, 0, 3), (3, 3, 0), (0, 0, 0)}
     assert colours[2] == {(0, 3, 0), (3, 3, 0), (3, 0, 3), (0, 0, 0)}
     assert 3 not in colours
-    assert result.sim.robots_frame()["offered"].tolist()[3] == 0
+    assert result.sim.robots_frame()["sent"].tolist()[3] == 0
     assert summary["path_length_mm"] >= summary["straight_line_mm"] - summary["final_distance_mm"]
 
 
