@@ -585,6 +585,16 @@ MIN_TURN_DEG = 2.0
 #: Relative error of a turn the planner assumes before the turning motor's rate is learned
 #: (two turns of it seen), and after: the calibration is made on another robot, about 10 %
 #: off, and what is learned is good to a few per cent.
+#: A step after a turn tells the turn only if it went at least this share of the distance
+#: timed; a shorter one touched a body and slid along it (fixes are about 1 mm off, so a
+#: free 10 mm step comes out at 0.85 or more).
+CLEAN_STEP_SHARE = 0.85
+#: Turn-rate ratios (real / calibrated) taken as possible: the calibration robot and this one
+#: differ by per-robot and per-motor errors of about 10 % each, rarely by more than 40 %;
+#: a ratio outside is a misread turn.
+RATE_RATIO_RANGE = (0.6, 1.6)
+#: How far inside its hearing range the follower plans to stay, mm.
+HEARING_MARGIN_MM = 5.0
 TURN_SD_UNLEARNED = 0.1
 TURN_SD_LEARNED = 0.04
 
@@ -654,6 +664,10 @@ class Follower(Kilobot):
         The distance sensor's ceiling: a reading this large means "at least this far".
     body_mm : float
         Kilobot body diameter.
+    hearing_mm : float
+        How far the robot hears the frame robots (the radio's range, a hardware figure), mm:
+        the planner keeps its moves within ``hearing_mm - HEARING_MARGIN_MM`` of all three
+        where it can.
 
     Attributes
     ----------
@@ -675,12 +689,14 @@ class Follower(Kilobot):
         speed_mm_s: float,
         saturation_mm: int,
         body_mm: float,
+        hearing_mm: float = math.inf,
     ) -> None:
         self.params = params
         self.calibration = calibration
         self.nominal_speed_mm_s = speed_mm_s
         self.saturation_mm = saturation_mm
         self.body_mm = body_mm
+        self.hearing_mm = hearing_mm
 
     # -- state ---------------------------------------------------------------------------
     def setup(self) -> None:
@@ -834,23 +850,31 @@ class Follower(Kilobot):
             candidates = [p for p in candidates if _dist(p, anchors[k]) >= floor_mm]
         if not candidates:
             return None
-        prior = self._predicted_position()
-        if prior is not None:
-            return min(candidates, key=lambda p: _dist(p, prior)), "two"
+        # The dead-reckoned position picks the intersection; while the handedness is open it
+        # must pick the same one under both (they are mirror images across the line of the
+        # two robots heard, and so are the predictions).
+        handedness = (self.mirrored,) if self.handedness_settled else (False, True)
+        priors = [self._predicted_position(m) for m in handedness]
+        if all(prior is not None for prior in priors):
+            picks = {min(candidates, key=lambda p, q=q: _dist(p, q)) for q in priors}
+            return (picks.pop(), "two") if len(picks) == 1 else None
         if len(candidates) == 1:
             return candidates[0], "two"
         return None
 
-    def _predicted_position(self) -> Point | None:
-        """Where dead reckoning puts the robot after its last move (frame mm), if it knows."""
+    def _predicted_position(self, mirrored: bool | None = None) -> Point | None:
+        """Where dead reckoning puts the robot after its last move (frame mm), if it knows; in
+        a frame of the given handedness (default: the one concluded)."""
+        if mirrored is None:
+            mirrored = self.mirrored
         if self.position is None or self._last_mode in ("", "approach"):
             return None
         if self._last_mode == "retreat":
             return self.position  # back where the last fix was taken
-        heading = self._heading_after_turn()
-        if heading is None:
+        if self._heading is None:
             return self.position
-        dx, dy = pivot_displacement(self._heading, self._frame_turn(self.mirrored))
+        heading = rotate(self._heading, self._frame_turn(mirrored))
+        dx, dy = pivot_displacement(self._heading, self._frame_turn(mirrored))
         step = self._last_step_ticks / self.ticks_per_s * self.speed_mm_s
         return (
             self.position[0] + dx + step * heading[0],
@@ -883,7 +907,7 @@ class Follower(Kilobot):
                 # The last step took the robot where it cannot locate itself (out of range or
                 # in a body's shadow): go back the way it came and detour the other way.
                 self._side = -self._side
-                self._plan(math.pi, self._last_step_mm, "retreat")
+                self._retreat()
                 return True
             if not usable:
                 return False
@@ -958,13 +982,11 @@ class Follower(Kilobot):
         c = self.params
         return min(max(c.step_mm, c.step_fraction * to_target_mm), to_target_mm)
 
-    def _aim(
-        self, position: Point, heading: Point, aim: Point, max_step_mm: float
-    ) -> PivotMove:
+    def _aim(self, position: Point, heading: Point, aim: Point, max_step_mm: float) -> PivotMove:
         """The next move toward ``aim`` (:func:`best_pivot_move`), with the uncertainties this
         robot has: its heading from the chord of its last step (fixes about 0.7 mm off per
         axis), its turns from how many it has learned from."""
-        learned = min(len(samples) for samples in self._rate_samples.values())
+        learned = sum(len(samples) for samples in self._rate_samples.values())
         return best_pivot_move(
             position,
             heading,
@@ -974,6 +996,7 @@ class Follower(Kilobot):
             heading_sd_rad=max(0.03, 1.0 / max(self._heading_chord_mm, 1.0)),
             obstacles=list(self._anchors().values()),
             radius_mm=self.body_mm + self.params.clearance_mm,
+            within_mm=self.hearing_mm - HEARING_MARGIN_MM,
         )
 
     def _short_step_mm(self, to_target_mm: float) -> float:
@@ -1002,18 +1025,20 @@ class Follower(Kilobot):
         fixed = (s * math.pi / 2, -s * math.pi / 2, s * probe, -s * probe, s * limit, -s * limit)
         candidates = [wrap_angle(a) for a in (*near, *fixed)]
         valid = [a for a in candidates if probe - 1e-9 <= abs(a) <= limit]
-        for a in valid:
-            if not any(
-                _segment_blocked(
-                    _moved(position, pivot_displacement(heading, sign * a)),
-                    rotate(heading, sign * a),
-                    step_mm,
-                    c,
-                    radius_mm,
-                )
-                for sign in (1, -1)
+        reach = max([self.hearing_mm - HEARING_MARGIN_MM, *(_dist(position, c) for c in obstacles)])
+
+        def fits(turn: float) -> bool:
+            start = _moved(position, pivot_displacement(heading, turn))
+            h = rotate(heading, turn)
+            end = (start[0] + step_mm * h[0], start[1] + step_mm * h[1])
+            return not any(
+                _segment_blocked(start, h, step_mm, c, radius_mm)
+                or max(_dist(start, c), _dist(end, c)) > reach
                 for c in obstacles
-            ):
+            )
+
+        for a in valid:
+            if fits(a) and fits(-a):
                 return a
         return valid[0]
 
@@ -1025,9 +1050,9 @@ class Follower(Kilobot):
         dx, dy = position[0] - self.position[0], position[1] - self.position[1]
         step_s = self._last_step_ticks / self.ticks_per_s
         expected = self._last_step_mm
-        # A step that went much less far than timed touched a body and slid: its direction is
-        # not the heading, so it tells nothing about the turn before it.
-        clean = expected * 0.7
+        # A step that went less far than timed touched a body and slid: its direction is not
+        # the heading, so it tells nothing about the turn before it.
+        clean = expected * CLEAN_STEP_SHARE
         if self._fixed_after_turn:
             self._fixed_after_turn = False
             turned = self._heading is not None and self._heading_measured and self._last_turn_rad
@@ -1095,11 +1120,29 @@ class Follower(Kilobot):
         seen = -observed_mirror_rad if self.mirrored else observed_floor_rad
         # The turn was timed for commanded / gain, so the real rate is ratio × gain.
         ratio = turn_rate_ratio(commanded, seen) * self._last_turn_gain
-        if 0.5 <= ratio <= 2.0:  # else a misread turn (a heading off by a bump)
+        if RATE_RATIO_RANGE[0] <= ratio <= RATE_RATIO_RANGE[1]:  # else a misread turn
             side = 1 if commanded > 0 else -1
             self._rate_samples[side].append(ratio)
             self.turn_gains[side] = median(self._rate_samples[side])
             self.log("turn_rate", side=side, ratio=ratio, gain=self.turn_gains[side])
+
+    def _retreat(self) -> None:
+        """Go back to where the last fix was taken. The robot does not need its heading or the
+        frame's handedness for that: in its own body frame before the last move (heading +x,
+        counter-clockwise = physical left), the move it made is known, and so is the way back
+        (:func:`best_pivot_move`, one move)."""
+        turn = self._last_turn_rad
+        step = self._last_step_ticks / self.ticks_per_s * self.speed_mm_s
+        dx, dy = pivot_displacement((1.0, 0.0), turn)
+        here = (dx + step * math.cos(turn), dy + step * math.sin(turn))
+        move = best_pivot_move(
+            here,
+            (math.cos(turn), math.sin(turn)),
+            (0.0, 0.0),
+            max(self.params.step_mm, math.hypot(*here)),
+            two_moves=False,
+        )
+        self._plan(move.turn_rad, move.step_mm, "retreat")
 
     def _approach_step(self, usable: dict[int, float]) -> None:
         """No fix yet: walk to reduce the distance to the nearest robot heard."""

@@ -39,6 +39,7 @@ Point = tuple[float, float]
 #: on the side it turns to, which a program has to know to aim (:func:`pivot_displacement`).
 PIVOT_LEG_MM = (16.5 * math.cos(math.radians(125.5)), 16.5 * math.sin(math.radians(125.5)))
 
+
 def _wrap(angle_rad: float) -> float:
     return (angle_rad + math.pi) % (2 * math.pi) - math.pi
 
@@ -181,9 +182,11 @@ def best_pivot_move(
     turn_sd: float = 0.1,
     heading_sd_rad: float = 0.1,
     turn_cost_mm_per_rad: float = 0.5,
-    move_cost_mm: float = 1.0,
+    move_cost_mm: float = 5.0,
     obstacles: tuple[Point, ...] | list[Point] = (),
     radius_mm: float = 0.0,
+    within_mm: float = math.inf,
+    two_moves: bool = True,
     leg_mm: Point = PIVOT_LEG_MM,
 ) -> PivotMove:
     """The next move (a turn, then a step of at most ``max_step_mm``) of the plan of at most
@@ -194,15 +197,15 @@ def best_pivot_move(
     error, ``heading_sd_rad`` plus ``turn_sd`` of the turn), added in quadrature; turning also
     costs ``turn_cost_mm_per_rad`` per radian (its time, and a tie-breaker toward small turns).
     One-move plans try every turn on a 3° grid (up to 270° either way, or none) with the step
-    ending nearest the aim. Two-move plans take a first turn on a 15° grid and a first step of
+    ending nearest the aim. Two-move plans (unless ``two_moves`` is False) take a first turn on a 15° grid and a first step of
     0-20 mm, then the best second move; the first move's errors add to the second's, and the
     second move costs ``move_cost_mm`` more (the fix in between takes time). Two moves
     are what an aim close to the robot needs: a Kilobot cannot back up, and a point within the
     swing of a leg cannot be faced by a short turn of that side (the heading points out of the
     circle the centre swings on), so the robot steps or swings away first and comes round.
 
-    A move that moves less than 1 mm is never chosen (the caller is further from the aim than
-    it wants to be). Moves whose swing ends in, or whose step enters, a disc of ``radius_mm`` round one of
+    A single move not expected to end nearer the aim than the robot is now is never chosen
+    (the caller is further from it than it wants to be); then a two-move plan is. Moves whose swing ends in, or whose step enters, a disc of ``radius_mm`` round one of
     ``obstacles`` are left out unless every move is (the plan's second move is not checked).
 
     Examples
@@ -258,26 +261,36 @@ def best_pivot_move(
     )
     first_err = np.hypot(math.hypot(*leg_mm) * err1, s1 * np.hypot(heading_sd_rad, err1))
     cost2 = (
-        np.hypot(cost2.min(axis=1), first_err)
-        + turn_cost_mm_per_rad * np.abs(t1)
-        + move_cost_mm
+        np.hypot(cost2.min(axis=1), first_err) + turn_cost_mm_per_rad * np.abs(t1) + move_cost_mm
     )
 
+    # The caller is further from the aim than it wants to be: a single move that is not
+    # expected to end nearer is no plan (staying put, or a wiggle in place); a two-move plan
+    # whose first move does nothing is the one-move plan.
+    here = math.dist(position, aim)
     candidates = [
         (float(cost1[k]), float(turns1[k]), (float(sx[k]), float(sy[k])), float(step1[k]))
         for k in range(len(cost1))
+        if cost1[k] < here
     ] + [
         (float(cost2[k]), float(t1[k]), (float(ax[k]), float(ay[k])), float(s1[k]))
         for k in range(len(t1))
+        if two_moves and (t1[k] != 0.0 or s1[k] > 0.0)
     ]
-    # The caller is further from the aim than it wants to be: staying put is no plan.
-    candidates = [m for m in candidates if m[1] != 0.0 or m[3] >= 1.0]
+    if not candidates:  # one move only, and none gets nearer: the nearest it gets
+        k = int(np.argmin(cost1))
+        candidates = [
+            (float(cost1[k]), float(turns1[k]), (float(sx[k]), float(sy[k])), float(step1[k]))
+        ]
     candidates.sort(key=lambda m: m[0])
+    reach = max([within_mm, *(math.dist(position, c) for c in obstacles)])
     for cost, turn, start, step in candidates:
         h = _rotate(heading, turn)
+        end = (start[0] + step * h[0], start[1] + step * h[1])
         if not any(
             math.hypot(start[0] - c_[0], start[1] - c_[1]) < radius_mm - 0.5
             or segment_blocked(start, h, step, c_, radius_mm)
+            or max(math.dist(start, c_), math.dist(end, c_)) > reach
             for c_ in obstacles
         ):
             break

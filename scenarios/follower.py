@@ -316,6 +316,7 @@ def _program(params: Params, positions: np.ndarray):
             speed_mm_s=params.motion.speed_mm_s,  # the data sheet's figure, not this robot's
             saturation_mm=params.ranging.max_mm,
             body_mm=ROBOT_DIAMETER_MM,
+            hearing_mm=params.medium.range_mm,  # the radio's range, a hardware figure
         )
 
     return build

@@ -204,7 +204,10 @@ def test_placement_must_have_four_rows(tmp_path):
 
 def test_placement_with_a_deaf_follower_is_refused():
     far = np.vstack([FRAME, [[37.5, -70.0]]])  # 135 mm from robot 3
-    with pytest.raises(ScenarioError, match=r"the follower stands 135.0 mm from robot 3, beyond medium.range_mm = 85"):
+    with pytest.raises(
+        ScenarioError,
+        match=r"the follower stands 135.0 mm from robot 3, beyond medium.range_mm = 85",
+    ):
         run(SCENARIO, seed=1, placement=far)
 
 
