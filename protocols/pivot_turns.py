@@ -96,15 +96,16 @@ class PivotMove(NamedTuple):
         Where the turn leaves the centre, frame mm.
     step_mm : float
         The straight step after it, mm (0: the turn alone).
-    miss_mm : float
-        Where the move is expected to leave the robot from the aim, mm: the planned miss and
-        the spread that turn and heading errors give it.
+    cost_mm : float
+        The cost of the plan the move begins, mm: how far from the aim it is expected to end
+        (the planned miss and the spread that turn and heading errors give it), plus what its
+        turns and moves cost.
     """
 
     turn_rad: float
     start: Point
     step_mm: float
-    miss_mm: float
+    cost_mm: float
 
 
 #: Grid of the turns :func:`best_pivot_move` tries, radians: none, and 3° apart up to 270°
@@ -195,18 +196,22 @@ def best_pivot_move(
     A move is judged by its expected miss: the planned miss, the swing's error (the pivot
     radius times ``turn_sd`` of the turn), and the step's error (its length times the heading
     error, ``heading_sd_rad`` plus ``turn_sd`` of the turn), added in quadrature; turning also
-    costs ``turn_cost_mm_per_rad`` per radian (its time, and a tie-breaker toward small turns).
-    One-move plans try every turn on a 3° grid (up to 270° either way, or none) with the step
-    ending nearest the aim. Two-move plans (unless ``two_moves`` is False) take a first turn on a 15° grid and a first step of
-    0-20 mm, then the best second move; the first move's errors add to the second's, and the
-    second move costs ``move_cost_mm`` more (the fix in between takes time). Two moves
-    are what an aim close to the robot needs: a Kilobot cannot back up, and a point within the
-    swing of a leg cannot be faced by a short turn of that side (the heading points out of the
-    circle the centre swings on), so the robot steps or swings away first and comes round.
+    costs ``turn_cost_mm_per_rad`` per radian (its time, and a tie-breaker toward small
+    turns). One-move plans try every turn on a 3° grid (up to 270° either way, or none) with
+    the step ending nearest the aim. Two-move plans (unless ``two_moves`` is False) take a
+    first turn on a 15° grid and a first step of 0-20 mm, then the best second move; the first
+    move's errors add to the second's, and the second move costs ``move_cost_mm`` more (the
+    fix in between takes time). Two moves are what an aim close to the robot needs: a Kilobot
+    cannot back up, and a point within the swing of a leg cannot be faced by a short turn of
+    that side (the heading points out of the circle the centre swings on), so the robot steps
+    or swings away first and comes round.
 
     A single move not expected to end nearer the aim than the robot is now is never chosen
-    (the caller is further from it than it wants to be); then a two-move plan is. Moves whose swing ends in, or whose step enters, a disc of ``radius_mm`` round one of
-    ``obstacles`` are left out unless every move is (the plan's second move is not checked).
+    (the caller is further from it than it wants to be); then a two-move plan is. Moves whose
+    swing ends in, or whose step enters, a disc of ``radius_mm`` round one of ``obstacles``,
+    or that end further than ``within_mm`` from one of them (and further than the robot is
+    from it now: the robots it must keep hearing), are left out unless every move is (the
+    plan's second move is not checked).
 
     Examples
     --------
@@ -223,13 +228,12 @@ def best_pivot_move(
     >>> round(math.degrees(move.turn_rad)), round(move.step_mm, 1)
     (96, 25.8)
 
-    An aim 6 mm behind cannot be faced by any turn of up to 270°, and going round costs more
-    than the 6 mm it would save with turns 10 % uncertain; with a learned turn rate (2 %) the
-    plan swings round:
+    An aim 6 mm behind cannot be faced by any turn of up to 270°: the plan swings round
+    (150° to the right, which carries the centre 32 mm away) and steps, to face it from there:
 
     >>> move = best_pivot_move((0.0, 0.0), (1.0, 0.0), (-6.0, 0.0), 20.0, turn_sd=0.02)
-    >>> move.miss_mm < 6.0, round(math.degrees(move.turn_rad))
-    (True, 0)
+    >>> round(math.degrees(move.turn_rad)), move.step_mm
+    (-150, 5.0)
     """
     pos = np.array([position], dtype=float)
     head = np.array([heading], dtype=float)
@@ -283,19 +287,19 @@ def best_pivot_move(
             (float(cost1[k]), float(turns1[k]), (float(sx[k]), float(sy[k])), float(step1[k]))
         ]
     candidates.sort(key=lambda m: m[0])
-    reach = max([within_mm, *(math.dist(position, c) for c in obstacles)])
-    for cost, turn, start, step in candidates:
+    reach = [max(within_mm, math.dist(position, c)) for c in obstacles]
+
+    def allowed(turn: float, start: Point, step: float) -> bool:
         h = _rotate(heading, turn)
         end = (start[0] + step * h[0], start[1] + step * h[1])
-        if not any(
-            math.hypot(start[0] - c_[0], start[1] - c_[1]) < radius_mm - 0.5
-            or segment_blocked(start, h, step, c_, radius_mm)
-            or max(math.dist(start, c_), math.dist(end, c_)) > reach
-            for c_ in obstacles
-        ):
-            break
-    else:
-        cost, turn, start, step = candidates[0]
+        return not any(
+            math.dist(start, c) < radius_mm - 0.5
+            or segment_blocked(start, h, step, c, radius_mm)
+            or max(math.dist(start, c), math.dist(end, c)) > r
+            for c, r in zip(obstacles, reach, strict=True)
+        )
+
+    cost, turn, start, step = next((m for m in candidates if allowed(*m[1:])), candidates[0])
     return PivotMove(0.0 if abs(turn) < 1e-12 else turn, start, step, cost)
 
 
