@@ -90,6 +90,7 @@ from protocols.pivot_turns import (
     best_pivot_move,
     handedness_vote,
     pivot_displacement,
+    swing_vote,
     turn_rate_ratio,
 )
 from protocols.turn_calibration import TurnCalibration
@@ -593,6 +594,8 @@ CLEAN_STEP_SHARE = 0.85
 #: differ by per-robot and per-motor errors of about 10 % each, rarely by more than 40 %;
 #: a ratio outside is a misread turn.
 RATE_RATIO_RANGE = (0.6, 1.6)
+#: Turns from this size on tell the handedness by their swing (:func:`swing_vote`), rad.
+MIN_SWING_RAD = math.radians(30.0)
 #: How far inside its hearing range the follower plans to stay, mm.
 HEARING_MARGIN_MM = 5.0
 TURN_SD_UNLEARNED = 0.1
@@ -812,9 +815,16 @@ class Follower(Kilobot):
             if predicted is not None:
                 self.position = predicted
             return
-        self.position, kind = fix
+        position, kind = fix
+        turned = self._last_turn_rad
+        if self.position is not None and self._heading_measured and abs(turned) >= MIN_SWING_RAD:
+            moved = (position[0] - self.position[0], position[1] - self.position[1])
+            verdict = swing_vote(self._heading, turned, moved)
+            if verdict is not None:
+                self._record_vote(verdict)
+        self.position = position
         self._fixed_after_turn = True
-        self.log("fix", x_mm=self.position[0], y_mm=self.position[1], kind=kind, after="turn")
+        self.log("fix", x_mm=position[0], y_mm=position[1], kind=kind, after="turn")
 
     def _average(self, readings: list[int]) -> float | None:
         """Mean reading in mm; ``None`` if unheard, ``inf`` if at the sensor's ceiling."""
@@ -1103,16 +1113,7 @@ class Follower(Kilobot):
             return
         verdict = handedness_vote(commanded, observed_floor_rad, observed_mirror_rad)
         if verdict is not None:
-            self._votes[verdict] += 1
-            mirrored = self._votes[True] > self._votes[False]
-            if mirrored != self.mirrored or sum(self._votes.values()) == 1:
-                self.mirrored = mirrored
-                self.log(
-                    "handedness",
-                    mirrored=mirrored,
-                    floor=self._votes[False],
-                    mirror=self._votes[True],
-                )
+            self._record_vote(verdict)
         if not (self.params.adapt_turns and self.handedness_settled):
             return
         if not math.radians(40) <= abs(commanded) <= math.radians(150):
@@ -1143,6 +1144,16 @@ class Follower(Kilobot):
             two_moves=False,
         )
         self._plan(move.turn_rad, move.step_mm, "retreat")
+
+    def _record_vote(self, mirrored_vote: bool) -> None:
+        """Count one conclusive reading of the handedness; the majority decides."""
+        self._votes[mirrored_vote] += 1
+        mirrored = self._votes[True] > self._votes[False]
+        if mirrored != self.mirrored or sum(self._votes.values()) == 1:
+            self.mirrored = mirrored
+            self.log(
+                "handedness", mirrored=mirrored, floor=self._votes[False], mirror=self._votes[True]
+            )
 
     def _approach_step(self, usable: dict[int, float]) -> None:
         """No fix yet: walk to reduce the distance to the nearest robot heard."""

@@ -29,6 +29,7 @@ __all__ = [
     "handedness_vote",
     "pivot_displacement",
     "segment_blocked",
+    "swing_vote",
     "turn_rate_ratio",
 ]
 
@@ -339,6 +340,56 @@ def handedness_vote(
     if abs(floor_err - mirror_err) < margin_rad:
         return None
     return mirror_err < floor_err
+
+
+#: Turn-rate ratios (real / commanded) :func:`swing_vote` fits a swing with.
+_SWING_RATIOS = tuple(0.6 + 0.05 * k for k in range(21))
+
+
+def swing_vote(
+    heading: Point,
+    physical_turn_rad: float,
+    moved_mm: Point,
+    *,
+    margin_mm: float = 5.0,
+    leg_mm: Point = PIVOT_LEG_MM,
+) -> bool | None:
+    """Whether the swing of a turn says the frame is a mirror image of the floor (``None``:
+    it cannot tell).
+
+    A physical left turn swings the centre about the left rear leg: seen in a floor-handed
+    frame that is a counter-clockwise swing about the frame's left leg, in a mirrored frame a
+    clockwise one about its right leg, whose displacements are mirror images about the
+    heading (a quarter turn: 23 mm to one side or the other). ``moved_mm`` (the fix after the
+    turn minus the one before) is compared with both, each at the real turn that fits best
+    (0.6 to 1.6 times the commanded one: the rate is not known yet). The verdict needs the
+    better fit to be ``margin_mm`` better than the other and close (within 4 mm plus 15 % of
+    the swing: a robot that touched a body while turning swung differently).
+
+    Examples
+    --------
+    A quarter turn to the left, heading +x in the frame, seen in a floor-handed frame and in
+    a mirrored one:
+
+    >>> floor = pivot_displacement((1.0, 0.0), math.pi / 2)
+    >>> swing_vote((1.0, 0.0), math.pi / 2, floor)
+    False
+    >>> swing_vote((1.0, 0.0), math.pi / 2, (floor[0], -floor[1]))
+    True
+    >>> swing_vote((1.0, 0.0), math.pi / 2, (floor[0], 0.0)) is None
+    True
+    """
+    misfit = {}
+    for mirrored in (False, True):
+        frame_turn = -physical_turn_rad if mirrored else physical_turn_rad
+        misfit[mirrored] = min(
+            math.dist(moved_mm, pivot_displacement(heading, frame_turn * g, leg_mm))
+            for g in _SWING_RATIOS
+        )
+    best = min(misfit.values())
+    if abs(misfit[True] - misfit[False]) < margin_mm or best > 4.0 + 0.15 * math.hypot(*moved_mm):
+        return None
+    return misfit[True] < misfit[False]
 
 
 def turn_rate_ratio(commanded_rad: float, seen_physical_rad: float) -> float:
