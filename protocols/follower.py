@@ -90,6 +90,7 @@ from protocols.pivot_turns import (
     best_pivot_move,
     handedness_vote,
     pivot_displacement,
+    swing_arc,
     swing_vote,
     turn_rate_ratio,
 )
@@ -978,8 +979,8 @@ class Follower(Kilobot):
             step = self._short_step_mm(to_target)
             alpha = self._probe_turn(position, heading, alpha, step, obstacles, radius)
             mode = "probe"
-        if abs(alpha) < math.radians(MIN_TURN_DEG):
-            alpha = 0.0
+        if abs(alpha) < math.radians(MIN_TURN_DEG) and step >= 1.0:
+            alpha = 0.0  # a turn alone is kept, however small: it is the whole move
         # α is in the frame; the pivot is physical, and flips in a mirrored frame.
         physical = abs(alpha) * frame_direction(alpha, self.mirrored)
         self._plan(physical, step, mode)
@@ -1038,11 +1039,13 @@ class Follower(Kilobot):
         reach = max([self.hearing_mm - HEARING_MARGIN_MM, *(_dist(position, c) for c in obstacles)])
 
         def fits(turn: float) -> bool:
-            start = _moved(position, pivot_displacement(heading, turn))
+            arc = swing_arc(position, heading, turn)
+            start = arc[-1]
             h = rotate(heading, turn)
             end = (start[0] + step_mm * h[0], start[1] + step_mm * h[1])
             return not any(
-                _segment_blocked(start, h, step_mm, c, radius_mm)
+                min(_dist(p, c) for p in arc) < radius_mm - 0.5
+                or _segment_blocked(start, h, step_mm, c, radius_mm)
                 or max(_dist(start, c), _dist(end, c)) > reach
                 for c in obstacles
             )
@@ -1063,6 +1066,9 @@ class Follower(Kilobot):
         # A step that went less far than timed touched a body and slid: its direction is not
         # the heading, so it tells nothing about the turn before it.
         clean = expected * CLEAN_STEP_SHARE
+        # The step is measured by itself when a fix followed the turn (or there was none);
+        # else the turn's swing, taken out by dead reckoning, blurs it.
+        direct = self._fixed_after_turn or not self._last_turn_rad
         if self._fixed_after_turn:
             self._fixed_after_turn = False
             turned = self._heading is not None and self._heading_measured and self._last_turn_rad
@@ -1087,7 +1093,7 @@ class Follower(Kilobot):
             self._heading_measured = False
         elif moved >= max(3.0, 0.4 * expected):
             measured = (dx / moved, dy / moved)
-            if moved >= 0.7 * expected and step_s > 0:
+            if direct and 0.7 * expected <= moved <= 1.5 * expected and step_s > 0:
                 self._speed_samples.append((moved, step_s))
                 total_mm = sum(m for m, _ in self._speed_samples)
                 total_s = sum(s for _, s in self._speed_samples)

@@ -29,6 +29,7 @@ __all__ = [
     "handedness_vote",
     "pivot_displacement",
     "segment_blocked",
+    "swing_arc",
     "swing_vote",
     "turn_rate_ratio",
 ]
@@ -84,6 +85,32 @@ def pivot_displacement(heading: Point, turn_rad: float, leg_mm: Point | None = N
     ox, oy = forward * ux - side * left * uy, forward * uy + side * left * ux
     rx, ry = _rotate((ox, oy), turn_rad)
     return (ox - rx, oy - ry)
+
+
+#: Room the planner keeps between a swing and another body, mm (beyond ``radius_mm``): a
+#: turn's real rate and the heading are a few per cent and degrees off, so the real arc
+#: strays a few mm from the planned one, and a swing that touches a body slides along it.
+SWING_MARGIN_MM = 3.0
+
+
+def swing_arc(
+    position: Point, heading: Point, turn_rad: float, leg_mm: Point = PIVOT_LEG_MM
+) -> list[Point]:
+    """Points along the arc a turn swings the centre on, every 30° or less, the end included
+    (the arc strays under 0.6 mm from their chords), frame mm. A half turn to the left carries
+    the centre up to 30 mm to the left:
+
+    >>> [tuple(round(c, 1) for c in p) for p in swing_arc((0.0, 0.0), (1.0, 0.0), math.pi)]
+    [(0.0, 0.0), (5.4, 6.6), (6.8, 15.0), (3.9, 23.0), (-2.7, 28.4), (-11.2, 29.9), (-19.2, 26.9)]
+    """
+    n = max(1, math.ceil(abs(turn_rad) / math.radians(30.0)))
+    return [
+        (
+            position[0] + pivot_displacement(heading, turn_rad * k / n, leg_mm)[0],
+            position[1] + pivot_displacement(heading, turn_rad * k / n, leg_mm)[1],
+        )
+        for k in range(n + 1)
+    ]
 
 
 class PivotMove(NamedTuple):
@@ -293,8 +320,9 @@ def best_pivot_move(
     def allowed(turn: float, start: Point, step: float) -> bool:
         h = _rotate(heading, turn)
         end = (start[0] + step * h[0], start[1] + step * h[1])
+        arc = swing_arc(position, heading, turn, leg_mm)
         return not any(
-            math.dist(start, c) < radius_mm - 0.5
+            min(math.dist(p, c) for p in arc[1:]) < radius_mm + SWING_MARGIN_MM
             or segment_blocked(start, h, step, c, radius_mm)
             or max(math.dist(start, c), math.dist(end, c)) > r
             for c, r in zip(obstacles, reach, strict=True)
