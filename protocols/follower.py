@@ -719,6 +719,7 @@ class Follower(Kilobot):
         self._heading: Point | None = None
         self._heading_measured = False
         self._heading_chord_mm = 0.0  # the step the heading was measured from
+        self._last_plan_final = True  # else the next move is the second of a two-move plan
         self._last_turn_rad = 0.0  # physical, counter-clockwise positive, as intended
         self._last_step_mm = 0.0
         self._last_step_ticks = 0
@@ -973,12 +974,14 @@ class Follower(Kilobot):
             c = self.params
             move = self._aim(position, heading, target, max(c.step_mm, c.step_fraction * to_target))
         alpha, step = move.turn_rad, move.step_mm
+        self._last_plan_final = move.final
         mode = "goal"
         if not self.handedness_settled:
             # Handedness not settled: make this turn big enough to tell, and the step short.
             step = self._short_step_mm(to_target)
             alpha = self._probe_turn(position, heading, alpha, step, obstacles, radius)
             mode = "probe"
+            self._last_plan_final = True
         if abs(alpha) < math.radians(MIN_TURN_DEG) and step >= 1.0:
             alpha = 0.0  # a turn alone is kept, however small: it is the whole move
         # α is in the frame; the pivot is physical, and flips in a mirrored frame.
@@ -1008,6 +1011,7 @@ class Follower(Kilobot):
             obstacles=list(self._anchors().values()),
             radius_mm=self.body_mm + self.params.clearance_mm,
             within_mm=self.hearing_mm - HEARING_MARGIN_MM,
+            two_moves=self._last_plan_final,
         )
 
     def _short_step_mm(self, to_target_mm: float) -> float:
@@ -1183,6 +1187,8 @@ class Follower(Kilobot):
 
     def _plan(self, physical_turn_rad: float, step_mm: float, mode: str) -> None:
         """Start the move: a physical pivot (counter-clockwise positive), then a step."""
+        if mode != "goal":
+            self._last_plan_final = True  # any other move ends a two-move plan
         tps = self.ticks_per_s
         gain = self.turn_gains[1 if physical_turn_rad > 0 else -1]
         turn_s = self.calibration.turn_time_s(physical_turn_rad / gain)

@@ -128,12 +128,17 @@ class PivotMove(NamedTuple):
         The cost of the plan the move begins, mm: how far from the aim it is expected to end
         (the planned miss and the spread that turn and heading errors give it), plus what its
         turns and moves cost.
+    final : bool
+        Whether the move is the whole plan; else it is the first of two, and the caller should
+        make the second (a one-move plan from where it ends) rather than plan two again: a
+        first move re-planned every time can keep the robot stepping round the aim.
     """
 
     turn_rad: float
     start: Point
     step_mm: float
     cost_mm: float
+    final: bool = True
 
 
 #: Grid of the turns :func:`best_pivot_move` tries, radians: none, and 3° apart up to 270°
@@ -301,23 +306,23 @@ def best_pivot_move(
     # whose first move does nothing is the one-move plan.
     here = math.dist(position, aim)
     candidates = [
-        (float(cost1[k]), float(turns1[k]), (float(sx[k]), float(sy[k])), float(step1[k]))
+        (float(cost1[k]), float(turns1[k]), (float(sx[k]), float(sy[k])), float(step1[k]), True)
         for k in range(len(cost1))
         if cost1[k] < here
     ] + [
-        (float(cost2[k]), float(t1[k]), (float(ax[k]), float(ay[k])), float(s1[k]))
+        (float(cost2[k]), float(t1[k]), (float(ax[k]), float(ay[k])), float(s1[k]), False)
         for k in range(len(t1))
         if two_moves and (t1[k] != 0.0 or s1[k] > 0.0)
     ]
     if not candidates:  # one move only, and none gets nearer: the nearest it gets
         k = int(np.argmin(cost1))
         candidates = [
-            (float(cost1[k]), float(turns1[k]), (float(sx[k]), float(sy[k])), float(step1[k]))
+            (float(cost1[k]), float(turns1[k]), (float(sx[k]), float(sy[k])), float(step1[k]), True)
         ]
     candidates.sort(key=lambda m: m[0])
     reach = [max(within_mm, math.dist(position, c)) for c in obstacles]
 
-    def allowed(turn: float, start: Point, step: float) -> bool:
+    def allowed(turn: float, start: Point, step: float, _final: bool) -> bool:
         h = _rotate(heading, turn)
         end = (start[0] + step * h[0], start[1] + step * h[1])
         arc = swing_arc(position, heading, turn, leg_mm)
@@ -328,8 +333,8 @@ def best_pivot_move(
             for c, r in zip(obstacles, reach, strict=True)
         )
 
-    cost, turn, start, step = next((m for m in candidates if allowed(*m[1:])), candidates[0])
-    return PivotMove(0.0 if abs(turn) < 1e-12 else turn, start, step, cost)
+    cost, turn, start, step, final = next((m for m in candidates if allowed(*m[1:])), candidates[0])
+    return PivotMove(0.0 if abs(turn) < 1e-12 else turn, start, step, cost, final)
 
 
 def handedness_vote(
