@@ -597,6 +597,10 @@ CLEAN_STEP_SHARE = 0.85
 RATE_RATIO_RANGE = (0.6, 1.6)
 #: Turns from this size on tell the handedness by their swing (:func:`swing_vote`), rad.
 MIN_SWING_RAD = math.radians(30.0)
+#: A robot unheard through a whole listening window (several of its messages lost) is
+#: taken to be at least this much less than the hearing range away, mm: a two-distance fix
+#: that puts it nearer is the mirror candidate.
+UNHEARD_MARGIN_MM = 10.0
 #: How far inside its hearing range the follower plans to stay, mm.
 HEARING_MARGIN_MM = 5.0
 TURN_SD_UNLEARNED = 0.1
@@ -859,7 +863,9 @@ class Follower(Kilobot):
         (k,) = set(anchors) - {i, j}
         if distances[k] is not None:  # saturated: at least the ceiling away from robot k
             floor_mm = self.saturation_mm - 3
-            candidates = [p for p in candidates if _dist(p, anchors[k]) >= floor_mm]
+        else:  # unheard for a whole window: most likely out of hearing
+            floor_mm = self.hearing_mm - UNHEARD_MARGIN_MM
+        candidates = [p for p in candidates if _dist(p, anchors[k]) >= floor_mm]
         if not candidates:
             return None
         # The dead-reckoned position picks the intersection; while the handedness is open it
