@@ -240,7 +240,8 @@ def best_pivot_move(
     or swings away first and comes round.
 
     A single move not expected to end nearer the aim than the robot is now is never chosen
-    (the caller is further from it than it wants to be); then a two-move plan is. Moves whose
+    (the caller is further from it than it wants to be); then a two-move plan is, even when
+    ``two_moves`` is False. Moves whose
     swing ends in, or whose step enters, a disc of ``radius_mm`` round one of ``obstacles``,
     or that end further than ``within_mm`` from one of them (and further than the robot is
     from it now: the robots it must keep hearing), are left out unless every move is (the
@@ -305,20 +306,18 @@ def best_pivot_move(
     # expected to end nearer is no plan (staying put, or a wiggle in place); a two-move plan
     # whose first move does nothing is the one-move plan.
     here = math.dist(position, aim)
-    candidates = [
+    ones = [
         (float(cost1[k]), float(turns1[k]), (float(sx[k]), float(sy[k])), float(step1[k]), True)
         for k in range(len(cost1))
-        if cost1[k] < here
-    ] + [
+    ]
+    twos = [
         (float(cost2[k]), float(t1[k]), (float(ax[k]), float(ay[k])), float(s1[k]), False)
         for k in range(len(t1))
-        if two_moves and (t1[k] != 0.0 or s1[k] > 0.0)
+        if t1[k] != 0.0 or s1[k] > 0.0
     ]
-    if not candidates:  # one move only, and none gets nearer: the nearest it gets
-        k = int(np.argmin(cost1))
-        candidates = [
-            (float(cost1[k]), float(turns1[k]), (float(sx[k]), float(sy[k])), float(step1[k]), True)
-        ]
+    candidates = [m for m in ones if m[0] < here] + (twos if two_moves else [])
+    if not candidates:  # no single move gets nearer: two moves after all
+        candidates = twos
     candidates.sort(key=lambda m: m[0])
     reach = [max(within_mm, math.dist(position, c)) for c in obstacles]
 
