@@ -627,7 +627,9 @@ class FollowerParams:
     handedness: Literal["random", "left", "right"] = param(
         "random", doc="robot 3 left/right of the 1->2 axis (right: mirrored frame)"
     )
-    start_min_mm: float = param(0.0, lo=0.0, hi=10_000.0, doc="follower start: min from goal")
+    start_min_mm: float = param(
+        20.0, lo=0.0, hi=10_000.0, doc="follower start: min from goal (20: it has to walk)"
+    )
     start_max_mm: float = param(0.0, lo=0.0, hi=10_000.0, doc="follower start: max (0: range)")
     direct_start: bool = param(True, doc="generated start has a passable straight line to goal")
     message: Literal["byte", "wide"] = param(

@@ -249,6 +249,14 @@ def test_reaches_the_goal_from_generated_starts(seed, handedness):
         assert s["mirrored_frame"] == s["mirrored_frame_true"]
 
 
+def test_the_default_run_walks_to_the_goal():
+    """``kilonet run follower`` (seed 1, defaults) starts far enough to have to walk."""
+    s = _run()
+    assert s["straight_line_mm"] >= 20.0
+    assert s["steps"] >= 3 and s["path_length_mm"] >= s["straight_line_mm"] - 8.0
+    assert s["reached"] and s["final_distance_mm"] < 8.0
+
+
 @pytest.mark.parametrize("handedness", ["left", "right"])
 def test_mirrored_frame_is_detected(handedness):
     # Starts at least 20 mm from the goal, so the follower has to turn and step.
