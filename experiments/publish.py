@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from experiments import gcs_measured
+from experiments import follower_measured, gcs_measured
 
 __all__ = [
     "BLOCKS",
@@ -299,6 +299,10 @@ BLOCKS: dict[str, Block] = {
     "gcs-error-by-distance": _gcs_page(gcs_measured.error_by_distance_block),
     "gcs-merging-choices": _gcs_page(gcs_measured.merging_choices_block),
     "gcs-windows": _gcs_page(gcs_measured.windows_block),
+    # docs/follower.md: experiments/follower_measured.py
+    "follower-success": Block(
+        "docs/follower.md", lambda _context: follower_measured.success_block()
+    ),
 }
 
 

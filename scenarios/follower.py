@@ -9,13 +9,13 @@ robots: it listens, makes its small first move and listens again for fresh messa
 
 The generated placements draw the frame's sides from ``[side_min_mm, side_max_mm]``, put robot 3
 on the ``handedness`` side of the 1→2 axis (``right`` makes the follower's frame a mirror image
-of the floor) and the follower at ``[start_min_mm, start_max_mm]`` from the goal (``start_max_mm``
-0: anywhere it hears all three), not touching any robot. ``start_min_mm`` defaults to 20 mm: a
-follower that starts within a few millimetres of the goal has nothing to show (the default run
-of seed 1 used to start 2.6 mm from it and take no step). With ``direct_start`` (default) the straight line from
-the start to the goal must be passable (clear of the robots' bodies and of line-of-sight shadows):
-with the hardware range the follower then starts beside an edge long enough to pass or inside
-the triangle, never behind a robot.
+of the floor) and the follower at ``[start_min_mm, start_max_mm]`` from the goal
+(``start_max_mm`` 0: anywhere it hears all three), not touching any robot. ``start_min_mm``
+defaults to 20 mm: a follower that starts within a few millimetres of the goal has nothing to
+show (the default run of seed 1 used to start 2.6 mm from it and take no step). With
+``direct_start`` (default) the straight line from the start to the goal must be passable (clear
+of the robots' bodies and of line-of-sight shadows): with the hardware range the follower then
+starts beside an edge long enough to pass or inside the triangle, never behind a robot.
 
 The follower turns with a linear calibration ``t = f(angle)`` fitted by :func:`calibrate_turns`
 on another simulated robot (``calibration_seed``), as the seed's author timed one Kilobot by
