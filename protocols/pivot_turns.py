@@ -315,7 +315,9 @@ def best_pivot_move(
         for k in range(len(t1))
         if t1[k] != 0.0 or s1[k] > 0.0
     ]
-    candidates = [m for m in ones if m[0] < here] + (twos if two_moves else [])
+    # Judged by the miss alone (the turn's cost is time, not distance).
+    nearer = [m for m in ones if m[0] - turn_cost_mm_per_rad * abs(m[1]) < here]
+    candidates = nearer + (twos if two_moves else [])
     if not candidates:  # no single move gets nearer: two moves after all
         candidates = twos
     candidates.sort(key=lambda m: m[0])
