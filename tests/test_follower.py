@@ -300,13 +300,20 @@ def test_goal_behind_the_robot():
 
 
 def test_longer_range_what_if():
-    s = _run(
+    result = run(
+        SCENARIO,
         {"medium.range_mm": 300, "follower.start_min_mm": 200, "follower.start_max_mm": 250},
         seed=2,
     )
+    s = result.summary
     assert s["reached"] and s["final_distance_mm"] < 10.0
     assert 200 <= s["straight_line_mm"] <= 250
-    assert s["path_length_mm"] < 1.5 * s["straight_line_mm"]
+    # The walk is nearly straight. A pivot turn swings the centre round a rear leg (16.5 mm
+    # out), so the path also holds an arc of 16.5 mm per radian turned, which turning in place
+    # did not: that part is the turns', not the walk's.
+    heading = np.unwrap(trajectory(result.sim)["heading_rad"].to_numpy())
+    swings_mm = 16.5 * np.abs(np.diff(heading)).sum()
+    assert s["path_length_mm"] - swings_mm < 1.5 * s["straight_line_mm"]
 
 
 def test_saturated_distances_walk_to_the_nearest_robot_first():
