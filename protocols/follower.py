@@ -40,37 +40,45 @@ right of the 1→2 axis the frame is a mirror image of the floor.
 The follower (:class:`Follower`) transmits nothing. It listens until it has fresh readings
 (received after its motors stopped) from all three robots and robot 3's flagged frame, then
 trilaterates with the seed's formulas (:func:`kilonet.geometry.trilaterate_linear`), takes the
-goal to be the centroid of robots 1–3 and steps: a small first move gives its heading u; then
-it turns by α = atan2(u₁v₂ − u₂v₁, u₁v₁ + u₂v₂) toward the goal direction v for ``t = f(α)``
-from its linear turn calibration, takes a short step, and re-trilaterates, until it is within
-``tolerance_mm`` of the goal. What the seed leaves open is handled as follows:
+goal to be the centroid of robots 1–3 and steps: a small first move gives its heading u
+(the chord between two fixes); then it turns toward the goal and steps, and re-trilaterates,
+until it is within ``tolerance_mm`` of the goal. A turn runs one motor for ``t = f(angle)`` from
+its linear turn calibration and pivots the body about the rear leg on that side, so the centre
+swings on an arc (:mod:`protocols.pivot_turns`): the seed's α = atan2(u₁v₂ − u₂v₁, u₁v₁ + u₂v₂)
+is only where planning starts. What the seed leaves open is handled as follows:
 
-* **Mirror frames.** In a mirrored frame a physical left turn shows up as a right turn. The
-  follower starts assuming a floor-handed frame and checks every large turn: it compares the
-  rotation between its step vectors before and after the turn with the turn it commanded. The
-  first turn of a run is a probe (at least ``probe_deg``, with a short step) so that the
-  question is settled early; the verdict is a majority over all conclusive turns.
-* **Goal behind the robot** (|α| near 180°): turning either way is right; the probe rule
-  turns 90° first, and a long turn is followed by a short step, so calibration error in a
-  long turn costs little.
+* **Planning with the swing.** Every move is the next move of the plan of at most two
+  (turn, step) moves expected to end nearest the aim, the swing and the robot's own heading
+  and turn errors included (:func:`protocols.pivot_turns.best_pivot_move`); the second move of
+  a two-move plan is made, not planned again. Swings and steps keep clear of the frame robots'
+  bodies and within ``hearing_mm`` of all three.
+* **Mirror frames.** In a mirrored frame a physical left turn shows up as a right turn about
+  the frame's right leg. The follower starts assuming a floor-handed frame; every large turn
+  votes twice: by its swing (the fix after it minus the one before,
+  :func:`protocols.pivot_turns.swing_vote`) and by the rotation between the step directions
+  before and after it. Until one handedness leads, every turn is a probe of at least
+  ``probe_deg`` with a short step.
 * **Outside the triangle.** The robot knows where robots 1–3 stand (their coordinates) and
-  that bodies are 33 mm discs; it aims along the straight line to the goal when that line is
-  clear of their bodies and otherwise detours around them on a consistent side. A goal too
+  that bodies are 33 mm discs; it aims at the goal when the straight line is clear of their
+  bodies and otherwise at a waypoint on a detour round them, on a consistent side. A goal too
   close to a robot to be reached is moved out to contact distance.
 * **Message loss and silence.** Readings taken while moving or before the current listening
   window are never used. A robot unheard for ``listen_timeout_s`` is left out: two distances
-  and the dead-reckoned previous position pick one of the two circle intersections. A distance
-  at the sensor's ceiling (``saturation_mm``, kilolib's 255) is "at least that far": it only
-  rules out candidates. A step after which it cannot locate itself at all (out of range, or in
-  a body's shadow) is undone and a detour taken the other way round. When that does not help,
-  or a distance is saturated, the follower walks to reduce its nearest distance (measuring the
-  bearing from how that distance changes) until it can locate itself again. Before its first
-  move it only waits. After ``give_up_s`` of silence or ``max_steps`` steps it gives up.
-* **Calibration error.** The follower learns its real speed from its step lengths and, with
-  ``adapt_turns``, its real turn rate from conclusive turns.
+  and the dead-reckoned previous position pick one of the two circle intersections, never one
+  within hearing of the robot unheard, and only one that both handedness agree on while the
+  handedness is open. A distance at the sensor's ceiling (``saturation_mm``, kilolib's 255) is
+  "at least that far": it only rules out candidates. A step after which it cannot locate
+  itself at all is undone: the way back to the last fix is planned in the robot's own body
+  frame. When that does not help, or a distance is saturated, the follower walks to reduce its
+  nearest distance (measuring the bearing from how that distance changes) until it can locate
+  itself again. Before its first move it only waits. After ``give_up_s`` of silence or
+  ``max_steps`` steps it gives up.
+* **Calibration error.** The follower learns its real speed from its free steps and, with
+  ``adapt_turns``, the real rate of each motor from conclusive turns (each motor has its own
+  curve and stored value).
 
 Events logged (``self.log``): ``frame`` (robots 2 and 3), ``fix`` (every position estimate, in
-the follower's frame), ``move``, ``handedness``, ``reached``, ``gave_up``.
+the follower's frame), ``move``, ``handedness``, ``turn_rate``, ``reached``, ``gave_up``.
 """
 
 from __future__ import annotations
@@ -90,6 +98,7 @@ from protocols.pivot_turns import (
     best_pivot_move,
     handedness_vote,
     pivot_displacement,
+    segment_blocked,
     swing_arc,
     swing_vote,
     turn_rate_ratio,
@@ -325,25 +334,6 @@ def circle_intersections(c1: Point, r1: float, c2: Point, r2: float) -> list[Poi
     return [(mx - h * ey, my + h * ex), (mx + h * ey, my - h * ex)]
 
 
-def _segment_blocked(
-    p: Point, direction: Point, length_mm: float, centre: Point, radius_mm: float
-) -> bool:
-    """Whether moving ``length_mm`` from ``p`` along unit ``direction`` enters the disc.
-
-    A start already inside the disc (an estimate off by noise) only blocks moves that go
-    noticeably deeper, so a robot at contact can always slide along or back out.
-    """
-    wx, wy = centre[0] - p[0], centre[1] - p[1]
-    along = max(0.0, min(length_mm, wx * direction[0] + wy * direction[1]))
-    closest = math.hypot(
-        p[0] + along * direction[0] - centre[0], p[1] + along * direction[1] - centre[1]
-    )
-    start = math.hypot(wx, wy)
-    if start < radius_mm:
-        return closest < start - 0.5
-    return closest < radius_mm
-
-
 def reachable_goal(goal: Point, obstacles: list[Point], radius_mm: float) -> Point:
     """The goal moved out of any obstacle disc it lies in (to the disc's rim), mm.
 
@@ -403,13 +393,13 @@ def plan_direction(
     if dist == 0:
         return (1.0, 0.0), 0
     goal_dir = (gx / dist, gy / dist)
-    if not any(_segment_blocked(position, goal_dir, dist, c, radius_mm) for c in obstacles):
+    if not any(segment_blocked(position, goal_dir, dist, c, radius_mm) for c in obstacles):
         return goal_dir, 0
     look = min(dist, step_mm)
 
     def clear(s: int, k: int) -> Point | None:
         d = rotate(goal_dir, s * math.radians(10 * k))
-        blocked = any(_segment_blocked(position, d, look, c, radius_mm) for c in obstacles)
+        blocked = any(segment_blocked(position, d, look, c, radius_mm) for c in obstacles)
         return None if blocked else d
 
     def closeness(d: Point) -> float:
@@ -1057,7 +1047,7 @@ class Follower(Kilobot):
             end = (start[0] + step_mm * h[0], start[1] + step_mm * h[1])
             return not any(
                 min(_dist(p, c) for p in arc) < radius_mm - 0.5
-                or _segment_blocked(start, h, step_mm, c, radius_mm)
+                or segment_blocked(start, h, step_mm, c, radius_mm)
                 or max(_dist(start, c), _dist(end, c)) > reach
                 for c in obstacles
             )
@@ -1244,10 +1234,6 @@ class Follower(Kilobot):
         self.outcome = outcome
         self.phase = "done"
         self.log(outcome, steps=self.steps, mirrored=self.mirrored, **fields)
-
-
-def _moved(p: Point, by: Point) -> Point:
-    return (p[0] + by[0], p[1] + by[1])
 
 
 def _dist(a: Point, b: Point) -> float:
