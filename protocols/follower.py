@@ -100,6 +100,7 @@ from protocols.pivot_turns import (
     pivot_displacement,
     segment_blocked,
     swing_arc,
+    swing_turn_rad,
     swing_vote,
     turn_rate_ratio,
 )
@@ -585,6 +586,9 @@ CLEAN_STEP_SHARE = 0.85
 #: differ by per-robot and per-motor errors of about 10 % each, rarely by more than 40 %;
 #: a ratio outside is a misread turn.
 RATE_RATIO_RANGE = (0.6, 1.6)
+#: Turns whose swing's length tells the rate (:func:`swing_turn_rad`), rad: from 40°, where
+#: the swing is 11 mm, to 140°, beyond which the chord hardly grows.
+SWING_RATE_TURNS = (math.radians(40.0), math.radians(140.0))
 #: Turns from this size on tell the handedness by their swing (:func:`swing_vote`), rad.
 MIN_SWING_RAD = math.radians(30.0)
 #: A robot unheard through a whole listening window (several of its messages lost) is
@@ -820,6 +824,10 @@ class Follower(Kilobot):
             verdict = swing_vote(self._heading, turned, moved)
             if verdict is not None:
                 self._record_vote(verdict)
+        if self.position is not None and SWING_RATE_TURNS[0] <= abs(turned) <= SWING_RATE_TURNS[1]:
+            # The swing's length tells how far the turn went, whatever the heading.
+            moved = (position[0] - self.position[0], position[1] - self.position[1])
+            self._learn_rate(turned, swing_turn_rad(moved) * math.copysign(1.0, turned))
         self.position = position
         self._fixed_after_turn = True
         self.log("fix", x_mm=position[0], y_mm=position[1], kind=kind, after="turn")
@@ -1127,10 +1135,16 @@ class Follower(Kilobot):
         if not math.radians(40) <= abs(commanded) <= math.radians(150):
             return
         seen = -observed_mirror_rad if self.mirrored else observed_floor_rad
+        self._learn_rate(commanded, seen)
+
+    def _learn_rate(self, commanded_rad: float, seen_physical_rad: float) -> None:
+        """One sample of the turning motor's real rate over the calibrated one."""
+        if not self.params.adapt_turns:
+            return
         # The turn was timed for commanded / gain, so the real rate is ratio × gain.
-        ratio = turn_rate_ratio(commanded, seen) * self._last_turn_gain
+        ratio = turn_rate_ratio(commanded_rad, seen_physical_rad) * self._last_turn_gain
         if RATE_RATIO_RANGE[0] <= ratio <= RATE_RATIO_RANGE[1]:  # else a misread turn
-            side = 1 if commanded > 0 else -1
+            side = 1 if commanded_rad > 0 else -1
             self._rate_samples[side].append(ratio)
             self.turn_gains[side] = median(self._rate_samples[side])
             self.log("turn_rate", side=side, ratio=ratio, gain=self.turn_gains[side])
