@@ -1155,6 +1155,8 @@ class Follower(Kilobot):
         counter-clockwise = physical left), the move it made is known, and so is the way back
         (:func:`best_pivot_move`, one move)."""
         turn = self._last_turn_rad
+        if turn:  # as far as it really went, by what the robot has learned since
+            turn *= self.turn_gains[1 if turn > 0 else -1] / self._last_turn_gain
         step = self._last_step_ticks / self.ticks_per_s * self.speed_mm_s
         dx, dy = pivot_displacement((1.0, 0.0), turn)
         here = (dx + step * math.cos(turn), dy + step * math.sin(turn))
