@@ -14,6 +14,7 @@ from protocols.pivot_turns import (
     pivot_displacement,
     segment_blocked,
     swing_arc,
+    swing_turn_rad,
     swing_vote,
     turn_rate_ratio,
 )
@@ -110,3 +111,12 @@ def test_handedness_vote_and_turn_rate_ratio():
     assert handedness_vote(math.radians(15), 0.3, 0.3) is None  # too small to tell
     assert turn_rate_ratio(ninety, math.radians(72)) == pytest.approx(0.8)
     assert turn_rate_ratio(math.radians(-170), math.radians(175)) == pytest.approx(185 / 170)
+
+
+@pytest.mark.parametrize("turn_deg", [40.0, 90.0, -135.0])
+def test_swing_length_tells_the_turn_whatever_the_heading(turn_deg):
+    for heading_rad in (0.0, 2.0, -2.5):
+        heading = (math.cos(heading_rad), math.sin(heading_rad))
+        moved = pivot_displacement(heading, math.radians(turn_deg))
+        assert math.degrees(swing_turn_rad(moved)) == pytest.approx(abs(turn_deg))
+    assert swing_turn_rad((40.0, 0.0)) == pytest.approx(math.pi)  # beyond the longest chord
