@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from experiments import gcs_measured
+from experiments import follower_measured, gcs_measured
 
 __all__ = [
     "BLOCKS",
@@ -383,6 +383,10 @@ BLOCKS: dict[str, Block] = {
     "localize-lattice": Block("docs/localize.md", _localization_block(_localize_lattice)),
     "localize-random": Block("docs/localize.md", _localization_block(_localize_random)),
     "localize-compared": Block("docs/localize.md", _localization_block(_localize_compared)),
+    # docs/follower.md: experiments/follower_measured.py
+    "follower-success": Block(
+        "docs/follower.md", lambda _context: follower_measured.success_block()
+    ),
 }
 
 

@@ -40,37 +40,45 @@ right of the 1→2 axis the frame is a mirror image of the floor.
 The follower (:class:`Follower`) transmits nothing. It listens until it has fresh readings
 (received after its motors stopped) from all three robots and robot 3's flagged frame, then
 trilaterates with the seed's formulas (:func:`kilonet.geometry.trilaterate_linear`), takes the
-goal to be the centroid of robots 1–3 and steps: a small first move gives its heading u; then
-it turns by α = atan2(u₁v₂ − u₂v₁, u₁v₁ + u₂v₂) toward the goal direction v for ``t = f(α)``
-from its linear turn calibration, takes a short step, and re-trilaterates, until it is within
-``tolerance_mm`` of the goal. What the seed leaves open is handled as follows:
+goal to be the centroid of robots 1–3 and steps: a small first move gives its heading u
+(the chord between two fixes); then it turns toward the goal and steps, and re-trilaterates,
+until it is within ``tolerance_mm`` of the goal. A turn runs one motor for ``t = f(angle)`` from
+its linear turn calibration and pivots the body about the rear leg on that side, so the centre
+swings on an arc (:mod:`protocols.pivot_turns`): the seed's α = atan2(u₁v₂ − u₂v₁, u₁v₁ + u₂v₂)
+is only where planning starts. What the seed leaves open is handled as follows:
 
-* **Mirror frames.** In a mirrored frame a physical left turn shows up as a right turn. The
-  follower starts assuming a floor-handed frame and checks every large turn: it compares the
-  rotation between its step vectors before and after the turn with the turn it commanded. The
-  first turn of a run is a probe (at least ``probe_deg``, with a short step) so that the
-  question is settled early; the verdict is a majority over all conclusive turns.
-* **Goal behind the robot** (|α| near 180°): turning either way is right; the probe rule
-  turns 90° first, and a long turn is followed by a short step, so calibration error in a
-  long turn costs little.
+* **Planning with the swing.** Every move is the next move of the plan of at most two
+  (turn, step) moves expected to end nearest the aim, the swing and the robot's own heading
+  and turn errors included (:func:`protocols.pivot_turns.best_pivot_move`); the second move of
+  a two-move plan is made, not planned again. Swings and steps keep clear of the frame robots'
+  bodies and within ``hearing_mm`` of all three.
+* **Mirror frames.** In a mirrored frame a physical left turn shows up as a right turn about
+  the frame's right leg. The follower starts assuming a floor-handed frame; every large turn
+  votes twice: by its swing (the fix after it minus the one before,
+  :func:`protocols.pivot_turns.swing_vote`) and by the rotation between the step directions
+  before and after it. Until one handedness leads, every turn is a probe of at least
+  ``probe_deg`` with a short step.
 * **Outside the triangle.** The robot knows where robots 1–3 stand (their coordinates) and
-  that bodies are 33 mm discs; it aims along the straight line to the goal when that line is
-  clear of their bodies and otherwise detours around them on a consistent side. A goal too
+  that bodies are 33 mm discs; it aims at the goal when the straight line is clear of their
+  bodies and otherwise at a waypoint on a detour round them, on a consistent side. A goal too
   close to a robot to be reached is moved out to contact distance.
 * **Message loss and silence.** Readings taken while moving or before the current listening
   window are never used. A robot unheard for ``listen_timeout_s`` is left out: two distances
-  and the dead-reckoned previous position pick one of the two circle intersections. A distance
-  at the sensor's ceiling (``saturation_mm``, kilolib's 255) is "at least that far": it only
-  rules out candidates. A step after which it cannot locate itself at all (out of range, or in
-  a body's shadow) is undone and a detour taken the other way round. When that does not help,
-  or a distance is saturated, the follower walks to reduce its nearest distance (measuring the
-  bearing from how that distance changes) until it can locate itself again. Before its first
-  move it only waits. After ``give_up_s`` of silence or ``max_steps`` steps it gives up.
-* **Calibration error.** The follower learns its real speed from its step lengths and, with
-  ``adapt_turns``, its real turn rate from conclusive turns.
+  and the dead-reckoned previous position pick one of the two circle intersections, never one
+  within hearing of the robot unheard, and only one that both handedness agree on while the
+  handedness is open. A distance at the sensor's ceiling (``saturation_mm``, kilolib's 255) is
+  "at least that far": it only rules out candidates. A step after which it cannot locate
+  itself at all is undone: the way back to the last fix is planned in the robot's own body
+  frame. When that does not help, or a distance is saturated, the follower walks to reduce its
+  nearest distance (measuring the bearing from how that distance changes) until it can locate
+  itself again. Before its first move it only waits. After ``give_up_s`` of silence or
+  ``max_steps`` steps it gives up.
+* **Calibration error.** The follower learns its real speed from its free steps and, with
+  ``adapt_turns``, the real rate of each motor from conclusive turns (each motor has its own
+  curve and stored value).
 
 Events logged (``self.log``): ``frame`` (robots 2 and 3), ``fix`` (every position estimate, in
-the follower's frame), ``move``, ``handedness``, ``reached``, ``gave_up``.
+the follower's frame), ``move``, ``handedness``, ``turn_rate``, ``reached``, ``gave_up``.
 """
 
 from __future__ import annotations
@@ -84,6 +92,18 @@ from kilonet.geometry import GeometryError, place_references, trilaterate_linear
 from kilonet.message import Layout, Message
 from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
+from protocols.pivot_turns import (
+    PIVOT_LEG_MM,
+    PivotMove,
+    best_pivot_move,
+    handedness_vote,
+    pivot_displacement,
+    segment_blocked,
+    swing_arc,
+    swing_turn_rad,
+    swing_vote,
+    turn_rate_ratio,
+)
 from protocols.turn_calibration import TurnCalibration
 
 __all__ = [
@@ -142,11 +162,6 @@ FRAME_WIDE = Layout(
 )
 
 Point = tuple[float, float]
-
-#: The Kilobot's left rear leg in its body frame (forward, left), mm: 16.5 mm out at 125.5° from
-#: the heading (Kilombo, from the PCB design files). A one-motor turn pivots about the rear leg
-#: on the side it turns to, which a program has to know to aim (:func:`pivot_displacement`).
-PIVOT_LEG_MM = (16.5 * math.cos(math.radians(125.5)), 16.5 * math.sin(math.radians(125.5)))
 
 #: Physical turns (counter-clockwise positive, rad) of successive escapes from a body the
 #: robot is stuck against: round first, then sideways.
@@ -278,42 +293,6 @@ def frame_direction(alpha_rad: float, mirrored: bool) -> int:
     return -side if mirrored else side
 
 
-def pivot_displacement(heading: Point, turn_rad: float, leg_mm: Point = None) -> Point:
-    """How far a turn moves the robot's centre, in the frame's axes (mm).
-
-    A Kilobot turning on one motor pivots about its rear leg on the side it turns to
-    (:data:`PIVOT_LEG_MM`), so its centre swings round that leg. Seen in a frame, mirrored or
-    not, the robot turns ``turn_rad`` about the leg on the side it turns toward: a physical
-    left turn in a mirrored frame is a frame right turn about the frame's right-hand leg.
-
-    Parameters
-    ----------
-    heading : (float, float)
-        Unit heading before the turn, frame axes.
-    turn_rad : float
-        The turn as the frame sees it (counter-clockwise positive).
-    leg_mm : (float, float), optional
-        The left rear leg in the body frame (forward, left), mm; default the Kilobot's.
-
-    Examples
-    --------
-    A quarter turn left, heading along +x, about a leg 10 mm back and 10 mm left:
-
-    >>> [round(c, 9) for c in pivot_displacement((1.0, 0.0), math.pi / 2, (-10.0, 10.0))]
-    [0.0, 20.0]
-    >>> pivot_displacement((1.0, 0.0), 0.0)
-    (0.0, 0.0)
-    """
-    if turn_rad == 0:
-        return (0.0, 0.0)
-    forward, left = leg_mm or PIVOT_LEG_MM
-    side = 1.0 if turn_rad > 0 else -1.0
-    ux, uy = heading
-    ox, oy = forward * ux - side * left * uy, forward * uy + side * left * ux
-    rx, ry = rotate((ox, oy), turn_rad)
-    return (ox - rx, oy - ry)
-
-
 def rotate(u: Point, angle_rad: float) -> Point:
     """``u`` rotated counter-clockwise by ``angle_rad``.
 
@@ -354,25 +333,6 @@ def circle_intersections(c1: Point, r1: float, c2: Point, r2: float) -> list[Poi
     h = math.sqrt(h_sq)
     mx, my = c1[0] + a * ex, c1[1] + a * ey
     return [(mx - h * ey, my + h * ex), (mx + h * ey, my - h * ex)]
-
-
-def _segment_blocked(
-    p: Point, direction: Point, length_mm: float, centre: Point, radius_mm: float
-) -> bool:
-    """Whether moving ``length_mm`` from ``p`` along unit ``direction`` enters the disc.
-
-    A start already inside the disc (an estimate off by noise) only blocks moves that go
-    noticeably deeper, so a robot at contact can always slide along or back out.
-    """
-    wx, wy = centre[0] - p[0], centre[1] - p[1]
-    along = max(0.0, min(length_mm, wx * direction[0] + wy * direction[1]))
-    closest = math.hypot(
-        p[0] + along * direction[0] - centre[0], p[1] + along * direction[1] - centre[1]
-    )
-    start = math.hypot(wx, wy)
-    if start < radius_mm:
-        return closest < start - 0.5
-    return closest < radius_mm
 
 
 def reachable_goal(goal: Point, obstacles: list[Point], radius_mm: float) -> Point:
@@ -434,13 +394,13 @@ def plan_direction(
     if dist == 0:
         return (1.0, 0.0), 0
     goal_dir = (gx / dist, gy / dist)
-    if not any(_segment_blocked(position, goal_dir, dist, c, radius_mm) for c in obstacles):
+    if not any(segment_blocked(position, goal_dir, dist, c, radius_mm) for c in obstacles):
         return goal_dir, 0
     look = min(dist, step_mm)
 
     def clear(s: int, k: int) -> Point | None:
         d = rotate(goal_dir, s * math.radians(10 * k))
-        blocked = any(_segment_blocked(position, d, look, c, radius_mm) for c in obstacles)
+        blocked = any(segment_blocked(position, d, look, c, radius_mm) for c in obstacles)
         return None if blocked else d
 
     def closeness(d: Point) -> float:
@@ -615,6 +575,30 @@ class ThirdRobot(_FrameMember):
 GUARD_S = 0.1
 #: Turns smaller than this are skipped, degrees.
 MIN_TURN_DEG = 2.0
+#: Relative error of a turn the planner assumes before the turning motor's rate is learned
+#: (two turns of it seen), and after: the calibration is made on another robot, about 10 %
+#: off, and what is learned is good to a few per cent.
+#: A step after a turn tells the turn only if it went at least this share of the distance
+#: timed; a shorter one touched a body and slid along it (fixes are about 1 mm off, so a
+#: free 10 mm step comes out at 0.85 or more).
+CLEAN_STEP_SHARE = 0.85
+#: Turn-rate ratios (real / calibrated) taken as possible: the calibration robot and this one
+#: differ by per-robot and per-motor errors of about 10 % each, rarely by more than 40 %;
+#: a ratio outside is a misread turn.
+RATE_RATIO_RANGE = (0.6, 1.6)
+#: Turns whose swing's length tells the rate (:func:`swing_turn_rad`), rad: from 40°, where
+#: the swing is 11 mm, to 140°, beyond which the chord hardly grows.
+SWING_RATE_TURNS = (math.radians(40.0), math.radians(140.0))
+#: Turns from this size on tell the handedness by their swing (:func:`swing_vote`), rad.
+MIN_SWING_RAD = math.radians(30.0)
+#: A robot unheard through a whole listening window (several of its messages lost) is
+#: taken to be at least this much less than the hearing range away, mm: a two-distance fix
+#: that puts it nearer is the mirror candidate.
+UNHEARD_MARGIN_MM = 10.0
+#: How far inside its hearing range the follower plans to stay, mm.
+HEARING_MARGIN_MM = 5.0
+TURN_SD_UNLEARNED = 0.1
+TURN_SD_LEARNED = 0.04
 
 
 @dataclass(frozen=True)
@@ -637,7 +621,9 @@ class FollowerParams:
     handedness: Literal["random", "left", "right"] = param(
         "random", doc="robot 3 left/right of the 1->2 axis (right: mirrored frame)"
     )
-    start_min_mm: float = param(0.0, lo=0.0, hi=10_000.0, doc="follower start: min from goal")
+    start_min_mm: float = param(
+        20.0, lo=0.0, hi=10_000.0, doc="follower start: min from goal (20: it has to walk)"
+    )
     start_max_mm: float = param(0.0, lo=0.0, hi=10_000.0, doc="follower start: max (0: range)")
     direct_start: bool = param(True, doc="generated start has a passable straight line to goal")
     message: Literal["byte", "wide"] = param(
@@ -682,6 +668,10 @@ class Follower(Kilobot):
         The distance sensor's ceiling: a reading this large means "at least this far".
     body_mm : float
         Kilobot body diameter.
+    hearing_mm : float
+        How far the robot hears the frame robots (the radio's range, a hardware figure), mm:
+        the planner keeps its moves within ``hearing_mm - HEARING_MARGIN_MM`` of all three
+        where it can.
 
     Attributes
     ----------
@@ -703,12 +693,14 @@ class Follower(Kilobot):
         speed_mm_s: float,
         saturation_mm: int,
         body_mm: float,
+        hearing_mm: float = math.inf,
     ) -> None:
         self.params = params
         self.calibration = calibration
         self.nominal_speed_mm_s = speed_mm_s
         self.saturation_mm = saturation_mm
         self.body_mm = body_mm
+        self.hearing_mm = hearing_mm
 
     # -- state ---------------------------------------------------------------------------
     def setup(self) -> None:
@@ -726,6 +718,8 @@ class Follower(Kilobot):
         self.position: Point | None = None
         self._heading: Point | None = None
         self._heading_measured = False
+        self._heading_chord_mm = 0.0  # the step the heading was measured from
+        self._last_plan_final = True  # else the next move is the second of a two-move plan
         self._last_turn_rad = 0.0  # physical, counter-clockwise positive, as intended
         self._last_step_mm = 0.0
         self._last_step_ticks = 0
@@ -739,8 +733,11 @@ class Follower(Kilobot):
         self._blocked_steps = 0  # consecutive steps that did not move the robot
         self._speed_samples: list[tuple[float, float]] = []  # (mm moved, s) of clean steps
         self.speed_mm_s = self.nominal_speed_mm_s
-        self._rate_samples: list[float] = []
-        self.turn_gain = 1.0  # real turn rate / calibrated rate, as learned
+        # Real turn rate / calibrated rate, as learned, per motor (+1 left, -1 right): each
+        # motor has its own curve and stored value, so the two turn at different rates.
+        self._rate_samples: dict[int, list[float]] = {1: [], -1: []}
+        self.turn_gains = {1: 1.0, -1: 1.0}
+        self._last_turn_gain = 1.0
         # Walking toward the nearest robot when no fix is possible yet.
         self._approach: dict[str, float] | None = None
 
@@ -820,9 +817,20 @@ class Follower(Kilobot):
             if predicted is not None:
                 self.position = predicted
             return
-        self.position, kind = fix
+        position, kind = fix
+        turned = self._last_turn_rad
+        if self.position is not None and self._heading_measured and abs(turned) >= MIN_SWING_RAD:
+            moved = (position[0] - self.position[0], position[1] - self.position[1])
+            verdict = swing_vote(self._heading, turned, moved)
+            if verdict is not None:
+                self._record_vote(verdict)
+        if self.position is not None and SWING_RATE_TURNS[0] <= abs(turned) <= SWING_RATE_TURNS[1]:
+            # The swing's length tells how far the turn went, whatever the heading.
+            moved = (position[0] - self.position[0], position[1] - self.position[1])
+            self._learn_rate(turned, swing_turn_rad(moved) * math.copysign(1.0, turned))
+        self.position = position
         self._fixed_after_turn = True
-        self.log("fix", x_mm=self.position[0], y_mm=self.position[1], kind=kind, after="turn")
+        self.log("fix", x_mm=position[0], y_mm=position[1], kind=kind, after="turn")
 
     def _average(self, readings: list[int]) -> float | None:
         """Mean reading in mm; ``None`` if unheard, ``inf`` if at the sensor's ceiling."""
@@ -855,26 +863,36 @@ class Follower(Kilobot):
         (k,) = set(anchors) - {i, j}
         if distances[k] is not None:  # saturated: at least the ceiling away from robot k
             floor_mm = self.saturation_mm - 3
-            candidates = [p for p in candidates if _dist(p, anchors[k]) >= floor_mm]
+        else:  # unheard for a whole window: most likely out of hearing
+            floor_mm = self.hearing_mm - UNHEARD_MARGIN_MM
+        candidates = [p for p in candidates if _dist(p, anchors[k]) >= floor_mm]
         if not candidates:
             return None
-        prior = self._predicted_position()
-        if prior is not None:
-            return min(candidates, key=lambda p: _dist(p, prior)), "two"
+        # The dead-reckoned position picks the intersection; while the handedness is open it
+        # must pick the same one under both (they are mirror images across the line of the
+        # two robots heard, and so are the predictions).
+        handedness = (self.mirrored,) if self.handedness_settled else (False, True)
+        priors = [self._predicted_position(m) for m in handedness]
+        if all(prior is not None for prior in priors):
+            picks = {min(candidates, key=lambda p, q=q: _dist(p, q)) for q in priors}
+            return (picks.pop(), "two") if len(picks) == 1 else None
         if len(candidates) == 1:
             return candidates[0], "two"
         return None
 
-    def _predicted_position(self) -> Point | None:
-        """Where dead reckoning puts the robot after its last move (frame mm), if it knows."""
+    def _predicted_position(self, mirrored: bool | None = None) -> Point | None:
+        """Where dead reckoning puts the robot after its last move (frame mm), if it knows; in
+        a frame of the given handedness (default: the one concluded)."""
+        if mirrored is None:
+            mirrored = self.mirrored
         if self.position is None or self._last_mode in ("", "approach"):
             return None
         if self._last_mode == "retreat":
             return self.position  # back where the last fix was taken
-        heading = self._heading_after_turn()
-        if heading is None:
+        if self._heading is None:
             return self.position
-        dx, dy = pivot_displacement(self._heading, self._frame_turn(self.mirrored))
+        heading = rotate(self._heading, self._frame_turn(mirrored))
+        dx, dy = pivot_displacement(self._heading, self._frame_turn(mirrored))
         step = self._last_step_ticks / self.ticks_per_s * self.speed_mm_s
         return (
             self.position[0] + dx + step * heading[0],
@@ -907,7 +925,7 @@ class Follower(Kilobot):
                 # The last step took the robot where it cannot locate itself (out of range or
                 # in a body's shadow): go back the way it came and detour the other way.
                 self._side = -self._side
-                self._plan(math.pi, self._last_step_mm, "retreat")
+                self._retreat()
                 return True
             if not usable:
                 return False
@@ -947,37 +965,60 @@ class Follower(Kilobot):
             else:
                 self._plan(0.0, self._short_step_mm(to_target), "first")
             return True
-        # Far from the goal, longer steps: fewer of them, and a longer baseline for the heading
-        # where the fixes are least precise.
-        step = min(max(self.params.step_mm, self.params.step_fraction * to_target), to_target)
+        # Aim at the goal if the straight line is clear, else at a waypoint a step along the
+        # detour; the turn that faces the aim takes the pivot's swing into account.
+        step = self._goal_step_mm(to_target)
         direction, self._side = plan_direction(
             position, target, obstacles, radius, step, self._side
         )
-        alpha = turn_angle(heading, direction)
-        for _ in range(3):
-            # The pivot moves the centre: aim from where the turn will leave the robot.
-            dx, dy = pivot_displacement(heading, alpha)
-            start = (position[0] + dx, position[1] + dy)
-            to_target = _dist(start, target)
-            step = min(max(self.params.step_mm, self.params.step_fraction * to_target), to_target)
-            direction, self._side = plan_direction(
-                start, target, obstacles, radius, step, self._side
-            )
-            alpha = turn_angle(heading, direction)
+        line = (target[0] - position[0], target[1] - position[1])
+        detour = abs(turn_angle(line, direction)) > 1e-9
+        aim = (position[0] + step * direction[0], position[1] + step * direction[1])
+        if detour:
+            move = self._aim(position, heading, aim, step)
+        else:
+            c = self.params
+            move = self._aim(position, heading, target, max(c.step_mm, c.step_fraction * to_target))
+        alpha, step = move.turn_rad, move.step_mm
+        self._last_plan_final = move.final
         mode = "goal"
         if not self.handedness_settled:
             # Handedness not settled: make this turn big enough to tell, and the step short.
-            step = min(step, self._short_step_mm(to_target))
+            step = self._short_step_mm(to_target)
             alpha = self._probe_turn(position, heading, alpha, step, obstacles, radius)
             mode = "probe"
-        elif abs(alpha) > math.pi / 2:
-            step = min(step, self._short_step_mm(to_target))  # a long turn is least accurate
-        if abs(alpha) < math.radians(MIN_TURN_DEG):
-            alpha = 0.0
+            self._last_plan_final = True
+        if abs(alpha) < math.radians(MIN_TURN_DEG) and step >= 1.0:
+            alpha = 0.0  # a turn alone is kept, however small: it is the whole move
         # α is in the frame; the pivot is physical, and flips in a mirrored frame.
         physical = abs(alpha) * frame_direction(alpha, self.mirrored)
         self._plan(physical, step, mode)
         return True
+
+    def _goal_step_mm(self, to_target_mm: float) -> float:
+        """Length of an ordinary step ``to_target_mm`` from the target: up to ``step_mm``, or
+        far away ``step_fraction`` of the way (fewer steps, and a longer baseline for the
+        heading where fixes are least precise), never past the target."""
+        c = self.params
+        return min(max(c.step_mm, c.step_fraction * to_target_mm), to_target_mm)
+
+    def _aim(self, position: Point, heading: Point, aim: Point, max_step_mm: float) -> PivotMove:
+        """The next move toward ``aim`` (:func:`best_pivot_move`), with the uncertainties this
+        robot has: its heading from the chord of its last step (fixes about 0.7 mm off per
+        axis), its turns from how many it has learned from."""
+        learned = sum(len(samples) for samples in self._rate_samples.values())
+        return best_pivot_move(
+            position,
+            heading,
+            aim,
+            max_step_mm,
+            turn_sd=TURN_SD_LEARNED if learned >= 2 else TURN_SD_UNLEARNED,
+            heading_sd_rad=max(0.03, 1.0 / max(self._heading_chord_mm, 1.0)),
+            obstacles=list(self._anchors().values()),
+            radius_mm=self.body_mm + self.params.clearance_mm,
+            within_mm=self.hearing_mm - HEARING_MARGIN_MM,
+            two_moves=self._last_plan_final,
+        )
 
     def _short_step_mm(self, to_target_mm: float) -> float:
         """Length of a first, probe or after-long-turn step: ``first_step_mm``, longer far
@@ -1005,12 +1046,22 @@ class Follower(Kilobot):
         fixed = (s * math.pi / 2, -s * math.pi / 2, s * probe, -s * probe, s * limit, -s * limit)
         candidates = [wrap_angle(a) for a in (*near, *fixed)]
         valid = [a for a in candidates if probe - 1e-9 <= abs(a) <= limit]
-        for a in valid:
-            if not any(
-                _segment_blocked(position, rotate(heading, sign * a), step_mm, c, radius_mm)
-                for sign in (1, -1)
+        reach = max([self.hearing_mm - HEARING_MARGIN_MM, *(_dist(position, c) for c in obstacles)])
+
+        def fits(turn: float) -> bool:
+            arc = swing_arc(position, heading, turn)
+            start = arc[-1]
+            h = rotate(heading, turn)
+            end = (start[0] + step_mm * h[0], start[1] + step_mm * h[1])
+            return not any(
+                min(_dist(p, c) for p in arc) < radius_mm - 0.5
+                or segment_blocked(start, h, step_mm, c, radius_mm)
+                or max(_dist(start, c), _dist(end, c)) > reach
                 for c in obstacles
-            ):
+            )
+
+        for a in valid:
+            if fits(a) and fits(-a):
                 return a
         return valid[0]
 
@@ -1020,9 +1071,18 @@ class Follower(Kilobot):
             self._heading, self._heading_measured = None, False
             return
         dx, dy = position[0] - self.position[0], position[1] - self.position[1]
+        step_s = self._last_step_ticks / self.ticks_per_s
+        expected = self._last_step_mm
+        # A step that went less far than timed touched a body and slid: its direction is not
+        # the heading, so it tells nothing about the turn before it.
+        clean = expected * CLEAN_STEP_SHARE
+        # The step is measured by itself when a fix followed the turn (or there was none);
+        # else the turn's swing, taken out by dead reckoning, blurs it.
+        direct = self._fixed_after_turn or not self._last_turn_rad
         if self._fixed_after_turn:
             self._fixed_after_turn = False
-            if self._heading is not None and self._heading_measured and self._last_turn_rad:
+            turned = self._heading is not None and self._heading_measured and self._last_turn_rad
+            if turned and math.hypot(dx, dy) >= clean:
                 seen = _turn_seen(self._heading, (dx, dy))  # a straight step after the turn
                 self._vote(seen, seen)
         elif self._heading is not None and self._last_turn_rad:
@@ -1031,20 +1091,25 @@ class Follower(Kilobot):
             for mirrored in (False, True):
                 px, py = pivot_displacement(self._heading, self._frame_turn(mirrored))
                 steps[mirrored] = (dx - px, dy - py)
-            if self._heading_measured:
+            if self._heading_measured and min(math.hypot(*v) for v in steps.values()) >= clean:
                 self._vote(*(_turn_seen(self._heading, steps[m]) for m in (False, True)))
             dx, dy = steps[self.mirrored]
         moved = math.hypot(dx, dy)
-        step_s = self._last_step_ticks / self.ticks_per_s
-        expected = self._last_step_mm
-        if moved >= max(3.0, 0.4 * expected):
+        if expected < 1.0:
+            # A turn alone (the planner's pivot onto the aim): the heading is the old one
+            # turned, as far as the handedness is known.
+            trusted = self.handedness_settled and self._heading is not None
+            self._heading = self._heading_after_turn() if trusted else None
+            self._heading_measured = False
+        elif moved >= max(3.0, 0.4 * expected):
             measured = (dx / moved, dy / moved)
-            if moved >= 0.7 * expected and step_s > 0:
+            if direct and 0.7 * expected <= moved <= 1.5 * expected and step_s > 0:
                 self._speed_samples.append((moved, step_s))
                 total_mm = sum(m for m, _ in self._speed_samples)
                 total_s = sum(s for _, s in self._speed_samples)
                 self.speed_mm_s = total_mm / total_s
             self._heading, self._heading_measured = measured, True
+            self._heading_chord_mm = moved
             self._blocked_steps = 0
         else:
             # Blocked (contact) or too short to tell. Dead reckoning is only trusted once the
@@ -1056,30 +1121,63 @@ class Follower(Kilobot):
 
     def _vote(self, observed_floor_rad: float | None, observed_mirror_rad: float | None) -> None:
         """Compare the rotation seen in the frame with the physical turn commanded, under each
-        handedness (whose pivot displacement differs; ``None`` where the step was too short)."""
+        handedness (whose pivot displacement differs; ``None`` where the step was too short),
+        and learn the turning motor's rate from it (:func:`handedness_vote`,
+        :func:`turn_rate_ratio`)."""
         commanded = self._last_turn_rad
         if observed_floor_rad is None or observed_mirror_rad is None:
             return
-        observed_rad = observed_mirror_rad if self.mirrored else observed_floor_rad
-        if abs(commanded) < math.radians(25) or abs(observed_rad) > math.radians(165):
+        verdict = handedness_vote(commanded, observed_floor_rad, observed_mirror_rad)
+        if verdict is not None:
+            self._record_vote(verdict)
+        if not (self.params.adapt_turns and self.handedness_settled):
             return
-        floor_err = abs(wrap_angle(observed_floor_rad - commanded))
-        mirror_err = abs(wrap_angle(observed_mirror_rad + commanded))
-        if abs(floor_err - mirror_err) < math.radians(20):
+        if not math.radians(40) <= abs(commanded) <= math.radians(150):
             return
-        verdict = mirror_err < floor_err
-        self._votes[verdict] += 1
+        seen = -observed_mirror_rad if self.mirrored else observed_floor_rad
+        self._learn_rate(commanded, seen)
+
+    def _learn_rate(self, commanded_rad: float, seen_physical_rad: float) -> None:
+        """One sample of the turning motor's real rate over the calibrated one."""
+        if not self.params.adapt_turns:
+            return
+        # The turn was timed for commanded / gain, so the real rate is ratio × gain.
+        ratio = turn_rate_ratio(commanded_rad, seen_physical_rad) * self._last_turn_gain
+        if RATE_RATIO_RANGE[0] <= ratio <= RATE_RATIO_RANGE[1]:  # else a misread turn
+            side = 1 if commanded_rad > 0 else -1
+            self._rate_samples[side].append(ratio)
+            self.turn_gains[side] = median(self._rate_samples[side])
+            self.log("turn_rate", side=side, ratio=ratio, gain=self.turn_gains[side])
+
+    def _retreat(self) -> None:
+        """Go back to where the last fix was taken. The robot does not need its heading or the
+        frame's handedness for that: in its own body frame before the last move (heading +x,
+        counter-clockwise = physical left), the move it made is known, and so is the way back
+        (:func:`best_pivot_move`, one move)."""
+        turn = self._last_turn_rad
+        if turn:  # as far as it really went, by what the robot has learned since
+            turn *= self.turn_gains[1 if turn > 0 else -1] / self._last_turn_gain
+        step = self._last_step_ticks / self.ticks_per_s * self.speed_mm_s
+        dx, dy = pivot_displacement((1.0, 0.0), turn)
+        here = (dx + step * math.cos(turn), dy + step * math.sin(turn))
+        move = best_pivot_move(
+            here,
+            (math.cos(turn), math.sin(turn)),
+            (0.0, 0.0),
+            max(self.params.step_mm, math.hypot(*here)),
+            two_moves=False,
+        )
+        self._plan(move.turn_rad, move.step_mm, "retreat")
+
+    def _record_vote(self, mirrored_vote: bool) -> None:
+        """Count one conclusive reading of the handedness; the majority decides."""
+        self._votes[mirrored_vote] += 1
         mirrored = self._votes[True] > self._votes[False]
         if mirrored != self.mirrored or sum(self._votes.values()) == 1:
             self.mirrored = mirrored
             self.log(
                 "handedness", mirrored=mirrored, floor=self._votes[False], mirror=self._votes[True]
             )
-        if self.params.adapt_turns and math.radians(40) <= abs(commanded) <= math.radians(150):
-            # The turn was timed for commanded / gain, so the real rate is ratio × gain.
-            ratio = abs(observed_rad) / abs(commanded) * self.turn_gain
-            self._rate_samples.append(min(2.0, max(0.5, ratio)))
-            self.turn_gain = median(self._rate_samples)
 
     def _approach_step(self, usable: dict[int, float]) -> None:
         """No fix yet: walk to reduce the distance to the nearest robot heard."""
@@ -1103,11 +1201,15 @@ class Follower(Kilobot):
 
     def _plan(self, physical_turn_rad: float, step_mm: float, mode: str) -> None:
         """Start the move: a physical pivot (counter-clockwise positive), then a step."""
+        if mode != "goal":
+            self._last_plan_final = True  # any other move ends a two-move plan
         tps = self.ticks_per_s
-        turn_s = self.calibration.turn_time_s(physical_turn_rad / self.turn_gain)
+        gain = self.turn_gains[1 if physical_turn_rad > 0 else -1]
+        turn_s = self.calibration.turn_time_s(physical_turn_rad / gain)
         turn_ticks = round(turn_s * tps) if physical_turn_rad else 0
         step_ticks = max(1, round(step_mm / self.speed_mm_s * tps))
         self._last_turn_rad = physical_turn_rad if turn_ticks else 0.0
+        self._last_turn_gain = gain
         self._last_step_mm = step_mm
         self._last_step_ticks = step_ticks
         self._last_mode = mode

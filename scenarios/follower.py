@@ -9,11 +9,13 @@ robots: it listens, makes its small first move and listens again for fresh messa
 
 The generated placements draw the frame's sides from ``[side_min_mm, side_max_mm]``, put robot 3
 on the ``handedness`` side of the 1→2 axis (``right`` makes the follower's frame a mirror image
-of the floor) and the follower at ``[start_min_mm, start_max_mm]`` from the goal (0: anywhere it
-hears all three), not touching any robot. With ``direct_start`` (default) the straight line from
-the start to the goal must be passable (clear of the robots' bodies and of line-of-sight shadows):
-with the hardware range the follower then starts beside an edge long enough to pass or inside
-the triangle, never behind a robot.
+of the floor) and the follower at ``[start_min_mm, start_max_mm]`` from the goal
+(``start_max_mm`` 0: anywhere it hears all three), not touching any robot. ``start_min_mm``
+defaults to 20 mm: a follower that starts within a few millimetres of the goal has nothing to
+show (the default run of seed 1 used to start 2.6 mm from it and take no step). With
+``direct_start`` (default) the straight line from the start to the goal must be passable (clear
+of the robots' bodies and of line-of-sight shadows): with the hardware range the follower then
+starts beside an edge long enough to pass or inside the triangle, never behind a robot.
 
 The follower turns with a linear calibration ``t = f(angle)`` fitted by :func:`calibrate_turns`
 on another simulated robot (``calibration_seed``), as the seed's author timed one Kilobot by
@@ -316,6 +318,7 @@ def _program(params: Params, positions: np.ndarray):
             speed_mm_s=params.motion.speed_mm_s,  # the data sheet's figure, not this robot's
             saturation_mm=params.ranging.max_mm,
             body_mm=ROBOT_DIAMETER_MM,
+            hearing_mm=params.medium.range_mm,  # the radio's range, a hardware figure
         )
 
     return build
@@ -412,6 +415,11 @@ def path_length_mm(sim: Simulation) -> float:
     return float(np.hypot(*np.diff(poses[["x_mm", "y_mm"]].to_numpy(), axis=0).T).sum())
 
 
+def _turn_deg_s(sim: Simulation, motor: int, duty: int) -> float:
+    """The follower's true pivot rate on ``motor`` (0 left, 1 right) at ``duty``, deg/s."""
+    return math.degrees(sim.motion.pivot_rate_rad_s(FOLLOWER_INDEX, motor, duty))
+
+
 def _metrics(sim: Simulation) -> dict[str, Any]:
     import pandas as pd
 
@@ -444,15 +452,10 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
         "handedness_settled": bool(follower.handedness_settled),
         "final_estimate_error_mm": None if estimate_error is None else round(estimate_error, 3),
         "calibration_deg_s": round(follower.calibration.deg_per_s, 3),
-        "follower_turn_deg_s": round(
-            math.degrees(
-                sim.motion.pivot_rate_rad_s(
-                    FOLLOWER_INDEX, 0, sim.robots[FOLLOWER_INDEX].kilo_turn_left
-                )
-            ),
-            3,
-        ),
-        "follower_turn_gain": round(follower.turn_gain, 3),
+        "follower_turn_deg_s": round(_turn_deg_s(sim, 0, follower.kilo_turn_left), 3),
+        "follower_turn_right_deg_s": round(_turn_deg_s(sim, 1, follower.kilo_turn_right), 3),
+        "follower_turn_gain": round(follower.turn_gains[1], 3),
+        "follower_turn_gain_right": round(follower.turn_gains[-1], 3),
     }
 
 

@@ -203,8 +203,11 @@ def test_placement_must_have_four_rows(tmp_path):
 
 
 def test_placement_with_a_deaf_follower_is_refused():
-    far = np.vstack([FRAME, [[37.5, -70.0]]])  # 130 mm from robot 3
-    with pytest.raises(ScenarioError, match="the follower does not hear robot 3"):
+    far = np.vstack([FRAME, [[37.5, -70.0]]])  # 135 mm from robot 3
+    with pytest.raises(
+        ScenarioError,
+        match=r"the follower stands 135.0 mm from robot 3, beyond medium.range_mm = 85",
+    ):
         run(SCENARIO, seed=1, placement=far)
 
 
@@ -244,6 +247,14 @@ def test_reaches_the_goal_from_generated_starts(seed, handedness):
     assert s["sim_time_s"] < 600.0  # stop_when ended the run
     if s["handedness_settled"]:
         assert s["mirrored_frame"] == s["mirrored_frame_true"]
+
+
+def test_the_default_run_walks_to_the_goal():
+    """``kilonet run follower`` (seed 1, defaults) starts far enough to have to walk."""
+    s = _run()
+    assert s["straight_line_mm"] >= 20.0
+    assert s["steps"] >= 3 and s["path_length_mm"] >= s["straight_line_mm"] - 8.0
+    assert s["reached"] and s["final_distance_mm"] < 8.0
 
 
 @pytest.mark.parametrize("handedness", ["left", "right"])
@@ -289,13 +300,20 @@ def test_goal_behind_the_robot():
 
 
 def test_longer_range_what_if():
-    s = _run(
+    result = run(
+        SCENARIO,
         {"medium.range_mm": 300, "follower.start_min_mm": 200, "follower.start_max_mm": 250},
         seed=2,
     )
+    s = result.summary
     assert s["reached"] and s["final_distance_mm"] < 10.0
     assert 200 <= s["straight_line_mm"] <= 250
-    assert s["path_length_mm"] < 1.5 * s["straight_line_mm"]
+    # The walk is nearly straight. A pivot turn swings the centre round a rear leg (16.5 mm
+    # out), so the path also holds an arc of 16.5 mm per radian turned, which turning in place
+    # did not: that part is the turns', not the walk's.
+    heading = np.unwrap(trajectory(result.sim)["heading_rad"].to_numpy())
+    swings_mm = 16.5 * np.abs(np.diff(heading)).sum()
+    assert s["path_length_mm"] - swings_mm < 1.5 * s["straight_line_mm"]
 
 
 def test_saturated_distances_walk_to_the_nearest_robot_first():
@@ -376,7 +394,7 @@ def test_outputs_trajectory_figure_and_summary(tmp_path):
     assert colours[1] == {(0, 0, 3), (3, 3, 0), (0, 0, 0)}
     assert colours[2] == {(0, 3, 0), (3, 3, 0), (3, 0, 3), (0, 0, 0)}
     assert 3 not in colours
-    assert result.sim.robots_frame()["offered"].tolist()[3] == 0
+    assert result.sim.robots_frame()["sent"].tolist()[3] == 0
     assert summary["path_length_mm"] >= summary["straight_line_mm"] - summary["final_distance_mm"]
 
 
