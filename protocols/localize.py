@@ -59,6 +59,11 @@ __all__ = ["LocalizeRobot"]
 _SENDER = struct.Struct("<H").unpack_from
 _PHASE2 = frozenset((ROOT.type, POS.type, CAND.type))
 _ROUNDING_SIGMA_MM = 1.0 / math.sqrt(12.0)
+#: A robot re-estimates its ranging noise once the receptions behind the estimate have grown by
+#: this factor: the estimate's standard error falls as 1/sqrt(receptions), so 10 % more moves it
+#: by about 5 % of that error, while the estimate (a median over every neighbour) is costly to
+#: re-make every round.
+_NOISE_REESTIMATE_GROWTH = 1.1
 
 
 class LocalizeRobot(Kilobot):
@@ -124,6 +129,7 @@ class LocalizeRobot(Kilobot):
         )
         self._round_ticks = p.round_s * tps
         self._next_round = 0.0
+        self._noise_due = 0.0  # receptions recorded when the noise is next re-estimated
         self._round = 0  # rounds of work done: the neighbour records' time stamps
         self._news = False  # a neighbour's echo or flags changed since the last work
         self._urgent = False  # this robot's own state changed: send it next
@@ -152,9 +158,12 @@ class LocalizeRobot(Kilobot):
             p = self.params
             # Estimates come in whole millimetres: their rounding alone has a spread of
             # 1/sqrt(12) mm, the least noise a robot can measure.
-            noise = self.neighbours.noise_mm(p.noise_samples, p.sigma_mm)
-            self.sigma_mm = max(noise, _ROUNDING_SIGMA_MM)
-            self.neighbours.duplicate_mm = p.duplicate_sigmas * self.sigma_mm
+            neighbours = self.neighbours
+            if neighbours.samples_total >= self._noise_due:
+                self._noise_due = neighbours.samples_total * _NOISE_REESTIMATE_GROWTH
+                noise = neighbours.noise_mm(p.noise_samples, p.sigma_mm)
+                self.sigma_mm = max(noise, _ROUNDING_SIGMA_MM)
+                neighbours.duplicate_mm = p.duplicate_sigmas * self.sigma_mm
             self._work(tick, self.neighbours.fresh(self._round), full=True)
         elif self._news:
             # A neighbour's echo or flags changed: pass it on now, not at the next round, so

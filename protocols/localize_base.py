@@ -260,10 +260,14 @@ class Neighbours:
     >>> _ = nbs.heard(8, 50, 3)
     >>> [n.uid for n in nbs.fresh(18)], [n.uid for n in nbs.fresh(19)]
     ([8], [])
+    >>> nbs.samples_total  # receptions from every ID
+    6
     """
 
     def __init__(self, *, duplicate_mm: float, stale_rounds: int, duplicate_after: int = 3) -> None:
         self.by_id: dict[int, Neighbour] = {}
+        #: Receptions recorded, from every neighbour.
+        self.samples_total = 0
         self.duplicate_mm = duplicate_mm
         self.duplicate_after = duplicate_after
         self.stale_rounds = stale_rounds
@@ -282,6 +286,7 @@ class Neighbours:
         n.distance_sq_sum_mm2 += distance_mm * distance_mm
         n.samples += 1
         n.heard_round = stamp
+        self.samples_total += 1
         return n
 
     def report(self, n: Neighbour, code: int) -> None:
@@ -312,19 +317,20 @@ class Neighbours:
         >>> nbs.noise_mm(5, 1.0)
         1.5
         """
-        spreads = []
-        for n in self.by_id.values():
-            k = n.samples
-            if k >= min_samples and not n.ambiguous:
-                variance = (n.distance_sq_sum_mm2 - n.distance_sum_mm**2 / k) / (k - 1)
-                spreads.append(math.sqrt(max(variance, 0.0)))
-        if not spreads:
+        # The square root keeps the order: take the median of the variances, then its root.
+        variances = [
+            (n.distance_sq_sum_mm2 - n.distance_sum_mm**2 / n.samples) / (n.samples - 1)
+            for n in self.by_id.values()
+            if n.samples >= min_samples and not n.ambiguous
+        ]
+        if not variances:
             return default_mm
-        spreads.sort()
-        middle = len(spreads) // 2
-        if len(spreads) % 2:
-            return spreads[middle]
-        return 0.5 * (spreads[middle - 1] + spreads[middle])
+        variances.sort()
+        middle = len(variances) // 2
+        if len(variances) % 2:
+            return math.sqrt(max(variances[middle], 0.0))
+        low, high = (math.sqrt(max(v, 0.0)) for v in variances[middle - 1 : middle + 1])
+        return 0.5 * (low + high)
 
     def fresh(self, stamp: int) -> list[Neighbour]:
         """Unambiguous records heard within the last ``stale_rounds`` rounds before round
