@@ -28,8 +28,10 @@ ambiguous and ignored from then on (:meth:`Neighbours.heard`).
 from __future__ import annotations
 
 import math
+from bisect import insort
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from operator import attrgetter
 
 from kilonet.message import Layout, Message
 from kilonet.params import param
@@ -233,6 +235,9 @@ class Neighbour:
         return None if self.x_mm is None else (self.x_mm, self.y_mm)
 
 
+_uid_of = attrgetter("uid")
+
+
 class Neighbours:
     """A robot's neighbour records by ID.
 
@@ -266,6 +271,7 @@ class Neighbours:
 
     def __init__(self, *, duplicate_mm: float, stale_rounds: int, duplicate_after: int = 3) -> None:
         self.by_id: dict[int, Neighbour] = {}
+        self._in_id_order: list[Neighbour] = []  # by_id's records sorted by ID, for fresh()
         #: Receptions recorded, from every neighbour.
         self.samples_total = 0
         self.duplicate_mm = duplicate_mm
@@ -278,6 +284,7 @@ class Neighbours:
         n = self.by_id.get(uid)
         if n is None:
             n = self.by_id[uid] = Neighbour(uid)
+            insort(self._in_id_order, n, key=_uid_of)
         elif n.samples >= self.duplicate_after and abs(
             distance_mm * n.samples - n.distance_sum_mm
         ) > (self.duplicate_mm * n.samples):
@@ -336,9 +343,7 @@ class Neighbours:
         """Unambiguous records heard within the last ``stale_rounds`` rounds before round
         ``stamp``, by ID."""
         oldest = stamp - self.stale_rounds
-        return [
-            n for _, n in sorted(self.by_id.items()) if n.heard_round >= oldest and not n.ambiguous
-        ]
+        return [n for n in self._in_id_order if n.heard_round >= oldest and not n.ambiguous]
 
     def __getitem__(self, uid: int) -> Neighbour:
         return self.by_id[uid]
