@@ -328,7 +328,8 @@ class FrameMerging(Phase):
         # The latest query to this robot it could not answer yet: (seed, partner, version, tag).
         self.pending_query: tuple[FrameKey, FrameKey, int, int] | None = None
         r.merge_done = False
-        r.refined = None  # an estimate refined before a recovery epoch is void
+        r.refined = r.refined_root = None  # an estimate refined before a recovery is void
+        r.merging = self
         self.settled_since: int | None = None
         self.finish_ticks = self.params.refine_after_s * tps
         r.check = SplitCheck(r)

@@ -186,7 +186,9 @@ class RobotOutcome:
     refined : bool
         It refined its estimate (phase 7).
     root : Root or None
-        The root of the merged frame its estimate is in.
+        The root of the merged frame its estimate (``position``) is in.
+    merged_root : Root or None
+        The root of the frame ``merged_position`` is in (the refinement may join another).
     split_boundary, inconsistent : bool
         What its split check flagged at the end (:mod:`protocols.split_detection`).
     merge_done : bool
@@ -210,6 +212,7 @@ class RobotOutcome:
     merged_position: tuple[float, float] | None
     refined: bool
     root: Root | None
+    merged_root: Root | None
     split_boundary: bool
     inconsistent: bool
     merge_done: bool
@@ -256,6 +259,7 @@ class GcsRobot(Kilobot):
         "groups",
         "is_seed",
         "merge_done",
+        "merging",
         "own_key",
         "params",
         "partners",
@@ -265,6 +269,7 @@ class GcsRobot(Kilobot):
         "ref_turn",
         "references",
         "refined",
+        "refined_root",
         "role",
         "salt",
         "seeds",
@@ -292,6 +297,7 @@ class GcsRobot(Kilobot):
         self.groups: dict[tuple[FrameKey, FrameKey], tuple[int, int]] = {}
         self.partners: dict[FrameKey, set[int]] = {}
         self.merge_done = False  # a seed done merging (protocols.frame_merging)
+        self.merging: FrameMerging | None = None  # the latest merging phase (phase 7 keeps it)
         # Checking and recovering (split_detection, recovery): the check runs while merging.
         self.check: SplitCheck | None = None
         self.recovery = RecoveryFlood(self)
@@ -300,6 +306,7 @@ class GcsRobot(Kilobot):
         # Positions neighbours announced, by frame key then neighbour ID, mm.
         self.announced: dict[FrameKey, dict[int, tuple[float, float]]] = {}
         self.refined: tuple[float, float] | None = None  # phase 7's estimate, mm
+        self.refined_root: Root | None = None  # and the frame it is in
         tps = self.ticks_per_s
         self._windows = [
             (cls, _start_tick(start * tps), end * tps)
@@ -439,6 +446,8 @@ class GcsRobot(Kilobot):
     def position_estimate(self) -> tuple[float, float, str] | None:
         """The global estimate now and the merged frame it is in (:attr:`Root.label`), for the
         run's estimates table; ``None`` before the robot has one."""
+        if self.refined is not None:
+            return (*self.refined, self.refined_root.label)
         position = self.estimate.position()
         return None if position is None else (*position, self.estimate.root().label)
 
@@ -446,7 +455,10 @@ class GcsRobot(Kilobot):
         """What this robot holds now, as one value (see :class:`RobotOutcome`)."""
         estimate, check = self.estimate, self.check
         merged = estimate.position()
-        position = merged if self.refined is None else self.refined
+        merged_root = estimate.root() if merged is not None else None
+        position, root = (
+            (merged, merged_root) if self.refined is None else (self.refined, self.refined_root)
+        )
         seed = self.phase.seed if isinstance(self.phase, FrameMerging) else None
         return RobotOutcome(
             uid=self.uid,
@@ -461,7 +473,8 @@ class GcsRobot(Kilobot):
             position=position,
             merged_position=merged,
             refined=self.refined is not None,
-            root=estimate.root() if position is not None else None,
+            root=root,
+            merged_root=merged_root,
             split_boundary=check is not None and check.on_split_boundary,
             inconsistent=check is not None and bool(check.inconsistent),
             merge_done=self.merge_done,

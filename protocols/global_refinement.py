@@ -9,11 +9,19 @@ momentum, the symmetric DIST reports): the swarm descends on the least-squares s
 measured pair. Nothing is anchored: the stress does not change under a rigid motion of the
 whole frame, so the frame keeps where merging put it, up to a small drift.
 
-**Entering.** Merging's window never closes; a robot leaves it for this phase when merging is
+**Entering.** Merging's window never closes; a robot enters this phase when merging is
 over *for it* (:meth:`protocols.frame_merging.FrameMerging.finished`): its estimate has been
 settled, and the seed of every frame it is located in done, for ``gcs.refine_after_s``, no
 recovery is announced or awaited, and, on a seed, its own rounds are done. A robot without a
 settled estimate never refines (it keeps merging).
+
+**Merging goes on.** A refining robot keeps its part in merging: it still tracks the seeds'
+transforms and ranks and answers their queries, and a seed still runs its rounds (every other
+transmit opportunity is merging's). When merging moves the robot's merged estimate by more than
+``_FOLLOW_MM``, the refined one moves by as much; when merging aligns its frame to a better
+root, the robot takes the new merged estimate and refines from there. Without this, robots
+that entered the refinement early kept estimates of an older version of their frame, and
+merging lost the members that answer its queries.
 
 **Neighbours.** Only neighbours whose estimate is in the same merged frame (the same root)
 count: their GPOS messages name the root. A neighbour still merging that broadcasts a settled
@@ -25,11 +33,21 @@ It will usually join shortly, and holds a robot's stopping back — for the firs
 merging by then is held there by something else (a split awaiting its recovery) and may never
 come.
 
+**Joining a better frame.** Merging may leave the swarm in several frames (and a robot that
+left merging misses what merging does after). A refining robot that hears at least three
+neighbours whose estimates lie in a frame with a better root (:class:`~protocols.frame_keys.Root`
+order, the one merging uses) places itself in that frame by multilateration from their
+positions and its measured distances (:func:`~kilonet.geometry.multilaterate`, with the
+collinearity, residual and mirror checks phase 4 uses) and refines there from then on
+(:func:`frame_to_join` picks the frame). A robot that merging left without an estimate joins
+the same way. Roots only get better, so the frames are absorbed one robot at a time into the
+best root that a rigid chain of neighbours reaches, and no robot joins back and forth.
+
 **Stopping.** A robot is *settled* when it moved less than ``gcs.refine_settle_mm`` over its last
 ``gcs.refine_settle_rounds`` rounds, relative to the centroid of its neighbours (a small frame
 drifting as a whole never stops moving on the table, but its robots stop moving against each
 other); with no hop structure to climb, it stops (*done*: its
-estimate frozen, still announced with the DONE flag) when it and every neighbour it refines
+estimate frozen, still announced as settled) when it and every neighbour it refines
 against have been settled for ``_CONFIRM_ROUNDS`` rounds in a row and no settled merging
 neighbour is still to join (:func:`~protocols.refinement.neighbourhood_settled`). A robot that
 does not stop within ``gcs.refine_timeout_s`` stops anyway (the phase's window).
@@ -37,18 +55,24 @@ does not stop within ``gcs.refine_timeout_s`` stops anyway (the phase's window).
 Messages (one transmit opportunity in ``_DIST_EVERY`` carries a DIST report of
 :mod:`protocols.refinement`, with the global position, 0.1 mm)::
 
-    type 73 GPOS  sender:uint16  x:int16  y:int16 (0.1 mm)  root:uint16  flags:uint8   9 bytes
+    type 73 GPOS          sender:uint16  x:int16  y:int16 (0.1 mm)  root:uint16  salt:uint8
+    type 74 GPOS_SETTLED  the same, from a robot that has settled or is done     9 bytes
 
-``root`` is the wire ID of the merged frame's root (:class:`protocols.frame_keys.Root`); the low
-two bits of ``flags`` are SETTLED (1) and DONE (2), the other six the low six bits of the root's
-salt. Coordinates span ±3,276.7 mm: a robot whose estimate lies beyond stays silent.
+``root`` and ``salt`` are the wire ID and salt of the merged frame's root
+(:meth:`protocols.frame_keys.Root.from_wire`): the whole root, so a robot that joins a frame
+names it as merging does. Coordinates span ±3,276.7 mm: a robot whose estimate lies beyond
+stays silent.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numpy as np
+
+from kilonet.geometry import multilaterate
 from kilonet.message import Message
+from protocols.frame_keys import Root
 from protocols.gcs_base import SENDER, GcsParams, Phase, gcs_layout
 from protocols.refinement import (
     DIST,
@@ -63,20 +87,17 @@ from protocols.refinement import (
 from protocols.split_detection import POS
 
 if TYPE_CHECKING:
-    from protocols.frame_keys import Root
+    from collections.abc import Iterable
+
     from protocols.neighbours import Neighbour
 
-__all__ = ["DONE", "GPOS", "SETTLED", "GlobalRefinement", "Peer", "root_tag"]
+__all__ = ["GPOS", "GPOS_SETTLED", "GlobalRefinement", "Peer", "frame_to_join"]
 
-GPOS = gcs_layout(
-    "gpos",
-    type=73,
-    fields=[("x_mm", "h", 0.1), ("y_mm", "h", 0.1), ("root", "H"), ("flags", "B")],
-)
-#: GPOS flags: the sender has settled; the sender is done (its estimate is frozen).
-SETTLED = 1
-DONE = 2
-_FLAG_BITS = 0b11
+_GPOS_FIELDS = [("x_mm", "h", 0.1), ("y_mm", "h", 0.1), ("root", "H"), ("salt", "B")]
+#: A refining robot's global position and root; GPOS_SETTLED: the same from one that has
+#: settled (or is done: its estimate frozen).
+GPOS = gcs_layout("gpos", type=73, fields=_GPOS_FIELDS)
+GPOS_SETTLED = gcs_layout("gpos_settled", type=74, fields=_GPOS_FIELDS)
 #: Largest coordinate GPOS and DIST carry, mm.
 _LIMIT_MM = 3276.7
 #: One transmit opportunity in this many carries a DIST report.
@@ -85,26 +106,54 @@ _DIST_EVERY = 3
 _CONFIRM_ROUNDS = 3
 #: A neighbour silent this long is left out, s (it crashed, was removed, or merges again).
 _STALE_S = 3.0
+#: The refined estimate follows a move of the merged one in the same frame once it exceeds
+#: this, mm: smaller ones are merging's jitter about its agreed transforms, which the
+#: refinement corrects anyway (following each restarted the settling).
+_FOLLOW_MM = 2.0
+#: A robot that failed to join a frame tries again with the same anchors after this many
+#: rounds (their positions are being refined meanwhile).
+_JOIN_RETRY_ROUNDS = 10
 #: The refinement's robustness: residuals beyond this count less, mm; and its largest step, mm.
 _HUBER_MM = 3.0
 _MAX_STEP_MM = 5.0
 
 
-def root_tag(root: Root) -> tuple[int, int]:
-    """How GPOS names a merged frame's root: its wire ID and the low six bits of its salt.
+def frame_to_join(
+    own: Root | None, anchors: Iterable[tuple[Root, float, float, float]]
+) -> tuple[Root, list[tuple[float, float, float]]] | None:
+    """The frame a refining robot in frame ``own`` (``None``: it has no estimate) should try to
+    join, and its anchors there: of the frames with a better root than ``own`` that at least
+    three of ``anchors`` — ``(root, x_mm, y_mm, range_mm)`` of each neighbour with an estimate —
+    lie in, the best; ``None`` if there is none. The best, not the one with most anchors: every
+    robot then heads for the same frame, and roots only get better.
 
     Examples
     --------
-    >>> from protocols.frame_keys import FrameKey, Root
-    >>> root_tag(Root(edge=False, key=FrameKey(7, 0xC5)))
-    (7, 5)
+    >>> from protocols.frame_keys import FrameKey
+    >>> a, b = Root(False, FrameKey(3, 9)), Root(False, FrameKey(5, 1))
+    >>> heard = [(a, 0.0, 0.0, 40.0), (a, 40.0, 0.0, 40.0), (b, 0.0, 9.0, 30.0)]
+    >>> frame_to_join(b, heard) is None  # two anchors in the better frame: not enough
+    True
+    >>> root, links = frame_to_join(b, [*heard, (a, 20.0, 35.0, 38.0)])
+    >>> root == a, len(links)
+    (True, 3)
+    >>> frame_to_join(a, [*heard, (a, 20.0, 35.0, 38.0)]) is None  # already in the best
+    True
     """
-    return root.wire_id, root.key.salt & 0x3F
+    by_root: dict[Root, list[tuple[float, float, float]]] = {}
+    for root, x_mm, y_mm, range_mm in anchors:
+        if own is None or root < own:
+            by_root.setdefault(root, []).append((x_mm, y_mm, range_mm))
+    joinable = [root for root, links in by_root.items() if len(links) >= 3]
+    if not joinable:
+        return None
+    best = min(joinable)
+    return best, by_root[best]
 
 
 class Peer:
     """What a refining robot knows about one neighbour: its announced global position, root and
-    flags, and the distance reports between the two (the interface
+    whether it has settled, and the distance reports between the two (the interface
     :func:`~protocols.refinement.next_report` reads).
 
     Parameters
@@ -117,7 +166,6 @@ class Peer:
 
     __slots__ = (
         "ambiguous",
-        "flags",
         "heard_tick",
         "joining",
         "record",
@@ -125,6 +173,7 @@ class Peer:
         "root",
         "sent_mm",
         "sent_round",
+        "settled",
         "uid",
         "x_mm",
         "y_mm",
@@ -136,8 +185,8 @@ class Peer:
         self.ambiguous = False
         self.x_mm: float | None = None
         self.y_mm: float | None = None
-        self.root: tuple[int, int] | None = None
-        self.flags = 0
+        self.root: Root | None = None
+        self.settled = False  # settled or done
         self.joining = False  # merging, with a settled position (POS)
         self.heard_tick = 0
         self.sent_mm: float | None = None
@@ -161,30 +210,38 @@ class Peer:
 
 
 class GlobalRefinement(Phase):
-    """Phase 7 on one robot: refine the global estimate until the neighbourhood has settled.
+    """Phase 7 on one robot: refine the global estimate until the neighbourhood has settled,
+    joining a better frame when one is in reach.
 
     Attributes
     ----------
     position : (float, float) or None
-        The refined estimate, mm (None: the robot had no estimate to refine).
+        The refined estimate, mm (None: the robot has no estimate yet).
+    root : Root or None
+        The merged frame the estimate is in.
     done : bool
         The robot has stopped refining.
+    joined : int
+        Frames it joined.
     """
 
     __slots__ = (
+        "_base",
         "_confirmed",
         "_join_until",
         "_next_round",
         "_round",
         "_round_ticks",
         "_stale_ticks",
+        "_tried",
         "_turn",
         "done",
+        "joined",
+        "merging",
         "peers",
         "position",
         "refiner",
         "root",
-        "tag",
     )
     name = "refine"
 
@@ -198,8 +255,10 @@ class GlobalRefinement(Phase):
         tps = r.ticks_per_s
         self.peers: dict[int, Peer] = {}
         self.position = r.estimate.position()
-        self.root = r.estimate.root()
-        self.tag = root_tag(self.root) if self.root is not None else None
+        self.root = r.estimate.root() if self.position is not None else None
+        self.merging = r.merging  # merging goes on beside the refinement
+        # The merged estimate the refined one follows: (position, root).
+        self._base = (self.position, self.root)
         self.refiner = Refiner(
             huber_mm=_HUBER_MM,
             max_step_mm=_MAX_STEP_MM,
@@ -214,8 +273,12 @@ class GlobalRefinement(Phase):
         self._round = 0
         self._turn = 0
         self._confirmed = 0
+        # The last attempt to join a frame: (root, anchors, round).
+        self._tried: tuple[Root, int, int] | None = None
+        self.joined = 0
         self.done = self.position is None
         r.refined = self.position
+        r.refined_root = self.root
 
     def finish(self) -> None:
         if not self.done:
@@ -228,14 +291,21 @@ class GlobalRefinement(Phase):
     # -- rounds ----------------------------------------------------------------------------
     def loop(self) -> None:
         r = self.robot
+        if self.merging is not None:
+            self.merging.loop()
         tick = r.kilo_ticks
-        if self.done or tick < self._next_round:
+        if tick < self._next_round:
             return
         self._next_round = tick + self._round_ticks
         self._round += 1
+        self._follow_merging()
         oldest = tick - self._stale_ticks
         fresh = [n for n in self.peers.values() if n.heard_tick >= oldest]
-        same = [n for n in fresh if n.root == self.tag and n.x_mm is not None]
+        self._join(fresh)
+        if self.done:
+            return
+        root = self.root
+        same = [n for n in fresh if n.root == root and n.x_mm is not None]
         x, y = self.position
         links = [(n.x_mm, n.y_mm, n.range_mm) for n in same]
         # Nothing anchors the frame: settled means still against the neighbours.
@@ -247,22 +317,89 @@ class GlobalRefinement(Phase):
         self.position = self.refiner.step(x, y, links, origin=origin)
         r.refined = self.position
         joining = tick < self._join_until and any(n.joining for n in fresh)
-        stop = neighbourhood_settled(
-            self.refiner.settled, (bool(n.flags & (SETTLED | DONE)) for n in same)
-        )
+        stop = neighbourhood_settled(self.refiner.settled, (n.settled for n in same))
         self._confirmed = self._confirmed + 1 if stop and not joining else 0
         if self._confirmed >= _CONFIRM_ROUNDS:
             self._stop("settled")
 
+    def _follow_merging(self) -> None:
+        """Move with the merged estimate: by as much as merging moved it in the same frame, or
+        to it when merging put it in a better frame than the refined one's."""
+        estimate = self.robot.estimate
+        merged = estimate.position()
+        if merged is None:
+            return
+        root = estimate.root()
+        base, base_root = self._base
+        if root == base_root and base is not None:
+            dx, dy = merged[0] - base[0], merged[1] - base[1]
+            if dx * dx + dy * dy < _FOLLOW_MM**2:
+                return  # merging's own jitter, which the refinement corrects
+        self._base = (merged, root)
+        if self.root is None or root < self.root:
+            self._move(merged, root, "merged")
+        elif root == self.root == base_root and base is not None:
+            x, y = self.position
+            self.position = (x + dx, y + dy)
+            self.robot.refined = self.position
+            self.refiner.reset()
+            self._confirmed = 0
+            self.done = False
+
+    def _move(self, position: tuple[float, float], root: Root, how: str) -> None:
+        """The estimate is now ``position`` in frame ``root`` (joined, or merged there)."""
+        r = self.robot
+        r.log("refine_moved", how=how, root=root.label, x_mm=position[0], y_mm=position[1])
+        self.position, self.root = position, root
+        self.refiner.reset()
+        self._confirmed = 0
+        self._tried = None
+        self.done = False
+        r.refined, r.refined_root = position, root
+
+    def _join(self, fresh: list[Peer]) -> None:
+        """Move into the best frame :func:`frame_to_join` names, if the fix passes its checks
+        (a failed attempt is repeated with more anchors, or after ``_JOIN_RETRY_ROUNDS``)."""
+        heard = ((n.root, n.x_mm, n.y_mm, n.range_mm) for n in fresh if n.root is not None)
+        choice = frame_to_join(self.root, heard)
+        if choice is None:
+            return
+        root, links = choice
+        tried = self._tried
+        if (
+            tried is not None
+            and tried[0] == root
+            and len(links) <= tried[1]
+            and self._round - tried[2] < _JOIN_RETRY_ROUNDS
+        ):
+            return
+        self._tried = (root, len(links), self._round)
+        p = self.params
+        points = np.array(links)
+        fix = multilaterate(
+            points[:, :2], points[:, 2], sigma_mm=p.sigma_mm, max_rmse_mm=p.max_rmse_mm
+        )
+        r = self.robot
+        if not fix.ok:
+            r.log("join_rejected", root=root.label, reason=fix.reason, anchors=len(links))
+            return
+        self.joined += 1
+        self._move((fix.x_mm, fix.y_mm), root, "joined")
+
     # -- messages --------------------------------------------------------------------------
     def message_tx(self) -> Message | None:
+        self._turn += 1
+        merging = self.merging
+        if merging is not None and (merging.seed is None or self._turn % 2):
+            message = merging.message_tx()  # answers and hints are rare; a seed's are not
+            if message is not None:
+                return message
         if self.position is None:
             return None
         x, y = self.position
         if abs(x) > _LIMIT_MM or abs(y) > _LIMIT_MM:
             return None
         r = self.robot
-        self._turn += 1
         if self._turn % _DIST_EVERY == 0:
             n = next_report(self.peers.values())
             if n is not None:
@@ -275,11 +412,13 @@ class GlobalRefinement(Phase):
                     neighbour=n.uid,
                     distance=distance_code(n.mean_mm),
                 )
-        flags = (SETTLED if self.refiner.settled else 0) | (DONE if self.done else 0)
-        root, salt = self.tag
-        return GPOS.pack(sender=r.uid, x_mm=x, y_mm=y, root=root, flags=flags | salt << 2)
+        layout = GPOS_SETTLED if self.done or self.refiner.settled else GPOS
+        root = self.root
+        return layout.pack(sender=r.uid, x_mm=x, y_mm=y, root=root.wire_id, salt=root.key.salt)
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
+        if self.merging is not None:
+            self.merging.message_rx(message, distance_mm)
         kind = message.type
         if kind not in _HEARD:
             return
@@ -296,21 +435,22 @@ class GlobalRefinement(Phase):
         if kind == POS.type:  # merging, settled: a fixed position, and it may join
             m = POS.unpack(message)
             n.x_mm, n.y_mm = m.x_mm, m.y_mm
-            n.root, n.flags = (m.root, m.root_salt & 0x3F), SETTLED
+            n.root, n.settled = Root.from_wire(m.root, m.root_salt), True
             n.joining = True
-        elif kind == GPOS.type:
-            m = GPOS.unpack(message)
-            n.x_mm, n.y_mm = m.x_mm, m.y_mm
-            n.root, n.flags = (m.root, m.flags >> 2), m.flags & _FLAG_BITS
-            n.joining = False
-        else:
+        elif kind == DIST.type:
             m = DIST.unpack(message)
             if n.root is not None:  # its root is known from a GPOS: the position is usable
                 n.x_mm, n.y_mm = m.x_mm, m.y_mm
             if m.neighbour == r.uid:
                 n.reported_mm = unwrap_distance(m.distance, n.mean_mm)
+        else:
+            settled = kind == GPOS_SETTLED.type
+            m = (GPOS_SETTLED if settled else GPOS).unpack(message)
+            n.x_mm, n.y_mm = m.x_mm, m.y_mm
+            n.root, n.settled = Root.from_wire(m.root, m.salt), settled
+            n.joining = False
         n.heard_tick = r.kilo_ticks
 
 
 #: The messages a refining robot reads.
-_HEARD = frozenset((GPOS.type, DIST.type, POS.type))
+_HEARD = frozenset((GPOS.type, GPOS_SETTLED.type, DIST.type, POS.type))

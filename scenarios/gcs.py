@@ -410,7 +410,7 @@ def _refine_metrics(run: _Run, out: dict[str, Any]) -> None:
     merged = [(i, o) for i, o in enumerate(robots) if o.merged_position is not None]
     groups: dict[str, list[int]] = {}
     for i, o in merged:
-        groups.setdefault(f"root{o.root.number}", []).append(i)
+        groups.setdefault(o.merged_root.label, []).append(i)
     pairs = [
         (np.array([robots[i].merged_position for i in members]), run.truth[members])
         for members in groups.values()

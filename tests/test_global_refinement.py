@@ -13,7 +13,7 @@ from kilonet.simulation import Simulation
 from protocols.frame_keys import FrameKey, Root
 from protocols.gcs import GcsRobot, phase_sequence
 from protocols.gcs_base import GcsParams
-from protocols.global_refinement import DONE, GPOS, SETTLED, GlobalRefinement, root_tag
+from protocols.global_refinement import GPOS, GPOS_SETTLED, GlobalRefinement, frame_to_join
 from scenarios.base import build_params, place
 
 GCS = scenarios.get("gcs")
@@ -25,16 +25,29 @@ def refined():
     return scenarios.run(GCS, {"placement.robots": 40, "gcs.refine": True}, seed=1)
 
 
-def test_gpos_carries_position_root_and_flags():
+def test_gpos_carries_position_and_the_whole_root():
     root = Root(edge=True, key=FrameKey(200, 0xAB))
-    wire, salt = root_tag(root)
-    assert (wire, salt) == (root.wire_id, 0x2B)
-    message = GPOS.pack(sender=7, x_mm=-3276.7, y_mm=12.3, root=wire, flags=DONE | salt << 2)
-    assert len(message.data) == 9
-    m = GPOS.unpack(message)
-    assert (m.x_mm, m.y_mm, m.root) == (pytest.approx(-3276.7), pytest.approx(12.3), wire)
-    assert (m.flags & 3, m.flags >> 2) == (DONE, salt)
-    assert SETTLED | DONE == 3
+    for layout in (GPOS, GPOS_SETTLED):
+        message = layout.pack(sender=7, x_mm=-3276.7, y_mm=12.3, root=root.wire_id, salt=0xAB)
+        assert len(message.data) == 9
+        m = layout.unpack(message)
+        assert (m.x_mm, m.y_mm) == (pytest.approx(-3276.7), pytest.approx(12.3))
+        assert Root.from_wire(m.root, m.salt) == root
+    assert GPOS.type != GPOS_SETTLED.type
+
+
+def test_a_robot_joins_the_best_frame_three_neighbours_lie_in():
+    good, better, best = (Root(False, FrameKey(uid, 1)) for uid in (9, 5, 2))
+    near = [(40.0, 0.0, 40.0), (0.0, 40.0, 40.0), (40.0, 40.0, 56.6)]
+    heard = [(better, *link) for link in near] + [(best, *near[0]), (best, *near[1])]
+    assert frame_to_join(good, heard) == (better, near)
+    # A third anchor in the best frame: that one, even with fewer anchors than the other.
+    assert frame_to_join(good, [*heard, (best, *near[2])])[0] == best
+    assert frame_to_join(None, heard)[0] == better  # a robot without an estimate joins too
+    assert frame_to_join(better, heard) is None  # no better frame holds three
+    # Edge seeds' roots rank after every elected seed's.
+    edge = Root(True, FrameKey(1, 0))
+    assert frame_to_join(edge, [(good, *link) for link in near])[0] == good
 
 
 def test_the_refinement_runs_only_when_asked():
