@@ -4,6 +4,7 @@ run's estimates and summary."""
 from __future__ import annotations
 
 import json
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -138,3 +139,26 @@ def test_refinement_on_100_robots_reaches_the_bound():
     assert s["frames"] == 1
     assert s["rmse_over_crlb"] <= 1.5
     assert s["rmse_mm"] < s["merge_rmse_mm"] / 10
+
+
+@pytest.mark.slow
+def test_refining_robots_join_the_better_frames_merging_left_apart():
+    """150 random robots (seed 2): merging ends in many frames; robots join better ones."""
+    params = {
+        "placement.kind": "random",
+        "placement.area": "disc",
+        "placement.density_per_m2": 400,
+        "placement.robots": 150,
+        "gcs.refine": True,
+    }
+    run = scenarios.run(GCS, params, seed=2)
+    outcomes = [r.outcome() for r in run.sim.robots]
+    merged = Counter(o.merged_root for o in outcomes if o.merged_root is not None)
+    refined = Counter(o.root for o in outcomes if o.root is not None)
+    assert len(refined) < len(merged)
+    assert max(refined.values()) > max(merged.values())
+    # Every robot that moved frames moved to a better root than merging left it in.
+    for o in outcomes:
+        if o.refined and o.merged_root is not None:
+            assert o.root <= o.merged_root
+    assert run.summary["frames"] == len(refined)
