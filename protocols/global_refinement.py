@@ -33,15 +33,15 @@ It will usually join shortly, and holds a robot's stopping back — for the firs
 merging by then is held there by something else (a split awaiting its recovery) and may never
 come.
 
-**Joining a better frame.** Merging may leave the swarm in several frames (and a robot that
-left merging misses what merging does after). A refining robot that hears at least three
-neighbours whose estimates lie in a frame with a better root (:class:`~protocols.frame_keys.Root`
-order, the one merging uses) places itself in that frame by multilateration from their
-positions and its measured distances (:func:`~kilonet.geometry.multilaterate`, with the
-collinearity, residual and mirror checks phase 4 uses) and refines there from then on
-(:func:`frame_to_join` picks the frame). A robot that merging left without an estimate joins
-the same way. Roots only get better, so the frames are absorbed one robot at a time into the
-best root that a rigid chain of neighbours reaches, and no robot joins back and forth.
+**Joining a better frame.** Merging may leave the swarm in several frames. A refining robot
+that hears at least three neighbours whose estimates lie in a frame with a better root
+(:class:`~protocols.frame_keys.Root` order, the one merging uses) places itself in that frame
+by multilateration from their positions and its measured distances
+(:func:`~kilonet.geometry.multilaterate`, with the collinearity, residual and mirror checks
+phase 4 uses) and refines there from then on (:func:`frame_to_join` picks the frame). A robot
+that merging left without an estimate joins the same way. Roots only get better, so the frames
+are absorbed one robot at a time into the best root that a rigid chain of neighbours reaches,
+and no robot joins back and forth.
 
 **Stopping.** A robot is *settled* when it moved less than ``gcs.refine_settle_mm`` over its last
 ``gcs.refine_settle_rounds`` rounds, relative to the centroid of its neighbours (a small frame
@@ -221,8 +221,6 @@ class GlobalRefinement(Phase):
         The merged frame the estimate is in.
     done : bool
         The robot has stopped refining.
-    joined : int
-        Frames it joined.
     """
 
     __slots__ = (
@@ -236,7 +234,6 @@ class GlobalRefinement(Phase):
         "_tried",
         "_turn",
         "done",
-        "joined",
         "merging",
         "peers",
         "position",
@@ -275,7 +272,6 @@ class GlobalRefinement(Phase):
         self._confirmed = 0
         # The last attempt to join a frame: (root, anchors, round).
         self._tried: tuple[Root, int, int] | None = None
-        self.joined = 0
         self.done = self.position is None
         r.refined = self.position
         r.refined_root = self.root
@@ -383,7 +379,6 @@ class GlobalRefinement(Phase):
         if not fix.ok:
             r.log("join_rejected", root=root.label, reason=fix.reason, anchors=len(links))
             return
-        self.joined += 1
         self._move((fix.x_mm, fix.y_mm), root, "joined")
 
     # -- messages --------------------------------------------------------------------------
