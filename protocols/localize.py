@@ -46,6 +46,7 @@ from protocols.localize_base import (
     LocalizeParams,
     Neighbour,
     Neighbours,
+    choose_parent,
     distance_report,
 )
 from protocols.localize_election import ELECT, MAX_HOPS, Election
@@ -57,7 +58,6 @@ __all__ = ["LocalizeRobot"]
 
 #: Every message's first field, the sender's ID (uint16).
 _SENDER = struct.Struct("<H").unpack_from
-_PHASE2 = frozenset((ROOT.type, POS.type, CAND.type))
 _ROUNDING_SIGMA_MM = 1.0 / math.sqrt(12.0)
 #: A robot re-estimates its ranging noise once the receptions behind the estimate have grown by
 #: this factor: the estimate's standard error falls as 1/sqrt(receptions), so 10 % more moves it
@@ -116,6 +116,8 @@ class LocalizeRobot(Kilobot):
         self.located_tick = 0
         self.stage = "election"
         self.hops = 0
+        self.parent = NO_ID  # the neighbour this robot reports to in the convergecasts
+        self._parent_repeats = 0  # ELECT messages still owed after a change of parent
         self.root_key = 0
         self.election = Election(self)
         self.spread = Spread(self)
@@ -138,9 +140,9 @@ class LocalizeRobot(Kilobot):
             ELECT.type: self._elect_rx,
             DIST.type: self._dist_rx,
             NBR.type: self._nbr_rx,
-            ROOT.type: self.spread.root_rx,
-            POS.type: self.spread.pos_rx,
-            CAND.type: self.spread.cand_rx,
+            ROOT.type: self._root_rx,
+            POS.type: self._pos_rx,
+            CAND.type: self._cand_rx,
             VOTE.type: self.spread.vote_rx,
         }
         self.set_color(0, 0, 2)
@@ -173,7 +175,7 @@ class LocalizeRobot(Kilobot):
 
     def _work(self, tick: int, fresh: list[Neighbour], *, full: bool) -> None:
         """A round of work (``full``), or only the updates a neighbour's news calls for."""
-        before = (self.stage, self.election.echo, self.flags)
+        before = (self.stage, self.election.echo, self.flags, self.parent)
         if self.stage == "election":
             self.election.round(tick, fresh, full=full)
             if self.election.won:
@@ -187,6 +189,10 @@ class LocalizeRobot(Kilobot):
                     # neighbours announce now (a robot that joined late, or whose neighbour
                     # left, would otherwise keep a count the convergecast misreads).
                     self.hops = min(MAX_HOPS, 1 + min((n.hops for n in fresh), default=MAX_HOPS))
+                    parent = choose_parent(self.parent, self.hops, fresh)
+                    if parent != self.parent:
+                        self.parent = parent
+                        self._parent_repeats = self.params.parent_repeats
                 self.spread.round(tick, fresh)
                 if self.position is not None:
                     self._refine(fresh)
@@ -195,13 +201,16 @@ class LocalizeRobot(Kilobot):
                 self.stage = "done"
                 self.log("stage", name="done")
             self._show()
-        if (self.stage, self.election.echo, self.flags) != before:
+        if (self.stage, self.election.echo, self.flags, self.parent) != before:
             self._urgent = True
 
     def message_tx(self) -> Message | None:
         if self.stage == "done":
             return self.spread.state_message() if self.termination.owes_done() else None
         self._turn += 1
+        if self._parent_repeats and self.stage == "localize":
+            self._parent_repeats -= 1
+            return self.election.message_tx()
         if self._urgent:  # a change of state goes out at once
             self._urgent = False
         elif self._turn % self.params.dist_every == 0:
@@ -225,17 +234,9 @@ class LocalizeRobot(Kilobot):
             return
         n = self.neighbours.heard(sender, distance_mm, self._round)
         handler = self._handlers.get(message.type)
-        if handler is None:
-            return
-        if self.stage == "election" and message.type in _PHASE2:
-            self._enter_localize()
-            self._urgent = True
-        heard = (n.echo, n.flags, n.key)
-        handler(n, message)
-        if (n.echo, n.flags, n.key) != heard:
+        # A handler returns whether the sender's echo, flags, key or parent changed.
+        if handler is not None and handler(n, message):
             self._news = True
-        if n.flags & DONE and self.stage == "localize":
-            self.termination.finish("heard")
 
     # -- state ---------------------------------------------------------------------------------
     @property
@@ -317,9 +318,42 @@ class LocalizeRobot(Kilobot):
             # A root chooses its frame robots from its neighbours' distances to each other.
             self.reports.setdefault(m.sender, {})[m.neighbour] = m.distance_mm
 
-    def _elect_rx(self, n: Neighbour, message: Message) -> None:
+    def _elect_rx(self, n: Neighbour, message: Message) -> bool:
         if self.stage == "election":
-            self.election.message_rx(n, message)
+            return self.election.message_rx(n, message)
+        return Election.record(n, message)  # a neighbour that changed its parent
+
+    def _phase2(self) -> None:
+        """A phase-2 message: the root has won; an electing robot moves on."""
+        if self.stage == "election":
+            self._enter_localize()
+            self._urgent = True
+
+    def _root_rx(self, n: Neighbour, message: Message) -> bool:
+        self._phase2()
+        flags = n.flags
+        self.spread.root_rx(n, message)
+        return self._flags_news(n, flags)
+
+    def _pos_rx(self, n: Neighbour, message: Message) -> bool:
+        self._phase2()
+        flags = n.flags
+        self.spread.pos_rx(n, message)
+        return self._flags_news(n, flags)
+
+    def _cand_rx(self, n: Neighbour, message: Message) -> bool:
+        self._phase2()
+        self.spread.cand_rx(n, message)
+        return False
+
+    def _flags_news(self, n: Neighbour, before: int) -> bool:
+        """Whether ``n``'s flags changed from ``before``; a DONE among them ends this robot's
+        work too."""
+        if n.flags == before:
+            return False
+        if n.flags & DONE:
+            self.termination.finish("heard")
+        return True
 
     # -- LED -----------------------------------------------------------------------------------
     def _show(self) -> None:

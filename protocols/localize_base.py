@@ -55,6 +55,7 @@ __all__ = [
     "Neighbour",
     "Neighbours",
     "children_complete",
+    "choose_parent",
     "distance_report",
 ]
 
@@ -151,6 +152,9 @@ class LocalizeParams:
         3, lo=1, hi=1000, doc="rounds the root must stay complete before it floods done"
     )
     done_repeats: int = param(3, lo=1, hi=100, doc="messages a done robot sends before silence")
+    parent_repeats: int = param(
+        3, lo=1, hi=100, doc="ELECT messages a robot sends after its parent changes (phase 2-3)"
+    )
     run_timeout_s: float = param(
         600.0, lo=1.0, hi=86_400.0, doc="a robot declares itself done after this anyway"
     )
@@ -173,6 +177,9 @@ class Neighbour:
         Its position as last announced (None: it has none).
     hops : int
         Its hop count to the root as last announced (255: unknown).
+    parent : int
+        The neighbour it reports to in the convergecasts, as its last ELECT announced
+        (``NO_ID``: none heard).
     flags : int
         Its state flags as last announced (:data:`LOCALIZED`, ...).
     heard_round : int
@@ -191,6 +198,7 @@ class Neighbour:
         "heard_round",
         "hops",
         "key",
+        "parent",
         "reported_mm",
         "samples",
         "sent_mm",
@@ -211,6 +219,7 @@ class Neighbour:
         self.x_mm: float | None = None
         self.y_mm: float | None = None
         self.hops = 255
+        self.parent = NO_ID
         self.flags = 0
         self.key: int | None = None  # election key (protocols.localize_election)
         self.echo = False
@@ -383,22 +392,58 @@ def distance_report(uid: int, position: tuple[float, float] | None, n: Neighbour
     )
 
 
+def choose_parent(current: int, hops: int, neighbours: Iterable[Neighbour]) -> int:
+    """The neighbour a robot ``hops`` from the root reports to in the convergecasts (the
+    election's echo, the settled wave): of the ``neighbours`` one hop nearer the root, the one
+    heard most often — the strongest link, so the two ends hear each other soonest. The
+    ``current`` parent stays while it is one hop nearer and heard at least half as often as
+    the best, so two links of about the same strength do not take turns. ``NO_ID`` for the
+    root, or with no neighbour one hop nearer.
+
+    Examples
+    --------
+    >>> a, b, c = Neighbour(1), Neighbour(2), Neighbour(3)
+    >>> (a.hops, a.samples), (b.hops, b.samples), (c.hops, c.samples) = (1, 8), (1, 12), (2, 30)
+    >>> choose_parent(NO_ID, 2, [a, b, c]), choose_parent(1, 2, [a, b, c])
+    (2, 1)
+    >>> b.samples = 17  # more than twice a's receptions: the stronger link takes over
+    >>> choose_parent(1, 2, [a, b, c]), choose_parent(2, 0, [a, b, c]) == NO_ID
+    (2, True)
+    """
+    if hops == 0:
+        return NO_ID
+    nearer = hops - 1
+    best = kept = None
+    for n in neighbours:
+        if n.hops == nearer:
+            if best is None or n.samples > best.samples:
+                best = n
+            if n.uid == current:
+                kept = n
+    if best is None:
+        return NO_ID
+    if kept is not None and 2 * kept.samples >= best.samples:
+        return current
+    return best.uid
+
+
 def children_complete(
-    hops: int, neighbours: Iterable[Neighbour], complete: Callable[[Neighbour], object]
+    uid: int, neighbours: Iterable[Neighbour], complete: Callable[[Neighbour], object]
 ) -> bool:
-    """Whether every neighbour one hop farther from the root than this robot (``hops + 1``)
-    is ``complete``: the step of a convergecast over the hop structure, which the election's
-    echo and the termination's settled wave both climb.
+    """Whether every neighbour that names robot ``uid`` its parent (:func:`choose_parent`) is
+    ``complete``: the step of a convergecast over the tree of parents, which the election's
+    echo and the termination's settled wave both climb. Only its children hold a robot up, not
+    every neighbour one hop farther out: a robot at the edge of two ranges would otherwise
+    wait for the weakest of many links at every hop.
 
     Examples
     --------
     >>> a, b = Neighbour(1), Neighbour(2)
-    >>> a.hops, b.hops = 3, 4
-    >>> children_complete(3, [a, b], lambda n: n.echo), children_complete(2, [a, b], lambda n: 0)
-    (False, False)
+    >>> a.parent, b.parent = 7, 3
+    >>> children_complete(3, [a, b], lambda n: n.echo), children_complete(9, [a, b], lambda n: 0)
+    (False, True)
     >>> b.echo = True
     >>> children_complete(3, [a, b], lambda n: n.echo)
     True
     """
-    child = hops + 1
-    return all(n.hops != child or complete(n) for n in neighbours)
+    return all(n.parent != uid or complete(n) for n in neighbours)

@@ -8,9 +8,9 @@ have not changed for ``localize.give_up_s`` and its located neighbours are all s
 with no located neighbour, a neighbour has given up; it counts as settled from then on, and
 takes a position after all if one turns up.
 
-Settledness climbs the hop structure of the election as a convergecast
-(:func:`subtree_complete`): a robot is *complete* when it is settled and every neighbour one
-hop farther from the root reports complete. When the root has been complete for
+Settledness climbs the election's tree of parents as a convergecast
+(:func:`subtree_complete`): a robot is *complete* when it is settled and every neighbour that
+names it parent reports complete. When the root has been complete for
 ``localize.done_confirm_rounds`` rounds it declares the swarm *done*; DONE floods outward (a
 robot that hears the flag is done too), every robot freezes its estimate, sends
 ``localize.done_repeats`` more messages so its neighbours hear the flag, and falls silent. A
@@ -32,20 +32,21 @@ if TYPE_CHECKING:
 __all__ = ["Termination", "gives_up", "subtree_complete"]
 
 
-def subtree_complete(settled: bool, hops: int, neighbours: Sequence[Neighbour]) -> bool:
-    """Whether a robot is complete: settled, and every neighbour at ``hops + 1`` complete.
+def subtree_complete(settled: bool, uid: int, neighbours: Sequence[Neighbour]) -> bool:
+    """Whether robot ``uid`` is complete: settled, and every neighbour that names it parent
+    complete.
 
     Examples
     --------
     >>> a, b = Neighbour(1), Neighbour(2)
-    >>> a.hops, b.hops, b.flags = 1, 3, COMPLETE
+    >>> a.parent, (b.parent, b.flags) = 4, (2, COMPLETE)
     >>> subtree_complete(True, 2, [a, b]), subtree_complete(False, 2, [a, b])
     (True, False)
     >>> b.flags = SETTLED
     >>> subtree_complete(True, 2, [a, b])
     False
     """
-    return settled and children_complete(hops, neighbours, _complete)
+    return settled and children_complete(uid, neighbours, _complete)
 
 
 def _complete(n: Neighbour) -> bool:
@@ -104,14 +105,14 @@ class Termination:
         counts only full rounds as confirming)."""
         r = self.robot
         if not full:
-            self.complete = subtree_complete(self.settled, r.hops, fresh)
+            self.complete = subtree_complete(self.settled, r.uid, fresh)
             return
         if r.position is not None:
             self.settled = r.refiner.settled or tick - r.located_tick >= self.settle_ticks
         else:
             quiet = tick - r.spread.news_tick >= self.give_up_ticks
             self.settled = gives_up(fresh, quiet)
-        self.complete = subtree_complete(self.settled, r.hops, fresh)
+        self.complete = subtree_complete(self.settled, r.uid, fresh)
         if r.is_root:
             self.confirmed_rounds = self.confirmed_rounds + 1 if self.complete else 0
             if self.confirmed_rounds >= r.params.done_confirm_rounds:

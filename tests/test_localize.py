@@ -30,14 +30,17 @@ from protocols import (
 )
 from protocols.localize_base import (
     COMPLETE,
+    LOCALIZED,
     NBR,
+    NO_ID,
     SETTLED,
     Neighbour,
     Neighbours,
     children_complete,
+    choose_parent,
     distance_report,
 )
-from protocols.localize_election import ELECT, echo_complete, election_key
+from protocols.localize_election import ELECT, Election, echo_complete, election_key
 from protocols.localize_spread import (
     CAND,
     POS,
@@ -64,9 +67,9 @@ def run(robots: int, seed: int = 1, **overrides):
     return scenarios.run(LOCALIZE, {"placement.robots": robots, **overrides}, seed=seed)
 
 
-def _neighbour(uid, *, hops=0, flags=0, key=None, echo=False, position=None):
+def _neighbour(uid, *, hops=0, flags=0, key=None, echo=False, parent=NO_ID, position=None):
     n = Neighbour(uid)
-    n.hops, n.flags, n.key, n.echo = hops, flags, key, echo
+    n.hops, n.flags, n.key, n.echo, n.parent = hops, flags, key, echo, parent
     if position is not None:
         n.x_mm, n.y_mm = position
     return n
@@ -78,7 +81,7 @@ def _neighbour(uid, *, hops=0, flags=0, key=None, echo=False, position=None):
 @pytest.mark.parametrize(
     ("layout", "values"),
     [
-        (ELECT, {"sender": 65534, "key": 0xFFFFFFFF, "hops": 254, "echo": 1}),
+        (ELECT, {"sender": 65534, "key": 0xFFFFFFFF, "hops": 0xFE, "parent": 0xFFFF}),
         (ROOT, {"sender": 3, "axis": 4, "third": 0xFFFF, "flags": 15}),
         (POS, {"sender": 3, "x_mm": -3276.7, "y_mm": 3276.7, "hops": 9, "flags": 5}),
         (CAND, {"sender": 3, "x_mm": 12.3, "y_mm": -4.5, "index": 1, "version": 255}),
@@ -136,10 +139,27 @@ def test_two_robots_behind_one_id_make_it_ambiguous_only_when_far_apart():
     assert nbs.fresh(1) == []
 
 
-def test_children_complete_only_looks_one_hop_out():
-    a, b, c = (_neighbour(1, hops=1), _neighbour(2, hops=2), _neighbour(3, hops=3))
-    assert children_complete(1, [a, b, c], lambda n: n.uid == 2)
-    assert not children_complete(2, [a, b, c], lambda n: n.uid == 2)
+def test_children_complete_only_waits_for_the_robots_that_name_it_parent():
+    a, b, c = (_neighbour(1, parent=9), _neighbour(2, parent=5), _neighbour(3, parent=5))
+    assert children_complete(9, [a, b, c], lambda n: n.uid == 1)
+    assert not children_complete(5, [a, b, c], lambda n: n.uid == 2)
+    assert children_complete(5, [a, b, c], lambda n: n.uid in (2, 3))
+    assert children_complete(4, [a, b, c], lambda n: False)  # nobody's parent: a leaf
+
+
+def test_parent_is_the_best_heard_neighbour_one_hop_nearer_and_sticks():
+    near_weak, near_strong, same = (_neighbour(1, hops=2), _neighbour(2, hops=2), _neighbour(3))
+    same.hops = 3
+    near_weak.samples, near_strong.samples, same.samples = 10, 15, 99
+    neighbours = [near_weak, near_strong, same]
+    assert choose_parent(NO_ID, 3, neighbours) == 2  # not the sibling heard 99 times
+    assert choose_parent(1, 3, neighbours) == 1  # 15 < 2 x 10: the parent stays
+    near_strong.samples = 21
+    assert choose_parent(1, 3, neighbours) == 2
+    near_strong.hops = 3  # no longer nearer: the other one, however weak
+    assert choose_parent(2, 3, neighbours) == 1
+    assert choose_parent(1, 0, neighbours) == NO_ID  # the root
+    assert choose_parent(1, 5, neighbours) == NO_ID  # nobody at 4 hops
 
 
 # ------------------------------------------------------------------------------- election
@@ -153,15 +173,25 @@ def test_election_key_prefers_more_neighbours_then_the_salt():
 
 
 def test_echo_needs_every_neighbour_on_the_key_and_children_complete():
-    parent = _neighbour(1, hops=2, key=7)
-    sibling = _neighbour(2, hops=3, key=7)
-    child = _neighbour(3, hops=4, key=7)
-    assert not echo_complete(7, 3, [parent, sibling, child])
+    parent = _neighbour(1, hops=2, key=7, parent=0)
+    sibling = _neighbour(2, hops=3, key=7, parent=1)
+    child = _neighbour(3, hops=4, key=7, parent=4)
+    assert not echo_complete(7, 4, [parent, sibling, child])
     child.echo = True
-    assert echo_complete(7, 3, [parent, sibling, child])
+    assert echo_complete(7, 4, [parent, sibling, child])
     sibling.key = 8  # not switched to key 7 yet
-    assert not echo_complete(7, 3, [parent, sibling, child])
-    assert echo_complete(7, 3, [])  # a robot alone
+    assert not echo_complete(7, 4, [parent, sibling, child])
+    assert echo_complete(7, 4, [])  # a robot alone
+
+
+def test_elect_carries_hops_echo_and_parent():
+    n = Neighbour(3)
+    message = ELECT.pack(sender=3, key=12, hops=0x80 | 5, parent=77)
+    assert Election.record(n, message)  # all news to an empty record
+    assert (n.key, n.hops, n.echo, n.parent) == (12, 5, True, 77)
+    assert not Election.record(n, message)  # the same again: nothing new
+    assert Election.record(n, ELECT.pack(sender=3, key=12, hops=5, parent=77))
+    assert (n.hops, n.echo) == (5, False)
 
 
 # -------------------------------------------------------------------------------- spread
@@ -292,11 +322,12 @@ def test_settle_window_looks_at_the_displacement_over_the_window():
 
 
 def test_subtree_complete_and_give_up_rules():
-    child = _neighbour(1, hops=3, flags=SETTLED)
+    child = _neighbour(1, hops=3, flags=SETTLED, parent=5)
     parent = _neighbour(2, hops=1)
-    assert not subtree_complete(True, 2, [child, parent])
+    assert not subtree_complete(True, 5, [child, parent])
+    assert subtree_complete(True, 6, [child, parent])  # not its parent
     child.flags |= COMPLETE
-    assert subtree_complete(True, 2, [child, parent])
+    assert subtree_complete(True, 5, [child, parent])
     located = _neighbour(3, position=(1.0, 2.0), flags=SETTLED)
     unsettled = _neighbour(4, position=(5.0, 2.0))
     assert gives_up([located], quiet=True)
@@ -511,10 +542,30 @@ def test_a_message_from_a_robot_with_my_id_makes_me_draw_another():
     fresh._attach(result.sim, 0, np.random.default_rng(5))
     fresh.setup()
     old = fresh.uid
-    fresh.message_rx(ELECT.pack(sender=old, key=1, hops=0, echo=0), 50)
+    fresh.message_rx(ELECT.pack(sender=old, key=1, hops=0, parent=NO_ID), 50)
     assert fresh.uid != old
     assert isinstance(fresh.message_tx(), Message)
 
+
+def test_a_robot_tells_a_new_parent_in_elect_after_the_election():
+    result = run(12)
+    fresh = localize_module.LocalizeRobot(result.sim.robots[0].params)
+    fresh._attach(result.sim, 0, np.random.default_rng(5))
+    fresh.setup()
+    position = {"x_mm": 40.0, "y_mm": 0.0, "hops": 1, "flags": LOCALIZED}
+    fresh.message_rx(POS.pack(sender=10, **position), 40)  # the frame exists: phase 2
+    fresh.loop()  # a round of work: 2 hops, parent 10
+    assert (fresh.stage, fresh.hops, fresh.parent) == ("localize", 2, 10)
+    sent = [fresh.message_tx() for _ in range(4)]
+    elect = [ELECT.unpack(m) for m in sent if m.type == ELECT.type]
+    assert [m.parent for m in elect] == [10, 10, 10]  # localize.parent_repeats
+    assert all(m.hops & 0x7F == 2 for m in elect)
+    for _ in range(30):  # robot 11, also 1 hop out, is heard far more often
+        fresh.message_rx(POS.pack(sender=11, **position), 45)
+    fresh._next_round = 0  # its next round is due
+    fresh.loop()
+    assert fresh.parent == 11
+    assert ELECT.unpack(fresh.message_tx()).parent == 11
 
 # -------------------------------------------------------------------- the targets
 
