@@ -567,6 +567,7 @@ def test_a_robot_tells_a_new_parent_in_elect_after_the_election():
     assert fresh.parent == 11
     assert ELECT.unpack(fresh.message_tx()).parent == 11
 
+
 # -------------------------------------------------------------------- the targets
 
 
