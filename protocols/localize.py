@@ -275,6 +275,13 @@ class LocalizeRobot(Kilobot):
         self.located_tick = self.kilo_ticks
         self.refiner.reset()
 
+    def unlocate(self, cause: str) -> None:
+        """Give the position up (``cause`` goes to the event log): it was taken from a frame
+        start the root has since replaced."""
+        self.position = None
+        self.refiner.reset()
+        self.log("unlocated", cause=cause)
+
     def _enter_localize(self) -> None:
         if not self.is_root:
             self.reports = {}  # only the root's choice of frame robots needs them

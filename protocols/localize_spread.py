@@ -12,7 +12,9 @@ from R, B and C at once). ROOT
 messages name them. B places itself at ``(|RB|, 0)``; C, once it has heard B's position, at
 ``(x, +y)`` from ``|RC|``, ``|BC|`` and B's x (:func:`~kilonet.geometry.place_references`; the
 positive root of y picks the frame's handedness). If B or C is not placed within
-``localize.bootstrap_timeout_s`` the root names another pair without them.
+``localize.bootstrap_timeout_s`` the root names another pair without them; a B or C that
+placed itself from the old naming after all (its position had not yet reached the root) gives
+its position up when it hears the new one, so the frame never holds two axis robots.
 
 **Spreading.** Every other robot, at each round, fixes its position from its neighbours that
 have one (their announced positions, the distances both ends agree on):
@@ -452,6 +454,10 @@ class Spread:
     def root_rx(self, n: Neighbour, message: Message) -> None:
         m = ROOT.unpack(message)
         n.x_mm, n.y_mm, n.hops, n.flags = 0.0, 0.0, 0, m.flags | LOCALIZED
+        r = self.robot
+        named, renamed = (self.axis, self.third), (m.axis, m.third)
+        if r.position is not None and r.uid in named and r.uid not in renamed:
+            r.unlocate("renamed")  # the root started the frame without this robot
         self.root_uid, self.axis, self.third = m.sender, m.axis, m.third
 
     def pos_rx(self, n: Neighbour, message: Message) -> None:

@@ -568,6 +568,21 @@ def test_a_robot_tells_a_new_parent_in_elect_after_the_election():
     assert ELECT.unpack(fresh.message_tx()).parent == 11
 
 
+def test_an_axis_robot_placed_after_the_root_renamed_the_frame_gives_its_position_up():
+    result = run(12)
+    fresh = localize_module.LocalizeRobot(result.sim.robots[0].params)
+    fresh._attach(result.sim, 0, np.random.default_rng(5))
+    fresh.setup()
+    fresh.message_rx(ROOT.pack(sender=10, axis=fresh.uid, third=20, flags=0), 40)
+    fresh.loop()  # placed as the axis robot, at the root's distance on +x
+    assert fresh.position == pytest.approx((40.0, 0.0))
+    fresh.message_rx(ROOT.pack(sender=10, axis=fresh.uid, third=21, flags=0), 40)
+    assert fresh.position is not None  # still the axis: only the third robot changed
+    fresh.message_rx(ROOT.pack(sender=10, axis=30, third=21, flags=0), 40)
+    assert fresh.position is None  # the frame started without it
+    assert not fresh.flags & LOCALIZED
+
+
 # -------------------------------------------------------------------- the targets
 
 
