@@ -171,6 +171,14 @@ class GlobalEstimate:
             self._position_version = self.version
         return self._position
 
+    def position_in(self, key: FrameKey) -> tuple[float, float] | None:
+        """The robot's position from frame ``key`` alone, in the merged frame's 2-D
+        coordinates (as :meth:`position`, from that one frame); ``None`` unless the robot is
+        located in it and holds its transform."""
+        if key not in self._frames or key not in self._transforms:
+            return None
+        return self._mean_position((key,))
+
     def settled(self) -> bool:
         """Whether the estimate is final as far as the robot can tell: it has one, and every
         seed whose transform it uses has reported itself done."""

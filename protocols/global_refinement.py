@@ -17,24 +17,34 @@ settled estimate never refines (it keeps merging).
 
 **Merging goes on.** A refining robot keeps its part in merging: it still tracks the seeds'
 transforms and ranks and answers their queries, and a seed still runs its rounds (every other
-transmit opportunity is merging's). When merging moves the robot's merged estimate by more than
-``_FOLLOW_MM``, the refined one moves by as much; when merging aligns its frame to a better
-root, the robot takes the new merged estimate and refines from there. Without this, robots
+transmit opportunity is merging's). When merging moves the merged estimate of a robot not yet
+placed by more than ``_FOLLOW_MM``, its estimate moves by as much; when merging aligns its
+frame to a better root, the robot takes the new merged estimate, unplaced, and waits for that
+root's wave. Without this, robots
 that entered the refinement early kept estimates of an older version of their frame, and
 merging lost the members that answer its queries.
 
+**The re-placement wave.** Merging's estimate carries errors that compound from frame to
+frame (per-hop rotation errors); a refinement started from it removes their long wavelengths
+only slowly. So the refinement starts over from the root: a robot located in its merged root's
+own local frame (the root's seed and that frame's members) takes its position from that frame
+alone and is *placed*; every other robot keeps its merged estimate, unrefined, until it hears
+three placed neighbours in its frame, and then places itself from their positions and its
+measured distances by multilateration (:func:`~kilonet.geometry.multilaterate`, with phase 4's
+collinearity, residual and mirror checks) — the spread of ``localize``, outward from the root
+at the pace of messages. Only placed robots refine, and only against placed neighbours (their
+GPOS_PLACED and GPOS_SETTLED messages). A robot the wave cannot place keeps its merged estimate
+and stops once the placed robots around it have.
+
 **Neighbours.** Only neighbours whose estimate is in the same merged frame (the same root)
 count: their GPOS messages name the root. A neighbour still merging that broadcasts a settled
-position (split detection's POS, with the same root, in 0.5 mm) counts as a fixed one: the
-refined robots stay tied to the estimates merging left around them (without it, the refined
-part of a frame could drift as a whole against the rest, and the frame's error would grow).
-It will usually join shortly, and holds a robot's stopping back — for the first
-``2 · gcs.refine_after_s`` of the robot's refinement only: a settled robot that has not left
-merging by then is held there by something else (a split awaiting its recovery) and may never
-come.
+position (split detection's POS, with the same root, in 0.5 mm) will usually join shortly, and
+holds a robot's stopping back — for the first ``2 · gcs.refine_after_s`` of the robot's
+refinement only: a settled robot that has not left merging by then is held there by something
+else (a split awaiting its recovery) and may never come.
 
 **Joining a better frame.** Merging may leave the swarm in several frames. A refining robot
-that hears at least three neighbours whose estimates lie in a frame with a better root
+that hears at least three placed neighbours whose estimates lie in a frame with a better root
 (:class:`~protocols.frame_keys.Root` order, the one merging uses) places itself in that frame
 by multilateration from their positions and its measured distances
 (:func:`~kilonet.geometry.multilaterate`, with the collinearity, residual and mirror checks
@@ -56,7 +66,8 @@ Messages (one transmit opportunity in ``_DIST_EVERY`` carries a DIST report of
 :mod:`protocols.refinement`, with the global position, 0.1 mm)::
 
     type 73 GPOS          sender:uint16  x:int16  y:int16 (0.1 mm)  root:uint16  salt:uint8
-    type 74 GPOS_SETTLED  the same, from a robot that has settled or is done     9 bytes
+    type 75 GPOS_PLACED   the same, from a robot the wave has placed               9 bytes
+    type 74 GPOS_SETTLED  the same, from a placed robot that has settled or is done
 
 ``root`` and ``salt`` are the wire ID and salt of the merged frame's root
 (:meth:`protocols.frame_keys.Root.from_wire`): the whole root, so a robot that joins a frame
@@ -91,13 +102,15 @@ if TYPE_CHECKING:
 
     from protocols.neighbours import Neighbour
 
-__all__ = ["GPOS", "GPOS_SETTLED", "GlobalRefinement", "Peer", "frame_to_join"]
+__all__ = ["GPOS", "GPOS_PLACED", "GPOS_SETTLED", "GlobalRefinement", "Peer", "frame_to_join"]
 
 _GPOS_FIELDS = [("x_mm", "h", 0.1), ("y_mm", "h", 0.1), ("root", "H"), ("salt", "B")]
 #: A refining robot's global position and root; GPOS_SETTLED: the same from one that has
 #: settled (or is done: its estimate frozen).
 GPOS = gcs_layout("gpos", type=73, fields=_GPOS_FIELDS)
 GPOS_SETTLED = gcs_layout("gpos_settled", type=74, fields=_GPOS_FIELDS)
+#: The same from a robot placed by the re-placement wave that has not settled yet.
+GPOS_PLACED = gcs_layout("gpos_placed", type=75, fields=_GPOS_FIELDS)
 #: Largest coordinate GPOS and DIST carry, mm.
 _LIMIT_MM = 3276.7
 #: One transmit opportunity in this many carries a DIST report.
@@ -168,6 +181,7 @@ class Peer:
         "ambiguous",
         "heard_tick",
         "joining",
+        "placed",
         "record",
         "reported_mm",
         "root",
@@ -187,6 +201,7 @@ class Peer:
         self.y_mm: float | None = None
         self.root: Root | None = None
         self.settled = False  # settled or done
+        self.placed = False  # placed by the re-placement wave
         self.joining = False  # merging, with a settled position (POS)
         self.heard_tick = 0
         self.sent_mm: float | None = None
@@ -236,6 +251,7 @@ class GlobalRefinement(Phase):
         "done",
         "merging",
         "peers",
+        "placed",
         "position",
         "refiner",
         "root",
@@ -270,11 +286,13 @@ class GlobalRefinement(Phase):
         self._round = 0
         self._turn = 0
         self._confirmed = 0
-        # The last attempt to join a frame: (root, anchors, round).
-        self._tried: tuple[Root, int, int] | None = None
+        # The last attempt to place this robot in each frame: {root: (anchors, round)}.
+        self._tried: dict[Root, tuple[int, int]] = {}
         self.done = self.position is None
+        self.placed = False
         r.refined = self.position
         r.refined_root = self.root
+        self._start_wave()
 
     def finish(self) -> None:
         if not self.done:
@@ -298,22 +316,30 @@ class GlobalRefinement(Phase):
         oldest = tick - self._stale_ticks
         fresh = [n for n in self.peers.values() if n.heard_tick >= oldest]
         self._join(fresh)
+        if not self.placed:
+            self._place(fresh)
         if self.done:
             return
         root = self.root
-        same = [n for n in fresh if n.root == root and n.x_mm is not None]
-        x, y = self.position
-        links = [(n.x_mm, n.y_mm, n.range_mm) for n in same]
-        # Nothing anchors the frame: settled means still against the neighbours.
-        origin = (
-            (sum(n.x_mm for n in same) / len(same), sum(n.y_mm for n in same) / len(same))
-            if same
-            else (0.0, 0.0)
-        )
-        self.position = self.refiner.step(x, y, links, origin=origin)
-        r.refined = self.position
+        same = [n for n in fresh if n.placed and n.root == root and n.x_mm is not None]
+        if self.placed:
+            x, y = self.position
+            links = [(n.x_mm, n.y_mm, n.range_mm) for n in same]
+            # Nothing anchors the frame: settled means still against the neighbours.
+            origin = (
+                (sum(n.x_mm for n in same) / len(same), sum(n.y_mm for n in same) / len(same))
+                if same
+                else (0.0, 0.0)
+            )
+            self.position = self.refiner.step(x, y, links, origin=origin)
+            r.refined = self.position
+            settled = self.refiner.settled
+        else:
+            # One the wave cannot place keeps its merged estimate and stops with the placed
+            # robots around it (it is placed after all if more of them turn up).
+            settled = bool(same)
         joining = tick < self._join_until and any(n.joining for n in fresh)
-        stop = neighbourhood_settled(self.refiner.settled, (n.settled for n in same))
+        stop = neighbourhood_settled(settled, (n.settled for n in same))
         self._confirmed = self._confirmed + 1 if stop and not joining else 0
         if self._confirmed >= _CONFIRM_ROUNDS:
             self._stop("settled")
@@ -333,8 +359,9 @@ class GlobalRefinement(Phase):
                 return  # merging's own jitter, which the refinement corrects
         self._base = (merged, root)
         if self.root is None or root < self.root:
-            self._move(merged, root, "merged")
-        elif root == self.root == base_root and base is not None:
+            self._move(merged, root, "merged", placed=False)
+            self._start_wave()
+        elif root == self.root == base_root and base is not None and not self.placed:
             x, y = self.position
             self.position = (x + dx, y + dy)
             self.robot.refined = self.position
@@ -342,44 +369,82 @@ class GlobalRefinement(Phase):
             self._confirmed = 0
             self.done = False
 
-    def _move(self, position: tuple[float, float], root: Root, how: str) -> None:
-        """The estimate is now ``position`` in frame ``root`` (joined, or merged there)."""
+    def _move(self, position: tuple[float, float], root: Root, how: str, *, placed: bool) -> None:
+        """The estimate is now ``position`` in frame ``root`` (joined, placed, or merged
+        there); ``placed``: by the re-placement wave."""
         r = self.robot
         r.log("refine_moved", how=how, root=root.label, x_mm=position[0], y_mm=position[1])
-        self.position, self.root = position, root
+        self.position, self.root, self.placed = position, root, placed
         self.refiner.reset()
         self._confirmed = 0
-        self._tried = None
+        self._tried.clear()
         self.done = False
         r.refined, r.refined_root = position, root
 
+    def _start_wave(self) -> None:
+        """A robot located in its merged root's own frame (the root's seed and the members of
+        its local frame) starts the re-placement wave: it takes its position from that frame
+        alone, free of the transforms merging compounded."""
+        if self.root is None:
+            return
+        own = self.robot.estimate.position_in(self.root.key)
+        if own is not None:
+            self.position, self.placed = own, True
+            self.robot.refined = own
+
+    def _place(self, fresh: list[Peer]) -> None:
+        """The re-placement wave: with three placed neighbours in its frame, a robot places
+        itself from their positions and its measured distances, as ``localize`` spreads."""
+        if self.root is None:
+            return
+        links = [
+            (n.x_mm, n.y_mm, n.range_mm)
+            for n in fresh
+            if n.placed and n.root == self.root and n.x_mm is not None
+        ]
+        fix = self._fix(self.root, links, "place_rejected")
+        if fix is not None:
+            self._move(fix, self.root, "placed", placed=True)
+
     def _join(self, fresh: list[Peer]) -> None:
-        """Move into the best frame :func:`frame_to_join` names, if the fix passes its checks
-        (a failed attempt is repeated with more anchors, or after ``_JOIN_RETRY_ROUNDS``)."""
-        heard = ((n.root, n.x_mm, n.y_mm, n.range_mm) for n in fresh if n.root is not None)
+        """Move into the best frame :func:`frame_to_join` names from its placed robots, if
+        the fix passes its checks."""
+        heard = (
+            (n.root, n.x_mm, n.y_mm, n.range_mm) for n in fresh if n.placed and n.root is not None
+        )
         choice = frame_to_join(self.root, heard)
         if choice is None:
             return
         root, links = choice
-        tried = self._tried
+        fix = self._fix(root, links, "join_rejected")
+        if fix is not None:
+            self._move(fix, root, "joined", placed=True)
+
+    def _fix(
+        self, root: Root, links: list[tuple[float, float, float]], rejected: str
+    ) -> tuple[float, float] | None:
+        """Multilaterate in frame ``root`` from ``links`` (x, y, range, mm) with phase 4's
+        checks; ``None`` with fewer than three, when they fail (logged as ``rejected``), or
+        while a failed attempt waits for more anchors or ``_JOIN_RETRY_ROUNDS``."""
+        if len(links) < 3:
+            return None
+        tried = self._tried.get(root)
         if (
             tried is not None
-            and tried[0] == root
-            and len(links) <= tried[1]
-            and self._round - tried[2] < _JOIN_RETRY_ROUNDS
+            and len(links) <= tried[0]
+            and self._round - tried[1] < _JOIN_RETRY_ROUNDS
         ):
-            return
-        self._tried = (root, len(links), self._round)
+            return None
+        self._tried[root] = (len(links), self._round)
         p = self.params
         points = np.array(links)
         fix = multilaterate(
             points[:, :2], points[:, 2], sigma_mm=p.sigma_mm, max_rmse_mm=p.max_rmse_mm
         )
-        r = self.robot
         if not fix.ok:
-            r.log("join_rejected", root=root.label, reason=fix.reason, anchors=len(links))
-            return
-        self._move((fix.x_mm, fix.y_mm), root, "joined")
+            self.robot.log(rejected, root=root.label, reason=fix.reason, anchors=len(links))
+            return None
+        return fix.x_mm, fix.y_mm
 
     # -- messages --------------------------------------------------------------------------
     def message_tx(self) -> Message | None:
@@ -407,7 +472,10 @@ class GlobalRefinement(Phase):
                     neighbour=n.uid,
                     distance=distance_code(n.mean_mm),
                 )
-        layout = GPOS_SETTLED if self.done or self.refiner.settled else GPOS
+        if not self.placed:
+            layout = GPOS
+        else:
+            layout = GPOS_SETTLED if self.done or self.refiner.settled else GPOS_PLACED
         root = self.root
         return layout.pack(sender=r.uid, x_mm=x, y_mm=y, root=root.wire_id, salt=root.key.salt)
 
@@ -431,7 +499,7 @@ class GlobalRefinement(Phase):
             m = POS.unpack(message)
             n.x_mm, n.y_mm = m.x_mm, m.y_mm
             n.root, n.settled = Root.from_wire(m.root, m.root_salt), True
-            n.joining = True
+            n.joining, n.placed = True, False
         elif kind == DIST.type:
             m = DIST.unpack(message)
             if n.root is not None:  # its root is known from a GPOS: the position is usable
@@ -439,13 +507,14 @@ class GlobalRefinement(Phase):
             if m.neighbour == r.uid:
                 n.reported_mm = unwrap_distance(m.distance, n.mean_mm)
         else:
-            settled = kind == GPOS_SETTLED.type
-            m = (GPOS_SETTLED if settled else GPOS).unpack(message)
+            m = _GPOS_LAYOUTS[kind].unpack(message)
             n.x_mm, n.y_mm = m.x_mm, m.y_mm
-            n.root, n.settled = Root.from_wire(m.root, m.salt), settled
-            n.joining = False
+            n.root, n.settled = Root.from_wire(m.root, m.salt), kind == GPOS_SETTLED.type
+            n.joining, n.placed = False, kind != GPOS.type
         n.heard_tick = r.kilo_ticks
 
 
+#: The global positions by message type.
+_GPOS_LAYOUTS = {layout.type: layout for layout in (GPOS, GPOS_PLACED, GPOS_SETTLED)}
 #: The messages a refining robot reads.
-_HEARD = frozenset((GPOS.type, GPOS_SETTLED.type, DIST.type, POS.type))
+_HEARD = frozenset((*_GPOS_LAYOUTS, DIST.type, POS.type))

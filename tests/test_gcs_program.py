@@ -46,7 +46,7 @@ LAYOUTS = list(
 
 
 def test_every_layout_starts_with_the_sender_and_sender_of_reads_it():
-    assert len(LAYOUTS) == 22  # phase 7's GPOS and GPOS_SETTLED, and the refinement's DIST
+    assert len(LAYOUTS) == 23  # phase 7's three GPOS types, and the refinement's DIST
     assert len({layout.type for layout in LAYOUTS}) == len(LAYOUTS)
     for layout in LAYOUTS:
         names = layout.record._fields

@@ -14,7 +14,13 @@ from kilonet.simulation import Simulation
 from protocols.frame_keys import FrameKey, Root
 from protocols.gcs import GcsRobot, phase_sequence
 from protocols.gcs_base import GcsParams
-from protocols.global_refinement import GPOS, GPOS_SETTLED, GlobalRefinement, frame_to_join
+from protocols.global_refinement import (
+    GPOS,
+    GPOS_PLACED,
+    GPOS_SETTLED,
+    GlobalRefinement,
+    frame_to_join,
+)
 from scenarios.base import build_params, place
 
 GCS = scenarios.get("gcs")
@@ -28,13 +34,13 @@ def refined():
 
 def test_gpos_carries_position_and_the_whole_root():
     root = Root(edge=True, key=FrameKey(200, 0xAB))
-    for layout in (GPOS, GPOS_SETTLED):
+    for layout in (GPOS, GPOS_PLACED, GPOS_SETTLED):
         message = layout.pack(sender=7, x_mm=-3276.7, y_mm=12.3, root=root.wire_id, salt=0xAB)
         assert len(message.data) == 9
         m = layout.unpack(message)
         assert (m.x_mm, m.y_mm) == (pytest.approx(-3276.7), pytest.approx(12.3))
         assert Root.from_wire(m.root, m.salt) == root
-    assert GPOS.type != GPOS_SETTLED.type
+    assert len({GPOS.type, GPOS_PLACED.type, GPOS_SETTLED.type}) == 3
 
 
 def test_a_robot_joins_the_best_frame_three_neighbours_lie_in():
@@ -84,6 +90,19 @@ def test_refinement_lowers_the_rmse_and_the_run_ends_by_itself(refined):
     causes = [json.loads(d)["cause"] for d in events.data[events.event == "refine_done"]]
     assert causes == ["settled"] * 40
     assert s["done_s"] == pytest.approx(events.t_s[events.event == "refine_done"].max(), abs=1e-3)
+
+
+def test_the_wave_places_every_robot_outward_from_the_roots_own_frame(refined):
+    robots = refined.sim.robots
+    assert all(isinstance(r.phase, GlobalRefinement) and r.phase.placed for r in robots)
+    # The root's seed and the members of its local frame start the wave; the others place
+    # themselves from three placed neighbours.
+    starters = [r for r in robots if r.estimate.position_in(r.phase.root.key) is not None]
+    assert 3 <= len(starters) < len(robots)
+    events = refined.sim.trace.events_frame()
+    moved = events[events.event == "refine_moved"]
+    placed = {k for k, d in zip(moved.robot, moved.data, strict=True) if '"placed"' in d}
+    assert placed >= {k for k, r in enumerate(robots) if r not in starters}
 
 
 def test_robots_refine_only_after_their_seeds_are_done(refined):
