@@ -208,9 +208,14 @@ class LocalizeRobot(Kilobot):
         if self.stage == "done":
             return self.spread.state_message() if self.termination.owes_done() else None
         self._turn += 1
-        if self._parent_repeats and self.stage == "localize":
-            self._parent_repeats -= 1
-            return self.election.message_tx()
+        if self.stage == "localize" and not self.is_root:
+            # Announce the parent after it changed, and now and then anyway: a lost
+            # announcement would leave this robot out of its parent's convergecasts.
+            if self._parent_repeats:
+                self._parent_repeats -= 1
+                return self.election.message_tx()
+            if self._turn % self.params.parent_every == 0:
+                return self.election.message_tx()
         if self._urgent:  # a change of state goes out at once
             self._urgent = False
         elif self._turn % self.params.dist_every == 0:

@@ -117,7 +117,10 @@ class LocalizeParams:
         4.0, lo=0.2, hi=600.0, doc="the root picks other frame robots if these stay silent"
     )
     min_height_mm: float = param(
-        10.0, lo=0.1, hi=200.0, doc="thinnest triangle a frame start or two candidates may form"
+        10.0,
+        lo=0.1,
+        hi=200.0,
+        doc="thinnest triangle a frame start, a fix's anchors or two candidates may form",
     )
     max_residual_sigmas: float = param(
         4.0, lo=0.1, hi=1000.0, doc="reject fixes whose residual RMS exceeds this many sigmas"
@@ -154,6 +157,12 @@ class LocalizeParams:
     done_repeats: int = param(3, lo=1, hi=100, doc="messages a done robot sends before silence")
     parent_repeats: int = param(
         3, lo=1, hi=100, doc="ELECT messages a robot sends after its parent changes (phase 2-3)"
+    )
+    parent_every: int = param(
+        10,
+        lo=2,
+        hi=1000,
+        doc="after the election, one transmit opportunity in this many re-announces the parent",
     )
     run_timeout_s: float = param(
         600.0, lo=1.0, hi=86_400.0, doc="a robot declares itself done after this anyway"

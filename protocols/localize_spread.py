@@ -20,10 +20,11 @@ its position up when it hears the new one, so the frame never holds two axis rob
 have one (their announced positions, the distances both ends agree on):
 
 1. *Three or more anchors*: least squares (:func:`~kilonet.geometry.multilaterate`), rejected
-   if the anchors are collinear, the residuals are too large (``localize.max_residual_sigmas``
-   noise deviations), the geometry is poor, or the mirror image across the anchors' line fits
-   nearly as well — the flip that a noisy near-collinear triple allows (Savvides et al. 2001;
-   Moore et al. 2004).
+   if the anchors lie within ``localize.min_height_mm`` of one line (the anchors' positions
+   carry errors of their own, which the mirror test below does not see), the residuals are
+   too large (``localize.max_residual_sigmas`` noise deviations), the geometry is poor, or the
+   mirror image across the anchors' line fits nearly as well — the flip that a noisy
+   near-collinear triple allows (Savvides et al. 2001; Moore et al. 2004).
 2. *Two anchors*: two candidate positions, mirror images across the anchors' line
    (:func:`circle_candidates`). The robot announces both (CAND messages) unless they lie
    closer than ``2 · min_height_mm``.
@@ -572,6 +573,7 @@ class Spread:
                 np.array(ranges),
                 sigma_mm=sigma,
                 max_rmse_mm=max_rmse,
+                min_anchor_width_mm=r.params.min_height_mm,
             )
             if fix.ok:
                 self._located(fix.x_mm, fix.y_mm, "anchors", len(anchors))

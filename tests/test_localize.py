@@ -560,6 +560,9 @@ def test_a_robot_tells_a_new_parent_in_elect_after_the_election():
     elect = [ELECT.unpack(m) for m in sent if m.type == ELECT.type]
     assert [m.parent for m in elect] == [10, 10, 10]  # localize.parent_repeats
     assert all(m.hops & 0x7F == 2 for m in elect)
+    # Then one opportunity in localize.parent_every (10) announces it again.
+    later = [fresh.message_tx() for _ in range(5, 25)]
+    assert [m.type for m in later].count(ELECT.type) == 2
     for _ in range(30):  # robot 11, also 1 hop out, is heard far more often
         fresh.message_rx(POS.pack(sender=11, **position), 45)
     fresh._next_round = 0  # its next round is due
