@@ -33,7 +33,7 @@ from typing import Any
 import scenarios
 from kilonet.cli import UsageError
 from kilonet.params import ParamError, Params, describe
-from scenarios.base import Scenario, ScenarioOption, build_params, json_safe
+from scenarios.base import Scenario, ScenarioError, ScenarioOption, build_params, json_safe
 
 __all__ = ["register_params", "register_run", "register_scenarios", "run_file_overrides"]
 
@@ -406,7 +406,17 @@ def register_params(subparsers: Any) -> None:
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
-    scenario = scenarios.get(args.scenario or scenarios.DEFAULT)
+    name = args.scenario or scenarios.DEFAULT
+    if name not in scenarios.names():
+        default = scenarios.get(scenarios.DEFAULT)
+        keys = [key for key, *_ in describe(build_params(default)) if key.startswith(f"{name}.")]
+        if keys:
+            raise ScenarioError(
+                f"{name!r} is a section of parameters, not a scenario: every scenario has it "
+                f"({', '.join(keys[:3])}, ...); list them with kilonet params SCENARIO, "
+                f"e.g. kilonet params {scenarios.DEFAULT}"
+            )
+    scenario = scenarios.get(name)
     rows = [
         (key, str(value), kind, doc) for key, value, kind, doc in describe(build_params(scenario))
     ]
