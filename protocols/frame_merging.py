@@ -339,14 +339,15 @@ class FrameMerging(Phase):
 
     def finished(self) -> bool:
         """Whether merging is over for this robot, so that the refinement (phase 7) may start:
-        for ``gcs.refine_after_s`` its estimate has been settled and the seed of every frame it
-        is located in done (a robot stays a member for a frame whose seed still merges), no
-        recovery is announced or awaited, and a seed's own rounds are done."""
+        for ``gcs.refine_after_s`` its estimate has been settled (or it is located in no frame
+        at all, and merging can give it none: the refinement's wave may place it) and the seed
+        of every frame it is located in done (a robot stays a member for a frame whose seed
+        still merges), no recovery is announced or awaited, and a seed's own rounds are done."""
         r = self.robot
         estimate = r.estimate
         transforms = estimate.transforms
         over = (
-            estimate.settled()
+            (estimate.settled() or not estimate.frames)
             and all(k in transforms and transforms[k].done for k in estimate.frames)
             and not r.awaiting_recovery()
             and (self.seed is None or self.seed.done)

@@ -14,6 +14,7 @@ from kilonet.simulation import Simulation
 from protocols.frame_keys import FrameKey, Root
 from protocols.gcs import GcsRobot, phase_sequence
 from protocols.gcs_base import GcsParams
+from protocols.global_estimate import GlobalEstimate
 from protocols.global_refinement import (
     GPOS,
     GPOS_PLACED,
@@ -74,6 +75,19 @@ def test_a_recovery_epoch_refines_again():
     robot.schedule_recovery(1, robot.kilo_ticks + 10)
     names = [cls.name for cls, _, _ in robot._windows]
     assert names[-6:] == ["edges", "frames", "localization", "groups", "merge", "refine"]
+
+
+def test_a_robot_located_in_no_frame_leaves_merging_for_the_wave():
+    params = build_params(GCS, {"placement.robots": 7, "gcs.refine": True})
+    positions = place(GCS, params)
+    sim = Simulation(positions, GCS.program(params, positions), params)
+    sim.run(100.0)  # into merging
+    robot: GcsRobot = next(r for r in sim.robots if not r.is_seed)
+    assert robot.phase_name == "merge"
+    robot.estimate = GlobalEstimate()  # as if phase 4 had located it in no frame
+    sim.run(100.0 + 2 * params.scenario.refine_after_s)
+    assert robot.phase_name == "refine"
+    assert robot.phase.placed  # joined from its placed neighbours
 
 
 def test_refinement_lowers_the_rmse_and_the_run_ends_by_itself(refined):
