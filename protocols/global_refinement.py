@@ -20,9 +20,8 @@ transforms and ranks and answers their queries, and a seed still runs its rounds
 transmit opportunity is merging's). When merging moves the merged estimate of a robot not yet
 placed by more than ``_FOLLOW_MM``, its estimate moves by as much; when merging aligns its
 frame to a better root, the robot takes the new merged estimate, unplaced, and waits for that
-root's wave. Without this, robots
-that entered the refinement early kept estimates of an older version of their frame, and
-merging lost the members that answer its queries.
+root's wave. Without this, robots that entered the refinement early kept estimates of an
+older version of their frame, and merging lost the members that answer its queries.
 
 **The re-placement wave.** Merging's estimate carries errors that compound from frame to
 frame (per-hop rotation errors); a refinement started from it removes their long wavelengths
@@ -105,8 +104,8 @@ if TYPE_CHECKING:
 __all__ = ["GPOS", "GPOS_PLACED", "GPOS_SETTLED", "GlobalRefinement", "Peer", "frame_to_join"]
 
 _GPOS_FIELDS = [("x_mm", "h", 0.1), ("y_mm", "h", 0.1), ("root", "H"), ("salt", "B")]
-#: A refining robot's global position and root; GPOS_SETTLED: the same from one that has
-#: settled (or is done: its estimate frozen).
+#: A refining robot's global position and root, before the wave has placed it; GPOS_SETTLED:
+#: the same from a placed one that has settled (or is done: its estimate frozen).
 GPOS = gcs_layout("gpos", type=73, fields=_GPOS_FIELDS)
 GPOS_SETTLED = gcs_layout("gpos_settled", type=74, fields=_GPOS_FIELDS)
 #: The same from a robot placed by the re-placement wave that has not settled yet.
