@@ -120,7 +120,7 @@ class LocalizeParams:
         10.0,
         lo=0.1,
         hi=200.0,
-        doc="thinnest triangle a frame start, a fix's anchors or two candidates may form",
+        doc="thinnest triangle allowed: frame start, fix anchors, candidates",
     )
     max_residual_sigmas: float = param(
         4.0, lo=0.1, hi=1000.0, doc="reject fixes whose residual RMS exceeds this many sigmas"
@@ -159,10 +159,7 @@ class LocalizeParams:
         3, lo=1, hi=100, doc="ELECT messages a robot sends after its parent changes (phase 2-3)"
     )
     parent_every: int = param(
-        10,
-        lo=2,
-        hi=1000,
-        doc="after the election, one transmit opportunity in this many re-announces the parent",
+        10, lo=2, hi=1000, doc="after the election, one opportunity in this many sends the parent"
     )
     run_timeout_s: float = param(
         600.0, lo=1.0, hi=86_400.0, doc="a robot declares itself done after this anyway"
