@@ -140,8 +140,8 @@ class LocalizeRobot(Kilobot):
             ELECT.type: self._elect_rx,
             DIST.type: self._dist_rx,
             NBR.type: self._nbr_rx,
-            ROOT.type: self._root_rx,
-            POS.type: self._pos_rx,
+            ROOT.type: self._state_rx,
+            POS.type: self._state_rx,
             CAND.type: self._cand_rx,
             VOTE.type: self.spread.vote_rx,
         }
@@ -208,14 +208,12 @@ class LocalizeRobot(Kilobot):
         if self.stage == "done":
             return self.spread.state_message() if self.termination.owes_done() else None
         self._turn += 1
-        if self.stage == "localize" and not self.is_root:
-            # Announce the parent after it changed, and now and then anyway: a lost
-            # announcement would leave this robot out of its parent's convergecasts.
-            if self._parent_repeats:
-                self._parent_repeats -= 1
-                return self.election.message_tx()
-            if self._turn % self.params.parent_every == 0:
-                return self.election.message_tx()
+        # After the election, announce the parent after it changed, and now and then anyway: a
+        # lost announcement would leave this robot out of its parent's convergecasts.
+        announce = self._parent_repeats or self._turn % self.params.parent_every == 0
+        if announce and self.stage == "localize" and not self.is_root:
+            self._parent_repeats = max(0, self._parent_repeats - 1)
+            return self.election.message_tx()
         if self._urgent:  # a change of state goes out at once
             self._urgent = False
         elif self._turn % self.params.dist_every == 0:
@@ -333,7 +331,7 @@ class LocalizeRobot(Kilobot):
     def _elect_rx(self, n: Neighbour, message: Message) -> bool:
         if self.stage == "election":
             return self.election.message_rx(n, message)
-        return Election.record(n, message)  # a neighbour that changed its parent
+        return Election.record(n, message)  # a neighbour announcing its parent
 
     def _phase2(self) -> None:
         """A phase-2 message: the root has won; an electing robot moves on."""
@@ -341,31 +339,23 @@ class LocalizeRobot(Kilobot):
             self._enter_localize()
             self._urgent = True
 
-    def _root_rx(self, n: Neighbour, message: Message) -> bool:
+    def _state_rx(self, n: Neighbour, message: Message) -> bool:
+        """ROOT or POS: the sender's state; whether its flags changed (a DONE among them ends
+        this robot's work too)."""
         self._phase2()
-        flags = n.flags
-        self.spread.root_rx(n, message)
-        return self._flags_news(n, flags)
-
-    def _pos_rx(self, n: Neighbour, message: Message) -> bool:
-        self._phase2()
-        flags = n.flags
-        self.spread.pos_rx(n, message)
-        return self._flags_news(n, flags)
-
-    def _cand_rx(self, n: Neighbour, message: Message) -> bool:
-        self._phase2()
-        self.spread.cand_rx(n, message)
-        return False
-
-    def _flags_news(self, n: Neighbour, before: int) -> bool:
-        """Whether ``n``'s flags changed from ``before``; a DONE among them ends this robot's
-        work too."""
+        before = n.flags
+        spread = self.spread
+        (spread.root_rx if message.type == ROOT.type else spread.pos_rx)(n, message)
         if n.flags == before:
             return False
         if n.flags & DONE:
             self.termination.finish("heard")
         return True
+
+    def _cand_rx(self, n: Neighbour, message: Message) -> bool:
+        self._phase2()
+        self.spread.cand_rx(n, message)
+        return False
 
     # -- LED -----------------------------------------------------------------------------------
     def _show(self) -> None:
