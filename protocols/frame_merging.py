@@ -71,6 +71,7 @@ from kilonet.geometry import GeometryError
 from kilonet.message import Message
 from protocols.frame_keys import FrameKey, Rank
 from protocols.gcs_base import GcsParams, Phase, gcs_layout
+from protocols.global_refinement import PlacedNeighbours
 from protocols.merging_rules import (
     all_partners_heard,
     answer_agrees,
@@ -293,6 +294,7 @@ class FrameMerging(Phase):
         "outbox",
         "parts",
         "pending_query",
+        "placed",
         "round_ticks",
         "seed",
         "settled_since",
@@ -333,6 +335,8 @@ class FrameMerging(Phase):
         self.settled_since: int | None = None
         self.finish_ticks = self.params.refine_after_s * tps
         r.check = SplitCheck(r)
+        # Neighbours the refinement's wave has placed (phase 7, gcs.refine): see finished().
+        self.placed = PlacedNeighbours(tps)
         self.seed: SeedRounds | None = SeedRounds(self) if r.is_seed else None
         if self.seed is not None:
             self.seed.start()
@@ -342,9 +346,15 @@ class FrameMerging(Phase):
         for ``gcs.refine_after_s`` its estimate has been settled (or it is located in no frame
         at all, and merging can give it none: the refinement's wave may place it) and the seed
         of every frame it is located in done (a robot stays a member for a frame whose seed
-        still merges), no recovery is announced or awaited, and a seed's own rounds are done."""
+        still merges), no recovery is announced or awaited, and a seed's own rounds are done.
+        Or at once, when the refinement's re-placement wave has reached it
+        (:func:`~protocols.global_refinement.wave_reached`): the wave places it, whatever
+        holds merging back (the refinement keeps merging going, and a recovery still ends it).
+        """
         r = self.robot
         estimate = r.estimate
+        if self.placed.reached(estimate.root(), r.kilo_ticks):
+            return True
         transforms = estimate.transforms
         over = (
             (estimate.settled() or not estimate.frames)
@@ -531,6 +541,7 @@ class FrameMerging(Phase):
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
         kind = message.type
+        self.placed.take(message, self.robot.kilo_ticks)
         if kind in _TRANSFORM_PARTS:
             self._track_transform(message)
         elif kind == TF_ROOT.type:

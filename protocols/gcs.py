@@ -429,10 +429,14 @@ class GcsRobot(Kilobot):
 
     # -- what the run reads ----------------------------------------------------------------------
     def awaiting_recovery(self) -> bool:
-        """A recovery epoch is announced, or this robot is on a split boundary that one may
-        still be started for (``gcs.recoveries`` not used up)."""
+        """A recovery epoch is announced, or this robot is merging on a split boundary that one
+        may still be started for (``gcs.recoveries`` not used up). Only merging robots check
+        for splits: a boundary flagged before the refinement's wave reached a robot stays on
+        record, but nothing there requests a recovery for it."""
         check = self.check
-        boundary = check is not None and check.boundary_since is not None
+        boundary = (
+            check is not None and check.boundary_since is not None and self.phase_name == "merge"
+        )
         return self.recovery.pending or (boundary and self.epoch < self.params.recoveries)
 
     @property

@@ -13,15 +13,22 @@ whole frame, so the frame keeps where merging put it, up to a small drift.
 over *for it* (:meth:`protocols.frame_merging.FrameMerging.finished`): its estimate has been
 settled, and the seed of every frame it is located in done, for ``gcs.refine_after_s``, no
 recovery is announced or awaited, and, on a seed, its own rounds are done. A robot without a
-settled estimate never refines (it keeps merging).
+settled estimate keeps merging — until the re-placement wave (below) reaches it: a merging
+robot that hears three placed neighbours in one frame at least as good as its own
+(:func:`wave_reached`) enters at once, whatever holds its merging back, and the wave places
+it. Without this, robots that a recovery epoch sent back to merging and whose estimate never
+settled there (it disagreed with the neighbours', so the split check kept flagging them) kept
+merged estimates hundreds of mm off beside a placed swarm.
 
-**Merging goes on.** A refining robot keeps its part in merging: it still tracks the seeds'
-transforms and ranks and answers their queries, and a seed still runs its rounds (every other
-transmit opportunity is merging's). When merging moves the merged estimate of a robot not yet
-placed by more than ``_FOLLOW_MM``, its estimate moves by as much; when merging aligns its
-frame to a better root, the robot takes the new merged estimate, unplaced, and waits for that
-root's wave. Without this, robots that entered the refinement early kept estimates of an
-older version of their frame, and merging lost the members that answer its queries.
+**Merging goes on**, its split check does not (:mod:`protocols.split_detection`: the placed
+positions replace the estimates it compares). A refining robot keeps its part in merging: it
+still tracks the seeds' transforms and ranks and answers their queries, and a seed still runs
+its rounds (every other transmit opportunity is merging's). When merging moves the merged
+estimate of a robot not yet placed by more than ``_FOLLOW_MM``, its estimate moves by as much;
+when merging aligns its frame to a better root, the robot takes the new merged estimate,
+unplaced, and waits for that root's wave. Without this, robots that entered the refinement
+early kept estimates of an older version of their frame, and merging lost the members that
+answer its queries.
 
 **The re-placement wave.** Merging's estimate carries errors that compound from frame to
 frame (per-hop rotation errors); a refinement started from it removes their long wavelengths
@@ -101,7 +108,16 @@ if TYPE_CHECKING:
 
     from protocols.neighbours import Neighbour
 
-__all__ = ["GPOS", "GPOS_PLACED", "GPOS_SETTLED", "GlobalRefinement", "Peer", "frame_to_join"]
+__all__ = [
+    "GPOS",
+    "GPOS_PLACED",
+    "GPOS_SETTLED",
+    "GlobalRefinement",
+    "Peer",
+    "PlacedNeighbours",
+    "frame_to_join",
+    "wave_reached",
+]
 
 _GPOS_FIELDS = [("x_mm", "h", 0.1), ("y_mm", "h", 0.1), ("root", "H"), ("salt", "B")]
 #: A refining robot's global position and root, before the wave has placed it; GPOS_SETTLED:
@@ -161,6 +177,63 @@ def frame_to_join(
         return None
     best = min(joinable)
     return best, by_root[best]
+
+
+def wave_reached(own: Root | None, roots: Iterable[Root]) -> bool:
+    """Whether the re-placement wave has reached a robot still merging in frame ``own``
+    (``None``: it has no estimate): at least three of its placed neighbours — ``roots``, the
+    frame of each — lie in one frame whose root is ``own`` or better. Merging is then over for
+    it (:meth:`protocols.frame_merging.FrameMerging.finished`): the refinement places it from
+    those neighbours, whatever merging's estimate says.
+
+    Examples
+    --------
+    >>> from protocols.frame_keys import FrameKey
+    >>> a, b = Root(False, FrameKey(3, 9)), Root(False, FrameKey(5, 1))
+    >>> wave_reached(b, [a, a, b])  # three placed, but in two frames
+    False
+    >>> wave_reached(b, [a, a, a]), wave_reached(None, [b, b, b])
+    (True, True)
+    >>> wave_reached(a, [b, b, b])  # b is worse than its own frame: merging decides
+    False
+    """
+    counts: dict[Root, int] = {}
+    for root in roots:
+        if own is None or not own < root:
+            counts[root] = counts.get(root, 0) + 1
+            if counts[root] >= 3:
+                return True
+    return False
+
+
+class PlacedNeighbours:
+    """The neighbours a merging robot heard announce a position placed by the re-placement
+    wave (GPOS_PLACED, GPOS_SETTLED), with their frames: what :func:`wave_reached` reads.
+
+    Parameters
+    ----------
+    ticks_per_s : float
+        The robot's clock rate, kilo_ticks per s: a neighbour not heard for ``_STALE_S`` no
+        longer counts.
+    """
+
+    __slots__ = ("_heard", "_stale_ticks")
+
+    def __init__(self, ticks_per_s: float) -> None:
+        self._stale_ticks = _STALE_S * ticks_per_s
+        self._heard: dict[int, tuple[Root, int]] = {}  # sender: (root, tick heard)
+
+    def take(self, message: Message, tick: int) -> None:
+        """Record ``message`` if it is a placed position, heard at ``tick``."""
+        layout = _PLACED_LAYOUTS.get(message.type)
+        if layout is not None:
+            m = layout.unpack(message)
+            self._heard[m.sender] = (Root.from_wire(m.root, m.salt), tick)
+
+    def reached(self, own: Root | None, tick: int) -> bool:
+        """:func:`wave_reached` over the neighbours heard in the last ``_STALE_S``."""
+        oldest = tick - self._stale_ticks
+        return wave_reached(own, (root for root, heard in self._heard.values() if heard >= oldest))
 
 
 class Peer:
@@ -515,5 +588,7 @@ class GlobalRefinement(Phase):
 
 #: The global positions by message type.
 _GPOS_LAYOUTS = {layout.type: layout for layout in (GPOS, GPOS_PLACED, GPOS_SETTLED)}
+#: The placed positions, by message type.
+_PLACED_LAYOUTS = {layout.type: layout for layout in (GPOS_PLACED, GPOS_SETTLED)}
 #: The messages a refining robot reads.
 _HEARD = frozenset((*_GPOS_LAYOUTS, DIST.type, POS.type))

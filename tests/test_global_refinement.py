@@ -20,7 +20,9 @@ from protocols.global_refinement import (
     GPOS_PLACED,
     GPOS_SETTLED,
     GlobalRefinement,
+    PlacedNeighbours,
     frame_to_join,
+    wave_reached,
 )
 from scenarios.base import build_params, place
 
@@ -119,18 +121,77 @@ def test_the_wave_places_every_robot_outward_from_the_roots_own_frame(refined):
     assert placed >= {k for k, r in enumerate(robots) if r not in starters}
 
 
-def test_robots_refine_only_after_their_seeds_are_done(refined):
+def test_robots_refine_after_their_seeds_are_done_or_once_the_wave_reached_them(refined):
     sim = refined.sim
+    robots = sim.robots
     events = sim.trace.events_frame()
-    seed_of = {r.own_key: k for k, r in enumerate(sim.robots) if r.is_seed}
-    done_at = events[events.event == "merge_done"].groupby("robot").t_s.max()
+    seed_of = {r.own_key: k for k, r in enumerate(robots) if r.is_seed}
+    index_of = {r.uid: k for k, r in enumerate(robots)}
+    done_at = events[events.event == "merge_done"].groupby("robot").t_s.max().to_dict()
     starts = events[(events.event == "phase") & events.data.str.contains('"refine"')]
+    start_of = starts.groupby("robot").t_s.min()
+    moved = events[(events.event == "refine_moved") & events.data.str.contains('"placed"')]
+    placed_at = moved.groupby("robot").t_s.min().to_dict()
+    for k, r in enumerate(robots):
+        if r.estimate.position_in(r.phase.root.key) is not None:  # starts the wave
+            placed_at[k] = start_of[k]
     after_s = refined.params.scenario.refine_after_s
-    for k, robot in enumerate(sim.robots):
+    by_wave = 0
+    for k, robot in enumerate(robots):
         seeds = [seed_of[key] for key in robot.outcome().local_positions]
-        start = starts.t_s[starts.robot == k].min()
+        start = start_of[k]
         # On the robot's own clock, which runs within a few per cent of the simulation's.
-        assert start >= max(done_at[s] for s in seeds) + 0.95 * after_s
+        if start >= max(done_at.get(s, np.inf) for s in seeds) + 0.95 * after_s:
+            continue
+        neighbours = [index_of[uid] for uid in robot.table.ids() if uid in index_of]
+        assert sum(placed_at.get(j, np.inf) < start for j in neighbours) >= 3, k
+        by_wave += 1
+    assert by_wave < len(robots)
+
+
+def test_the_wave_reaches_a_merging_robot_with_three_placed_neighbours_in_one_frame():
+    own, better, worse = (Root(False, FrameKey(uid, 1)) for uid in (5, 2, 9))
+    assert not wave_reached(own, [own, own])
+    assert wave_reached(own, [own, worse, own, own])
+    assert wave_reached(own, [better] * 3)
+    assert not wave_reached(own, [worse] * 5)  # merging may still bring it a better frame
+    assert not wave_reached(own, [own, better, own, better])  # two frames, two each
+    assert wave_reached(None, [worse] * 3)  # no estimate: any frame will do
+
+
+def test_placed_neighbours_count_placed_positions_heard_lately():
+    root = Root(False, FrameKey(4, 7))
+    tps = 32
+    heard = PlacedNeighbours(tps)
+    for sender, layout in ((1, GPOS_PLACED), (2, GPOS_SETTLED), (3, GPOS)):
+        message = layout.pack(sender=sender, x_mm=0.0, y_mm=0.0, root=root.wire_id, salt=7)
+        heard.take(message, tick=0)
+    assert not heard.reached(root, tick=1)  # GPOS is not placed
+    late = GPOS_PLACED.pack(sender=4, x_mm=1.0, y_mm=2.0, root=root.wire_id, salt=7)
+    heard.take(late, tick=2 * tps)
+    assert heard.reached(root, tick=2 * tps)
+    assert not heard.reached(root, tick=4 * tps)  # senders 1 and 2 are stale by now
+
+
+def test_a_merging_robot_the_wave_reached_refines_and_awaits_no_recovery():
+    params = build_params(GCS, {"placement.robots": 7, "gcs.refine": True})
+    positions = place(GCS, params)
+    sim = Simulation(positions, GCS.program(params, positions), params)
+    sim.run(100.0)  # into merging
+    robot: GcsRobot = next(r for r in sim.robots if r.phase_name == "merge")
+    robot.check.boundary_since = robot.kilo_ticks  # a split boundary holds its merging back
+    assert robot.awaiting_recovery() and not robot.phase.finished()
+    root = robot.estimate.root()
+    for sender in (901, 902, 903):
+        message = GPOS_PLACED.pack(
+            sender=sender, x_mm=0, y_mm=0, root=root.wire_id, salt=root.key.salt
+        )
+        robot.phase.message_rx(message, 40)
+    assert robot.phase.finished()
+    robot.loop()
+    assert robot.phase_name == "refine"
+    robot.check.boundary_since = robot.kilo_ticks  # on record, but nothing checks it here
+    assert not robot.awaiting_recovery()
 
 
 def test_summary_reports_the_reference_and_both_bounds(refined):
