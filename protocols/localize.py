@@ -13,7 +13,10 @@ not in fixed windows:
    improving it from its neighbours' announced positions and the distances both ends measured
    (:mod:`protocols.refinement`'s DIST reports), while
    :mod:`protocols.localize_termination` climbs settledness back to the root, which floods
-   DONE; every robot then freezes its estimate and falls silent.
+   DONE; every robot then freezes its estimate and falls silent;
+4. :mod:`protocols.localize_island` — except robots the spread left out in groups none of
+   which hears three placed robots: such an island stays awake after DONE and places itself
+   as rigid bodies tied to the now still frame by their distances.
 
 A robot learns only from what it receives: the messages and the distance estimate of each
 reception. It keeps time with its own clock (``kilo_ticks``): a round of work every
@@ -21,9 +24,10 @@ reception. It keeps time with its own clock (``kilo_ticks``): a round of work ev
 runs with either receive mode (in polled mode, ``loop()`` drains the buffer first).
 
 Messages (kilolib payloads of at most 9 bytes, the sender's ID first): ELECT (80), ROOT (81),
-POS (82), DIST (83), CAND (84), NBR (85), VOTE (86) — layouts in the phase modules. One
-transmit opportunity in ``localize.dist_every`` carries a distance report (DIST or NBR), the
-others the phase's own message.
+POS (82), DIST (83), CAND (84), NBR (85), VOTE (86), ISLAND_PAIR (87), ISLAND_LINK (88),
+ISLAND_FULL (89) — layouts in the phase modules. One transmit opportunity in
+``localize.dist_every`` carries a distance report (DIST or NBR), the others the phase's own
+message.
 
 LED: electing blue; the root white; located green; settled cyan; done off.
 """
@@ -50,6 +54,7 @@ from protocols.localize_base import (
     distance_report,
 )
 from protocols.localize_election import ELECT, MAX_HOPS, Election
+from protocols.localize_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR, Island
 from protocols.localize_spread import CAND, POS, ROOT, VOTE, Spread
 from protocols.localize_termination import Termination
 from protocols.refinement import DIST, Refiner, next_report
@@ -77,7 +82,8 @@ class LocalizeRobot(Kilobot):
     Attributes
     ----------
     stage : str
-        ``"election"``, ``"localize"`` or ``"done"``.
+        ``"election"``, ``"localize"``, ``"island"`` (after DONE, for an island:
+        :mod:`protocols.localize_island`) or ``"done"``.
     position : (float, float) or None
         This robot's estimate in the frame, mm.
     root_key : int
@@ -121,6 +127,12 @@ class LocalizeRobot(Kilobot):
         self.root_key = 0
         self.election = Election(self)
         self.spread = Spread(self)
+        self.island = Island(self)
+        self._island_handlers = {
+            ISLAND_PAIR.type: self.island.pair_rx,
+            ISLAND_LINK.type: self.island.link_rx,
+            ISLAND_FULL.type: self.island.full_rx,
+        }
         self.termination = Termination(self)
         self.refiner = Refiner(
             huber_mm=p.huber_mm,
@@ -144,6 +156,9 @@ class LocalizeRobot(Kilobot):
             POS.type: self._state_rx,
             CAND.type: self._cand_rx,
             VOTE.type: self.spread.vote_rx,
+            ISLAND_PAIR.type: self._island_rx,
+            ISLAND_LINK.type: self._island_rx,
+            ISLAND_FULL.type: self._island_rx,
         }
         self.set_color(0, 0, 2)
 
@@ -182,6 +197,9 @@ class LocalizeRobot(Kilobot):
                 self.is_root = True
                 self._enter_localize()
                 self.locate(0.0, 0.0)
+        elif self.stage == "island":
+            if full:
+                self._island_work(tick, self.neighbours.known())
         else:
             if full:
                 if not self.is_root:
@@ -198,8 +216,8 @@ class LocalizeRobot(Kilobot):
                     self._refine(fresh)
             self.termination.round(tick, fresh, full=full)
             if self.termination.done:
-                self.stage = "done"
-                self.log("stage", name="done")
+                self.stage = "island" if self.island.wake(tick, fresh) else "done"
+                self.log("stage", name=self.stage)
             self._show()
         if (self.stage, self.election.echo, self.flags, self.parent) != before:
             self._urgent = True
@@ -222,6 +240,10 @@ class LocalizeRobot(Kilobot):
                 return message
         if self.stage == "election":
             return self.election.message_tx()
+        if self.stage == "island":
+            report = self.island.message_tx()
+            if report is not None:
+                return report
         return self.spread.message_tx()
 
     def message_tx_success(self) -> None:
@@ -291,6 +313,21 @@ class LocalizeRobot(Kilobot):
         self.stage = "localize"
         self.log("stage", name="localize", hops=self.hops, root=self.is_root)
 
+    def _island_work(self, tick: int, known: list[Neighbour]) -> None:
+        """A round after DONE, for an island: the spread's rules and the island's solve while
+        unplaced, refinement once placed (the frame around stands still now), until the
+        island's work is over or the run's time-out."""
+        if self.position is None:
+            self.spread.round(tick, known)
+        self.island.round(tick, known)
+        if self.position is not None:
+            self._refine(known)
+        if self.island.finished(tick) or tick >= self.termination.run_timeout_tick:
+            self.stage = "done"
+            self.termination.repeats_left = self.params.done_repeats  # announce the last state
+            self.log("island_done", placed=self.position is not None)
+            self._show()
+
     # -- refinement ----------------------------------------------------------------------------
     def _refine(self, fresh: list[Neighbour]) -> None:
         x, y = self.position
@@ -324,7 +361,9 @@ class LocalizeRobot(Kilobot):
         m = NBR.unpack(message)
         if m.neighbour == self.uid:
             n.reported_mm = m.distance_mm
-        elif self.stage == "election" or self.is_root:
+            return
+        n.near.add(m.neighbour)
+        if self.stage == "election" or self.is_root:
             # A root chooses its frame robots from its neighbours' distances to each other.
             self.reports.setdefault(m.sender, {})[m.neighbour] = m.distance_mm
 
@@ -351,6 +390,11 @@ class LocalizeRobot(Kilobot):
         if n.flags & DONE:
             self.termination.finish("heard")
         return True
+
+    def _island_rx(self, n: Neighbour, message: Message) -> bool:
+        if self.stage == "island":
+            self._island_handlers[message.type](n, message)
+        return False
 
     def _cand_rx(self, n: Neighbour, message: Message) -> bool:
         self._phase2()

@@ -134,6 +134,15 @@ class LocalizeParams:
     retry_s: float = param(
         2.0, lo=0.2, hi=600.0, doc="an unlocalized robot retries an unchanged fix this often"
     )
+    island_quiet_s: float = param(
+        1.0, lo=0.2, hi=3600.0, doc="an island member solves once its reports are quiet this long"
+    )
+    island_max_reports: int = param(
+        64,
+        lo=0,
+        hi=100_000,
+        doc="island reports a member stores; a larger island is not solved (0: no islands)",
+    )
     huber_mm: float = param(
         3.0, lo=0.01, hi=100.0, doc="refinement down-weights residuals beyond this"
     )
@@ -192,6 +201,8 @@ class Neighbour:
         This robot's round (its count of rounds of work) at the last reception.
     ambiguous : bool
         Two robots seem to use this ID; the record is ignored.
+    near : set of int
+        The neighbours it has reported distances to in NBR messages (it is unplaced then).
     """
 
     __slots__ = (
@@ -204,6 +215,7 @@ class Neighbour:
         "heard_round",
         "hops",
         "key",
+        "near",
         "parent",
         "reported_mm",
         "samples",
@@ -233,6 +245,7 @@ class Neighbour:
         self.candidates: tuple[int, list] | None = None
         self.heard_round = 0
         self.ambiguous = False
+        self.near: set[int] = set()  # the IDs this neighbour's NBR reports were about
 
     @property
     def mean_mm(self) -> float:
@@ -359,6 +372,11 @@ class Neighbours:
         ``stamp``, by ID."""
         oldest = stamp - self.stale_rounds
         return [n for n in self._in_id_order if n.heard_round >= oldest and not n.ambiguous]
+
+    def known(self) -> list[Neighbour]:
+        """Every unambiguous record, however long ago it was heard, by ID (after DONE the
+        placed robots fall silent, and what they last said is final)."""
+        return [n for n in self._in_id_order if not n.ambiguous]
 
     def __getitem__(self, uid: int) -> Neighbour:
         return self.by_id[uid]

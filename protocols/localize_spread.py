@@ -576,7 +576,7 @@ class Spread:
                 min_anchor_width_mm=r.params.min_height_mm,
             )
             if fix.ok:
-                self._located(fix.x_mm, fix.y_mm, "anchors", len(anchors))
+                self.place(fix.x_mm, fix.y_mm, "anchors", len(anchors))
                 return
         if pairs:
             # The pairs farthest apart discriminate best.
@@ -592,7 +592,7 @@ class Spread:
                 min_width_mm=r.params.min_height_mm,
             )
             if fix is not None:
-                self._located(fix.x_mm, fix.y_mm, "candidates", len(anchors) + len(pairs))
+                self.place(fix.x_mm, fix.y_mm, "candidates", len(anchors) + len(pairs))
                 return
         self._update_candidates(anchors)
         self._take_vote(len(anchors))
@@ -604,7 +604,7 @@ class Spread:
         allowed = [k for k in (0, 1) if self.votes_in.get(k)]
         if len(allowed) == 1:
             x, y = self.candidates[1][allowed[0]]
-            self._located(x, y, "vote", anchors)
+            self.place(x, y, "vote", anchors)
 
     def _start_frame(self, fresh: list[Neighbour]) -> None:
         """Place the axis robot on +x, or the third robot above it."""
@@ -614,7 +614,7 @@ class Spread:
             return
         r = self.robot
         if r.uid == self.axis:
-            self._located(root.range_mm, 0.0, "axis", 1)
+            self.place(root.range_mm, 0.0, "axis", 1)
             return
         axis = by_id.get(self.axis)
         if axis is None or axis.x_mm is None:
@@ -623,7 +623,7 @@ class Spread:
             _, (x, y) = place_references(axis.x_mm, root.range_mm, axis.range_mm)
         except GeometryError:
             return
-        self._located(x, y, "third", 2)
+        self.place(x, y, "third", 2)
 
     def _update_candidates(self, anchors: list[Neighbour]) -> None:
         """With exactly two anchors, hold (and announce) the two candidate positions."""
@@ -643,7 +643,10 @@ class Spread:
         self.candidate_anchors = pair
         self.candidates = (version, [found[0], found[1]])
 
-    def _located(self, x_mm: float, y_mm: float, rule: str, anchors: int) -> None:
+    def place(self, x_mm: float, y_mm: float, rule: str, anchors: int) -> None:
+        """Take the position (x, y) in the frame, mm, found by ``rule`` from ``anchors``
+        placed points (both go to the event log); one beyond the messages' coordinate range
+        is refused."""
         if abs(x_mm) > MAX_COORDINATE_MM or abs(y_mm) > MAX_COORDINATE_MM:
             self.robot.log("out_of_frame", x_mm=x_mm, y_mm=y_mm)
             return

@@ -15,8 +15,10 @@ never saw:
   ``largest_frame_over_central``, on the distances the robots' neighbour records hold (every
   reception of every message type counts; records marked ambiguous are left out);
 * ``phase_times_s``: when the root was elected, when the last robot was located, when the root
-  declared done and when the last robot did (``done_s``, NaN unless every running robot did;
-  ``done_fraction`` is the share of running robots that did);
+  declared done and when the last robot was done (``done_s``: a robot that stays awake after
+  DONE for an island, :mod:`protocols.localize_island`, when its island work is over; NaN
+  unless every running robot did; ``done_fraction`` is the share of running robots that heard
+  DONE or declared it);
   ``hop_diameter`` of the communication graph, and ``done_over_hop_limit``, ``done_s`` over
   ``hop_diameter × robot.tx_period_s`` (the time information needs to cross the swarm).
 """
@@ -100,7 +102,9 @@ def _phase_times(sim: Simulation) -> dict[str, float]:
         complete = done[done.data.str.contains('"complete"')]
         if len(complete):
             out["root_done"] = round(float(complete.t_s.min()), 3)
-        out["all_done"] = round(float(done.t_s.max()), 3)
+        # A robot that stays awake for an island after DONE is done when its island is.
+        finished = events[events.event.isin(["done", "island_done"])]
+        out["all_done"] = round(float(finished.t_s.max()), 3)
     return out
 
 

@@ -22,8 +22,10 @@ import protocols.localize as localize_module
 import scenarios
 from kilonet.message import Message
 from protocols import (
+    island_solve,
     localize_base,
     localize_election,
+    localize_island,
     localize_spread,
     localize_termination,
     refinement,
@@ -41,6 +43,7 @@ from protocols.localize_base import (
     distance_report,
 )
 from protocols.localize_election import ELECT, Election, echo_complete, election_key
+from protocols.localize_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR
 from protocols.localize_spread import (
     CAND,
     POS,
@@ -88,6 +91,9 @@ def _neighbour(uid, *, hops=0, flags=0, key=None, echo=False, parent=NO_ID, posi
         (DIST, {"sender": 3, "x_mm": 1.5, "y_mm": 2.5, "neighbour": 9, "distance": 200}),
         (NBR, {"sender": 3, "neighbour": 9, "distance_mm": 255.0}),
         (VOTE, {"sender": 3, "target": 9, "index": 0, "version": 7}),
+        (ISLAND_PAIR, {"sender": 3, "origin": 4, "neighbour": 9, "distance_mm": 84.37}),
+        (ISLAND_LINK, {"sender": 3, "origin": 4, "x_mm": -3276.7, "y_mm": 1.5, "distance_mm": 255}),
+        (ISLAND_FULL, {"sender": 3}),
     ],
 )
 def test_every_message_fits_kilolib_and_round_trips(layout, values):
@@ -98,7 +104,10 @@ def test_every_message_fits_kilolib_and_round_trips(layout, values):
 
 
 def test_message_types_are_distinct():
-    types = [m.type for m in (ELECT, ROOT, POS, DIST, CAND, NBR, VOTE)]
+    types = [
+        m.type
+        for m in (ELECT, ROOT, POS, DIST, CAND, NBR, VOTE, ISLAND_PAIR, ISLAND_LINK, ISLAND_FULL)
+    ]
     assert len(set(types)) == len(types)
 
 
@@ -400,6 +409,40 @@ def test_crashed_robots_do_not_hold_the_swarm_up():
     assert s["rmse_mm"] < s["crlb_rmse_mm"]
 
 
+def test_an_island_that_no_robot_can_place_alone_places_itself():
+    # 100 robots at random, seed 1: seven robots (four of them all in range of each other)
+    # reach the frame through five links, and none hears more than two placed robots; an
+    # eighth hears three placed robots on one line. Multilateration alone stops at 92 %.
+    overrides = {
+        "placement.kind": "random",
+        "placement.area": "disc",
+        "placement.density_per_m2": 400,
+        "placement.robots": 100,
+    }
+    result = scenarios.run(LOCALIZE, overrides, seed=1)
+    s = result.summary
+    assert s["localized_fraction"] == 1.0
+    assert s["frames"] == 1
+    assert s["max_error_mm"] < 5.0
+    assert s["rmse_mm"] < s["crlb_rmse_mm"]
+    assert s["done_over_hop_limit"] <= 20
+    events = result.sim.trace.events_frame()
+    located = events.query("event == 'located'")
+    by_island = [json.loads(d)["rule"] == "island" for d in located["data"]]
+    assert any(by_island)
+    # The island works after DONE, when the frame stands still: its robots are placed after
+    # the root declared the swarm done, and the run ends when they are done too.
+    phases = s["phase_times_s"]
+    assert located[by_island].t_s.min() > phases["root_done"]
+    island_done = events.query("event == 'island_done'")
+    assert len(island_done) >= 7
+    assert phases["all_done"] == pytest.approx(island_done.t_s.max(), abs=1e-3)
+    # Without islands (localize.island_max_reports = 0) the same run stops short.
+    alone = scenarios.run(LOCALIZE, {**overrides, "localize.island_max_reports": 0}, seed=1)
+    assert alone.summary["localized_fraction"] == pytest.approx(0.92)
+    assert not len(alone.sim.trace.events_frame().query("event == 'island_done'"))
+
+
 def test_two_separate_swarms_make_two_frames():
     left = np.array([[x * 40.0 + (y % 2) * 20.0, y * 34.6] for x in range(4) for y in range(4)])
     positions = np.vstack([left, left + np.array([1000.0, 0.0])])
@@ -491,9 +534,11 @@ def test_run_directory_has_the_gcs_columns_and_figures(tmp_path):
 # ------------------------------------------------------------------------ no ground truth
 
 _PROTOCOL_MODULES = (
+    island_solve,
     localize_module,
     localize_base,
     localize_election,
+    localize_island,
     localize_spread,
     localize_termination,
     refinement,
