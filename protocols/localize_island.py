@@ -77,7 +77,6 @@ ISLAND_PAIR = Layout(
         ("distance_mm", "H", 0.01),
     ],
 )
-ISLAND_FULL = Layout("island_full", type=89, fields=[("sender", "H")])
 ISLAND_LINK = Layout(
     "island_link",
     type=88,
@@ -89,6 +88,7 @@ ISLAND_LINK = Layout(
         ("distance_mm", "B"),
     ],
 )
+ISLAND_FULL = Layout("island_full", type=89, fields=[("sender", "H")])
 
 #: Two link reports of one origin this close (mm) are about the same placed robot.
 _SAME_POINT_MM = 3.0
