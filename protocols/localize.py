@@ -324,7 +324,7 @@ class LocalizeRobot(Kilobot):
             self._refine(known)
         if self.island.finished(tick) or tick >= self.termination.run_timeout_tick:
             self.stage = "done"
-            self.termination.repeats_left = self.params.done_repeats  # announce the last state
+            self.termination.repeat_done()
             self.log("island_done", placed=self.position is not None)
             self._show()
 

@@ -130,6 +130,11 @@ class Termination:
         """Whether a done robot still owes its neighbours a DONE message."""
         return self.repeats_left > 0
 
+    def repeat_done(self) -> None:
+        """Owe the neighbours ``localize.done_repeats`` more DONE messages: a robot that stayed
+        awake after DONE (:mod:`protocols.localize_island`) announces its final state."""
+        self.repeats_left = self.robot.params.done_repeats
+
     def sent(self) -> None:
         """A message went on the air (after any carrier-sense back-off): count a DONE one."""
         if self.done:
