@@ -35,6 +35,7 @@ from kilonet.message import Message
 from kilonet.motion import Motion
 from kilonet.params import Params
 from kilonet.placement import ROBOT_DIAMETER_MM, validate_positions
+from kilonet.radio import Transceivers, reach_of
 from kilonet.ranging import calibration_tables, measurement_for
 from kilonet.robot import Kilobot
 from kilonet.sensors import Sensors
@@ -63,6 +64,7 @@ STREAMS = (
     "clock",
     "sensors",
     "calibration",
+    "radio",
 )
 
 
@@ -167,6 +169,10 @@ class Simulation:
         rp = self.params.robot
         self.clocks = RobotClocks.draw(n, rp.ticks_per_s, rp.clock_sd, self.stream("clock"))
         self.calibration_tables = calibration_tables(n, self.stream("calibration"))
+        mp = self.params.medium
+        self.transceivers = Transceivers.draw(
+            n, reach_of(mp), mp.tx_strength_sd, self.stream("radio")
+        )
         self.motion = Motion(self)
         self.robots: list[Kilobot] = []
         build = program if not _is_program_class(program) else (lambda _i: program())
