@@ -114,6 +114,13 @@ class MediumParams:
         doc="airtime of one message; 0 derives it from format, bitrate and preamble",
     )
     csma: bool = param(True, doc="sense the carrier and back off while the channel is busy")
+    sense_delay_s: float = param(
+        0.0002,
+        lo=0.0,
+        hi=0.1,
+        doc="a reception is sensed as a carrier this long after it begins (about 6 bit "
+        "times; fitted to the ARGoS data's short links): senders starting closer collide",
+    )
     backoff_max_s: float = param(
         0.03264,
         lo=0.0,
