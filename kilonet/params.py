@@ -140,6 +140,11 @@ class RangingParams:
         "gaussian: round(true + receiver bias + N(0, sigma_mm)), independent per reception; "
         "or package.module:Class, your own (kilonet.reception)",
     )
+    calibration_file: str = param(
+        "",
+        doc="tables: CSV of each robot's kilo_irhigh/kilo_irlow (columns irhigh_0..13, "
+        "irlow_0..13, a row per robot); empty: tables drawn from the intensity model",
+    )
     intensity_noise: float = param(
         0.015, lo=0.0, hi=1.0, doc="tables: relative noise of each reception's intensity (sd)"
     )

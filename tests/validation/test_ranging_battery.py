@@ -71,3 +71,53 @@ def test_battery_life(program, check):
     hours = sim.trace.stops_frame()["t_s"].iloc[0] / 3600.0
     assert v.CHECKS[check].passes(hours), hours
     assert hours == pytest.approx(v.battery_life_h(2 if program is Driver else 0), abs=0.05)
+
+
+def _calibration_csv(path, tables):
+    header = [f"irhigh_{k}" for k in range(14)] + [f"irlow_{k}" for k in range(14)]
+    rows = [",".join(map(str, t.irhigh + t.irlow)) for t in tables]
+    path.write_text("\n".join([",".join(header), *rows]) + "\n")
+
+
+def test_robots_can_carry_their_own_calibration_tables(tmp_path):
+    from kilonet.ranging import calibration_tables
+
+    tables = calibration_tables(2, np.random.default_rng(5))
+    _calibration_csv(tmp_path / "cal.csv", tables)
+    params = Params(seed=1).with_overrides({"ranging.calibration_file": str(tmp_path / "cal.csv")})
+    sim = Simulation([[0, 0], [60, 0]], Kilobot, params)
+    assert [t.irhigh for t in sim.calibration_tables] == [t.irhigh for t in tables]
+    assert [t.gain for t in sim.calibration_tables] == pytest.approx(
+        [t.gain for t in tables], abs=0.002
+    )
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("irhigh_0\n1\n", "no column irhigh_1"),
+        (None, "robots' tables for a swarm of 3"),
+        ("bad", "rises with distance"),
+        ("value", "irlow_13 = '2000' is not an integer 0-1023"),
+    ],
+)
+def test_a_broken_calibration_file_is_one_line_naming_it(tmp_path, text, message):
+    from kilonet.params import ParamError
+    from kilonet.ranging import calibration_tables
+
+    path = tmp_path / "cal.csv"
+    tables = calibration_tables(2, np.random.default_rng(5))
+    _calibration_csv(path, tables)
+    if text == "bad":
+        lines = path.read_text().splitlines()
+        values = lines[1].split(",")
+        values[3] = "1000"
+        path.write_text("\n".join([lines[0], ",".join(values), lines[2]]) + "\n")
+    elif text == "value":
+        path.write_text(path.read_text().replace(",", ",", 0)[:-1].rsplit(",", 1)[0] + ",2000\n")
+    elif text is not None:
+        path.write_text(text)
+    params = Params().with_overrides({"ranging.calibration_file": str(path)})
+    with pytest.raises(ParamError, match=message) as error:
+        Simulation([[0, 0], [60, 0], [120, 0]], Kilobot, params)
+    assert "\n" not in str(error.value) and str(path) in str(error.value)
