@@ -199,7 +199,8 @@ class GaussianRanging(ReceptionModel):
         """
         d = np.atleast_1d(np.asarray(distance_mm, dtype=float))
         per_reading = self.ranging.sigma_mm**2 + 1 / 12
-        return np.sqrt(self.ranging.bias_sigma_mm**2 + per_reading / np.asarray(samples) + 0 * d)
+        variance = self.ranging.bias_sigma_mm**2 + per_reading / np.asarray(samples, dtype=float)
+        return np.sqrt(np.broadcast_to(variance, d.shape))
 
     def estimates(
         self, sender: int, receivers: np.ndarray, distance_mm: np.ndarray, rows: int
