@@ -91,6 +91,20 @@ class Message:
         return (Message, (self.data, self.type, self.crc))
 
 
+def _immutable(self: Message, name: str, value: Any) -> None:
+    raise AttributeError(
+        f"a Message cannot change (one message object reaches every receiver, and the radio "
+        f"has sent it already): instead of msg.{name} = ..., build a new one, "
+        f"msg = dataclasses.replace(msg, {name}=...) or Message(data, type, crc)"
+    )
+
+
+# A frozen dataclass's own error says only "cannot assign to field"; a kilolib programmer
+# writes msg.crc = message_crc(&msg), so say what to write instead. (Set after the decorator,
+# which refuses a __setattr__ in the class body; __init__ and replace() bypass it.)
+Message.__setattr__ = _immutable  # type: ignore[method-assign]
+
+
 def _crc_ccitt_update(crc: int, byte: int) -> int:
     """avr-libc's ``_crc_ccitt_update`` (reflected CRC-CCITT, polynomial 0x8408)."""
     byte ^= crc & 0xFF
@@ -137,13 +151,22 @@ class PayloadLimit:
     has_type: bool
     air_bytes: int
 
-    def check(self, message: Message) -> None:
-        """Raise :class:`PayloadError` if ``message`` does not fit this limit."""
+    def check(self, message: Message, sender: int | None = None) -> None:
+        """Raise :class:`PayloadError` if ``message`` is not a :class:`Message` that fits
+        this limit; the error names robot ``sender``'s ``message_tx()`` when it is given."""
+        if not isinstance(message, Message):
+            who = "message_tx()" if sender is None else f"robot {sender}'s message_tx()"
+            shown = repr(message)
+            shown = shown if len(shown) <= 40 else shown[:37] + "..."
+            raise PayloadError(
+                f"{who} returned {type(message).__name__} {shown}, not a Message or None; "
+                "return Message(data_bytes, type) or a Layout's pack(...)"
+            )
         data = message.data
         if not isinstance(data, bytes | bytearray):
             raise PayloadError(f"message data must be bytes, got {type(data).__name__}")
-        if not 0 <= message.type <= 255:
-            raise PayloadError(f"message type {message.type} is not a byte (0-255)")
+        if not isinstance(message.type, int) or not 0 <= message.type <= 255:
+            raise PayloadError(f"message type {message.type!r} is not a byte (0-255)")
         if not self.has_type and message.type != 0:
             raise PayloadError(
                 f"the {self.name} message format has no type byte; got type={message.type}"
