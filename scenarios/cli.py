@@ -34,6 +34,7 @@ import scenarios
 from kilonet.cli import UsageError
 from kilonet.params import ParamError, Params, describe
 from scenarios.base import Scenario, ScenarioError, ScenarioOption, build_params, json_safe
+from scenarios.program import BUSY_CALL_S
 
 __all__ = ["register_params", "register_run", "register_scenarios", "run_file_overrides"]
 
@@ -108,7 +109,19 @@ def register_run(subparsers: Any) -> None:
     run.add_argument(
         "--format", default="csv", choices=["csv", "parquet"], help="table format (default: csv)"
     )
-    run.add_argument("--json", action="store_true", help="print only the summary JSON on stdout")
+    run.add_argument(
+        "--json",
+        action="store_true",
+        help="print only the summary JSON on stdout (a program's print() goes to stderr)",
+    )
+    run.add_argument(
+        "--watchdog",
+        type=float,
+        default=BUSY_CALL_S,
+        metavar="SECONDS",
+        help="stop the run when one call into a robot program runs this long (wall time) "
+        f"while simulated time stands still; 0: never (default: {BUSY_CALL_S:g})",
+    )
     run.add_argument(
         "--animate", action="store_true", help="also write DIR/animation.gif (needs --out)"
     )
@@ -334,16 +347,41 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _guarded(args: argparse.Namespace):
-    """``scenarios.base.run``, reporting a user program's exceptions as one-line errors."""
-    from scenarios.base import run
+    """``scenarios.base.run`` under the busy-call watchdog (``--watchdog``), with ``print()``
+    of a program sent to stderr under ``--json``, a Ctrl-C naming the robot and callback it
+    stopped, and a user program's exceptions reported as one-line errors."""
+    from contextlib import ExitStack, redirect_stdout
 
-    if args.program is None:
-        return run
-    from scenarios.program import parse_spec, reported_as_user_errors
+    from scenarios.base import run
+    from scenarios.program import (
+        busy_watchdog,
+        describe_call,
+        parse_spec,
+        reported_as_user_errors,
+        robot_frame,
+    )
 
     def guarded(*a: Any, **k: Any):
-        with reported_as_user_errors(parse_spec(args.program)[0]):
-            return run(*a, **k)
+        with ExitStack() as stack:
+            if args.program is not None:
+                stack.enter_context(reported_as_user_errors(parse_spec(args.program)[0]))
+            if args.json:
+                stack.enter_context(redirect_stdout(sys.stderr))  # stdout is the JSON's
+            stack.enter_context(busy_watchdog(args.watchdog))
+            try:
+                return run(*a, **k)
+            except KeyboardInterrupt as exc:
+                tb = exc.__traceback__
+                while tb is not None and tb.tb_next is not None:
+                    tb = tb.tb_next
+                found = robot_frame(tb.tb_frame if tb is not None else None)
+                if found is None:
+                    raise
+                robot, call = found
+                raise KeyboardInterrupt(
+                    f"in {describe_call(robot, call, tb.tb_frame)} at "
+                    f"{robot._env._now:.3f} simulated s"
+                ) from None
 
     return guarded
 

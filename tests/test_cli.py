@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from importlib.metadata import entry_points, version
@@ -186,7 +187,10 @@ def test_an_interrupted_run_leaves_nothing(files, tmp_path, capsys):
     )
     out = tmp_path / "runs" / "one"
     assert main(["run", "--program", str(program), "--robots", "3", "--out", str(out)]) == 130
-    assert error_line(capsys.readouterr().err) == "kilonet: interrupted"
+    line = error_line(capsys.readouterr().err)
+    assert re.fullmatch(
+        r"kilonet: interrupted in robot \d's loop \(interrupts.py:6\) at .* s", line
+    )
     assert not (tmp_path / "runs").exists()
 
 
