@@ -33,7 +33,7 @@ from typing import Any
 import scenarios
 from kilonet.cli import UsageError
 from kilonet.params import ParamError, Params, describe
-from scenarios.base import Scenario, ScenarioError, ScenarioOption, build_params, json_safe
+from scenarios.base import Scenario, ScenarioOption, build_params, json_safe
 from scenarios.program import BUSY_CALL_S
 
 __all__ = ["register_params", "register_run", "register_scenarios", "run_file_overrides"]
@@ -313,7 +313,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     params = build_params(scenario, overrides, seed=args.seed)  # every value, before the run
     if args.program is not None and args.placement is None and not params.placement.robots:
         raise UsageError("--program needs --placement F.csv or --robots N (a hex lattice)")
-    with OutputDir(args.out, replace=args.replace) if args.out else nullcontext() as out:
+    reserved = OutputDir(args.out, replace=args.replace) if args.out is not None else None
+    with reserved or nullcontext() as out:
         result = _guarded(args)(
             scenario,
             overrides,
@@ -427,7 +428,7 @@ def _cmd_scenarios(_args: argparse.Namespace) -> int:
 
 
 def register_params(subparsers: Any) -> None:
-    """Add ``kilonet params [SCENARIO]``."""
+    """Add ``kilonet params [SCENARIO|program|SECTION]``."""
     params = subparsers.add_parser(
         "params",
         help="list every parameter with its default, type and allowed values",
@@ -438,25 +439,29 @@ def register_params(subparsers: Any) -> None:
     params.add_argument(
         "scenario",
         nargs="?",
-        help=f"one of {', '.join(scenarios.names())} (default: {scenarios.DEFAULT})",
+        help=f"one of {', '.join(scenarios.names())} (default: {scenarios.DEFAULT}); "
+        "'program' for kilonet run --program; or a section (medium, ranging, ...): its keys "
+        f"as {scenarios.DEFAULT} sets them",
     )
     params.set_defaults(func=_cmd_params)
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
     name = args.scenario or scenarios.DEFAULT
-    if name not in scenarios.names():
-        default = scenarios.get(scenarios.DEFAULT)
-        keys = [key for key, *_ in describe(build_params(default)) if key.startswith(f"{name}.")]
-        if keys:
-            raise ScenarioError(
-                f"{name!r} is a section of parameters, not a scenario: every scenario has it "
-                f"({', '.join(keys[:3])}, ...); list them with kilonet params SCENARIO, "
-                f"e.g. kilonet params {scenarios.DEFAULT}"
-            )
-    scenario = scenarios.get(name)
+    section = None
+    if name == "program":  # kilonet run --program: the kernel's defaults, no scenario's
+        params = Params()
+    elif name in scenarios.names():
+        params = build_params(scenarios.get(name))
+    else:
+        params = build_params(scenarios.get(scenarios.DEFAULT))
+        if not any(key.startswith(f"{name}.") for key, *_ in describe(params)):
+            scenarios.get(name)  # the unknown-scenario error, listing the scenarios
+        section = name  # a section of parameters: its keys, as the default scenario sets them
     rows = [
-        (key, str(value), kind, doc) for key, value, kind, doc in describe(build_params(scenario))
+        (key, str(value), kind, doc)
+        for key, value, kind, doc in describe(params)
+        if section is None or key.startswith(f"{section}.")
     ]
     widths = [max(len(r[k]) for r in rows) for k in range(3)]
     head = ("key", "default", "type and allowed values")

@@ -98,6 +98,11 @@ def load_program(spec: str) -> tuple[Path, type[Kilobot]]:
     """
     path, name = parse_spec(spec)
     source = read_text(path, ProgramError, "program file")
+    if path.suffix != ".py":
+        raise ProgramError(
+            f"{path}: a program is a Python file (--program FILE.py[:CLASS]); a run file "
+            f"(.toml) goes first: kilonet run RUN.toml --program FILE.py"
+        )
     try:
         compile(source, str(path), "exec")
     except SyntaxError as exc:

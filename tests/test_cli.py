@@ -380,15 +380,6 @@ def test_params_shows_types_and_allowed_values(capsys):
     assert rows["key"].split()[:2] == ["key", "default"]
 
 
-def test_params_of_a_section_name_says_it_is_a_section(capsys):
-    assert main(["params", "faults"]) == 2
-    err = capsys.readouterr().err
-    assert "'faults' is a section of parameters, not a scenario" in err
-    assert "faults.crash_fraction" in err and "Traceback" not in err
-    assert main(["params", "nonsense"]) == 2
-    assert "unknown scenario 'nonsense'" in capsys.readouterr().err
-
-
 def test_output_into_a_closed_pipe_ends_quietly():
     child = subprocess.Popen(
         [sys.executable, "-m", "kilonet.cli", "params", "gcs"],

@@ -1,0 +1,63 @@
+"""``kilonet run`` and ``kilonet params`` on the inputs of a user's second hour: odd ``--out``
+values, a run file given as the program, parameters of ``--program`` and of one section."""
+
+from __future__ import annotations
+
+import pytest
+
+from kilonet.cli import main
+
+
+def one_error(capsys) -> str:
+    out, err = capsys.readouterr()
+    line = err.split("\r")[-1]
+    assert out == "" and line.count("\n") == 1, err
+    return line
+
+
+@pytest.mark.parametrize(
+    ("out", "message"),
+    [
+        ("", "--out needs a directory name, got an empty one"),
+        (".", ". is the current directory or holds it"),
+        ("..", ".. is the current directory or holds it"),
+    ],
+)
+def test_an_out_that_cannot_be_a_run_is_refused_before_the_run(
+    tmp_path, capsys, monkeypatch, out, message
+):
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    argv = ["run", "gradient", "--robots", "5", "--duration", "1", "--out", out, "--replace"]
+    assert main(argv) == 2
+    assert message in one_error(capsys)
+    assert list(tmp_path.rglob("*")) == [work]
+
+
+def test_a_run_file_given_as_the_program_says_where_it_goes(tmp_path, capsys):
+    run_file = tmp_path / "x.toml"
+    run_file.write_text("seed = 1\n")
+    assert main(["run", "--program", str(run_file), "--robots", "3"]) == 2
+    assert "x.toml: a program is a Python file" in one_error(capsys)
+
+
+def test_params_program_lists_the_kernel_defaults(capsys):
+    assert main(["params", "program"]) == 0
+    rows = {line.split()[0]: line.split()[1] for line in capsys.readouterr().out.splitlines()}
+    assert rows["duration_s"] == "60.0"
+    assert rows["robot.tx_period_s"] == "0.5"
+    assert rows["placement.spacing_mm"] == "40.0"
+    assert not any(key.startswith("gcs.") for key in rows)
+
+
+def test_params_of_one_section(capsys):
+    assert main(["params", "ranging"]) == 0
+    keys = [line.split()[0] for line in capsys.readouterr().out.splitlines()[1:]]
+    assert keys and all(key.startswith("ranging.") for key in keys)
+    assert "ranging.sigma_mm" in keys
+
+
+def test_params_of_nothing_known_lists_the_scenarios(capsys):
+    assert main(["params", "nosuch"]) == 2
+    assert "unknown scenario 'nosuch'; known scenarios:" in one_error(capsys)
