@@ -232,7 +232,7 @@ def run(
     *,
     seed: int | None = None,
     placement: str | Path | np.ndarray | None = None,
-    progress: bool = False,
+    progress: bool | str = False,
 ) -> RunResult:
     """Run ``scenario`` once and return its result.
 
@@ -246,9 +246,10 @@ def run(
         Master seed (overrides ``seed`` in ``overrides``).
     placement : name, path or (N, 2) array, optional
         Start positions in mm instead of the scenario's generator.
-    progress : bool
+    progress : bool or str
         Show on stderr what the set-up is doing, then the run's progress in simulated seconds
-        (:class:`scenarios.progress.RunProgress`).
+        (:class:`scenarios.progress.RunProgress`): a mode of
+        :data:`scenarios.progress.MODES`, ``True`` for the bar, ``False`` for nothing.
     """
     from kilonet.simulation import Simulation
 

@@ -35,6 +35,7 @@ from kilonet.cli import UsageError
 from kilonet.params import ParamError, Params, describe
 from scenarios.base import Scenario, ScenarioOption, build_params, json_safe
 from scenarios.program import BUSY_CALL_S
+from scenarios.progress import MODES
 
 __all__ = ["register_params", "register_run", "register_scenarios", "run_file_overrides"]
 
@@ -113,6 +114,19 @@ def register_run(subparsers: Any) -> None:
         "--json",
         action="store_true",
         help="print only the summary JSON on stdout (a program's print() goes to stderr)",
+    )
+    run.add_argument(
+        "--progress",
+        choices=MODES,
+        default="auto",
+        help="progress on stderr: a bar redrawn in place, whole lines (for a log), or none; "
+        "auto: the bar on a terminal, none otherwise (default: auto)",
+    )
+    run.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress and no notes on stderr: only errors (and the summary on stdout)",
     )
     run.add_argument(
         "--watchdog",
@@ -320,7 +334,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             overrides,
             seed=args.seed,
             placement=args.placement,
-            progress=not args.json,
+            progress="none" if args.json or args.quiet else args.progress,
         )
         if args.out is not None:
             try:
@@ -335,10 +349,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 except AnimationError as exc:
                     raise UsageError(str(exc)) from None
             out.publish()
-            if not args.json:
+            if not (args.json or args.quiet):
                 extra = " and animation.gif" if args.animate else ""
                 print(f"wrote {len(written)} files{extra} to {args.out}", file=sys.stderr)
-    if args.out is None:
+    if args.out is None and not args.quiet:
         print("kilonet: no --out DIR given, so nothing was written", file=sys.stderr)
     if args.json:
         print(json.dumps(json_safe(result.summary), indent=2))

@@ -61,3 +61,46 @@ def test_params_of_one_section(capsys):
 def test_params_of_nothing_known_lists_the_scenarios(capsys):
     assert main(["params", "nosuch"]) == 2
     assert "unknown scenario 'nosuch'; known scenarios:" in one_error(capsys)
+
+
+# -- progress ---------------------------------------------------------------------------------
+GRADIENT = ["run", "gradient", "--robots", "5", "--duration", "10"]
+
+
+def test_progress_is_silent_when_stderr_is_not_a_terminal(capsys):
+    assert main(GRADIENT) == 0
+    err = capsys.readouterr().err
+    assert "\r" not in err
+    assert err == "kilonet: no --out DIR given, so nothing was written\n"
+
+
+def test_progress_lines_are_whole_lines(capsys):
+    assert main([*GRADIENT, "--progress", "lines"]) == 0
+    err = capsys.readouterr().err
+    assert "\r" not in err
+    lines = err.splitlines()
+    assert lines[:4] == [
+        "gradient: placing robots",
+        "gradient: building 5 robots",
+        "gradient: starting",
+        "gradient: running to 10 sim s",
+    ]
+    shares = [line.split()[1] for line in lines[4:-2]]
+    assert shares == [f"{p}%" for p in range(10, 101, 10)]
+    assert lines[-2].startswith("gradient: done at 10 sim s in ")
+    assert max(len(line) for line in lines) < 80
+
+
+def test_quiet_leaves_only_the_summary(capsys):
+    assert main([*GRADIENT, "--quiet", "--progress", "lines"]) == 0
+    out, err = capsys.readouterr()
+    assert err == "" and out.startswith("scenario")
+
+
+def test_the_phase_shows_before_what_the_run_waits_for(capsys):
+    import scenarios
+
+    scenarios.run(scenarios.get("gcs"), {"placement.robots": 12, "duration_s": 3}, progress="bar")
+    last = capsys.readouterr().err.split("\r")[-1]
+    assert last.index("phase 1/6 ids") < last.index("until merging")
+    assert last.index("phase 1/6 ids") < 80
