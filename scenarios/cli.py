@@ -25,7 +25,8 @@ import json
 import re
 import sys
 import typing
-from contextlib import nullcontext
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -305,7 +306,36 @@ def _check_placement(args: argparse.Namespace) -> None:
             )
 
 
+@contextmanager
+def _ended_by_signals() -> Iterator[None]:
+    """SIGTERM and SIGHUP end the run as Ctrl-C does: the exception unwinds the run, so the
+    staging directory of ``--out`` is removed, and kilonet exits with 128 + the signal."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def end(signum: int, _frame: Any) -> None:
+        print(f"kilonet: stopped by {signal.Signals(signum).name}", file=sys.stderr)
+        raise SystemExit(128 + signum)
+
+    wanted = [getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)]
+    previous = {sig: signal.signal(sig, end) for sig in wanted}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
+    with _ended_by_signals():
+        return _run_command(args)
+
+
+def _run_command(args: argparse.Namespace) -> int:
     from scenarios.base import write_run_files
     from scenarios.output_dir import OutputDir
 

@@ -104,3 +104,40 @@ def test_the_phase_shows_before_what_the_run_waits_for(capsys):
     last = capsys.readouterr().err.split("\r")[-1]
     assert last.index("phase 1/6 ids") < last.index("until merging")
     assert last.index("phase 1/6 ids") < 80
+
+
+@pytest.mark.parametrize("signame", ["SIGTERM", "SIGHUP"])
+def test_a_run_ended_by_a_signal_leaves_nothing(tmp_path, signame):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "runs" / "one"
+    child = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "kilonet",
+            "run",
+            "gradient",
+            "--robots",
+            "30",
+            "--duration",
+            "100000",
+            "--out",
+            str(out),
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    waited = 0.0
+    while not list((tmp_path / "runs").glob(".one.*")) and waited < 120:  # staging is made
+        time.sleep(0.1)
+        waited += 0.1
+    time.sleep(0.5)  # into the run
+    child.send_signal(getattr(signal, signame))
+    _, err = child.communicate()
+    assert child.returncode == 128 + getattr(signal, signame)
+    assert err.strip().splitlines()[-1] == f"kilonet: stopped by {signame}"
+    assert not (tmp_path / "runs").exists()
