@@ -141,3 +141,11 @@ def test_a_run_ended_by_a_signal_leaves_nothing(tmp_path, signame):
     assert child.returncode == 128 + getattr(signal, signame)
     assert err.strip().splitlines()[-1] == f"kilonet: stopped by {signame}"
     assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.slow
+def test_the_default_run_reports_no_split_beside_one_frame(capsys):
+    assert main(["run", "--json"]) == 0
+    summary = __import__("json").loads(capsys.readouterr().out)
+    assert summary["frames"] == 1 and summary["failures"]["isolated_seeds"]
+    assert summary["failures"]["split_frames"] == 0
