@@ -149,3 +149,29 @@ def test_the_default_run_reports_no_split_beside_one_frame(capsys):
     summary = __import__("json").loads(capsys.readouterr().out)
     assert summary["frames"] == 1 and summary["failures"]["isolated_seeds"]
     assert summary["failures"]["split_frames"] == 0
+
+
+# -- run directories ----------------------------------------------------------------------------
+def test_robots_csv_has_the_uids_and_messages_csv_needs_trace_messages(tmp_path):
+    import pandas as pd
+
+    placement = tmp_path / "three.csv"
+    placement.write_text("x_mm,y_mm,uid\n0,0,42\n50,0,7\n100,0,9\n")
+    base = ["run", "gradient", "--placement", str(placement), "--duration", "2", "--quiet"]
+    assert main([*base, "--out", str(tmp_path / "plain")]) == 0
+    robots = pd.read_csv(tmp_path / "plain" / "robots.csv")
+    assert list(robots.columns[:2]) == ["robot", "uid"]
+    assert robots.uid.tolist() == [42, 7, 9]
+    assert not (tmp_path / "plain" / "messages.csv").exists()
+    assert main([*base, "--set", "trace.messages=true", "--out", str(tmp_path / "traced")]) == 0
+    messages = pd.read_csv(tmp_path / "traced" / "messages.csv")
+    assert len(messages) > 0 and list(messages.columns[:2]) == ["t_s", "sender"]
+
+
+def test_a_uid_given_twice_is_refused(tmp_path, capsys):
+    placement = tmp_path / "twice.csv"
+    placement.write_text("x_mm,y_mm,uid\n0,0,42\n50,0,7\n100,0,42\n")
+    argv = ["run", "gradient", "--placement", str(placement), "--out", str(tmp_path / "out")]
+    assert main(argv) == 2
+    assert "twice.csv: uid 42 is given to data rows 1 and 3" in one_error(capsys)
+    assert not (tmp_path / "out").exists()
