@@ -3,6 +3,8 @@ values, a run file given as the program, parameters of ``--program`` and of one 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from kilonet.cli import main
@@ -175,3 +177,17 @@ def test_a_uid_given_twice_is_refused(tmp_path, capsys):
     assert main(argv) == 2
     assert "twice.csv: uid 42 is given to data rows 1 and 3" in one_error(capsys)
     assert not (tmp_path / "out").exists()
+
+
+def test_the_readme_quotes_the_defaults_it_names():
+    from kilonet.params import Params
+    from kilonet.robot import ADC_CONVERSION_S
+    from scenarios.program import BUSY_CALL_S
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    readme = " ".join(readme.split())
+    p = Params()
+    assert f"({p.duration_s:g} s, a {p.robot.tx_period_s:g} s transmit period, a " in readme
+    assert f"{p.placement.spacing_mm:g} mm hex lattice)" in readme
+    assert f"stops a call that runs {BUSY_CALL_S:g} s of wall time" in readme
+    assert f"reading takes the ADC's {ADC_CONVERSION_S * 1e6:.0f} µs" in readme
