@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = [
+    "FIELD_CODES",
     "KILOLIB",
     "LIMITS",
     "NORMAL",
@@ -186,6 +187,10 @@ class PayloadLimit:
             )
 
 
+#: The struct codes a :class:`Layout` field may use: integers of 1, 2 and 4 bytes and a bool
+#: (floats and strings do not belong in a 9-byte payload; scale a number to an integer).
+FIELD_CODES = ("B", "b", "H", "h", "I", "i", "?")
+
 #: kilolib's ``message_type_t`` for a program's own messages (``message.h``).
 NORMAL = 0
 #: The first of kilolib's system message types (``BOOT = 0x80``): kilolib handles them itself.
@@ -219,7 +224,8 @@ class Layout:
     Raises
     ------
     PayloadError
-        If the fields take more than ``max_bytes``.
+        If the fields take more than ``max_bytes``, or a code is not one of
+        :data:`FIELD_CODES`.
     """
 
     def __init__(
@@ -234,6 +240,13 @@ class Layout:
         self.type = type
         self._names = [f[0] for f in fields]
         self._codes = [f[1] for f in fields]
+        for field_name, code in zip(self._names, self._codes, strict=True):
+            if code not in FIELD_CODES:
+                raise PayloadError(
+                    f"layout {name!r}: field {field_name} has struct code {code!r}; a field is "
+                    f"one of {', '.join(FIELD_CODES)} (a number with a fraction is a scaled "
+                    f"integer: ({field_name!r}, 'h', 0.1) stores tenths)"
+                )
         self._scales = [f[2] if len(f) > 2 else None for f in fields]
         self._named_scales = list(zip(self._names, self._scales, strict=True))
         self._struct = struct.Struct("<" + "".join(self._codes))
