@@ -279,7 +279,22 @@ def _resolve(args: argparse.Namespace) -> tuple[Scenario, dict[str, Any], Path |
                     f"{target}: names scenario {named!r}, but --program runs your own program; "
                     "remove the scenario key or --program"
                 )
-        return program_scenario(args.program), overrides, Path(target) if target else None
+        settings = {
+            k[len("program.") :]: v for k, v in overrides.items() if k.startswith("program.")
+        }
+        overrides = {k: v for k, v in overrides.items() if not k.startswith("program.")}
+        given = _parse_set(args.set)
+        settings |= {k[len("program.") :]: v for k, v in given.items() if k.startswith("program.")}
+        text = Path(target).read_text() if target is not None else ""
+
+        def where(name: str) -> str:
+            if f"program.{name}" in given:
+                return f"--set program.{name}"
+            line = toml_line(text, f"program.{name}")
+            return f"{target}:{line}" if line else str(target)
+
+        scenario = program_scenario(args.program, settings, where)
+        return scenario, overrides, Path(target) if target else None
     if target is None:
         return scenarios.get(scenarios.DEFAULT), {}, None
     if target.endswith(".toml"):
@@ -342,7 +357,10 @@ def _run_command(args: argparse.Namespace) -> int:
     scenario, file_overrides, run_file = _resolve(args)
     if run_file is not None:
         run_file_overrides(scenario, run_file, file_overrides)
-    overrides = {**file_overrides, **_parse_set(args.set), **_scenario_options(args, scenario)}
+    given = _parse_set(args.set)
+    if args.program is not None:  # program.* keys are the program's own settings (_resolve)
+        given = {k: v for k, v in given.items() if not k.startswith("program.")}
+    overrides = {**file_overrides, **given, **_scenario_options(args, scenario)}
     if args.robots is not None:
         if args.robots < 1:
             raise UsageError(f"--robots {args.robots}: give the number of robots (at least 2)")

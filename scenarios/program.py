@@ -7,6 +7,10 @@ or ``--robots`` (a jittered hex lattice), and the run writes what every scenario
 (``robots.csv``, ``led.csv``, ``events.csv``, ``poses.csv``, ``summary.json``,
 ``params.json``) plus ``program.png``: start and final positions, LEDs and paths.
 
+A run file's ``[program]`` section, and ``--set program.NAME=VALUE``, set class attributes
+the program declares (``gain = 0.5`` in its class body) on every robot before ``setup()``
+(:func:`program_settings`): a program's own parameters, checked like kilonet's.
+
 A program that cannot run is refused in one line naming the file and line
 (:class:`ProgramError`): a missing file, a syntax error, an exception while the file loads,
 no Kilobot subclass (or a name that is not one, or one whose constructor needs arguments), and
@@ -21,7 +25,7 @@ import importlib.util
 import inspect
 import sys
 import traceback
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
@@ -44,6 +48,7 @@ __all__ = [
     "load_program",
     "parse_spec",
     "program_scenario",
+    "program_settings",
     "reported_as_user_errors",
     "robot_frame",
 ]
@@ -265,19 +270,100 @@ def busy_watchdog(seconds: float = BUSY_CALL_S) -> Iterator[None]:
         signal.signal(signal.SIGALRM, previous)
 
 
-def program_scenario(spec: str) -> Scenario:
-    """A scenario that runs the program ``spec`` (``FILE.py[:ClassName]``) on every robot.
+#: Types a ``[program]`` setting may have: those of the class attribute it replaces.
+_SETTING_TYPES = (bool, int, float, str)
+
+
+def program_settings(
+    cls: type[Kilobot], settings: dict[str, Any], where: Callable[[str], str] = str
+) -> dict[str, Any]:
+    """The values a run file's ``[program]`` section (or ``--set program.NAME=VALUE``) gives
+    the program's class attributes, checked and converted: each name must be a class
+    attribute the program declares (``speed = 3`` in its class body) holding a bool, int,
+    float or str, and each value must be of that type (an int for a float; text from
+    ``--set`` is converted).
+
+    ``where(name)`` says where a setting came from, for the error (``run.toml:7``).
 
     Raises
     ------
     ProgramError
-        If the program cannot be loaded (:func:`load_program`).
+        For a name the class does not declare, or a value of another type.
+
+    Examples
+    --------
+    >>> class Bot(Kilobot):
+    ...     speed = 2.5
+    ...     verbose = False
+    >>> program_settings(Bot, {"speed": 3, "verbose": "true"})
+    {'speed': 3.0, 'verbose': True}
+    """
+    out: dict[str, Any] = {}
+    for name, value in settings.items():
+        default = None
+        for klass in cls.__mro__:
+            if klass is Kilobot:
+                break
+            if name in vars(klass):
+                default = vars(klass)[name]
+                break
+        if name.startswith("_") or not isinstance(default, _SETTING_TYPES):
+            raise ProgramError(
+                f"{where(name)}: program.{name}: {cls.__name__} has no class attribute {name!r} "
+                f"holding a number, bool or text; a [program] key sets one the class declares "
+                f"({name} = ... in the class body)"
+            )
+        out[name] = _converted(value, type(default), f"{where(name)}: program.{name}")
+    return out
+
+
+def _converted(value: Any, kind: type, where: str) -> Any:
+    if isinstance(value, str) and kind is not str:
+        text = value.strip().lower()
+        if kind is bool and text in ("true", "false"):
+            return text == "true"
+        try:
+            return kind(text) if kind is not bool else _refuse(value, kind, where)
+        except ValueError:
+            _refuse(value, kind, where)
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if type(value) is not kind:
+        _refuse(value, kind, where)
+    return value
+
+
+def _refuse(value: Any, kind: type, where: str) -> Any:
+    article = "an" if kind is int else "a"
+    raise ProgramError(
+        f"{where} = {value!r} is not {article} {kind.__name__}, as the class's default is"
+    )
+
+
+def program_scenario(
+    spec: str, settings: dict[str, Any] | None = None, where: Callable[[str], str] = str
+) -> Scenario:
+    """A scenario that runs the program ``spec`` (``FILE.py[:ClassName]``) on every robot,
+    with ``settings`` (checked by :func:`program_settings`) set on each robot's program before
+    its ``setup()`` (``where(name)``: where a setting came from, for an error).
+
+    Raises
+    ------
+    ProgramError
+        If the program cannot be loaded (:func:`load_program`) or a setting is refused.
     """
     path, cls = load_program(spec)
     label = f"{path.name}:{cls.__name__}"
+    values = program_settings(cls, dict(settings or {}), where)
+
+    def build(_i: int) -> Kilobot:
+        robot = cls()
+        for name, value in values.items():
+            setattr(robot, name, value)
+        return robot
 
     def program(params: Any, positions: Any):
-        return lambda _i: cls()
+        return build
 
     def metrics(_sim: Simulation) -> dict[str, Any]:
         return {"program": label}

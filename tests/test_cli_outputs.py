@@ -191,3 +191,43 @@ def test_the_readme_quotes_the_defaults_it_names():
     assert f"{p.placement.spacing_mm:g} mm hex lattice)" in readme
     assert f"stops a call that runs {BUSY_CALL_S:g} s of wall time" in readme
     assert f"reading takes the ADC's {ADC_CONVERSION_S * 1e6:.0f} µs" in readme
+
+
+# -- a program's own settings -------------------------------------------------------------------
+SETTABLE = """\
+from kilonet.robot import Kilobot
+
+
+class Settable(Kilobot):
+    period_ticks = 31
+    gain = 0.5
+    label = "a"
+
+    def setup(self):
+        self.log("settings", period_ticks=self.period_ticks, gain=self.gain, label=self.label)
+"""
+
+
+def test_a_run_files_program_section_and_set_give_the_programs_settings(tmp_path, capsys):
+    import json
+
+    program = tmp_path / "settable.py"
+    program.write_text(SETTABLE)
+    run_file = tmp_path / "run.toml"
+    run_file.write_text("duration_s = 1\n\n[program]\nperiod_ticks = 62\ngain = 2\n")
+    out = tmp_path / "out"
+    argv = ["run", str(run_file), "--program", str(program), "--robots", "2", "--quiet"]
+    assert main([*argv, "--set", "program.label=b", "--out", str(out)]) == 0
+    events = (out / "events.csv").read_text().splitlines()
+    assert json.loads(events[1].split(",", 3)[3].strip('"').replace('""', '"')) == {
+        "period_ticks": 62,
+        "gain": 2.0,
+        "label": "b",
+    }
+    capsys.readouterr()
+    run_file.write_text("[program]\nperiod_ticks = 62\nspeed = 3\n")
+    assert main(argv) == 2
+    assert "run.toml:3: program.speed: Settable has no class attribute 'speed'" in one_error(capsys)
+    assert main([*argv, "--set", "program.period_ticks=fast"]) == 2
+    line = one_error(capsys)
+    assert "--set program.period_ticks: program.period_ticks = 'fast' is not an int" in line
