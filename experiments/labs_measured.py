@@ -23,15 +23,33 @@ SEEDS = tuple(range(1, 11))
 VARIANT_SEEDS = tuple(range(1, 6))
 
 
-def _run(lab: str, program: Any, measure: Callable, seed: int = 1, **overrides: Any):
-    """The lab's figures and the run's CPU seconds."""
-    from examples.labs import world
+#: Each lab's program (module, class) and measure (a function of ``examples.labs.measures``).
+PROGRAMS = {
+    "blink_led": ("blink_led", "BlinkLed", "blink_led"),
+    "simple_movement": ("simple_movement", "SimpleMovement", "movement"),
+    "nonblocked_movement": ("nonblocked_movement", "NonblockedMovement", "movement"),
+    "speaker_listener": ("speaker_listener", "SpeakerListener", "speaker_listener"),
+    "gradient_simple": ("gradient_simple", "GradientSimple", "gradient_simple"),
+    "orbit": ("orbit", "Orbit", "orbit"),
+    "move_to_light": ("move_to_light", "MoveToLight", "move_to_light"),
+    "sync": ("sync", "Sync", "sync"),
+    "disperse": ("disperse", "Disperse", "disperse"),
+}
 
+
+def _run(lab: str, seed: int = 1, **overrides: Any):
+    """The lab's figures, the run's CPU seconds and the simulation."""
+    import importlib
+
+    from examples.labs import measures, world
+
+    module, cls, measure = PROGRAMS[lab]
+    program = getattr(importlib.import_module(f"examples.labs.{module}"), cls)
     sim = world.simulation(lab, program, seed=seed, overrides=overrides)
     started = time.process_time()
     sim.run()
     cpu_s = time.process_time() - started
-    return measure(sim), cpu_s, sim
+    return getattr(measures, measure)(sim), cpu_s, sim
 
 
 def _span(values: Sequence[float], fmt: str = ".1f", unit: str = "") -> str:
@@ -53,9 +71,8 @@ def _and(values: Sequence[float], fmt: str = ".1f") -> str:
 # -- the table, seed 1 -----------------------------------------------------------------------
 def _blink() -> str:
     from examples.labs import measures
-    from examples.labs.blink_led import BlinkLed
 
-    _, _, sim = _run("blink_led", BlinkLed, measures.blink_led)
+    _, _, sim = _run("blink_led")
     red, extra = [], []
     for robot in range(sim.n_robots):
         phases = measures.led_phases(sim, robot)
@@ -73,12 +90,7 @@ def _blink() -> str:
 
 
 def _movement(lab: str) -> dict[str, Any]:
-    from examples.labs import measures
-    from examples.labs.nonblocked_movement import NonblockedMovement
-    from examples.labs.simple_movement import SimpleMovement
-
-    program = SimpleMovement if lab == "simple_movement" else NonblockedMovement
-    return _run(lab, program, measures.movement)[0]
+    return _run(lab)[0]
 
 
 def _simple_movement() -> str:
@@ -100,10 +112,7 @@ def _nonblocked_movement() -> str:
 
 
 def _speaker_listener() -> str:
-    from examples.labs import measures
-    from examples.labs.speaker_listener import SpeakerListener
-
-    figures = _run("speaker_listener", SpeakerListener, measures.speaker_listener)[0]
+    figures = _run("speaker_listener")[0]
     (speaker,) = [v for k, v in figures.items() if k.startswith("speaker")]
     listeners = [v for k, v in figures.items() if k.startswith("listener")]
     received = _span([v["received"] for v in listeners], "d")
@@ -115,10 +124,7 @@ def _speaker_listener() -> str:
 
 
 def _gradient(seed: int = 1) -> dict[str, Any]:
-    from examples.labs import measures
-    from examples.labs.gradient_simple import GradientSimple
-
-    return _run("gradient_simple", GradientSimple, measures.gradient_simple, seed)[0]
+    return _run("gradient_simple", seed)[0]
 
 
 def _gradient_row() -> str:
@@ -130,10 +136,7 @@ def _gradient_row() -> str:
 
 
 def _orbit(seed: int = 1) -> tuple[dict[str, Any], float]:
-    from examples.labs import measures
-    from examples.labs.orbit import Orbit
-
-    figures, cpu_s, _ = _run("orbit", Orbit, measures.orbit, seed)
+    figures, cpu_s, _ = _run("orbit", seed)
     (planet,) = figures.values()
     return planet, cpu_s
 
@@ -147,10 +150,7 @@ def _orbit_row() -> str:
 
 
 def _move_to_light(seed: int = 1) -> tuple[list[dict[str, Any]], float]:
-    from examples.labs import measures
-    from examples.labs.move_to_light import MoveToLight
-
-    figures, cpu_s, _ = _run("move_to_light", MoveToLight, measures.move_to_light, seed)
+    figures, cpu_s, _ = _run("move_to_light", seed)
     return list(figures.values()), cpu_s
 
 
@@ -169,11 +169,7 @@ def _move_to_light_row() -> str:
 
 
 def _sync(seed: int = 1, **overrides: Any) -> tuple[dict[str, Any], float]:
-    from examples.labs import measures
-    from examples.labs.sync import Sync
-
-    figures, cpu_s, _ = _run("sync", Sync, measures.sync, seed, **overrides)
-    return figures, cpu_s
+    return _run("sync", seed, **overrides)[:2]
 
 
 def _sync_row() -> str:
@@ -185,11 +181,7 @@ def _sync_row() -> str:
 
 
 def _disperse(seed: int = 1) -> tuple[dict[str, Any], float]:
-    from examples.labs import measures
-    from examples.labs.disperse import Disperse
-
-    figures, cpu_s, _ = _run("disperse", Disperse, measures.disperse, seed)
-    return figures, cpu_s
+    return _run("disperse", seed)[:2]
 
 
 def _disperse_row() -> str:
