@@ -569,10 +569,9 @@ class InfraredMedium:
         """Count a message dropped from ``robot``'s full receive buffer."""
         self.counts.lost("overflow")[robot] += 1
 
-    def receiving(self, robot: int, at_s: float | None = None) -> bool:
-        """Whether a reception is in progress at ``robot`` now, or at ``at_s`` (simulated s,
-        counting only receptions begun by now), as kilolib's ``rx_busy``."""
-        return self._busy_until[robot] > (self.env._now if at_s is None else at_s)
+    def receiving(self, robot: int) -> bool:
+        """Whether a reception is in progress at ``robot`` now (kilolib's ``rx_busy``)."""
+        return self._busy_until[robot] > self.env._now
 
 
 def _drop(message: Message, distance_mm: int) -> None:

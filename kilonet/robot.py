@@ -400,7 +400,7 @@ class Kilobot:
         last = self.__dict__.get("_kadc")
         at = last[1] + ADC_CONVERSION_S if last is not None and last[0] == now else now
         self._kadc = (now, at)
-        return self._sim.medium.receiving(self._index, at)
+        return self._sim.medium.channel.busy(self._index, at)  # a carrier at `at`
 
     # -- the run's record --------------------------------------------------------------------
     def log(self, event: str, **fields: Any) -> None:
