@@ -45,11 +45,14 @@ def test_a_run_file_given_as_the_program_says_where_it_goes(tmp_path, capsys):
 
 
 def test_params_program_lists_the_kernel_defaults(capsys):
+    from kilonet.params import Params
+
     assert main(["params", "program"]) == 0
     rows = {line.split()[0]: line.split()[1] for line in capsys.readouterr().out.splitlines()}
-    assert rows["duration_s"] == "60.0"
-    assert rows["robot.tx_period_s"] == "0.5"
-    assert rows["placement.spacing_mm"] == "40.0"
+    p = Params()  # the kernel's defaults, not a scenario's (gcs: a 0.2 s period)
+    assert rows["duration_s"] == str(p.duration_s) == "60.0"
+    assert rows["robot.tx_period_s"] == str(p.robot.tx_period_s)
+    assert rows["placement.spacing_mm"] == str(p.placement.spacing_mm)
     assert not any(key.startswith("gcs.") for key in rows)
 
 
@@ -187,7 +190,7 @@ def test_the_readme_quotes_the_defaults_it_names():
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     readme = " ".join(readme.split())
     p = Params()
-    assert f"({p.duration_s:g} s, a {p.robot.tx_period_s:g} s transmit period, a " in readme
+    assert f"({p.duration_s:g} s, kilolib's transmit period, a " in readme
     assert f"{p.placement.spacing_mm:g} mm hex lattice)" in readme
     assert f"stops a call that runs {BUSY_CALL_S:g} s of wall time" in readme
     assert f"reading takes the ADC's {ADC_CONVERSION_S * 1e6:.0f} µs" in readme

@@ -110,6 +110,6 @@ def test_the_defaults_table_is_what_the_code_does():
         default = inspect.signature(function).parameters[call[3]].default
         assert default == ast.literal_eval(call[4]), cell
     p = Params()
-    assert p.seed == 1 and p.duration_s == 60 and p.robot.tx_period_s == 0.5
+    assert p.seed == 1 and p.duration_s == 60
     assert "1 with the kernel's defaults" in table and "60 s runs" in table
-    assert "every 0.5 s" in table and "to `duration_s`, 60 s" in table
+    assert "to `duration_s`, 60 s" in table
