@@ -374,6 +374,13 @@ def _localize_compared(joined, localize):
     return pd.concat(parts, ignore_index=True)
 
 
+def _labs():
+    """:mod:`experiments.labs_measured`, imported when a labs block is made (it loads the labs)."""
+    from experiments import labs_measured
+
+    return labs_measured
+
+
 #: Generated blocks by name.
 BLOCKS: dict[str, Block] = {
     "clock-drift": Block("docs/model.md", _clock_drift_block),
@@ -395,6 +402,9 @@ BLOCKS: dict[str, Block] = {
     "follower-success": Block(
         "docs/follower.md", lambda _context: follower_measured.success_block()
     ),
+    # examples/labs/README.md: experiments/labs_measured.py
+    "labs-seed-1": Block("examples/labs/README.md", lambda _context: _labs().seed_one_block()),
+    "labs-seeds": Block("examples/labs/README.md", lambda _context: _labs().seeds_block()),
 }
 
 

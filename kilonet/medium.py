@@ -434,7 +434,7 @@ class InfraredMedium:
                 )
             else:
                 if message is not self._last_checked[s]:
-                    self.limit.check(message)
+                    self.limit.check(message, s)
                     self._last_checked[s] = message
                     self._message_bytes[s] = message.size_bytes
                     self._crc_ok[s] = message.crc_ok
