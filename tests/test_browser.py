@@ -20,7 +20,7 @@ import pytest
 
 import kilonet.cli
 import scenarios
-from protocols.localize import LocalizeRobot
+from protocols.localize.program import LocalizeRobot
 
 pytestmark = pytest.mark.browser
 

@@ -8,37 +8,43 @@ import typing
 
 import pytest
 
-import protocols.frame_merging
-import protocols.global_refinement
-import protocols.local_frames
-import protocols.localization
-import protocols.merging_groups
-import protocols.recovery
-import protocols.seed_election
-import protocols.split_detection
-import protocols.unique_ids
+import protocols.gcs.phase1_unique_ids
+import protocols.gcs.phase2_seed_election
+import protocols.gcs.phase3_local_frames
+import protocols.gcs.phase4_localization
+import protocols.gcs.phase5_merging_groups
+import protocols.gcs.phase6_merging
+import protocols.gcs.phase7_refinement
+import protocols.gcs.recovery
+import protocols.gcs.split_detection
 import scenarios
 from kilonet.message import Layout, PayloadError
-from protocols.gcs import PHASE_SEQUENCE, RECOVERY_SEQUENCE, GcsRobot, led_colour, phase_windows_s
-from protocols.gcs_base import PHASES, GcsParams, Phase, gcs_layout, sender_of
-from protocols.localization import fix_anchors, worth_a_fix
-from protocols.neighbours import NeighbourTable
-from protocols.recovery import adopts_epoch
-from protocols.seed_election import seed_condition_met
-from protocols.split_detection import distance_mismatch_mm
-from protocols.unique_ids import is_duplicate
+from protocols.common.neighbours import NeighbourTable
+from protocols.gcs.base import PHASES, GcsParams, Phase, gcs_layout, sender_of
+from protocols.gcs.phase1_unique_ids import is_duplicate
+from protocols.gcs.phase2_seed_election import seed_condition_met
+from protocols.gcs.phase4_localization import fix_anchors, worth_a_fix
+from protocols.gcs.program import (
+    PHASE_SEQUENCE,
+    RECOVERY_SEQUENCE,
+    GcsRobot,
+    led_colour,
+    phase_windows_s,
+)
+from protocols.gcs.recovery import adopts_epoch
+from protocols.gcs.split_detection import distance_mismatch_mm
 from scenarios.gcs import estimates_frame, run_outcomes
 
 MODULES = [
-    protocols.unique_ids,
-    protocols.seed_election,
-    protocols.local_frames,
-    protocols.localization,
-    protocols.merging_groups,
-    protocols.frame_merging,
-    protocols.split_detection,
-    protocols.recovery,
-    protocols.global_refinement,
+    protocols.gcs.phase1_unique_ids,
+    protocols.gcs.phase2_seed_election,
+    protocols.gcs.phase3_local_frames,
+    protocols.gcs.phase4_localization,
+    protocols.gcs.phase5_merging_groups,
+    protocols.gcs.phase6_merging,
+    protocols.gcs.split_detection,
+    protocols.gcs.recovery,
+    protocols.gcs.phase7_refinement,
 ]
 LAYOUTS = list(
     {id(v): v for m in MODULES for v in vars(m).values() if isinstance(v, Layout)}.values()

@@ -20,9 +20,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 LAYERS = ("kilonet", "protocols", "scenarios", "experiments")
 
-#: What a protocol may use of the kernel: the robot API (the Kilobot base class, the maze
-#: robot's sensors and drive, messages, parameter declarations) and pure math.
-ROBOT_API = ("kilonet.robot", "kilonet.maze", "kilonet.message", "kilonet.params")
+#: What a protocol may use of the kernel: the robot API (the Kilobot base class, messages,
+#: parameter declarations) and pure math.
+ROBOT_API = ("kilonet.robot", "kilonet.message", "kilonet.params")
 PURE_MATH_KERNEL = ("kilonet.geometry", "kilonet.alignment")
 #: Third-party libraries a protocol may use: array math, linear algebra, graph algorithms.
 PURE_MATH = ("numpy", "scipy", "networkx")
@@ -182,12 +182,12 @@ def test_the_checker_sees_imports_by_name_and_module_strings():
         '"""Mentions scenarios.analyze in a docstring, which is fine."""\n'
         "import importlib\n"
         'importlib.import_module("experiments.cli")\n'
-        '__import__("protocols.gcs")\n'
+        '__import__("protocols.gcs.program")\n'
         'PLUGINS = ["scenarios.analyze:register", "not.a.module", "scenarios"]\n'
     )
     found = [(line, name) for line, name in imports_of(source, "kilonet.cli")]
     assert (3, "experiments.cli") in found
-    assert (4, "protocols.gcs") in found
+    assert (4, "protocols.gcs.program") in found
     assert (5, "scenarios.analyze") in found
     assert all(line != 1 for line, _ in found)
     assert [line for line, why in _check(source, "kilonet.cli") if why] == [3, 4, 5]
@@ -203,7 +203,7 @@ def test_the_checker_sees_imports_by_name_and_module_strings():
         ("numpy", True),
         ("scipy.spatial.transform", True),
         ("math", True),
-        ("protocols.gcs_base", True),
+        ("protocols.gcs.base", True),
         ("kilonet.simulation", False),
         ("kilonet.medium", False),
         ("kilonet.motion", False),

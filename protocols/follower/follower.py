@@ -44,18 +44,18 @@ goal to be the centroid of robots 1–3 and steps: a small first move gives its 
 (the chord between two fixes); then it turns toward the goal and steps, and re-trilaterates,
 until it is within ``tolerance_mm`` of the goal. A turn runs one motor for ``t = f(angle)`` from
 its linear turn calibration and pivots the body about the rear leg on that side, so the centre
-swings on an arc (:mod:`protocols.pivot_turns`): the seed's α = atan2(u₁v₂ − u₂v₁, u₁v₁ + u₂v₂)
-is only where planning starts. What the seed leaves open is handled as follows:
+swings on an arc (:mod:`protocols.follower.pivot_turns`): the seed's α = atan2(u₁v₂ − u₂v₁, u₁v₁ +
+u₂v₂) is only where planning starts. What the seed leaves open is handled as follows:
 
 * **Planning with the swing.** Every move is the next move of the plan of at most two
   (turn, step) moves expected to end nearest the aim, the swing and the robot's own heading
-  and turn errors included (:func:`protocols.pivot_turns.best_pivot_move`); the second move of
-  a two-move plan is made, not planned again. Swings and steps keep clear of the frame robots'
-  bodies and within ``hearing_mm`` of all three.
+  and turn errors included (:func:`protocols.follower.pivot_turns.best_pivot_move`); the second
+  move of a two-move plan is made, not planned again. Swings and steps keep clear of the frame
+  robots' bodies and within ``hearing_mm`` of all three.
 * **Mirror frames.** In a mirrored frame a physical left turn shows up as a right turn about
   the frame's right leg. The follower starts assuming a floor-handed frame; every large turn
   votes twice: by its swing (the fix after it minus the one before,
-  :func:`protocols.pivot_turns.swing_vote`) and by the rotation between the step directions
+  :func:`protocols.follower.pivot_turns.swing_vote`) and by the rotation between the step directions
   before and after it. Until one handedness leads, every turn is a probe of at least
   ``probe_deg`` with a short step.
 * **Outside the triangle.** The robot knows where robots 1–3 stand (their coordinates) and
@@ -92,7 +92,7 @@ from kilonet.geometry import GeometryError, place_references, trilaterate_linear
 from kilonet.message import Layout, Message
 from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
-from protocols.pivot_turns import (
+from protocols.follower.pivot_turns import (
     PIVOT_LEG_MM,
     PivotMove,
     best_pivot_move,
@@ -104,7 +104,7 @@ from protocols.pivot_turns import (
     swing_vote,
     turn_rate_ratio,
 )
-from protocols.turn_calibration import TurnCalibration
+from protocols.follower.turn_calibration import TurnCalibration
 
 __all__ = [
     "FOLLOWER",

@@ -1,8 +1,8 @@
 """The decisions of phase 6 (frame merging), as pure functions of what a robot knows.
 
-:mod:`protocols.frame_merging` runs the rounds and the messages; every choice it makes on the
+:mod:`protocols.gcs.phase6_merging` runs the rounds and the messages; every choice it makes on the
 way is one of these functions, so each can be read and tested on its own. Ranks and frame keys
-are :mod:`protocols.frame_keys` values; smaller ranks are better. The design is explained in
+are :mod:`protocols.gcs.frame_keys` values; smaller ranks are better. The design is explained in
 ``docs/gcs.md`` ("Merging").
 
 A seed's round, in the order the rules apply: pick a partner (:func:`next_partner`, or a
@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Collection, Iterable, Mapping, Sequence
 from typing import Literal
 
-from protocols.frame_keys import MAX_HOPS, FrameKey, Rank
+from protocols.gcs.frame_keys import MAX_HOPS, FrameKey, Rank
 
 __all__ = [
     "all_partners_heard",

@@ -36,7 +36,7 @@ from kilonet.geometry import (
     place_references,
 )
 from kilonet.message import Message
-from protocols.gcs_base import GcsParams, Phase, gcs_layout
+from protocols.gcs.base import GcsParams, Phase, gcs_layout
 
 __all__ = [
     "ASK",
@@ -134,7 +134,7 @@ class LocalFrames(Phase):
         # Asking side (seeds): tables heard, by neighbour: chunk -> entries, and last chunk.
         self.tables: dict[int, dict[int, list[tuple[int, int]]]] = {}
         self.last_chunk: dict[int, int] = {}
-        # A seed that built its frame in an earlier epoch (protocols.recovery) keeps it: the
+        # A seed that built its frame in an earlier epoch (protocols.gcs.recovery) keeps it: the
         # positions located in it must stay valid.
         self.queue = [uid for uid in r.table.ids()] if r.is_seed and not r.references else []
         self.attempts = dict.fromkeys(self.queue, 0)

@@ -2,34 +2,35 @@
 
 The phases (one module each) run in windows on the robot's own clock, in order:
 
-1. :mod:`protocols.unique_ids` — locally unique IDs;
-2. :mod:`protocols.seed_election` — top and bottom seed elections and the seed check;
-3. :mod:`protocols.local_frames` — each seed's frame from two references;
-4. :mod:`protocols.localization` — trilateration into the frames of seeds in view;
-5. :mod:`protocols.merging_groups` — groups of three robots located in the same two frames;
-6. :mod:`protocols.frame_merging` — rounds of half-way transforms until partners agree;
-7. :mod:`protocols.global_refinement` — with ``gcs.refine = true`` only (not the thesis's): the
+1. :mod:`protocols.gcs.phase1_unique_ids` — locally unique IDs;
+2. :mod:`protocols.gcs.phase2_seed_election` — top and bottom seed elections and the seed check;
+3. :mod:`protocols.gcs.phase3_local_frames` — each seed's frame from two references;
+4. :mod:`protocols.gcs.phase4_localization` — trilateration into the frames of seeds in view;
+5. :mod:`protocols.gcs.phase5_merging_groups` — groups of three robots located in the same two
+   frames;
+6. :mod:`protocols.gcs.phase6_merging` — rounds of half-way transforms until partners agree;
+7. :mod:`protocols.gcs.phase7_refinement` — with ``gcs.refine = true`` only (not the thesis's): the
    merged estimates refined from neighbours' global positions and measured distances. Merging's
    window never closes, so a robot leaves it when merging reports itself finished for it
-   (:meth:`~protocols.gcs_base.Phase.finished`).
+   (:meth:`~protocols.gcs.base.Phase.finished`).
 
-Alongside merging, :mod:`protocols.split_detection` checks the merged frame against measured
-distances, and :mod:`protocols.recovery` answers a split that persists with a recovery epoch:
+Alongside merging, :mod:`protocols.gcs.split_detection` checks the merged frame against measured
+distances, and :mod:`protocols.gcs.recovery` answers a split that persists with a recovery epoch:
 edge seeds (phase ``edges``) and phases 3-6 again (and 7, when it runs), at most
 ``gcs.recoveries`` times.
 
 ``gcs.until`` stops the program after a phase. The robot's state that phases share lives on
 :class:`GcsRobot` (its ID, neighbour table, seeds in view, groups and partners, and its
-:class:`~protocols.global_estimate.GlobalEstimate`: local positions, transforms, ranks); phases
+:class:`~protocols.gcs.global_estimate.GlobalEstimate`: local positions, transforms, ranks); phases
 hold their own working state. LED (:func:`led_colour`): phase 1 white, 2 blue (seeds red),
 3 references yellow, located robots green, merged robots cyan.
 
-To add a phase: write its module (a :class:`~protocols.gcs_base.Phase` subclass with a
-``name`` and a ``window_s``), add the name to :data:`protocols.gcs_base.PHASES` and the class
+To add a phase: write its module (a :class:`~protocols.gcs.base.Phase` subclass with a
+``name`` and a ``window_s``), add the name to :data:`protocols.gcs.base.PHASES` and the class
 to :data:`PHASE_SEQUENCE` at the same place (and to :data:`RECOVERY_SEQUENCE` if a recovery
 epoch must run it again), and give its window a parameter in
-:class:`~protocols.gcs_base.GcsParams`. A phase after one whose window never closes starts
-when that phase's :meth:`~protocols.gcs_base.Phase.finished` says so.
+:class:`~protocols.gcs.base.GcsParams`. A phase after one whose window never closes starts
+when that phase's :meth:`~protocols.gcs.base.Phase.finished` says so.
 """
 
 from __future__ import annotations
@@ -40,19 +41,19 @@ from dataclasses import dataclass
 
 from kilonet.message import Message
 from kilonet.robot import Kilobot
-from protocols.frame_keys import FrameKey, Root
-from protocols.frame_merging import FrameMerging
-from protocols.gcs_base import PHASES, SENDER, GcsParams, Phase
-from protocols.global_estimate import GlobalEstimate
-from protocols.global_refinement import GlobalRefinement
-from protocols.local_frames import LocalFrames
-from protocols.localization import Localization
-from protocols.merging_groups import MergingGroups
-from protocols.neighbours import NeighbourTable
-from protocols.recovery import RECOVER, EdgeSeeds, RecoveryFlood
-from protocols.seed_election import SeedElection
-from protocols.split_detection import POS, SplitCheck
-from protocols.unique_ids import UniqueIds
+from protocols.common.neighbours import NeighbourTable
+from protocols.gcs.base import PHASES, SENDER, GcsParams, Phase
+from protocols.gcs.frame_keys import FrameKey, Root
+from protocols.gcs.global_estimate import GlobalEstimate
+from protocols.gcs.phase1_unique_ids import UniqueIds
+from protocols.gcs.phase2_seed_election import SeedElection
+from protocols.gcs.phase3_local_frames import LocalFrames
+from protocols.gcs.phase4_localization import Localization
+from protocols.gcs.phase5_merging_groups import MergingGroups
+from protocols.gcs.phase6_merging import FrameMerging
+from protocols.gcs.phase7_refinement import GlobalRefinement
+from protocols.gcs.recovery import RECOVER, EdgeSeeds, RecoveryFlood
+from protocols.gcs.split_detection import POS, SplitCheck
 
 __all__ = [
     "PHASE_SEQUENCE",
@@ -64,7 +65,7 @@ __all__ = [
     "phase_windows_s",
 ]
 
-#: The phases in the order they run, one per name of :data:`protocols.gcs_base.PHASES`.
+#: The phases in the order they run, one per name of :data:`protocols.gcs.base.PHASES`.
 PHASE_SEQUENCE: tuple[type[Phase], ...] = (
     UniqueIds,
     SeedElection,
@@ -190,7 +191,7 @@ class RobotOutcome:
     merged_root : Root or None
         The root of the frame ``merged_position`` is in (the refinement may join another).
     split_boundary, inconsistent : bool
-        What its split check flagged at the end (:mod:`protocols.split_detection`).
+        What its split check flagged at the end (:mod:`protocols.gcs.split_detection`).
     merge_done : bool
         A seed done merging.
     merge_rounds : int
@@ -296,7 +297,7 @@ class GcsRobot(Kilobot):
         # Phase 5: this robot's groups {(I, K): (Y, Z)}; a seed's partners {K: {members}}.
         self.groups: dict[tuple[FrameKey, FrameKey], tuple[int, int]] = {}
         self.partners: dict[FrameKey, set[int]] = {}
-        self.merge_done = False  # a seed done merging (protocols.frame_merging)
+        self.merge_done = False  # a seed done merging (protocols.gcs.phase6_merging)
         self.merging: FrameMerging | None = None  # the latest merging phase (phase 7 keeps it)
         # Checking and recovering (split_detection, recovery): the check runs while merging.
         self.check: SplitCheck | None = None
@@ -395,7 +396,8 @@ class GcsRobot(Kilobot):
     def schedule_recovery(self, epoch: int, start_tick: int) -> None:
         """Run recovery epoch ``epoch`` from ``start_tick``: the running phase (merging, or the
         refinement) ends there and :data:`RECOVERY_SEQUENCE` follows in windows of the usual
-        lengths, the refinement after it when the run refines (see :mod:`protocols.recovery`)."""
+        lengths, the refinement after it when the run refines (see
+        :mod:`protocols.gcs.recovery`)."""
         self.epoch = epoch
         cls, start, _ = self._windows[self._phase_index]
         windows = [*self._windows[: self._phase_index], (cls, start, start_tick)]

@@ -62,7 +62,7 @@ Messages::
     VOTE (86)  sender:uint16  target:uint16  index:uint8  version:uint8              6 bytes
                the candidate of ``target``'s pair (of that version) that is possible
 
-``flags`` are :mod:`protocols.localize_base`'s LOCALIZED, SETTLED, COMPLETE, DONE.
+``flags`` are :mod:`protocols.localize.base`'s LOCALIZED, SETTLED, COMPLETE, DONE.
 """
 
 from __future__ import annotations
@@ -76,10 +76,10 @@ import numpy as np
 
 from kilonet.geometry import Fix, GeometryError, multilaterate, place_references
 from kilonet.message import Layout, Message
-from protocols.localize_base import LOCALIZED, MAX_COORDINATE_MM, NO_ID, Neighbour
+from protocols.localize.base import LOCALIZED, MAX_COORDINATE_MM, NO_ID, Neighbour
 
 if TYPE_CHECKING:
-    from protocols.localize import LocalizeRobot
+    from protocols.localize.program import LocalizeRobot
 
 __all__ = [
     "CAND",

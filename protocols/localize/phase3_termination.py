@@ -1,6 +1,6 @@
 """Phase 3 of ``localize``: the swarm decides by itself that it is done.
 
-Located robots keep refining (:mod:`protocols.refinement`) until each is *settled*: it moved
+Located robots keep refining (:mod:`protocols.common.refinement`) until each is *settled*: it moved
 less than ``localize.settle_mm`` over its last ``localize.settle_rounds`` rounds (or it has
 been located for ``localize.settle_timeout_s``). A robot that cannot place itself must not
 hold the swarm up forever: it *gives up* (:func:`gives_up`) when its anchors and candidates
@@ -16,7 +16,7 @@ robot that hears the flag is done too), every robot freezes its estimate, sends
 ``localize.done_repeats`` more messages so its neighbours hear the flag, and falls silent. A
 robot that is still running after ``localize.run_timeout_s`` declares itself done.
 
-The flags travel in POS and ROOT messages (:mod:`protocols.localize_spread`).
+The flags travel in POS and ROOT messages (:mod:`protocols.localize.phase2_spread`).
 """
 
 from __future__ import annotations
@@ -24,10 +24,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from protocols.localize_base import COMPLETE, SETTLED, Neighbour, children_complete
+from protocols.localize.base import COMPLETE, SETTLED, Neighbour, children_complete
 
 if TYPE_CHECKING:
-    from protocols.localize import LocalizeRobot
+    from protocols.localize.program import LocalizeRobot
 
 __all__ = ["Termination", "gives_up", "subtree_complete"]
 
@@ -132,7 +132,7 @@ class Termination:
 
     def repeat_done(self) -> None:
         """Owe the neighbours ``localize.done_repeats`` more DONE messages: a robot that stayed
-        awake after DONE (:mod:`protocols.localize_island`) announces its final state."""
+        awake after DONE (:mod:`protocols.localize.phase4_island`) announces its final state."""
         self.repeats_left = self.robot.params.done_repeats
 
     def sent(self) -> None:

@@ -3,18 +3,18 @@
 The phases (one module each) follow one another on every robot as its local work is done,
 not in fixed windows:
 
-1. :mod:`protocols.localize_election` — locally unique IDs, a root elected by flooding the
+1. :mod:`protocols.localize.phase1_election` — locally unique IDs, a root elected by flooding the
    smallest key, every robot's hop count to it, and an echo that tells the root everyone has
    heard it;
-2. :mod:`protocols.localize_spread` — the frame starts at the root (root, axis and third
+2. :mod:`protocols.localize.phase2_spread` — the frame starts at the root (root, axis and third
    robot) and spreads outward by multilateration, with flip and collinearity checks and
    neighbours' candidate pairs where three anchors are missing;
-3. :mod:`protocols.refinement` — from the moment it has a position, every robot keeps
+3. :mod:`protocols.common.refinement` — from the moment it has a position, every robot keeps
    improving it from its neighbours' announced positions and the distances both ends measured
-   (:mod:`protocols.refinement`'s DIST reports), while
-   :mod:`protocols.localize_termination` climbs settledness back to the root, which floods
+   (:mod:`protocols.common.refinement`'s DIST reports), while
+   :mod:`protocols.localize.phase3_termination` climbs settledness back to the root, which floods
    DONE; every robot then freezes its estimate and falls silent;
-4. :mod:`protocols.localize_island` — except robots the spread left out in groups none of
+4. :mod:`protocols.localize.phase4_island` — except robots the spread left out in groups none of
    which hears three placed robots: such an island stays awake after DONE and places itself
    as rigid bodies tied to the now still frame by their distances.
 
@@ -39,7 +39,8 @@ import struct
 
 from kilonet.message import Message
 from kilonet.robot import Kilobot
-from protocols.localize_base import (
+from protocols.common.refinement import DIST, Refiner, next_report
+from protocols.localize.base import (
     COMPLETE,
     DONE,
     LOCALIZED,
@@ -53,11 +54,10 @@ from protocols.localize_base import (
     choose_parent,
     distance_report,
 )
-from protocols.localize_election import ELECT, MAX_HOPS, Election
-from protocols.localize_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR, Island
-from protocols.localize_spread import CAND, POS, ROOT, VOTE, Spread
-from protocols.localize_termination import Termination
-from protocols.refinement import DIST, Refiner, next_report
+from protocols.localize.phase1_election import ELECT, MAX_HOPS, Election
+from protocols.localize.phase2_spread import CAND, POS, ROOT, VOTE, Spread
+from protocols.localize.phase3_termination import Termination
+from protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR, Island
 
 __all__ = ["LocalizeRobot"]
 
@@ -83,7 +83,7 @@ class LocalizeRobot(Kilobot):
     ----------
     stage : str
         ``"election"``, ``"localize"``, ``"island"`` (after DONE, for an island:
-        :mod:`protocols.localize_island`) or ``"done"``.
+        :mod:`protocols.localize.phase4_island`) or ``"done"``.
     position : (float, float) or None
         This robot's estimate in the frame, mm.
     root_key : int

@@ -1,6 +1,6 @@
 """Phase 4 of ``localize``: after DONE, an island of robots the spread left out places itself.
 
-Multilateration (:mod:`protocols.localize_spread`) places a robot once it hears three placed
+Multilateration (:mod:`protocols.localize.phase2_spread`) places a robot once it hears three placed
 neighbours, or two and a neighbour's candidates. Where the frame meets a group of robots that
 each hear at most two placed ones, it stops — though the group is often rigid as a whole and
 tied to the frame by enough distances to fix where it stands. Such a group, an *island*,
@@ -19,7 +19,7 @@ places itself once the swarm is done, when the frame stands still and the channe
    is too large to solve; the member stops passing reports on and says so (ISLAND_FULL),
    and a member that hears that stops too.
 3. **Solving.** When a member's reports have not changed for ``island_quiet_s`` it solves the
-   island itself (:func:`~protocols.island_solve.solve_island`: rigid bodies of members
+   island itself (:func:`~protocols.localize.island_solve.solve_island`: rigid bodies of members
    aligned to the frame through their links, each only where it is unique) and, if that
    places it, takes the position. The spread's rules keep running too, so its neighbours can
    multilaterate from it.
@@ -52,11 +52,11 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 from kilonet.message import Layout, Message
-from protocols.island_solve import Tolerances, solve_island
-from protocols.localize_base import Neighbour
+from protocols.localize.base import Neighbour
+from protocols.localize.island_solve import Tolerances, solve_island
 
 if TYPE_CHECKING:
-    from protocols.localize import LocalizeRobot
+    from protocols.localize.program import LocalizeRobot
 
 __all__ = [
     "ISLAND_FULL",
@@ -104,7 +104,7 @@ Point = tuple[float, float]
 def in_unplaced_triangle(neighbours: Iterable[Neighbour]) -> bool:
     """Whether two unplaced ``neighbours`` hear each other (one reported the other in NBR):
     with this robot they form a triangle of unplaced robots, the seed of a rigid body
-    (:func:`~protocols.island_solve.solve_island` places nothing in an island without one
+    (:func:`~protocols.localize.island_solve.solve_island` places nothing in an island without one
     that multilateration could not place already).
 
     Examples

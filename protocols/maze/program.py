@@ -48,10 +48,17 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from kilonet.geometry import GeometryError, multilaterate, trilaterate_linear
-from kilonet.maze import DIRECTIONS, Maze, MazeError, MazeHardware, MazeKilobot, parse_size
 from kilonet.message import Layout, Message
 from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
+from protocols.maze.hardware import (
+    DIRECTIONS,
+    Maze,
+    MazeError,
+    MazeHardware,
+    MazeKilobot,
+    parse_size,
+)
 
 if TYPE_CHECKING:  # networkx is imported where used, so that listing scenarios stays fast
     import networkx as nx
@@ -181,7 +188,8 @@ def predict(
     belief : (N,) array
         Probability of each cell before the move.
     neighbours : (N, 4) int array
-        Where a move W, N, E, S from each cell ends (:attr:`kilonet.maze.Maze.neighbours`).
+        Where a move W, N, E, S from each cell ends
+        (:attr:`protocols.maze.hardware.Maze.neighbours`).
     direction : str
         The commanded move.
     p_move : float

@@ -22,7 +22,7 @@ Message (type 20 ELECT, 4 bytes)::
 from __future__ import annotations
 
 from kilonet.message import Message
-from protocols.gcs_base import GcsParams, Phase, gcs_layout
+from protocols.gcs.base import GcsParams, Phase, gcs_layout
 
 __all__ = ["ELECT", "SeedElection", "seed_condition_met"]
 

@@ -7,8 +7,8 @@ without any message. Inside its window each phase runs its own message protocol,
 that has nothing to say stays silent (which keeps the channel free for those that do).
 
 Every message starts with the sender's 16-bit ID field (values drawn from ``id_bits`` bits), so
-each reception also refines the distance table (:mod:`protocols.neighbours`): layouts are built
-with :func:`gcs_layout`, which puts that field first, and :func:`sender_of` reads it from any
+each reception also refines the distance table (:mod:`protocols.common.neighbours`): layouts are
+built with :func:`gcs_layout`, which puts that field first, and :func:`sender_of` reads it from any
 of them.
 """
 
@@ -24,12 +24,13 @@ from kilonet.params import param
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from protocols.gcs import GcsRobot
+    from protocols.gcs.program import GcsRobot
 
 __all__ = ["PHASES", "SENDER", "GcsParams", "Phase", "gcs_layout", "sender_of"]
 
 #: Phase names in order; ``gcs.until`` names the last one to run. The refinement runs only
-#: when ``gcs.refine`` is on or ``gcs.until`` names it (:func:`protocols.gcs.phase_sequence`).
+#: when ``gcs.refine`` is on or ``gcs.until`` names it
+#: (:func:`protocols.gcs.program.phase_sequence`).
 PHASES = ("ids", "seeds", "frames", "localization", "groups", "merge", "refine")
 
 
@@ -99,7 +100,7 @@ class GcsParams:
     recover_flood_s: float = param(
         20.0, lo=1.0, hi=600.0, doc="a recovery epoch starts this long after it is requested"
     )
-    # Phase 7 (protocols.global_refinement): off in the thesis's pipeline.
+    # Phase 7 (protocols.gcs.phase7_refinement): off in the thesis's pipeline.
     refine: bool = param(False, doc="refine the merged estimates after merging (phase 7)")
     refine_after_s: float = param(
         5.0, lo=0.0, hi=3600.0, doc="a robot refines once its estimate has been settled this long"
@@ -156,7 +157,7 @@ class Phase:
     """One phase of the protocol on one robot.
 
     A subclass sets ``name`` (one of :data:`PHASES`, or ``"edges"``), defines
-    :meth:`window_s` and overrides the callbacks it uses; :class:`protocols.gcs.GcsRobot`
+    :meth:`window_s` and overrides the callbacks it uses; :class:`protocols.gcs.program.GcsRobot`
     creates it when its window opens and calls :meth:`start`, then the callbacks, then
     :meth:`finish`.
     """
@@ -182,7 +183,7 @@ class Phase:
 
     def finished(self) -> bool:
         """Whether the phase is over on this robot before its window closes: the next phase
-        then starts at once (:meth:`protocols.gcs.GcsRobot.loop` asks every loop). Default:
+        then starts at once (:meth:`protocols.gcs.program.GcsRobot.loop` asks every loop). Default:
         never, the window decides."""
         return False
 

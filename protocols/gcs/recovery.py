@@ -1,6 +1,6 @@
 """Recovering from a split global frame: the thesis's remedy (§7), finished here.
 
-When :mod:`protocols.split_detection` finds a robot on the boundary between two merged frames
+When :mod:`protocols.gcs.split_detection` finds a robot on the boundary between two merged frames
 that never merged (and ``gcs.recoveries`` are left), that robot starts a **recovery epoch**:
 
 1. **Flood.** It broadcasts ``RECOVER(epoch, start tick)`` with a start ``gcs.recover_flood_s``
@@ -31,10 +31,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from kilonet.message import Message
-from protocols.gcs_base import GcsParams, Phase, gcs_layout
+from protocols.gcs.base import GcsParams, Phase, gcs_layout
 
 if TYPE_CHECKING:
-    from protocols.gcs import GcsRobot
+    from protocols.gcs.program import GcsRobot
 
 __all__ = ["EDGE", "RECOVER", "EdgeSeeds", "RecoveryFlood", "adopts_epoch"]
 

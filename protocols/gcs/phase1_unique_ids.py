@@ -24,7 +24,7 @@ are repeated at three transmit opportunities.
 from __future__ import annotations
 
 from kilonet.message import Message
-from protocols.gcs_base import GcsParams, Phase, gcs_layout
+from protocols.gcs.base import GcsParams, Phase, gcs_layout
 
 __all__ = ["CONFLICT", "ID", "UniqueIds", "is_duplicate"]
 

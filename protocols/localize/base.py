@@ -4,22 +4,22 @@ neighbour, and the distance reports that make every measured distance symmetric.
 Every message of the protocol starts with the sender's 16-bit ID, so every reception adds a
 distance sample to the sender's :class:`Neighbour` record (its running mean averages the
 ranging noise down). Both ends of a pair fit the same distance, agreed through the symmetric
-distance reports of :mod:`protocols.refinement` (DIST, and the choice of neighbour of
-:func:`~protocols.refinement.next_report`); one transmit opportunity in ``localize.dist_every``
-carries a report::
+distance reports of :mod:`protocols.common.refinement` (DIST, and the choice of neighbour of
+:func:`~protocols.common.refinement.next_report`); one transmit opportunity in
+``localize.dist_every`` carries a report::
 
     NBR  (85)  sender:uint16  neighbour:uint16  distance:uint16 (0.01 mm)            6 bytes
 
 A robot without a position reports in NBR, whose full distances also tell the root, while it
-is elected, how far apart its neighbours are (:mod:`protocols.localize_spread`); once it has
+is elected, how far apart its neighbours are (:mod:`protocols.localize.phase2_spread`); once it has
 one, in DIST, which carries the position too (:func:`distance_report`).
 
 Every robot measures its own ranging noise, as the median spread of the samples it gets from
 each neighbour (:meth:`Neighbours.noise_mm`), and scales its tolerances by it (the duplicate
-test here, the fix checks of :mod:`protocols.localize_spread`), so the protocol needs no
+test here, the fix checks of :mod:`protocols.localize.phase2_spread`), so the protocol needs no
 calibration constant for it.
 
-IDs are drawn at random; :mod:`protocols.localize_election` redraws one heard from another
+IDs are drawn at random; :mod:`protocols.localize.phase1_election` redraws one heard from another
 robot. Two neighbours of one robot may still share an ID: when a sample from an ID lies more
 than ``duplicate_sigmas`` noise deviations from that ID's mean, the record is marked
 ambiguous and ignored from then on (:meth:`Neighbours.heard`).
@@ -35,7 +35,7 @@ from operator import attrgetter
 
 from kilonet.message import Layout, Message
 from kilonet.params import param
-from protocols.refinement import (
+from protocols.common.refinement import (
     DIST,
     DISTANCE_STEP_MM,
     agreed_range_mm,
@@ -64,7 +64,7 @@ NO_ID = 0xFFFF
 #: Largest coordinate a message can carry, mm (int16 tenths of a millimetre).
 MAX_COORDINATE_MM = 3276.7
 
-# State flags of POS and ROOT messages (protocols.localize_termination sets the last three).
+# State flags of POS and ROOT messages (protocols.localize.phase3_termination sets the last three).
 #: The sender has a position in the frame.
 LOCALIZED = 1
 #: The sender's position has stopped moving (or, unlocalized, it has given up).
@@ -239,9 +239,9 @@ class Neighbour:
         self.hops = 255
         self.parent = NO_ID
         self.flags = 0
-        self.key: int | None = None  # election key (protocols.localize_election)
+        self.key: int | None = None  # election key (protocols.localize.phase1_election)
         self.echo = False
-        # Two candidate positions (protocols.localize_spread): (version, [p0, p1]) or None.
+        # Two candidate positions (protocols.localize.phase2_spread): (version, [p0, p1]) or None.
         self.candidates: tuple[int, list] | None = None
         self.heard_round = 0
         self.ambiguous = False
@@ -254,7 +254,7 @@ class Neighbour:
 
     @property
     def range_mm(self) -> float:
-        """The distance both ends fit (:func:`~protocols.refinement.agreed_range_mm`), mm."""
+        """The distance both ends fit (:func:`~protocols.common.refinement.agreed_range_mm`), mm."""
         return agreed_range_mm(self.distance_sum_mm / self.samples, self.sent_mm, self.reported_mm)
 
     @property

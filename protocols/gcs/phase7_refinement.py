@@ -4,13 +4,13 @@ estimates, as ``localize`` does.
 Merging (phase 6) leaves every robot with a global estimate made of local fixes and half-way
 transforms; its errors compound from frame to frame. Here each robot starts from that estimate
 and keeps improving it from its neighbours' broadcast global positions and the distances both
-ends measured, by the refinement of :mod:`protocols.refinement` (robust Gauss–Newton steps with
-momentum, the symmetric DIST reports): the swarm descends on the least-squares stress of every
+ends measured, by the refinement of :mod:`protocols.common.refinement` (robust Gauss–Newton steps
+with momentum, the symmetric DIST reports): the swarm descends on the least-squares stress of every
 measured pair. Nothing is anchored: the stress does not change under a rigid motion of the
 whole frame, so the frame keeps where merging put it, up to a small drift.
 
 **Entering.** Merging's window never closes; a robot enters this phase when merging is
-over *for it* (:meth:`protocols.frame_merging.FrameMerging.finished`): its estimate has been
+over *for it* (:meth:`protocols.gcs.phase6_merging.FrameMerging.finished`): its estimate has been
 settled, and the seed of every frame it is located in done, for ``gcs.refine_after_s``, no
 recovery is announced or awaited, and, on a seed, its own rounds are done. A robot without a
 settled estimate keeps merging — until the re-placement wave (below) reaches it: a merging
@@ -20,7 +20,7 @@ it. Without this, robots that a recovery epoch sent back to merging and whose es
 settled there (it disagreed with the neighbours', so the split check kept flagging them) kept
 merged estimates hundreds of mm off beside a placed swarm.
 
-**Merging goes on**, its split check does not (:mod:`protocols.split_detection`: the placed
+**Merging goes on**, its split check does not (:mod:`protocols.gcs.split_detection`: the placed
 positions replace the estimates it compares). A refining robot keeps its part in merging: it
 still tracks the seeds' transforms and ranks and answers their queries, and a seed still runs
 its rounds (every other transmit opportunity is merging's). When merging moves the merged
@@ -51,7 +51,7 @@ else (a split awaiting its recovery) and may never come.
 
 **Joining a better frame.** Merging may leave the swarm in several frames. A refining robot
 that hears at least three placed neighbours whose estimates lie in a frame with a better root
-(:class:`~protocols.frame_keys.Root` order, the one merging uses) places itself in that frame
+(:class:`~protocols.gcs.frame_keys.Root` order, the one merging uses) places itself in that frame
 by multilateration from their positions and its measured distances
 (:func:`~kilonet.geometry.multilaterate`, with the collinearity, residual and mirror checks
 phase 4 uses) and refines there from then on (:func:`frame_to_join` picks the frame). A robot
@@ -65,18 +65,18 @@ drifting as a whole never stops moving on the table, but its robots stop moving 
 other); with no hop structure to climb, it stops (*done*: its
 estimate frozen, still announced as settled) when it and every neighbour it refines
 against have been settled for ``_CONFIRM_ROUNDS`` rounds in a row and no settled merging
-neighbour is still to join (:func:`~protocols.refinement.neighbourhood_settled`). A robot that
-does not stop within ``gcs.refine_timeout_s`` stops anyway (the phase's window).
+neighbour is still to join (:func:`~protocols.common.refinement.neighbourhood_settled`). A robot
+that does not stop within ``gcs.refine_timeout_s`` stops anyway (the phase's window).
 
 Messages (one transmit opportunity in ``_DIST_EVERY`` carries a DIST report of
-:mod:`protocols.refinement`, with the global position, 0.1 mm)::
+:mod:`protocols.common.refinement`, with the global position, 0.1 mm)::
 
     type 73 GPOS          sender:uint16  x:int16  y:int16 (0.1 mm)  root:uint16  salt:uint8
     type 75 GPOS_PLACED   the same, from a robot the wave has placed               9 bytes
     type 74 GPOS_SETTLED  the same, from a placed robot that has settled or is done
 
 ``root`` and ``salt`` are the wire ID and salt of the merged frame's root
-(:meth:`protocols.frame_keys.Root.from_wire`): the whole root, so a robot that joins a frame
+(:meth:`protocols.gcs.frame_keys.Root.from_wire`): the whole root, so a robot that joins a frame
 names it as merging does. Coordinates span ±3,276.7 mm: a robot whose estimate lies beyond
 stays silent.
 """
@@ -89,9 +89,7 @@ import numpy as np
 
 from kilonet.geometry import multilaterate
 from kilonet.message import Message
-from protocols.frame_keys import Root
-from protocols.gcs_base import SENDER, GcsParams, Phase, gcs_layout
-from protocols.refinement import (
+from protocols.common.refinement import (
     DIST,
     DISTANCE_STEP_MM,
     Refiner,
@@ -101,12 +99,14 @@ from protocols.refinement import (
     next_report,
     unwrap_distance,
 )
-from protocols.split_detection import POS
+from protocols.gcs.base import SENDER, GcsParams, Phase, gcs_layout
+from protocols.gcs.frame_keys import Root
+from protocols.gcs.split_detection import POS
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
-    from protocols.neighbours import Neighbour
+    from protocols.common.neighbours import Neighbour
 
 __all__ = [
     "GPOS",
@@ -157,7 +157,7 @@ def frame_to_join(
 
     Examples
     --------
-    >>> from protocols.frame_keys import FrameKey
+    >>> from protocols.gcs.frame_keys import FrameKey
     >>> a, b = Root(False, FrameKey(3, 9)), Root(False, FrameKey(5, 1))
     >>> heard = [(a, 0.0, 0.0, 40.0), (a, 40.0, 0.0, 40.0), (b, 0.0, 9.0, 30.0)]
     >>> frame_to_join(b, heard) is None  # two anchors in the better frame: not enough
@@ -183,12 +183,12 @@ def wave_reached(own: Root | None, roots: Iterable[Root]) -> bool:
     """Whether the re-placement wave has reached a robot still merging in frame ``own``
     (``None``: it has no estimate): at least three of its placed neighbours — ``roots``, the
     frame of each — lie in one frame whose root is ``own`` or better. Merging is then over for
-    it (:meth:`protocols.frame_merging.FrameMerging.finished`): the refinement places it from
+    it (:meth:`protocols.gcs.phase6_merging.FrameMerging.finished`): the refinement places it from
     those neighbours, whatever merging's estimate says.
 
     Examples
     --------
-    >>> from protocols.frame_keys import FrameKey
+    >>> from protocols.gcs.frame_keys import FrameKey
     >>> a, b = Root(False, FrameKey(3, 9)), Root(False, FrameKey(5, 1))
     >>> wave_reached(b, [a, a, b])  # three placed, but in two frames
     False
@@ -239,13 +239,13 @@ class PlacedNeighbours:
 class Peer:
     """What a refining robot knows about one neighbour: its announced global position, root and
     whether it has settled, and the distance reports between the two (the interface
-    :func:`~protocols.refinement.next_report` reads).
+    :func:`~protocols.common.refinement.next_report` reads).
 
     Parameters
     ----------
     uid : int
         The neighbour's ID.
-    record : protocols.neighbours.Neighbour
+    record : protocols.common.neighbours.Neighbour
         The robot's neighbour-table record of it (the mean distance, from every reception).
     """
 
@@ -292,7 +292,7 @@ class Peer:
 
     @property
     def range_mm(self) -> float:
-        """The distance both ends fit (:func:`~protocols.refinement.agreed_range_mm`), mm."""
+        """The distance both ends fit (:func:`~protocols.common.refinement.agreed_range_mm`), mm."""
         return agreed_range_mm(self.record.distance_mm, self.sent_mm, self.reported_mm)
 
 

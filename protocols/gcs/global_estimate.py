@@ -13,8 +13,8 @@ Examples
 --------
 >>> import numpy as np
 >>> from scipy.spatial.transform import Rotation
->>> from protocols.frame_keys import FrameKey, Rank
->>> from protocols.frame_merging import Transform
+>>> from protocols.gcs.frame_keys import FrameKey, Rank
+>>> from protocols.gcs.phase6_merging import Transform
 >>> a, b = FrameKey(3, 1), FrameKey(5, 2)
 >>> est = GlobalEstimate()
 >>> est.locate(a, (10.0, 0.0)); est.locate(b, (0.0, 10.0))
@@ -36,8 +36,8 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from protocols.frame_keys import FrameKey, Rank, Root
-    from protocols.frame_merging import Transform
+    from protocols.gcs.frame_keys import FrameKey, Rank, Root
+    from protocols.gcs.phase6_merging import Transform
 
 __all__ = ["GlobalEstimate"]
 

@@ -15,7 +15,8 @@ Message (type 40 POS)::
 
     sender:uint16  seed:uint16  seed_salt:uint8  x:int16  y:int16   (0.1 mm)   9 bytes
 
-A frame is named by its seed's ID and phase-1 salt (:meth:`protocols.gcs.GcsRobot.frame_key`).
+A frame is named by its seed's ID and phase-1 salt
+(:meth:`protocols.gcs.program.GcsRobot.frame_key`).
 """
 
 from __future__ import annotations
@@ -26,10 +27,10 @@ import numpy as np
 
 from kilonet.geometry import multilaterate
 from kilonet.message import Message
-from protocols.frame_keys import FrameKey
-from protocols.gcs_base import GcsParams, Phase, gcs_layout
-from protocols.local_frames import announce_reference, receive_reference
-from protocols.neighbours import NeighbourTable
+from protocols.common.neighbours import NeighbourTable
+from protocols.gcs.base import GcsParams, Phase, gcs_layout
+from protocols.gcs.frame_keys import FrameKey
+from protocols.gcs.phase3_local_frames import announce_reference, receive_reference
 
 __all__ = [
     "POS",

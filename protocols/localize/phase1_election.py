@@ -9,13 +9,13 @@ its neighbour count for ``localize.listen_s`` and is fixed from then on.
 
 The election ends by an echo over a tree rather than a window: every robot names a parent,
 the neighbour one hop nearer K's robot it hears best
-(:func:`~protocols.localize_base.choose_parent`), and a robot's subtree is *complete* for key K
+(:func:`~protocols.localize.base.choose_parent`), and a robot's subtree is *complete* for key K
 when every neighbour it has heard recently holds K and each neighbour that names it parent
 reports complete (:func:`echo_complete`). Leaves are complete as soon as their neighbours hold
 K; completeness climbs back to K's robot, which then knows that every robot of its swarm has
 heard it — so a robot that only looked like the best (a smaller key had not reached it yet)
 can never win: the robots next to the true best never complete its wave. The winner becomes
-the root of the frame (:mod:`protocols.localize_spread`); the others enter phase 2 when they
+the root of the frame (:mod:`protocols.localize.phase2_spread`); the others enter phase 2 when they
 first hear a phase-2 message. A robot holding the best key starts without the echo after
 ``localize.elect_timeout_s``.
 
@@ -38,10 +38,10 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 from kilonet.message import Layout, Message
-from protocols.localize_base import NO_ID, Neighbour, children_complete, choose_parent
+from protocols.localize.base import NO_ID, Neighbour, children_complete, choose_parent
 
 if TYPE_CHECKING:
-    from protocols.localize import LocalizeRobot
+    from protocols.localize.program import LocalizeRobot
 
 __all__ = ["ELECT", "MAX_HOPS", "Election", "echo_complete", "election_key"]
 

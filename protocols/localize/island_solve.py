@@ -11,7 +11,7 @@ solves that problem from the island's distances alone (pure math, no robot API):
    :func:`~kilonet.geometry.multilaterate` (collinear anchors, residuals, GDOP, mirror image).
 2. *Rigid bodies*: when that stalls, the unplaced members are placed in a local frame of their
    own, grown from a triangle that stays at least ``min_height_mm`` high whichever way each
-   of its distances is off by the noise (:func:`~protocols.localize_spread.robust_height`) by
+   of its distances is off by the noise (:func:`~protocols.localize.phase2_spread.robust_height`) by
    the same multilateration. A member that only two body members place has two mirror
    positions: the body is grown once with each (a *shape* each, at most :data:`MAX_SHAPES`),
    dropping a position that would put two robots on top of each other.
@@ -20,12 +20,12 @@ solves that problem from the island's distances alone (pure math, no robot API):
    (:func:`align_body`), for every shape. It is taken only if it is unique: every other local
    optimum that moves some member more than ``3 σ`` fits worse by more than ``(3 σ)²`` in its
    sum of squared residuals — the test that
-   :func:`~protocols.localize_spread.fix_with_candidates` applies to a single robot. Then
+   :func:`~protocols.localize.phase2_spread.fix_with_candidates` applies to a single robot. Then
    step 1 runs again.
 
 The island's members solve it each on its own from the same reports and take their own
-positions (:mod:`protocols.localize_island`); refinement then polishes them with full-precision
-distances.
+positions (:mod:`protocols.localize.phase4_island`); refinement then polishes them with
+full-precision distances.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kilonet.geometry import GeometryError, multilaterate, place_references
-from protocols.localize_spread import MIRROR_SIGMAS, circle_candidates, robust_height
+from protocols.localize.phase2_spread import MIRROR_SIGMAS, circle_candidates, robust_height
 
 __all__ = ["RigidMotion", "Tolerances", "align_body", "solve_island"]
 
