@@ -33,11 +33,15 @@ __all__ = [
     "angle_at",
     "choose_references_best_conditioned",
     "choose_references_max_angle",
+    "circle_intersections",
+    "circle_pair",
     "collinear",
     "crlb_rmse_mm",
     "multilaterate",
     "place_references",
+    "rotate",
     "trilaterate_linear",
+    "wrap_angle",
 ]
 
 
@@ -336,6 +340,100 @@ def place_references(
             f"triangle: C is {y_c:.3g} mm from line AB (need >= {min_height_mm} mm)"
         )
     return (float(d_ab_mm), 0.0), (float(x_c), y_c)
+
+
+# ------------------------------------------------------------------------- plane geometry
+
+#: A point or vector of the plane, mm (or any one unit).
+Point = tuple[float, float]
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """The angle in [−π, π), radians.
+
+    >>> round(wrap_angle(3 * math.pi / 2), 9)
+    -1.570796327
+    """
+    return (angle_rad + math.pi) % (2 * math.pi) - math.pi
+
+
+def rotate(u: Point, angle_rad: float) -> Point:
+    """``u`` rotated counter-clockwise by ``angle_rad`` about the origin.
+
+    >>> [round(c, 9) for c in rotate((1.0, 0.0), math.pi / 2)]
+    [0.0, 1.0]
+    """
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    return (c * u[0] - s * u[1], s * u[0] + c * u[1])
+
+
+def _chord(c1: Point, r1: float, c2: Point, r2: float) -> tuple[float, float, float, float]:
+    """``(d, a, ex, ey)``: the distance of the centres, how far along the line of centres from
+    ``c1`` the chord of the two circles crosses it, and the unit vector ``c1 → c2``. The law of
+    cosines, as :func:`place_references` writes it. ``d`` must be positive."""
+    dx, dy = c2[0] - c1[0], c2[1] - c1[1]
+    d = math.hypot(dx, dy)
+    return d, (r1**2 - r2**2 + d**2) / (2 * d), dx / d, dy / d
+
+
+def circle_intersections(c1: Point, r1: float, c2: Point, r2: float) -> list[Point]:
+    """The points at distance ``r1`` from ``c1`` and ``r2`` from ``c2`` (mm).
+
+    Measured ranges need not meet exactly: circles that miss each other (noise) give their
+    single closest point on the line of centres. Concentric circles give no point.
+
+    Examples
+    --------
+    >>> sorted((round(x, 9), round(y, 9)) for x, y in circle_intersections((0, 0), 5, (8, 0), 5))
+    [(4.0, -3.0), (4.0, 3.0)]
+    >>> circle_intersections((0, 0), 2, (10, 0), 3)
+    [(4.5, 0.0)]
+    """
+    if c1[0] == c2[0] and c1[1] == c2[1]:
+        return []
+    d, a, ex, ey = _chord(c1, r1, c2, r2)
+    h_sq = r1**2 - a**2
+    if h_sq <= 0:
+        # Tangent or missing circles: the point on the line of centres between the two rims.
+        if d > r1 + r2:
+            a = r1 + (d - r1 - r2) / 2
+        elif d < abs(r1 - r2):
+            a = (r1 + d + r2) / 2 if r1 > r2 else (d - r1 - r2) / 2
+        return [(c1[0] + a * ex, c1[1] + a * ey)]
+    h = math.sqrt(h_sq)
+    mx, my = c1[0] + a * ex, c1[1] + a * ey
+    return [(mx - h * ey, my + h * ex), (mx + h * ey, my - h * ex)]
+
+
+def circle_pair(
+    c1: Point, r1: float, c2: Point, r2: float, *, tolerance_mm: float = 0.5
+) -> tuple[Point, Point, float] | None:
+    """The two points at ``r1`` from ``c1`` and ``r2`` from ``c2``: mirror images across the
+    line of centres, and their distance from it (mm).
+
+    Circles that miss each other by at most ``tolerance_mm`` (rounding of measured ranges)
+    meet in one point on the line of centres, returned twice with distance 0. None if the
+    centres coincide, a range is not positive, or the circles miss by more.
+
+    Examples
+    --------
+    >>> p, q, h = circle_pair((0.0, 0.0), 50.0, (40.0, 0.0), 30.0)
+    >>> [round(v, 9) for v in (*p, *q, h)]
+    [40.0, 30.0, 40.0, -30.0, 30.0]
+    >>> circle_pair((0.0, 0.0), 40.0, (100.0, 0.0), 40.0) is None
+    True
+    """
+    length = math.hypot(c2[0] - c1[0], c2[1] - c1[1])
+    if (
+        length <= 0
+        or not abs(r1 - r2) - tolerance_mm <= length <= r1 + r2 + tolerance_mm
+        or not (math.isfinite(r1) and math.isfinite(r2) and r1 > 0 and r2 >= 0)
+    ):
+        return None
+    _, x, ux, uy = _chord(c1, r1, c2, r2)
+    h = math.sqrt(max(0.0, r1**2 - x**2))
+    cx, cy = c1[0] + x * ux, c1[1] + x * uy
+    return (cx - h * uy, cy + h * ux), (cx + h * uy, cy - h * ux), h
 
 
 # ------------------------------------------------------------------ choosing the references

@@ -88,7 +88,14 @@ from dataclasses import dataclass
 from statistics import median
 from typing import Literal, NamedTuple
 
-from kilonet.geometry import GeometryError, place_references, trilaterate_linear
+from kilonet.geometry import (
+    GeometryError,
+    circle_intersections,
+    place_references,
+    rotate,
+    trilaterate_linear,
+    wrap_angle,
+)
 from kilonet.message import Layout, Message
 from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
@@ -250,15 +257,6 @@ def decode(message: Message) -> FrameReport | None:
 # ------------------------------------------------------------------------- plane geometry
 
 
-def wrap_angle(angle_rad: float) -> float:
-    """The angle in [−π, π).
-
-    >>> round(wrap_angle(3 * math.pi / 2), 9)
-    -1.570796327
-    """
-    return (angle_rad + math.pi) % (2 * math.pi) - math.pi
-
-
 def turn_angle(u: Point, v: Point) -> float:
     """The seed's α = atan2(u₁v₂ − u₂v₁, u₁v₁ + u₂v₂): the signed angle from u to v, radians.
 
@@ -291,48 +289,6 @@ def frame_direction(alpha_rad: float, mirrored: bool) -> int:
         return 0
     side = 1 if alpha_rad > 0 else -1
     return -side if mirrored else side
-
-
-def rotate(u: Point, angle_rad: float) -> Point:
-    """``u`` rotated counter-clockwise by ``angle_rad``.
-
-    >>> [round(c, 9) for c in rotate((1.0, 0.0), math.pi / 2)]
-    [0.0, 1.0]
-    """
-    c, s = math.cos(angle_rad), math.sin(angle_rad)
-    return (c * u[0] - s * u[1], s * u[0] + c * u[1])
-
-
-def circle_intersections(c1: Point, r1: float, c2: Point, r2: float) -> list[Point]:
-    """The points at distance ``r1`` from ``c1`` and ``r2`` from ``c2`` (mm).
-
-    Measured ranges need not meet exactly: circles that miss each other (noise) give their
-    single closest point on the line of centres. Concentric circles give no point.
-
-    Examples
-    --------
-    >>> sorted((round(x, 9), round(y, 9)) for x, y in circle_intersections((0, 0), 5, (8, 0), 5))
-    [(4.0, -3.0), (4.0, 3.0)]
-    >>> circle_intersections((0, 0), 2, (10, 0), 3)
-    [(4.5, 0.0)]
-    """
-    dx, dy = c2[0] - c1[0], c2[1] - c1[1]
-    d = math.hypot(dx, dy)
-    if d == 0:
-        return []
-    ex, ey = dx / d, dy / d
-    a = (r1 * r1 - r2 * r2 + d * d) / (2 * d)
-    h_sq = r1 * r1 - a * a
-    if h_sq <= 0:
-        # Tangent or missing circles: the point on the line of centres between the two rims.
-        if d > r1 + r2:
-            a = r1 + (d - r1 - r2) / 2
-        elif d < abs(r1 - r2):
-            a = (r1 + d + r2) / 2 if r1 > r2 else (d - r1 - r2) / 2
-        return [(c1[0] + a * ex, c1[1] + a * ey)]
-    h = math.sqrt(h_sq)
-    mx, my = c1[0] + a * ex, c1[1] + a * ey
-    return [(mx - h * ey, my + h * ex), (mx + h * ey, my - h * ex)]
 
 
 def reachable_goal(goal: Point, obstacles: list[Point], radius_mm: float) -> Point:

@@ -22,6 +22,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from kilonet.geometry import rotate, wrap_angle
+
 __all__ = [
     "PIVOT_LEG_MM",
     "PivotMove",
@@ -41,15 +43,6 @@ Point = tuple[float, float]
 #: the heading (Kilombo, from the PCB design files). A one-motor turn pivots about the rear leg
 #: on the side it turns to, which a program has to know to aim (:func:`pivot_displacement`).
 PIVOT_LEG_MM = (16.5 * math.cos(math.radians(125.5)), 16.5 * math.sin(math.radians(125.5)))
-
-
-def _wrap(angle_rad: float) -> float:
-    return (angle_rad + math.pi) % (2 * math.pi) - math.pi
-
-
-def _rotate(u: Point, angle_rad: float) -> Point:
-    c, s = math.cos(angle_rad), math.sin(angle_rad)
-    return (c * u[0] - s * u[1], s * u[0] + c * u[1])
 
 
 def pivot_displacement(heading: Point, turn_rad: float, leg_mm: Point | None = None) -> Point:
@@ -84,7 +77,7 @@ def pivot_displacement(heading: Point, turn_rad: float, leg_mm: Point | None = N
     side = 1.0 if turn_rad > 0 else -1.0
     ux, uy = heading
     ox, oy = forward * ux - side * left * uy, forward * uy + side * left * ux
-    rx, ry = _rotate((ox, oy), turn_rad)
+    rx, ry = rotate((ox, oy), turn_rad)
     return (ox - rx, oy - ry)
 
 
@@ -325,7 +318,7 @@ def best_pivot_move(
     reach = [max(within_mm, math.dist(position, c)) for c in obstacles]
 
     def allowed(turn: float, start: Point, step: float, _final: bool) -> bool:
-        h = _rotate(heading, turn)
+        h = rotate(heading, turn)
         end = (start[0] + step * h[0], start[1] + step * h[1])
         arc = swing_arc(position, heading, turn, leg_mm)
         return not any(
@@ -370,8 +363,8 @@ def handedness_vote(
         return None
     if max(abs(seen_floor_rad), abs(seen_mirror_rad)) > math.radians(165):
         return None
-    floor_err = abs(_wrap(seen_floor_rad - commanded_rad))
-    mirror_err = abs(_wrap(seen_mirror_rad + commanded_rad))
+    floor_err = abs(wrap_angle(seen_floor_rad - commanded_rad))
+    mirror_err = abs(wrap_angle(seen_mirror_rad + commanded_rad))
     if abs(floor_err - mirror_err) < margin_rad:
         return None
     return mirror_err < floor_err
@@ -451,5 +444,5 @@ def turn_rate_ratio(commanded_rad: float, seen_physical_rad: float) -> float:
     >>> round(turn_rate_ratio(math.radians(-90), math.radians(-72)), 4)
     0.8
     """
-    turned = commanded_rad + _wrap(seen_physical_rad - commanded_rad)
+    turned = commanded_rad + wrap_angle(seen_physical_rad - commanded_rad)
     return turned / commanded_rad

@@ -74,7 +74,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from kilonet.geometry import Fix, GeometryError, multilaterate, place_references
+from kilonet.geometry import Fix, GeometryError, circle_pair, multilaterate, place_references
 from kilonet.message import Layout, Message
 from protocols.localize.base import LOCALIZED, MAX_COORDINATE_MM, NO_ID, Neighbour
 
@@ -250,21 +250,7 @@ def circle_candidates(
     >>> [round(v, 9) for v in (*p, *q, h)]
     [40.0, 30.0, 40.0, -30.0, 30.0]
     """
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    length = math.hypot(dx, dy)
-    # Circles that miss each other by more than rounding (half a millimetre) meet nowhere.
-    if (
-        length <= 0
-        or not abs(range_a_mm - range_b_mm) - 0.5 <= length <= range_a_mm + range_b_mm + 0.5
-    ):
-        return None
-    try:
-        _, (x, h) = place_references(length, range_a_mm, range_b_mm, min_height_mm=0.0)
-    except GeometryError:
-        return None
-    ux, uy = dx / length, dy / length
-    cx, cy = a[0] + x * ux, a[1] + x * uy
-    return (cx - h * uy, cy + h * ux), (cx + h * uy, cy - h * ux), h
+    return circle_pair(a, range_a_mm, b, range_b_mm, tolerance_mm=0.5)
 
 
 def fix_with_candidates(
