@@ -28,6 +28,7 @@ import numpy as np
 
 __all__ = [
     "FIX_REASONS",
+    "MIRROR_SIGMAS",
     "Fix",
     "GeometryError",
     "angle_at",
@@ -39,6 +40,7 @@ __all__ = [
     "crlb_rmse_mm",
     "multilaterate",
     "place_references",
+    "robust_height",
     "rotate",
     "trilaterate_linear",
     "wrap_angle",
@@ -436,6 +438,33 @@ def circle_pair(
     return (cx - h * uy, cy + h * ux), (cx + h * uy, cy - h * ux), h
 
 
+def robust_height(d_ab_mm: float, d_ac_mm: float, d_bc_mm: float, margin_mm: float) -> float:
+    """The least height of C above line AB when each distance may be off by ``margin_mm``:
+    the smallest height over the eight corners of the box of distances (0 where a corner
+    forms no triangle), mm.
+
+    Near collinearity the height is ill-conditioned: a triple on one line, 40 + 40 = 80 mm,
+    measured 1 mm short, looks 12.5 mm high.
+
+    Examples
+    --------
+    >>> round(robust_height(40.0, 40.0, 79.0, 0.0), 1), robust_height(40.0, 40.0, 79.0, 1.0)
+    (12.5, 0.0)
+    >>> round(robust_height(40.0, 40.0, 40.0, 1.0), 1)  # equilateral: 34.6 mm at no margin
+    33.2
+    """
+    least = math.inf
+    for da, db, dc in itertools.product((-margin_mm, margin_mm), repeat=3):
+        try:
+            _, (_, height) = place_references(
+                d_ab_mm + da, d_ac_mm + db, d_bc_mm + dc, min_height_mm=0.0
+            )
+        except GeometryError:
+            return 0.0
+        least = min(least, height)
+    return least
+
+
 # ------------------------------------------------------------------ choosing the references
 
 #: Candidate reference pairs of one seed A: ``{(b, c): (d_ab_mm, d_ac_mm, d_bc_mm)}``, listing
@@ -581,6 +610,9 @@ FIX_REASONS = (
 )
 
 _TINY_MM = 1e-12
+#: The mirror test's margin, in noise deviations: a competing fit must be worse by more
+#: than (this · sigma)² in its sum of squared residuals (:func:`multilaterate`).
+MIRROR_SIGMAS = 3.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -628,7 +660,7 @@ def multilaterate(
     max_rmse_mm: float | None = None,
     max_gdop: float = 5.0,
     min_anchor_width_mm: float | None = None,
-    mirror_sigmas: float = 3.0,
+    mirror_sigmas: float = MIRROR_SIGMAS,
 ) -> Fix:
     """Least-squares position from ranges to k anchors, rejected with a reason when unreliable.
 

@@ -223,3 +223,50 @@ def test_a_violation_names_file_line_and_rule():
         "kilonet/cli.py:2: imports scenarios: the kernel imports no protocol, scenario or "
         "experiment"
     ]
+
+
+# -- inside the protocols: phases in order, math apart from robot parts ------------------------
+#: Protocol modules that are pure math: they may import only the standard library, pure math
+#: and one another, never a robot part (a program, a phase, a message layout).
+PROTOCOL_MATH = (
+    "protocols.localize.island_solve",
+    "protocols.follower.pivot_turns",
+    "protocols.gcs.merging_rules",
+    "protocols.gcs.frame_keys",
+)
+
+
+def _phase_number(module: str) -> int | None:
+    last = module.rpartition(".")[2]
+    return int(last[5 : last.index("_")]) if last.startswith("phase") and "_" in last else None
+
+
+def test_no_phase_imports_a_later_phase():
+    """``protocols/<protocol>/phaseN_*.py`` imports no ``phaseM_*`` of its protocol with M > N."""
+    later = []
+    for path in sorted((ROOT / "protocols").rglob("phase*_*.py")):
+        module = module_name(path)
+        own = _phase_number(module)
+        package = module.rpartition(".")[0]
+        for line, imported in imports_of(path.read_text(), module):
+            other = _phase_number(imported)
+            if imported.rpartition(".")[0] == package and other is not None and other > own:
+                later.append(f"{path.relative_to(ROOT)}:{line}: imports {imported}")
+    assert not later, "phases import later phases:\n" + "\n".join(later)
+    assert _phase_number("protocols.gcs.phase7_refinement") == 7
+
+
+def test_protocol_math_imports_no_robot_part():
+    allowed = PURE_MATH_KERNEL + PROTOCOL_MATH
+    found = []
+    for module in PROTOCOL_MATH:
+        path = ROOT.joinpath(*module.split(".")).with_suffix(".py")
+        for line, imported in imports_of(path.read_text(), module):
+            top = imported.split(".")[0]
+            if top in LAYERS:
+                broken = imported != "protocols" and not _within(imported, allowed)
+            else:
+                broken = top not in sys.stdlib_module_names and top not in PURE_MATH
+            if broken:
+                found.append(f"{path.relative_to(ROOT)}:{line}: imports {imported}")
+    assert not found, "math modules import robot parts:\n" + "\n".join(found)

@@ -85,7 +85,7 @@ from protocols.gcs.merging_rules import (
     round_end,
     seed_message,
 )
-from protocols.gcs.phase7_refinement import PlacedNeighbours
+from protocols.gcs.replacement_wave import PlacedNeighbours
 from protocols.gcs.split_detection import SplitCheck
 
 __all__ = [
@@ -348,7 +348,7 @@ class FrameMerging(Phase):
         of every frame it is located in done (a robot stays a member for a frame whose seed
         still merges), no recovery is announced or awaited, and a seed's own rounds are done.
         Or at once, when the refinement's re-placement wave has reached it
-        (:func:`~protocols.gcs.phase7_refinement.wave_reached`): the wave places it, whatever
+        (:func:`~protocols.gcs.replacement_wave.wave_reached`): the wave places it, whatever
         holds merging back (the refinement keeps merging going, and a recovery still ends it).
         """
         r = self.robot

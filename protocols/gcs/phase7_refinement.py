@@ -99,8 +99,16 @@ from protocols.common.refinement import (
     next_report,
     unwrap_distance,
 )
-from protocols.gcs.base import SENDER, GcsParams, Phase, gcs_layout
+from protocols.gcs.base import SENDER, GcsParams, Phase
 from protocols.gcs.frame_keys import Root
+from protocols.gcs.replacement_wave import (
+    GPOS,
+    GPOS_PLACED,
+    GPOS_SETTLED,
+    STALE_S,
+    PlacedNeighbours,
+    wave_reached,
+)
 from protocols.gcs.split_detection import POS
 
 if TYPE_CHECKING:
@@ -119,21 +127,12 @@ __all__ = [
     "wave_reached",
 ]
 
-_GPOS_FIELDS = [("x_mm", "h", 0.1), ("y_mm", "h", 0.1), ("root", "H"), ("salt", "B")]
-#: A refining robot's global position and root, before the wave has placed it; GPOS_SETTLED:
-#: the same from a placed one that has settled (or is done: its estimate frozen).
-GPOS = gcs_layout("gpos", type=73, fields=_GPOS_FIELDS)
-GPOS_SETTLED = gcs_layout("gpos_settled", type=74, fields=_GPOS_FIELDS)
-#: The same from a robot placed by the re-placement wave that has not settled yet.
-GPOS_PLACED = gcs_layout("gpos_placed", type=75, fields=_GPOS_FIELDS)
 #: Largest coordinate GPOS and DIST carry, mm.
 _LIMIT_MM = 3276.7
 #: One transmit opportunity in this many carries a DIST report.
 _DIST_EVERY = 3
 #: Rounds that the stopping rule must hold in a row.
 _CONFIRM_ROUNDS = 3
-#: A neighbour silent this long is left out, s (it crashed, was removed, or merges again).
-_STALE_S = 3.0
 #: The refined estimate follows a move of the merged one in the same frame once it exceeds
 #: this, mm: smaller ones are merging's jitter about its agreed transforms, which the
 #: refinement corrects anyway (following each restarted the settling).
@@ -177,63 +176,6 @@ def frame_to_join(
         return None
     best = min(joinable)
     return best, by_root[best]
-
-
-def wave_reached(own: Root | None, roots: Iterable[Root]) -> bool:
-    """Whether the re-placement wave has reached a robot still merging in frame ``own``
-    (``None``: it has no estimate): at least three of its placed neighbours — ``roots``, the
-    frame of each — lie in one frame whose root is ``own`` or better. Merging is then over for
-    it (:meth:`protocols.gcs.phase6_merging.FrameMerging.finished`): the refinement places it from
-    those neighbours, whatever merging's estimate says.
-
-    Examples
-    --------
-    >>> from protocols.gcs.frame_keys import FrameKey
-    >>> a, b = Root(False, FrameKey(3, 9)), Root(False, FrameKey(5, 1))
-    >>> wave_reached(b, [a, a, b])  # three placed, but in two frames
-    False
-    >>> wave_reached(b, [a, a, a]), wave_reached(None, [b, b, b])
-    (True, True)
-    >>> wave_reached(a, [b, b, b])  # b is worse than its own frame: merging decides
-    False
-    """
-    counts: dict[Root, int] = {}
-    for root in roots:
-        if own is None or not own < root:
-            counts[root] = counts.get(root, 0) + 1
-            if counts[root] >= 3:
-                return True
-    return False
-
-
-class PlacedNeighbours:
-    """The neighbours a merging robot heard announce a position placed by the re-placement
-    wave (GPOS_PLACED, GPOS_SETTLED), with their frames: what :func:`wave_reached` reads.
-
-    Parameters
-    ----------
-    ticks_per_s : float
-        The robot's clock rate, kilo_ticks per s: a neighbour not heard for ``_STALE_S`` no
-        longer counts.
-    """
-
-    __slots__ = ("_heard", "_stale_ticks")
-
-    def __init__(self, ticks_per_s: float) -> None:
-        self._stale_ticks = _STALE_S * ticks_per_s
-        self._heard: dict[int, tuple[Root, int]] = {}  # sender: (root, tick heard)
-
-    def take(self, message: Message, tick: int) -> None:
-        """Record ``message`` if it is a placed position, heard at ``tick``."""
-        layout = _PLACED_LAYOUTS.get(message.type)
-        if layout is not None:
-            m = layout.unpack(message)
-            self._heard[m.sender] = (Root.from_wire(m.root, m.salt), tick)
-
-    def reached(self, own: Root | None, tick: int) -> bool:
-        """:func:`wave_reached` over the neighbours heard in the last ``_STALE_S``."""
-        oldest = tick - self._stale_ticks
-        return wave_reached(own, (root for root, heard in self._heard.values() if heard >= oldest))
 
 
 class Peer:
@@ -352,7 +294,7 @@ class GlobalRefinement(Phase):
             settle_rounds=p.refine_settle_rounds,
         )
         self._round_ticks = p.refine_round_s * tps
-        self._stale_ticks = _STALE_S * tps
+        self._stale_ticks = STALE_S * tps
         self._join_until = r.kilo_ticks + 2 * p.refine_after_s * tps
         self._next_round = 0.0
         self._round = 0
@@ -588,7 +530,5 @@ class GlobalRefinement(Phase):
 
 #: The global positions by message type.
 _GPOS_LAYOUTS = {layout.type: layout for layout in (GPOS, GPOS_PLACED, GPOS_SETTLED)}
-#: The placed positions, by message type.
-_PLACED_LAYOUTS = {layout.type: layout for layout in (GPOS_PLACED, GPOS_SETTLED)}
 #: The messages a refining robot reads.
 _HEARD = frozenset((*_GPOS_LAYOUTS, DIST.type, POS.type))

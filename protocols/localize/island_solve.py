@@ -11,7 +11,7 @@ solves that problem from the island's distances alone (pure math, no robot API):
    :func:`~kilonet.geometry.multilaterate` (collinear anchors, residuals, GDOP, mirror image).
 2. *Rigid bodies*: when that stalls, the unplaced members are placed in a local frame of their
    own, grown from a triangle that stays at least ``min_height_mm`` high whichever way each
-   of its distances is off by the noise (:func:`~protocols.localize.phase2_spread.robust_height`) by
+   of its distances is off by the noise (:func:`~kilonet.geometry.robust_height`) by
    the same multilateration. A member that only two body members place has two mirror
    positions: the body is grown once with each (a *shape* each, at most :data:`MAX_SHAPES`),
    dropping a position that would put two robots on top of each other.
@@ -37,8 +37,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kilonet.geometry import GeometryError, multilaterate, place_references
-from protocols.localize.phase2_spread import MIRROR_SIGMAS, circle_candidates, robust_height
+from kilonet.geometry import (
+    MIRROR_SIGMAS,
+    GeometryError,
+    circle_pair,
+    multilaterate,
+    place_references,
+    robust_height,
+)
 
 __all__ = ["RigidMotion", "Tolerances", "align_body", "solve_island"]
 
@@ -374,7 +380,7 @@ class _Island:
             if len(near) != 2:
                 continue
             (u, du), (v, dv) = near
-            found = circle_candidates(body[u], body[v], du, dv)
+            found = circle_pair(body[u], du, body[v], dv)
             if found is None or found[2] < self.min_height:
                 continue
             if best is None or found[2] > best[1][2]:

@@ -74,7 +74,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from kilonet.geometry import Fix, GeometryError, circle_pair, multilaterate, place_references
+from kilonet.geometry import (
+    MIRROR_SIGMAS,
+    Fix,
+    GeometryError,
+    circle_pair,
+    multilaterate,
+    place_references,
+    robust_height,
+)
 from kilonet.message import Layout, Message
 from protocols.localize.base import LOCALIZED, MAX_COORDINATE_MM, NO_ID, Neighbour
 
@@ -126,10 +134,6 @@ VOTE = Layout(
     type=86,
     fields=[("sender", "H"), ("target", "H"), ("index", "B"), ("version", "B")],
 )
-
-#: The mirror test's margin, in noise deviations: a competing fit must be worse by more
-#: than (this · sigma)² in its sum of squared residuals.
-MIRROR_SIGMAS = 3.0
 
 Point = tuple[float, float]
 
@@ -208,33 +212,6 @@ def choose_frame(
             if best is None or score > best[0]:
                 best = (score, b, c)
     return None if best is None else (best[1], best[2])
-
-
-def robust_height(d_ab_mm: float, d_ac_mm: float, d_bc_mm: float, margin_mm: float) -> float:
-    """The least height of C above line AB when each distance may be off by ``margin_mm``:
-    the smallest height over the eight corners of the box of distances (0 where a corner
-    forms no triangle), mm.
-
-    Near collinearity the height is ill-conditioned: a triple on one line, 40 + 40 = 80 mm,
-    measured 1 mm short, looks 12.5 mm high.
-
-    Examples
-    --------
-    >>> round(robust_height(40.0, 40.0, 79.0, 0.0), 1), robust_height(40.0, 40.0, 79.0, 1.0)
-    (12.5, 0.0)
-    >>> round(robust_height(40.0, 40.0, 40.0, 1.0), 1)  # equilateral: 34.6 mm at no margin
-    33.2
-    """
-    least = math.inf
-    for da, db, dc in itertools.product((-margin_mm, margin_mm), repeat=3):
-        try:
-            _, (_, height) = place_references(
-                d_ab_mm + da, d_ac_mm + db, d_bc_mm + dc, min_height_mm=0.0
-            )
-        except GeometryError:
-            return 0.0
-        least = min(least, height)
-    return least
 
 
 def circle_candidates(
