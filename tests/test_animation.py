@@ -1,4 +1,4 @@
-"""Tests for kilonet.animation and ``kilonet animate``: GIF and HTML of a real gradient run
+"""Tests for presentation.animation and ``kilonet animate``: GIF and HTML of a real gradient run
 (frame count, size, LED colours read back at the robots' centres), state sampled from event
 tables, overlays, and user errors."""
 
@@ -19,7 +19,7 @@ from PIL import Image
 import kilonet.cli as cli
 import scenarios
 from kilonet.alignment import procrustes_rmse
-from kilonet.animation import (
+from presentation.animation import (
     AnimationError,
     FrameRenderer,
     Replay,

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-LAYERS = ("kilonet", "protocols", "scenarios", "experiments")
+LAYERS = ("kilonet", "protocols", "scenarios", "presentation", "experiments")
 
 #: What a protocol may use of the kernel: the robot API (the Kilobot base class, messages,
 #: parameter declarations) and pure math.
@@ -119,11 +119,11 @@ def _within(name: str, modules: tuple[str, ...]) -> bool:
 def layer_rule_broken(importer: str, imported: str) -> str | None:
     """Why ``importer`` may not import ``imported``, or ``None`` if it may."""
     layer, top = importer.split(".")[0], imported.split(".")[0]
-    if layer == "kilonet" and top in ("protocols", "scenarios", "experiments"):
-        return "the kernel imports no protocol, scenario or experiment"
+    if layer == "kilonet" and top in ("protocols", "scenarios", "presentation", "experiments"):
+        return "the kernel imports no protocol, scenario, presentation or experiment"
     if layer == "protocols":
-        if top in ("scenarios", "experiments"):
-            return "protocols import no scenario or experiment"
+        if top in ("scenarios", "presentation", "experiments"):
+            return "protocols import no scenario, presentation or experiment"
         if top == "kilonet" and not _within(imported, ROBOT_API + PURE_MATH_KERNEL):
             return (
                 "protocols use only the robot API "
@@ -131,8 +131,10 @@ def layer_rule_broken(importer: str, imported: str) -> str | None:
             )
         if top not in LAYERS and top not in sys.stdlib_module_names and top not in PURE_MATH:
             return f"protocols use only the standard library and pure math ({', '.join(PURE_MATH)})"
-    if layer == "scenarios" and top == "experiments":
-        return "scenarios import no experiment (experiments sit on top)"
+    if layer == "scenarios" and top in ("presentation", "experiments"):
+        return "scenarios import no presentation or experiment (they sit above)"
+    if layer == "presentation" and top == "experiments":
+        return "presentation imports no experiment (experiments sit on top)"
     return None
 
 
@@ -220,8 +222,8 @@ def test_protocols_use_only_the_robot_api_and_pure_math(imported, allowed):
 def test_a_violation_names_file_line_and_rule():
     source = "def main():\n    import scenarios\n"
     assert violations_in(ROOT / "kilonet" / "cli.py", source) == [
-        "kilonet/cli.py:2: imports scenarios: the kernel imports no protocol, scenario or "
-        "experiment"
+        "kilonet/cli.py:2: imports scenarios: the kernel imports no protocol, scenario, "
+        "presentation or experiment"
     ]
 
 

@@ -5,18 +5,19 @@
                         [--raw-estimates]
 
 Registered as the ``animate`` entry point of ``kilonet.commands``; the work is done by
-:func:`kilonet.animation.animate_run`, which ``kilonet run --animate`` calls too.
+:func:`presentation.animation.animate_run`, which ``kilonet run --animate`` calls too.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 from kilonet.cli import UsageError
 
-__all__ = ["register"]
+__all__ = ["animate_after_run", "register"]
 
 
 def register(subparsers: Any) -> None:
@@ -61,17 +62,17 @@ def register(subparsers: Any) -> None:
 
 
 class _OverlayNames:
-    """The overlay names for the help text, from :data:`kilonet.animation.OVERLAYS`: imported
+    """The overlay names for the help text, from :data:`presentation.animation.OVERLAYS`: imported
     only when the help is printed, so that registering the command stays cheap."""
 
     def __str__(self) -> str:
-        from kilonet.animation import OVERLAYS
+        from presentation.animation import OVERLAYS
 
         return ", ".join(OVERLAYS)
 
 
 def _cmd_animate(args: argparse.Namespace) -> int:
-    from kilonet.animation import AnimationError, animate_run
+    from presentation.animation import AnimationError, animate_run
 
     try:
         written = animate_run(
@@ -90,3 +91,19 @@ def _cmd_animate(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     print(f"wrote {written} ({written.stat().st_size / 1024:,.0f} kB)", file=sys.stderr)
     return 0
+
+
+def animate_after_run(run_dir: Path) -> None:
+    """Draw ``run_dir/animation.gif`` with the defaults (``kilonet run --animate``).
+
+    Raises
+    ------
+    UsageError
+        If the run directory cannot be animated (:class:`~presentation.animation.AnimationError`).
+    """
+    from presentation.animation import AnimationError, animate_run
+
+    try:
+        animate_run(run_dir)
+    except AnimationError as exc:
+        raise UsageError(str(exc)) from None
