@@ -86,19 +86,32 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from statistics import median
-from typing import Literal, NamedTuple
+from typing import Literal
 
 from kilonet.geometry import (
     GeometryError,
     circle_intersections,
-    place_references,
     rotate,
     trilaterate_linear,
     wrap_angle,
 )
-from kilonet.message import Layout, Message
+from kilonet.message import Message
 from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
+from protocols.follower.frame_robots import (
+    FOLLOWER,
+    FRAME_BYTE,
+    FRAME_WIDE,
+    ORIGIN,
+    THIRD,
+    X_AXIS,
+    FrameReport,
+    Origin,
+    ThirdRobot,
+    XAxisRobot,
+    decode,
+    encode,
+)
 from protocols.follower.pivot_turns import (
     PIVOT_LEG_MM,
     PivotMove,
@@ -110,6 +123,12 @@ from protocols.follower.pivot_turns import (
     swing_turn_rad,
     swing_vote,
     turn_rate_ratio,
+)
+from protocols.follower.planning import (
+    frame_direction,
+    plan_direction,
+    reachable_goal,
+    turn_angle,
 )
 from protocols.follower.turn_calibration import TurnCalibration
 
@@ -141,386 +160,9 @@ __all__ = [
     "wrap_angle",
 ]
 
-ORIGIN, X_AXIS, THIRD, FOLLOWER = 1, 2, 3, 4
-
-FRAME_BYTE = Layout(
-    "trilateration",
-    type=8,
-    fields=[
-        ("sender", "B"),
-        ("known", "B"),
-        ("x_mm", "b"),
-        ("y_mm", "B"),
-        ("d12_mm", "B"),
-        ("d13_mm", "B"),
-        ("d23_mm", "B"),
-    ],
-)
-FRAME_WIDE = Layout(
-    "trilateration_wide",
-    type=9,
-    fields=[
-        ("sender", "B"),
-        ("known", "B"),
-        ("x_mm", "h", 0.1),
-        ("y_mm", "h", 0.1),
-        ("d12_mm", "H", 0.1),
-    ],
-)
-
-Point = tuple[float, float]
-
-#: Physical turns (counter-clockwise positive, rad) of successive escapes from a body the
-#: robot is stuck against: round first, then sideways.
 _ESCAPE_TURNS = (math.pi, math.pi / 2, -math.pi / 2, 3 * math.pi / 4)
 
-
-# ------------------------------------------------------------------------------ the message
-
-
-class FrameReport(NamedTuple):
-    """What a frame robot says about itself (mm); zeros where it has nothing to say."""
-
-    sender: int
-    known: bool
-    x_mm: float = 0.0
-    y_mm: float = 0.0
-    d12_mm: float = 0.0
-    d13_mm: float = 0.0
-    d23_mm: float = 0.0
-
-
-def encode(report: FrameReport, *, wide: bool = False) -> Message:
-    """Pack a report into the byte layout (the seed's table) or the 16-bit variant.
-
-    Raises
-    ------
-    kilonet.message.PayloadError
-        If a value does not fit its field (e.g. ``x_mm`` beyond −128..127 in the byte layout).
-
-    Examples
-    --------
-    >>> msg = encode(FrameReport(3, True, -12.4, 55.6, 70.0, 56.9, 80.2))
-    >>> list(msg.data), msg.type
-    ([3, 1, 244, 56, 70, 57, 80], 8)
-    >>> decode(msg)
-    FrameReport(sender=3, known=True, x_mm=-12, y_mm=56, d12_mm=70, d13_mm=57, d23_mm=80)
-    """
-    if wide:
-        return FRAME_WIDE.pack(
-            sender=report.sender,
-            known=int(report.known),
-            x_mm=report.x_mm,
-            y_mm=report.y_mm,
-            d12_mm=report.d12_mm,
-        )
-    return FRAME_BYTE.pack(
-        sender=report.sender,
-        known=int(report.known),
-        x_mm=round(report.x_mm),
-        y_mm=round(report.y_mm),
-        d12_mm=round(report.d12_mm),
-        d13_mm=round(report.d13_mm),
-        d23_mm=round(report.d23_mm),
-    )
-
-
-def decode(message: Message) -> FrameReport | None:
-    """Read a frame robot's report from either layout; ``None`` for other messages.
-
-    The 16-bit variant carries no d13 and d23; for robot 3 they are recomputed from X, Y and
-    d12 (exact up to the 0.1 mm storage).
-
-    Examples
-    --------
-    >>> r = decode(encode(FrameReport(3, True, -12.34, 55.61, 70.02), wide=True))
-    >>> [round(v, 2) for v in r[2:5]]
-    [-12.3, 55.6, 70.0]
-    >>> round(r.d13_mm, 2), round(r.d23_mm, 2)
-    (56.94, 99.32)
-    >>> decode(Message(b"\\x01", 1)) is None
-    True
-    """
-    if FRAME_BYTE.matches(message):
-        m = FRAME_BYTE.unpack(message)
-        return FrameReport(m.sender, bool(m.known), m.x_mm, m.y_mm, m.d12_mm, m.d13_mm, m.d23_mm)
-    if FRAME_WIDE.matches(message):
-        m = FRAME_WIDE.unpack(message)
-        d13 = d23 = 0.0
-        if m.sender == THIRD:
-            d13 = math.hypot(m.x_mm, m.y_mm)
-            d23 = math.hypot(m.x_mm - m.d12_mm, m.y_mm)
-        return FrameReport(m.sender, bool(m.known), m.x_mm, m.y_mm, m.d12_mm, d13, d23)
-    return None
-
-
-# ------------------------------------------------------------------------- plane geometry
-
-
-def turn_angle(u: Point, v: Point) -> float:
-    """The seed's α = atan2(u₁v₂ − u₂v₁, u₁v₁ + u₂v₂): the signed angle from u to v, radians.
-
-    Positive when v lies counter-clockwise of u in the frame's own axes.
-
-    Examples
-    --------
-    >>> round(math.degrees(turn_angle((1.0, 0.0), (0.0, 2.0))), 9)
-    90.0
-    >>> round(math.degrees(turn_angle((1.0, 1.0), (1.0, 0.0))), 9)
-    -45.0
-    >>> round(math.degrees(turn_angle((1.0, 0.0), (-1.0, 0.0))), 9)
-    180.0
-    """
-    (u1, u2), (v1, v2) = u, v
-    return math.atan2(u1 * v2 - u2 * v1, u1 * v1 + u2 * v2)
-
-
-def frame_direction(alpha_rad: float, mirrored: bool) -> int:
-    """Which way to pivot for a turn of ``alpha_rad`` in the frame: +1 counter-clockwise (left,
-    kilolib's ``set_motors(kilo_turn_left, 0)``), −1 clockwise (right), 0 for no turn.
-
-    In a frame that is a mirror image of the floor, counter-clockwise in the frame is clockwise
-    on the floor.
-
-    >>> frame_direction(0.5, False), frame_direction(0.5, True), frame_direction(-0.5, True)
-    (1, -1, 1)
-    """
-    if alpha_rad == 0:
-        return 0
-    side = 1 if alpha_rad > 0 else -1
-    return -side if mirrored else side
-
-
-def reachable_goal(goal: Point, obstacles: list[Point], radius_mm: float) -> Point:
-    """The goal moved out of any obstacle disc it lies in (to the disc's rim), mm.
-
-    >>> reachable_goal((10.0, 0.0), [(0.0, 0.0)], 34.0)
-    (34.0, 0.0)
-    >>> reachable_goal((50.0, 0.0), [(0.0, 0.0)], 34.0)
-    (50.0, 0.0)
-    """
-    x, y = goal
-    for _ in range(4):  # pushing out of one disc can (rarely) push into another
-        moved = False
-        for cx, cy in obstacles:
-            d = math.hypot(x - cx, y - cy)
-            if d < radius_mm - 1e-9:
-                if d == 0:
-                    x, y = cx + radius_mm, cy
-                else:
-                    x, y = cx + (x - cx) * radius_mm / d, cy + (y - cy) * radius_mm / d
-                moved = True
-        if not moved:
-            break
-    return (x, y)
-
-
-_SMALL_DETOUR_STEPS = 2  # rotations up to 20° are corrections, not detours
-
-
-def plan_direction(
-    position: Point,
-    target: Point,
-    obstacles: list[Point],
-    radius_mm: float,
-    step_mm: float,
-    side: int = 0,
-) -> tuple[Point, int]:
-    """Direction of the next step toward ``target`` around disc obstacles.
-
-    The straight line is taken when it is clear all the way. Otherwise the goal direction is
-    rotated in 10° steps until a step of ``step_mm`` is clear. A rotation of up to 20° is a
-    correction; a larger one is a detour, and goes to ``side`` (+1 counter-clockwise, −1
-    clockwise) if a detour chose one before, so that the robot keeps going round the obstacles
-    instead of dithering; 0 lets the first clear rotation choose.
-
-    Returns the unit direction and the side to remember (0 for the line or a correction).
-
-    Examples
-    --------
-    >>> plan_direction((0.0, 0.0), (100.0, 0.0), [], 34.0, 20.0)
-    ((1.0, 0.0), 0)
-    >>> (dx, dy), side = plan_direction((0.0, 0.0), (100.0, 0.0), [(50.0, 0.0)], 34.0, 20.0)
-    >>> side != 0 and abs(math.degrees(math.atan2(dy, dx))) >= 10
-    True
-    """
-    px, py = position
-    gx, gy = target[0] - px, target[1] - py
-    dist = math.hypot(gx, gy)
-    if dist == 0:
-        return (1.0, 0.0), 0
-    goal_dir = (gx / dist, gy / dist)
-    if not any(segment_blocked(position, goal_dir, dist, c, radius_mm) for c in obstacles):
-        return goal_dir, 0
-    look = min(dist, step_mm)
-
-    def clear(s: int, k: int) -> Point | None:
-        d = rotate(goal_dir, s * math.radians(10 * k))
-        blocked = any(segment_blocked(position, d, look, c, radius_mm) for c in obstacles)
-        return None if blocked else d
-
-    def closeness(d: Point) -> float:
-        return math.hypot(px + look * d[0] - target[0], py + look * d[1] - target[1])
-
-    for k in range(1, 19):
-        found = [(s != side, closeness(d), s, d) for s in (1, -1) if (d := clear(s, k)) is not None]
-        if not found:
-            continue
-        _, _, s, d = min(found)  # the remembered side first, then the one ending nearer
-        if k <= _SMALL_DETOUR_STEPS:
-            return d, 0  # a small correction commits to no side
-        if side == 0 or s == side:
-            return d, s
-        break
-    if side:
-        for k in range(1, 19):  # keep going round the same way while that is possible
-            if (d := clear(side, k)) is not None:
-                return d, side
-    return goal_dir, side  # boxed in: go straight and let contact stop the move
-
-
-# ------------------------------------------------------------------------- frame robots
-
-
-class _FrameMember(Kilobot):
-    """Common part of robots 1–3: broadcast the report, blink the seed's colours.
-
-    Parameters
-    ----------
-    samples : int
-        Distance readings averaged before a robot flags its coordinates.
-    wide : bool
-        Send the 16-bit variant of the message instead of the byte layout.
-    blink_s : float
-        How long the LED stays on after a send or a reception, s.
-    """
-
-    role = 0
-    tx_color = (0, 0, 0)
-
-    def __init__(self, *, samples: int = 8, wide: bool = False, blink_s: float = 0.1) -> None:
-        self.samples = samples
-        self.wide = wide
-        self.blink_s = blink_s
-
-    def setup(self) -> None:
-        self.known = False
-        self.x_mm = self.y_mm = 0.0
-        self.d12_mm = self.d13_mm = self.d23_mm = 0.0
-        self._message: Message | None = None
-        self._led_off_tick = 0
-
-    def report(self) -> FrameReport:
-        """What this robot currently broadcasts."""
-        return FrameReport(
-            self.role, self.known, self.x_mm, self.y_mm, self.d12_mm, self.d13_mm, self.d23_mm
-        )
-
-    def message_tx(self) -> Message | None:
-        if self._message is None:
-            self._message = encode(self.report(), wide=self.wide)
-        return self._message
-
-    def message_tx_success(self) -> None:
-        self._blink(self.tx_color)
-
-    def _blink(self, color: tuple[int, int, int]) -> None:
-        self.set_color(*color)
-        self._led_off_tick = self.kilo_ticks + max(1, round(self.blink_s * self.ticks_per_s))
-
-    def loop(self) -> None:
-        if self.color != (0, 0, 0) and self.kilo_ticks >= self._led_off_tick:
-            self.set_color(0, 0, 0)
-
-    def _set_known(self) -> None:
-        self.known = True
-        self._message = None
-        self.log("frame", x_mm=self.x_mm, y_mm=self.y_mm, d12_mm=self.d12_mm)
-
-
-class Origin(_FrameMember):
-    """Robot 1, the frame's origin: coordinates (0, 0) from the start; white on send."""
-
-    LED_KEY = (((3, 3, 3), "robot 1 (origin) sending"),)
-
-    role = ORIGIN
-    tx_color = (3, 3, 3)
-
-    def setup(self) -> None:
-        super().setup()
-        self.known = True
-
-
-class XAxisRobot(_FrameMember):
-    """Robot 2, on the frame's +x axis: (d12, 0) once it has averaged ``samples`` readings of
-    robot 1. Blue on send, yellow on handling a message from the origin."""
-
-    LED_KEY = (((0, 0, 3), "robot 2 sending"), ((3, 3, 0), "heard robot 1"))
-
-    role = X_AXIS
-    tx_color = (0, 0, 3)
-
-    def setup(self) -> None:
-        super().setup()
-        self._from_origin: list[int] = []
-
-    def message_rx(self, message: Message, distance_mm: int) -> None:
-        report = decode(message)
-        if report is None or report.sender != ORIGIN:
-            return
-        self._blink((3, 3, 0))
-        if self.known:
-            return
-        self._from_origin.append(distance_mm)
-        if len(self._from_origin) >= self.samples:
-            self.d12_mm = sum(self._from_origin) / len(self._from_origin)
-            self.x_mm = self.d12_mm
-            self._set_known()
-
-
-class ThirdRobot(_FrameMember):
-    """Robot 3: ``(x3, y3)`` from d12 (robot 2's flagged report) and its own averaged readings
-    of robots 1 and 2 (the seed's triangle equations). Green on send, yellow on a message from
-    robot 1, purple on one from robot 2."""
-
-    LED_KEY = (
-        ((0, 3, 0), "robot 3 sending"),
-        ((3, 3, 0), "heard robot 1"),
-        ((3, 0, 3), "heard robot 2"),
-    )
-
-    role = THIRD
-    tx_color = (0, 3, 0)
-
-    def setup(self) -> None:
-        super().setup()
-        self._from: dict[int, list[int]] = {ORIGIN: [], X_AXIS: []}
-
-    def message_rx(self, message: Message, distance_mm: int) -> None:
-        report = decode(message)
-        if report is None or report.sender not in self._from:
-            return
-        self._blink((3, 3, 0) if report.sender == ORIGIN else (3, 0, 3))
-        if self.known:
-            return
-        readings = self._from[report.sender]
-        if len(readings) < self.samples:
-            readings.append(distance_mm)
-        if report.sender == X_AXIS and report.known:
-            self.d12_mm = report.d12_mm
-        if self.d12_mm > 0 and all(len(r) >= self.samples for r in self._from.values()):
-            d13 = sum(self._from[ORIGIN]) / self.samples
-            d23 = sum(self._from[X_AXIS]) / self.samples
-            try:
-                _, (self.x_mm, self.y_mm) = place_references(self.d12_mm, d13, d23)
-            except GeometryError as exc:
-                # Readings that form no triangle (or put robot 3 within 1 mm of the 1→2
-                # axis, too close to tell its side): start over with fresh ones.
-                self.log("frame_rejected", reason=str(exc))
-                self._from = {ORIGIN: [], X_AXIS: []}
-                return
-            self.d13_mm, self.d23_mm = d13, d23
-            self._set_known()
+Point = tuple[float, float]
 
 
 # ------------------------------------------------------------------------------ follower
