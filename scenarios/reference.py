@@ -3,7 +3,7 @@
 A localization run (``gcs``, ``localize``) reports, next to its own RMSE:
 
 * ``crlb_rmse_mm``: the anchor-free Cramér–Rao bound of the communication graph with one
-  measurement of ``ranging.sigma_mm`` per pair (:func:`kilonet.geometry.crlb_rmse_mm`), and
+  measurement of ``ranging.sigma_mm`` per pair (:func:`kilonet.bounds.crlb_rmse_mm`), and
   ``rmse_over_crlb``;
 * ``crlb_received_rmse_mm``: the bound for the receptions the robots actually averaged (each
   ordered pair weighted by its number of samples: the robots average many receptions per pair,
@@ -112,8 +112,8 @@ def reference_metrics(
     ``largest_frame`` robots in its largest frame; ``links`` are the communication graph's
     pairs ``(i, j)``. Keys whose inputs are missing (no link, no measurement, no noise) are
     left out, except ``crlb_rmse_mm`` (None without a link: the bound is infinite)."""
+    from kilonet.bounds import crlb_rmse_mm
     from kilonet.central import central_reference
-    from kilonet.geometry import crlb_rmse_mm
 
     truth = sim.world.positions_mm
     sigma = sim.params.ranging.sigma_mm

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from scipy.optimize import least_squares
 
 from kilonet.alignment import procrustes_rmse
+from kilonet.bounds import crlb_rmse_mm
 from kilonet.geometry import (
     FIX_REASONS,
     GeometryError,
@@ -22,7 +23,6 @@ from kilonet.geometry import (
     circle_intersections,
     circle_pair,
     collinear,
-    crlb_rmse_mm,
     multilaterate,
     place_references,
     rotate,
