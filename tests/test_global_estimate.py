@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from protocols.gcs.frame_keys import FrameKey, Rank, Root
 from protocols.gcs.global_estimate import GlobalEstimate
-from protocols.gcs.phase6_merging import Transform, version_byte
+from protocols.gcs.transforms import Transform, version_byte
 
 A, B, C = FrameKey(3, 1), FrameKey(5, 2), FrameKey(8, 0)
 ROOT_1 = Rank.own(FrameKey(1, 0), edge=False)

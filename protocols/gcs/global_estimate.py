@@ -14,7 +14,7 @@ Examples
 >>> import numpy as np
 >>> from scipy.spatial.transform import Rotation
 >>> from protocols.gcs.frame_keys import FrameKey, Rank
->>> from protocols.gcs.phase6_merging import Transform
+>>> from protocols.gcs.transforms import Transform
 >>> a, b = FrameKey(3, 1), FrameKey(5, 2)
 >>> est = GlobalEstimate()
 >>> est.locate(a, (10.0, 0.0)); est.locate(b, (0.0, 10.0))
@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from protocols.gcs.frame_keys import FrameKey, Rank, Root
-    from protocols.gcs.phase6_merging import Transform
+    from protocols.gcs.transforms import Transform
 
 __all__ = ["GlobalEstimate"]
 
