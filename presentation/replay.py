@@ -42,13 +42,6 @@ def replay_data(
     graph at each of ``edge_times_s`` where it changed. Times in s, lengths in mm."""
     overlays = frozenset(overlays)
     r = replay
-    n = r.n
-    led_order = np.lexsort((r._led_t, r._led_robot))
-    led_robot = r._led_robot[led_order]
-    level = r._led_level[led_order]
-    codes = level[:, 0] * 16 + level[:, 1] * 4 + level[:, 2]
-    track_robots = [int(k) for k in r.moving]
-    track_t = [r.tracks[k][0] for k in track_robots]
     data: dict[str, Any] = {
         "title": title,
         "start_s": 0.0,
@@ -58,30 +51,8 @@ def replay_data(
         "extent_mm": list(r.extent_mm()),
         "x0": _rounded(r.start_mm[:, 0], 2),
         "y0": _rounded(r.start_mm[:, 1], 2),
-        "led": {
-            "start": _offsets(led_robot, n),
-            "t": _rounded(r._led_t[led_order], 5),
-            "c": codes.tolist(),
-        },
-        "tracks": {
-            "robot": track_robots,
-            "start": np.concatenate([[0], np.cumsum([len(t) for t in track_t])])
-            .astype(int)
-            .tolist(),
-            "t": _rounded(np.concatenate(track_t) if track_t else np.empty(0), 4),
-            "x": _rounded(
-                np.concatenate([r.tracks[k][1] for k in track_robots])
-                if track_robots
-                else np.empty(0),
-                2,
-            ),
-            "y": _rounded(
-                np.concatenate([r.tracks[k][2] for k in track_robots])
-                if track_robots
-                else np.empty(0),
-                2,
-            ),
-        },
+        "led": _led_changes(r),
+        "tracks": _track_rows(r),
         "stop_s": [None if math.isinf(v) else round(float(v), 5) for v in r.stop_s],
         "removed_s": [None if math.isinf(v) else round(float(v), 5) for v in r.removed_s],
         "phase": {"t": _rounded(r._phase_t, 5), "label": r._phase_label},
@@ -94,43 +65,86 @@ def replay_data(
             "sender": r._msg_sender.tolist(),
         }
     if "edges" in overlays:
-        keys, lists, last = [], [], None
-        for t in edge_times_s:
-            pos, present = r.positions(t), r.present(t)
-            state = (pos.tobytes(), present.tobytes())
-            if state == last:
-                continue
-            last = state
-            pairs = r.edges(pos, present).ravel().tolist()
-            if lists and pairs == lists[-1]:
-                continue
-            keys.append(round(float(t), 5))
-            lists.append(pairs)
-        data["edges"] = {"t": keys, "pairs": lists}
-    steps = r.steps
-    if steps is not None and ({"estimates", "frames"} & overlays):
-        # Step k holds from t[k] on; end-of-run values hold from the start.
-        times = [round(float(t), 5) if np.isfinite(t) else -1.0 for t in steps.t_s]
-        if "estimates" in overlays:
-            data["estimates"] = {
-                "t": times,
-                "x": [_nullable(xy[:, 0]) for xy in steps.xy_mm],
-                "y": [_nullable(xy[:, 1]) for xy in steps.xy_mm],
-                "note": [steps.note(k) for k in range(len(times))],
-                "before": steps.note(-1),
-            }
-        if "frames" in overlays:
-            data["frames"] = {
-                "t": times,
-                "rank": steps.frame.tolist(),
-                "label": "frames" if steps.held else "final frames",
-                "colours": [_css(c) for c in FRAME_COLOURS],
-            }
+        data["edges"] = _edge_changes(r, edge_times_s)
+    if r.steps is not None:
+        data.update(_estimate_steps(r.steps, overlays))
     data["led_key"] = [
         [_css(tuple(int(v) for v in level_to_rgb(np.array([levels]))[0])), meaning]
         for levels, meaning in r.led_key
     ]
     return data
+
+
+def _led_changes(r: Replay) -> dict[str, list]:
+    """Every robot's LED changes, robot by robot (``start``: each robot's first row), colour
+    codes ``16 r + 4 g + b`` of kilolib levels."""
+    order = np.lexsort((r._led_t, r._led_robot))
+    level = r._led_level[order]
+    codes = level[:, 0] * 16 + level[:, 1] * 4 + level[:, 2]
+    return {
+        "start": _offsets(r._led_robot[order], r.n),
+        "t": _rounded(r._led_t[order], 5),
+        "c": codes.tolist(),
+    }
+
+
+def _track_rows(r: Replay) -> dict[str, list]:
+    """The tracks of the robots that move, one after another (``start``: each one's first
+    row)."""
+    robots = [int(k) for k in r.moving]
+
+    def joined(column: int) -> np.ndarray:
+        return np.concatenate([r.tracks[k][column] for k in robots]) if robots else np.empty(0)
+
+    lengths = [len(r.tracks[k][0]) for k in robots]
+    return {
+        "robot": robots,
+        "start": np.concatenate([[0], np.cumsum(lengths)]).astype(int).tolist(),
+        "t": _rounded(joined(0), 4),
+        "x": _rounded(joined(1), 2),
+        "y": _rounded(joined(2), 2),
+    }
+
+
+def _edge_changes(r: Replay, edge_times_s: Iterable[float]) -> dict[str, list]:
+    """The communication graph at each of ``edge_times_s`` where it changed."""
+    keys, lists, last = [], [], None
+    for t in edge_times_s:
+        pos, present = r.positions(t), r.present(t)
+        state = (pos.tobytes(), present.tobytes())
+        if state == last:
+            continue
+        last = state
+        pairs = r.edges(pos, present).ravel().tolist()
+        if lists and pairs == lists[-1]:
+            continue
+        keys.append(round(float(t), 5))
+        lists.append(pairs)
+    return {"t": keys, "pairs": lists}
+
+
+def _estimate_steps(steps: Any, overlays: frozenset[str]) -> dict[str, Any]:
+    """The ``estimates`` and ``frames`` entries the overlays ask for, from the held estimates
+    (:class:`~presentation.run_data.EstimateSteps`)."""
+    # Step k holds from t[k] on; end-of-run values hold from the start.
+    times = [round(float(t), 5) if np.isfinite(t) else -1.0 for t in steps.t_s]
+    found: dict[str, Any] = {}
+    if "estimates" in overlays:
+        found["estimates"] = {
+            "t": times,
+            "x": [_nullable(xy[:, 0]) for xy in steps.xy_mm],
+            "y": [_nullable(xy[:, 1]) for xy in steps.xy_mm],
+            "note": [steps.note(k) for k in range(len(times))],
+            "before": steps.note(-1),
+        }
+    if "frames" in overlays:
+        found["frames"] = {
+            "t": times,
+            "rank": steps.frame.tolist(),
+            "label": "frames" if steps.held else "final frames",
+            "colours": [_css(c) for c in FRAME_COLOURS],
+        }
+    return found
 
 
 def _nullable(values: np.ndarray) -> list[float | None]:
