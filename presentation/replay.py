@@ -19,6 +19,7 @@ from presentation.run_data import (
     FRAME_COLOURS,
     PATH_RGB,
     RIM_RGB,
+    SCALE_BARS_MM,
     SENDER_RGB,
     TABLE_RGB,
     Replay,
@@ -72,6 +73,7 @@ def replay_data(
         [_css(tuple(int(v) for v in level_to_rgb(np.array([levels]))[0])), meaning]
         for levels, meaning in r.led_key
     ]
+    data["scale_bars_mm"] = list(SCALE_BARS_MM)  # the player picks the longest that fits
     return data
 
 
