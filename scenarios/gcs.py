@@ -72,15 +72,15 @@ _CHECK_S = 5.0
 
 
 def _stop_when(sim: Simulation) -> bool:
-    from protocols.gcs.program import phase_windows_s
+    from protocols.gcs.program import OPEN_ENDED, phase_windows_s
 
     windows = phase_windows_s(sim.params.scenario)
     name, _, end = windows[-1]
     now = sim.env.now
-    if name not in ("merge", "refine"):
+    if name not in OPEN_ENDED:
         return now >= end + 1.0  # a second more, so every robot has closed the last window
-    merge_start = windows[PHASES.index("merge")][1]
-    if now <= merge_start:
+    open_start = next(start for phase, start, _ in windows if phase in OPEN_ENDED)
+    if now <= open_start:
         return False
     running = sim.world.running
     robots = [r for i, r in enumerate(sim.robots) if running[i]]  # a crashed seed is never done
@@ -95,6 +95,8 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
     robot still merging is about to refine (its estimate settled, :meth:`FrameMerging.finished`
     counting) or is a seed not done, all merge in one epoch, and no recovery is announced or
     awaited."""
+    from protocols.gcs.program import OPEN_ENDED
+
     if len({r.epoch for r in robots}) > 1 or any(r.awaiting_recovery() for r in robots):
         return False
     for r in robots:
@@ -105,7 +107,7 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
             r.phase.settled_since is not None or (r.is_seed and not r.merge_done)
         ):
             return False
-        if name not in ("merge", "refine", ""):
+        if name and name not in OPEN_ENDED:
             return False
     return any(r.phase_name != "merge" for r in robots) or not any(
         r.estimate.settled() for r in robots

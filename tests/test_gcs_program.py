@@ -20,11 +20,12 @@ import protocols.gcs.split_detection
 import scenarios
 from kilonet.message import Layout, PayloadError
 from protocols.common.neighbours import NeighbourTable
-from protocols.gcs.base import PHASES, GcsParams, Phase, gcs_layout, sender_of
+from protocols.gcs.base import PHASES, GcsParams, GcsStage, Phase, gcs_layout, sender_of
 from protocols.gcs.phase1_unique_ids import is_duplicate
 from protocols.gcs.phase2_seed_election import seed_condition_met
 from protocols.gcs.phase4_localization import fix_anchors, worth_a_fix
 from protocols.gcs.program import (
+    OPEN_ENDED,
     PHASE_SEQUENCE,
     RECOVERY_SEQUENCE,
     GcsRobot,
@@ -75,6 +76,22 @@ def test_the_phase_sequence_is_the_named_phases_and_gcs_until_offers_them():
     for cls in {*PHASE_SEQUENCE, *RECOVERY_SEQUENCE}:
         assert "window_s" in vars(cls) or callable(cls.window_s), cls.name
     assert not hasattr(Phase, "window_s")  # each phase defines its own (checked at definition)
+
+
+def test_open_ended_phases_are_declared_and_have_no_window_end():
+    """A phase that ends by itself says so (``open_ended``): the program's ``OPEN_ENDED`` and
+    the gcs scenario's stop rule read that declaration."""
+    p = GcsParams(refine=True)
+    declared = {cls.name for cls in {*PHASE_SEQUENCE, *RECOVERY_SEQUENCE} if cls.open_ended}
+    assert declared == OPEN_ENDED == {GcsStage.MERGE, GcsStage.REFINE}
+    for cls in {*PHASE_SEQUENCE, *RECOVERY_SEQUENCE}:  # a closed phase's window closes
+        assert math.isfinite(cls.window_s(p)) or cls.open_ended, cls.name
+    # From the first open-ended phase on, no window has a known end.
+    windows = phase_windows_s(p)
+    first = next(k for k, (name, _, _) in enumerate(windows) if name in OPEN_ENDED)
+    assert all(math.isinf(end) for _, _, end in windows[first:])
+    assert all(math.isfinite(end) for _, _, end in windows[:first])
+    assert [s.number for s in GcsStage] == list(range(1, len(PHASES) + 1))
 
 
 def test_phase_windows_come_from_each_phase():

@@ -20,18 +20,33 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from kilonet.message import Layout, Message
 from kilonet.params import param
+from protocols.common.phases import Phase as BasePhase
+from protocols.common.phases import Stage
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
     from protocols.gcs.program import GcsRobot
 
-__all__ = ["PHASES", "SENDER", "GcsParams", "Phase", "gcs_layout", "sender_of"]
+__all__ = ["PHASES", "SENDER", "GcsParams", "GcsStage", "Phase", "gcs_layout", "sender_of"]
+
+
+class GcsStage(Stage):
+    """The protocol's phases in order: the thesis's six, then kilonet's refinement (phase 7)."""
+
+    IDS = "ids"
+    SEEDS = "seeds"
+    FRAMES = "frames"
+    LOCALIZATION = "localization"
+    GROUPS = "groups"
+    MERGE = "merge"
+    REFINE = "refine"
+
 
 #: Phase names in order; ``gcs.until`` names the last one to run. The refinement runs only
 #: when ``gcs.refine`` is on or ``gcs.until`` names it
 #: (:func:`protocols.gcs.program.phase_sequence`).
-PHASES = ("ids", "seeds", "frames", "localization", "groups", "merge", "refine")
+PHASES = GcsStage.names()
 
 
 @dataclass(frozen=True)
@@ -153,50 +168,28 @@ def sender_of(message: Message) -> int:
     return SENDER.unpack_from(message.data)[0]
 
 
-class Phase:
-    """One phase of the protocol on one robot.
+class Phase(BasePhase):
+    """One phase of the protocol on one robot (:class:`protocols.common.phases.Phase`).
 
-    A subclass sets ``name`` (one of :data:`PHASES`, or ``"edges"``), defines
-    :meth:`window_s` and overrides the callbacks it uses; :class:`protocols.gcs.program.GcsRobot`
-    creates it when its window opens and calls :meth:`start`, then the callbacks, then
-    :meth:`finish`.
+    A subclass sets ``name`` (a :class:`GcsStage`, or recovery's
+    :class:`~protocols.gcs.recovery.RecoveryStage`), ``open_ended = True`` if its window never
+    closes (it ends by itself), defines :meth:`window_s` and overrides the callbacks it uses;
+    :class:`protocols.gcs.program.GcsRobot` creates it when its window opens and calls
+    :meth:`start`, then the callbacks, then :meth:`finish`.
     """
 
     __slots__ = ("__dict__", "params", "robot")  # see GcsRobot.__slots__
-    name = ""
 
     def __init__(self, robot: GcsRobot) -> None:
         self.robot = robot
         self.params: GcsParams = robot.params
 
     #: ``window_s(p: GcsParams) -> float``, a static method every phase defines: the length of
-    #: its window for parameters ``p``, s (``inf``: the phase ends by itself).
+    #: its window for parameters ``p``, s (``inf``: it never closes; an open-ended phase's
+    #: window, if finite, is a time-out).
     window_s: Callable[[GcsParams], float]
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         if not callable(getattr(cls, "window_s", None)):
             raise TypeError(f"phase {cls.__name__} must define window_s(params) -> float")
-
-    def start(self) -> None:
-        """Called when the phase's window opens on this robot."""
-
-    def finished(self) -> bool:
-        """Whether the phase is over on this robot before its window closes: the next phase
-        then starts at once (:meth:`protocols.gcs.program.GcsRobot.loop` asks every loop). Default:
-        never, the window decides."""
-        return False
-
-    def finish(self) -> None:
-        """Called when the window closes (before the next phase starts)."""
-
-    def message_tx(self) -> Message | None:
-        """The message to offer now, or ``None``."""
-        return None
-
-    def message_rx(self, message: Message, distance_mm: int) -> None:
-        """A reception, of any type, with the measured distance to its sender, mm (the robot
-        records that distance in its neighbour table itself)."""
-
-    def loop(self) -> None:
-        """Called every loop period while the phase runs."""

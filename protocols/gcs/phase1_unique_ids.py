@@ -24,7 +24,7 @@ are repeated at three transmit opportunities.
 from __future__ import annotations
 
 from kilonet.message import Message
-from protocols.gcs.base import GcsParams, Phase, gcs_layout
+from protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 
 __all__ = ["CONFLICT", "ID", "UniqueIds", "is_duplicate"]
 
@@ -66,7 +66,7 @@ def is_duplicate(
 class UniqueIds(Phase):
     """Phase 1 on one robot."""
 
-    name = "ids"
+    name = GcsStage.IDS
 
     @staticmethod
     def window_s(p: GcsParams) -> float:

@@ -22,7 +22,7 @@ Message (type 20 ELECT, 4 bytes)::
 from __future__ import annotations
 
 from kilonet.message import Message
-from protocols.gcs.base import GcsParams, Phase, gcs_layout
+from protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 
 __all__ = ["ELECT", "SeedElection", "seed_condition_met"]
 
@@ -46,7 +46,7 @@ def seed_condition_met(seeds_heard: int, *, is_seed: bool) -> bool:
 class SeedElection(Phase):
     """Phase 2 on one robot."""
 
-    name = "seeds"
+    name = GcsStage.SEEDS
 
     def start(self) -> None:
         r = self.robot

@@ -36,7 +36,7 @@ from kilonet.geometry import (
     place_references,
 )
 from kilonet.message import Message
-from protocols.gcs.base import GcsParams, Phase, gcs_layout
+from protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 
 __all__ = [
     "ASK",
@@ -113,7 +113,7 @@ def reference_candidates(
 class LocalFrames(Phase):
     """Phase 3 on one robot: every robot answers seeds; seeds also ask and build a frame."""
 
-    name = "frames"
+    name = GcsStage.FRAMES
 
     @staticmethod
     def window_s(p: GcsParams) -> float:

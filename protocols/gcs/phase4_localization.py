@@ -28,7 +28,7 @@ import numpy as np
 from kilonet.geometry import multilaterate
 from kilonet.message import Message
 from protocols.common.neighbours import NeighbourTable
-from protocols.gcs.base import GcsParams, Phase, gcs_layout
+from protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 from protocols.gcs.frame_keys import FrameKey
 from protocols.gcs.phase3_local_frames import announce_reference, receive_reference
 
@@ -101,7 +101,7 @@ def worth_a_fix(anchors: int, tried_with: int) -> bool:
 class Localization(Phase):
     """Phase 4 on one robot."""
 
-    name = "localization"
+    name = GcsStage.LOCALIZATION
 
     @staticmethod
     def window_s(p: GcsParams) -> float:

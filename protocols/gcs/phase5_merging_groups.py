@@ -24,7 +24,7 @@ from collections.abc import Mapping
 from typing import TypeVar
 
 from kilonet.message import Message
-from protocols.gcs.base import GcsParams, Phase, gcs_layout
+from protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 from protocols.gcs.frame_keys import FrameKey
 from protocols.gcs.phase4_localization import announce_position, receive_position
 
@@ -97,7 +97,7 @@ def find_groups(
 class MergingGroups(Phase):
     """Phase 5 on one robot."""
 
-    name = "groups"
+    name = GcsStage.GROUPS
 
     @staticmethod
     def window_s(p: GcsParams) -> float:

@@ -65,7 +65,7 @@ from kilonet.alignment import (
 )
 from kilonet.geometry import GeometryError
 from kilonet.message import Message
-from protocols.gcs.base import GcsParams, Phase, gcs_layout
+from protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 from protocols.gcs.frame_keys import FrameKey, Rank
 from protocols.gcs.merging_rules import (
     all_partners_heard,
@@ -176,7 +176,8 @@ class FrameMerging(Phase):
         "seed",
         "settled_since",
     )
-    name = "merge"
+    name = GcsStage.MERGE
+    open_ended = True  # rounds until the seeds agree
 
     @staticmethod
     def window_s(p: GcsParams) -> float:

@@ -99,7 +99,7 @@ from protocols.common.refinement import (
     next_report,
     unwrap_distance,
 )
-from protocols.gcs.base import SENDER, GcsParams, Phase
+from protocols.gcs.base import SENDER, GcsParams, GcsStage, Phase
 from protocols.gcs.frame_keys import Root
 from protocols.gcs.replacement_wave import (
     GPOS,
@@ -270,7 +270,8 @@ class GlobalRefinement(Phase):
         "refiner",
         "root",
     )
-    name = "refine"
+    name = GcsStage.REFINE
+    open_ended = True  # until the robots settle
 
     @staticmethod
     def window_s(p: GcsParams) -> float:

@@ -56,6 +56,7 @@ from protocols.gcs.recovery import RECOVER, EdgeSeeds, RecoveryFlood
 from protocols.gcs.split_detection import POS, SplitCheck
 
 __all__ = [
+    "OPEN_ENDED",
     "PHASE_SEQUENCE",
     "RECOVERY_SEQUENCE",
     "GcsRobot",
@@ -87,6 +88,8 @@ RECOVERY_SEQUENCE: tuple[type[Phase], ...] = (
     MergingGroups,
     FrameMerging,
 )
+#: The phases that end by themselves (``open_ended``), not when their window closes.
+OPEN_ENDED = frozenset(cls.name for cls in (*PHASE_SEQUENCE, *RECOVERY_SEQUENCE) if cls.open_ended)
 
 
 def phase_sequence(p: GcsParams) -> tuple[type[Phase], ...]:
@@ -95,12 +98,12 @@ def phase_sequence(p: GcsParams) -> tuple[type[Phase], ...]:
 
     Examples
     --------
-    >>> [cls.name for cls in phase_sequence(GcsParams(until="frames", refine=True))]
+    >>> [str(cls.name) for cls in phase_sequence(GcsParams(until="frames", refine=True))]
     ['ids', 'seeds', 'frames']
-    >>> [cls.name for cls in phase_sequence(GcsParams(refine=True))][-2:]
+    >>> [str(cls.name) for cls in phase_sequence(GcsParams(refine=True))][-2:]
     ['merge', 'refine']
     >>> phase_sequence(GcsParams())[-1].name, phase_sequence(GcsParams(until="refine"))[-1].name
-    ('merge', 'refine')
+    (<GcsStage.MERGE: 'merge'>, <GcsStage.REFINE: 'refine'>)
     """
     last = "refine" if p.refine and p.until == "merge" else p.until
     return PHASE_SEQUENCE[: PHASES.index(last) + 1]
@@ -113,7 +116,7 @@ def phase_windows_s(p: GcsParams) -> list[tuple[str, float, float]]:
 
     Examples
     --------
-    >>> [name for name, _, _ in phase_windows_s(GcsParams(until="frames"))]
+    >>> [str(name) for name, _, _ in phase_windows_s(GcsParams(until="frames"))]
     ['ids', 'seeds', 'frames']
     """
     out, t = [], 0.0
@@ -412,7 +415,7 @@ class GcsRobot(Kilobot):
 
     def _show(self) -> None:
         name = self.phase_name
-        merging = name in ("merge", "refine")
+        merging = self.phase is not None and self.phase.open_ended
         merged = self.merge_done or (merging and self.estimate.root() is not None)
         self.set_color(
             *led_colour(

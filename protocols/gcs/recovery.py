@@ -31,6 +31,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from kilonet.message import Message
+from protocols.common.phases import Stage
 from protocols.gcs.base import GcsParams, Phase, gcs_layout
 
 if TYPE_CHECKING:
@@ -115,10 +116,16 @@ class RecoveryFlood:
             self._adopt(m.epoch, m.start_tick)
 
 
+class RecoveryStage(Stage):
+    """The stage a recovery epoch adds before phases 3-6 run again."""
+
+    EDGES = "edges"
+
+
 class EdgeSeeds(Phase):
     """Phase ``edges`` of a recovery epoch: robots on a split boundary elect new seeds."""
 
-    name = "edges"
+    name = RecoveryStage.EDGES
 
     @staticmethod
     def window_s(p: GcsParams) -> float:
