@@ -47,7 +47,7 @@ from protocols.maze.hardware import (
     generate_maze,
     parse_size,
 )
-from protocols.maze.program import LANDMARK_COLORS, LandmarkBeacon, MazeParams, MazeRobot
+from protocols.maze.program import LANDMARK_COLORS, LandmarkBeacon, MazeParams, MazeRobot, MazeStage
 from scenarios.base import RunResult, Scenario, run
 
 if TYPE_CHECKING:  # pandas and matplotlib are imported where used: listing scenarios is fast
@@ -141,7 +141,7 @@ def _program(params: Params, positions: np.ndarray):
 
 
 def _stop_when(sim: Simulation) -> bool:
-    return sim.robots[_ROBOT].state == "done" or not sim.world.running[_ROBOT]
+    return sim.robots[_ROBOT].state is MazeStage.DONE or not sim.world.running[_ROBOT]
 
 
 # -- metrics ----------------------------------------------------------------------------------

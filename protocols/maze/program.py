@@ -51,6 +51,7 @@ from kilonet.geometry import GeometryError, multilaterate, trilaterate_linear
 from kilonet.message import Layout, Message
 from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
+from protocols.common.phases import Stage
 from protocols.maze.hardware import (
     DIRECTIONS,
     Maze,
@@ -71,6 +72,7 @@ __all__ = [
     "LandmarkBeacon",
     "MazeParams",
     "MazeRobot",
+    "MazeStage",
     "bayes_step",
     "locate",
     "nearest_unvisited",
@@ -374,6 +376,16 @@ class MazeParams:
         return p_open, p_wall
 
 
+class MazeStage(Stage):
+    """Where the maze robot is in its cycle (:class:`protocols.common.phases.Stage`): listening
+    in a cell (it senses and plans once ``listen_s`` has passed), moving to the next one, or
+    done (maze covered or step limit reached)."""
+
+    LISTEN = "listen"
+    MOVING = "moving"
+    DONE = "done"
+
+
 class MazeRobot(MazeKilobot):
     """The maze robot: each step ranges, trilaterates, marks, filters, plans and drives.
 
@@ -414,7 +426,7 @@ class MazeRobot(MazeKilobot):
         self.belief_history: list[np.ndarray] = []
         self.visited: set[int] = set()
         self.step = 0
-        self.state = "listen"
+        self.state = MazeStage.LISTEN
         self.cell: int | None = None
         self._command: str | None = None
         self._arrived_tick = self.kilo_ticks
@@ -422,18 +434,18 @@ class MazeRobot(MazeKilobot):
         self.set_color(0, 0, 1)
 
     def loop(self) -> None:
-        if self.state == "moving" and not self.driving:
-            self.state = "listen"
+        if self.state is MazeStage.MOVING and not self.driving:
+            self.state = MazeStage.LISTEN
             self._arrived_tick = self.kilo_ticks
             self._heard = {}  # estimates taken while moving do not describe this cell
             self.set_color(0, 0, 1)
-        elif self.state == "listen" and (
+        elif self.state is MazeStage.LISTEN and (
             self.kilo_ticks - self._arrived_tick >= self.params.listen_s * self.ticks_per_s
         ):
             self._sense_and_move()
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        if self.params.landmarks != "infrared" or self.state != "listen":
+        if self.params.landmarks != "infrared" or self.state is not MazeStage.LISTEN:
             return
         if LANDMARK.matches(message):
             beacon = LANDMARK.unpack(message)
@@ -537,12 +549,12 @@ class MazeRobot(MazeKilobot):
         reachable = nx.node_connected_component(self.graph, self.cell)
         if reachable <= self.visited:
             self.log("covered", step=self.step, visited=len(self.visited))
-            self.state = "done"
+            self.state = MazeStage.DONE
             self.set_color(0, 3, 0)
             return
         if self.step >= prog.max_steps:
             self.log("step_limit", step=self.step, visited=len(self.visited))
-            self.state = "done"
+            self.state = MazeStage.DONE
             self.set_color(3, 0, 0)
             return
         # The current cell counts as visited for planning: if it is not marked yet (an unsure
@@ -555,7 +567,7 @@ class MazeRobot(MazeKilobot):
         self.drive(direction)
         self._command = direction
         self.step += 1
-        self.state = "moving"
+        self.state = MazeStage.MOVING
         self.set_color(0, 1, 1)
 
 
