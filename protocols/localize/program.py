@@ -58,6 +58,7 @@ from protocols.localize.phase1_election import ELECT, MAX_HOPS, Election
 from protocols.localize.phase2_spread import CAND, POS, ROOT, VOTE, Spread
 from protocols.localize.phase3_termination import Termination
 from protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR, Island
+from protocols.localize.stages import LocalizeStage
 
 __all__ = ["LocalizeRobot"]
 
@@ -81,7 +82,7 @@ class LocalizeRobot(Kilobot):
 
     Attributes
     ----------
-    stage : str
+    stage : LocalizeStage
         ``"election"``, ``"localize"``, ``"island"`` (after DONE, for an island:
         :mod:`protocols.localize.phase4_island`) or ``"done"``.
     position : (float, float) or None
@@ -120,7 +121,7 @@ class LocalizeRobot(Kilobot):
         self.position: tuple[float, float] | None = None
         self.is_root = False
         self.located_tick = 0
-        self.stage = "election"
+        self.stage = LocalizeStage.ELECTION
         self.hops = 0
         self.parent = NO_ID  # the neighbour this robot reports to in the convergecasts
         self._parent_repeats = 0  # ELECT messages still owed after a change of parent
@@ -216,7 +217,9 @@ class LocalizeRobot(Kilobot):
                     self._refine(fresh)
             self.termination.round(tick, fresh, full=full)
             if self.termination.done:
-                self.stage = "island" if self.island.wake(tick, fresh) else "done"
+                self.stage = (
+                    LocalizeStage.ISLAND if self.island.wake(tick, fresh) else LocalizeStage.DONE
+                )
                 self.log("stage", name=self.stage)
             self._show()
         if (self.stage, self.election.echo, self.flags, self.parent) != before:
@@ -310,7 +313,7 @@ class LocalizeRobot(Kilobot):
     def _enter_localize(self) -> None:
         if not self.is_root:
             self.reports = {}  # only the root's choice of frame robots needs them
-        self.stage = "localize"
+        self.stage = LocalizeStage.LOCALIZE
         self.log("stage", name="localize", hops=self.hops, root=self.is_root)
 
     def _island_work(self, tick: int, known: list[Neighbour]) -> None:
@@ -323,7 +326,7 @@ class LocalizeRobot(Kilobot):
         if self.position is not None:
             self._refine(known)
         if self.island.finished(tick) or tick >= self.termination.run_timeout_tick:
-            self.stage = "done"
+            self.stage = LocalizeStage.DONE
             self.termination.repeat_done()
             self.log("island_done", placed=self.position is not None)
             self._show()
