@@ -8,18 +8,11 @@ import typing
 
 import pytest
 
-import protocols.gcs.phase1_unique_ids
-import protocols.gcs.phase2_seed_election
-import protocols.gcs.phase3_local_frames
-import protocols.gcs.phase4_localization
-import protocols.gcs.phase5_merging_groups
-import protocols.gcs.phase6_merging
-import protocols.gcs.phase7_refinement
-import protocols.gcs.recovery
-import protocols.gcs.split_detection
 import scenarios
-from kilonet.message import Layout, PayloadError
+from kilonet.message import PayloadError
+from protocols.common.layouts import discover
 from protocols.common.neighbours import NeighbourTable
+from protocols.gcs.base import LAYOUTS as GCS_LAYOUTS
 from protocols.gcs.base import PHASES, GcsParams, GcsStage, Phase, gcs_layout, sender_of
 from protocols.gcs.phase1_unique_ids import is_duplicate
 from protocols.gcs.phase2_seed_election import seed_condition_met
@@ -36,24 +29,13 @@ from protocols.gcs.recovery import adopts_epoch
 from protocols.gcs.split_detection import distance_mismatch_mm
 from scenarios.gcs import estimates_frame, run_outcomes
 
-MODULES = [
-    protocols.gcs.phase1_unique_ids,
-    protocols.gcs.phase2_seed_election,
-    protocols.gcs.phase3_local_frames,
-    protocols.gcs.phase4_localization,
-    protocols.gcs.phase5_merging_groups,
-    protocols.gcs.phase6_merging,
-    protocols.gcs.split_detection,
-    protocols.gcs.recovery,
-    protocols.gcs.phase7_refinement,
-]
-LAYOUTS = list(
-    {id(v): v for m in MODULES for v in vars(m).values() if isinstance(v, Layout)}.values()
-)
+#: Every layout of the protocol, as its modules register them (phase 7's GPOS types and the
+#: refinement's DIST included).
+LAYOUTS = list(GCS_LAYOUTS)
 
 
 def test_every_layout_starts_with_the_sender_and_sender_of_reads_it():
-    assert len(LAYOUTS) == 23  # phase 7's three GPOS types, and the refinement's DIST
+    assert list(discover("protocols.gcs")) == LAYOUTS  # nothing built outside gcs_layout
     assert len({layout.type for layout in LAYOUTS}) == len(LAYOUTS)
     for layout in LAYOUTS:
         names = layout.record._fields

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from kilonet.message import Layout, Message
 from kilonet.params import param
+from protocols.common.layouts import ProtocolLayouts
 from protocols.common.phases import Phase as BasePhase
 from protocols.common.phases import Stage
 
@@ -28,7 +29,16 @@ if TYPE_CHECKING:
 
     from protocols.gcs.program import GcsRobot
 
-__all__ = ["PHASES", "SENDER", "GcsParams", "GcsStage", "Phase", "gcs_layout", "sender_of"]
+__all__ = [
+    "LAYOUTS",
+    "PHASES",
+    "SENDER",
+    "GcsParams",
+    "GcsStage",
+    "Phase",
+    "gcs_layout",
+    "sender_of",
+]
 
 
 class GcsStage(Stage):
@@ -135,6 +145,10 @@ class GcsParams:
     )
 
 
+#: Every message layout of the protocol, by type byte: :func:`gcs_layout` registers each, so a
+#: type byte used twice fails at import (:mod:`protocols.common.layouts`).
+LAYOUTS = ProtocolLayouts("gcs")
+
 #: The field every message of the protocol starts with: the sender's ID (uint16).
 _SENDER_FIELD = ("sender", "H")
 #: That field's wire form, for reading it from any message (:func:`sender_of`).
@@ -142,24 +156,32 @@ SENDER = struct.Struct("<" + _SENDER_FIELD[1])
 
 
 def gcs_layout(
-    name: str, *, type: int, fields: list[tuple[str, str] | tuple[str, str, float]]
+    name: str,
+    *,
+    type: int,
+    fields: list[tuple[str, str] | tuple[str, str, float]],
+    register: ProtocolLayouts | None = LAYOUTS,
 ) -> Layout:
     """A message layout of the protocol: the sender's ID (``sender``, uint16) and then
-    ``fields`` (as :class:`kilonet.message.Layout` takes them).
+    ``fields`` (as :class:`kilonet.message.Layout` takes them), registered in ``register``
+    (the protocol's :data:`LAYOUTS`; ``None``: not registered).
 
     Raises
     ------
     kilonet.message.PayloadError
         If the sender and ``fields`` take more than the 9-byte payload.
+    protocols.common.layouts.LayoutClash
+        If another layout of the protocol uses type byte ``type``.
 
     Examples
     --------
-    >>> HELLO = gcs_layout("hello", type=99, fields=[("hops", "B")])
+    >>> HELLO = gcs_layout("hello", type=99, fields=[("hops", "B")], register=None)
     >>> message = HELLO.pack(sender=513, hops=2)
     >>> len(message.data), sender_of(message)
     (3, 513)
     """
-    return Layout(name, type=type, fields=[_SENDER_FIELD, *fields])
+    layout = Layout(name, type=type, fields=[_SENDER_FIELD, *fields])
+    return layout if register is None else register.add(layout)
 
 
 def sender_of(message: Message) -> int:

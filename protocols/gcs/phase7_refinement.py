@@ -99,7 +99,7 @@ from protocols.common.refinement import (
     next_report,
     unwrap_distance,
 )
-from protocols.gcs.base import SENDER, GcsParams, GcsStage, Phase
+from protocols.gcs.base import LAYOUTS, SENDER, GcsParams, GcsStage, Phase
 from protocols.gcs.frame_keys import Root
 from protocols.gcs.replacement_wave import (
     GPOS,
@@ -127,6 +127,7 @@ __all__ = [
     "wave_reached",
 ]
 
+LAYOUTS.add(DIST)  # the refinement's distance reports are the protocol's too
 #: Largest coordinate GPOS and DIST carry, mm.
 _LIMIT_MM = 3276.7
 #: One transmit opportunity in this many carries a DIST report.
