@@ -11,6 +11,7 @@ module of the project (``"scenarios.analyze:register"``); docstrings do not coun
 from __future__ import annotations
 
 import ast
+import re
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -239,8 +240,9 @@ PROTOCOL_MATH = (
 
 
 def _phase_number(module: str) -> int | None:
-    last = module.rpartition(".")[2]
-    return int(last[5 : last.index("_")]) if last.startswith("phase") and "_" in last else None
+    """``protocols.gcs.phase7_refinement`` -> 7, ``….phase5b_pause`` -> 5; None if no phase."""
+    found = re.match(r"phase(\d+)", module.rpartition(".")[2])
+    return int(found.group(1)) if found else None
 
 
 def test_no_phase_imports_a_later_phase():
@@ -256,6 +258,8 @@ def test_no_phase_imports_a_later_phase():
                 later.append(f"{path.relative_to(ROOT)}:{line}: imports {imported}")
     assert not later, "phases import later phases:\n" + "\n".join(later)
     assert _phase_number("protocols.gcs.phase7_refinement") == 7
+    assert _phase_number("protocols.gcs.phase5b_pause") == 5
+    assert _phase_number("protocols.gcs.program") is None
 
 
 def test_protocol_math_imports_no_robot_part():
