@@ -88,6 +88,7 @@ class Kilobot:
         "_kprocess",
         "_ksoft",
         "_ktables",
+        "_ktx_period",
         "_kuid",
         "_rate",
         "_rx_buffer",
@@ -154,6 +155,7 @@ class Kilobot:
         self._ksoft = [0xAA, 0]  # rand_soft's seed and accumulator, as kilolib starts them
         self._kdelay = None  # the delay a generator program has not yielded yet
         self._kprocess = False  # runs as a SimPy process (a generator setup or loop)
+        self._ktx_period: int | None = None  # kilo_tx_period as the program last set it
         self._ktables: CalibrationTables = sim.calibration_tables[index]
         cal = sim.motion.calibrations[index]
         self.kilo_turn_left, self.kilo_turn_right = cal.turn_left, cal.turn_right
@@ -198,14 +200,24 @@ class Kilobot:
 
     @property
     def kilo_tx_period(self) -> int:
-        """The transmit period in kilolib's timer counts (3906 for 0.5 s of this robot's clock)."""
-        return round(self._sim.medium.tx_period_own_s(self._index) * TIMER_COUNTS_PER_S)
+        """kilolib's transmit period in timer counts (default 3906). kilolib's timer adds 255
+        counts a tick and offers a message at the first tick past this many, so the period is
+        ``kilo_tx_period // 255 + 1`` ticks (3906: 16 ticks, 0.524 s of this robot's clock)."""
+        if self._ktx_period is not None:
+            return self._ktx_period
+        own_s = self._sim.medium.tx_period_own_s(self._index)
+        ticks = own_s * TIMER_COUNTS_PER_S / 256
+        if abs(ticks - 16) < 1e-9:
+            return 3906
+        return round(own_s * TIMER_COUNTS_PER_S)
 
     @kilo_tx_period.setter
     def kilo_tx_period(self, counts: int) -> None:
         if not 0 < counts <= 0xFFFF:
             raise ValueError(f"kilo_tx_period is a uint16 of timer counts > 0, got {counts}")
-        self._sim.medium.set_tx_period(self._index, counts / TIMER_COUNTS_PER_S)
+        self._ktx_period = int(counts)
+        ticks = counts // 255 + 1
+        self._sim.medium.set_tx_period(self._index, ticks * 256 / TIMER_COUNTS_PER_S)
 
     # -- identity and randomness -------------------------------------------------------------
     @property

@@ -78,7 +78,7 @@ def test_a_failing_plain_assert_gets_the_worlds_timeline_in_its_report(pytester)
         [
             "*- kilonet scripted world 0 -*",
             "robot 0 (Quiet) at 1.000 s: kilo_ticks *, LED (0, 0, 0), motors (0, 0), running",
-            "*0.103 s  from 's' at 50  Ping(n=7)",
-            "*0.103 s  heard n=7",
+            "*0.104 s  from 's' at 50  Ping(n=7)",
+            "*0.104 s  heard n=7",
         ]
     )

@@ -171,7 +171,7 @@ def run_swarm(
     ...     def message_tx(self):
     ...         return HOPS.pack(hops=self.hops) if self.hops < 255 else None
     >>> result = run_swarm(lambda i: Hops(source=i == 0), "line", robots=4,
-    ...                    params={"placement.spacing_mm": 50},  # 100 mm: beyond range
+    ...                    params={"placement.spacing_mm": 100},  # 200 mm: beyond reach
     ...                    stop_when=lambda programs: all(p.hops < 255 for p in programs))
     >>> result.stopped, [p.hops for p in result.programs]
     (True, [0, 1, 2, 3])

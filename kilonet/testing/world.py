@@ -17,6 +17,7 @@ from simpy.events import URGENT, Event
 from kilonet.message import LIMITS, Layout, Message, PayloadError, message_crc
 from kilonet.params import Params
 from kilonet.placement import ROBOT_DIAMETER_MM
+from kilonet.radio import farthest_mm
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
 from kilonet.testing.errors import ScriptError
@@ -119,7 +120,7 @@ class ScriptedWorld:
     >>> world.sent(PING)[0].fields
     Ping(n=5)
     >>> [(round(h.t_s, 4), h.distance) for h in world.heard()], entry.fate
-    ([(0.5032, 60)], 'delivered')
+    ([(0.5044, 60)], 'delivered')
     """
 
     def __init__(
@@ -335,7 +336,8 @@ class ScriptedWorld:
         ------
         ScriptError
             If ``at_s`` is in the past, or no sender could be heard from ``distance_mm``
-            (closer than a body diameter, or beyond ``medium.range_mm``).
+            (closer than a body diameter, or beyond the farthest any link of the run reaches:
+            ``medium.range_mm`` with ``medium.reach = disc``).
         kilonet.message.PayloadError
             If the message does not fit the payload limit.
         """
@@ -344,11 +346,12 @@ class ScriptedWorld:
         where = f"hear() at {at:.3f} s from {sender!r}"
         if not at >= now:
             raise ScriptError(f"{where}: that is before now ({now:.3f} s); time only moves forward")
-        range_mm = self.params.medium.range_mm
+        range_mm = farthest_mm(self.params.medium)
         if not ROBOT_DIAMETER_MM <= distance_mm <= range_mm:
             raise ScriptError(
                 f"{where}: distance_mm={distance_mm} is outside the {ROBOT_DIAMETER_MM:g} mm body "
-                f"diameter to medium.range_mm = {range_mm:g} mm; no robot could be heard from there"
+                f"diameter to the {range_mm:g} mm the farthest link of this run reaches "
+                f"(medium.reach = {self.params.medium.reach}); no robot could be heard from there"
             )
         if not isinstance(message, Message):
             raise ScriptError(f"{where}: {message!r} is not a Message (use LAYOUT.pack(...))")
