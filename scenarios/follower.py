@@ -43,7 +43,7 @@ from kilonet.params import BatteryParams, MotionParams, ParamError, Params, Robo
 from kilonet.placement import ROBOT_DIAMETER_MM
 from kilonet.simulation import Simulation, stream_for
 from kilonet.visibility import LinkModel
-from protocols.follower import (
+from protocols.follower.follower import (
     Follower,
     FollowerParams,
     Origin,
@@ -51,7 +51,7 @@ from protocols.follower import (
     XAxisRobot,
     reachable_goal,
 )
-from protocols.turn_calibration import TimedTurns, TurnCalibration
+from protocols.follower.turn_calibration import TimedTurns, TurnCalibration
 from scenarios.base import RunResult, Scenario, ScenarioError, run
 
 if TYPE_CHECKING:  # pandas and matplotlib are imported where used: listing scenarios is fast

@@ -1,9 +1,9 @@
 """``maze``: one robot localizes itself in a grid maze and visits every cell (the lab seed).
 
-Robots: robot 0 is the maze robot (:class:`protocols.maze.MazeRobot`), robots 1–4 the landmarks
-at the maze corners SW, SE, NE, NW (:class:`protocols.maze.LandmarkBeacon`). The maze is drawn
-from the run's placement stream (a perfect maze, or with ``maze.loops`` > 0 one with loops), and
-so is the robot's start cell.
+Robots: robot 0 is the maze robot (:class:`protocols.maze.program.MazeRobot`), robots 1–4 the
+landmarks at the maze corners SW, SE, NE, NW (:class:`protocols.maze.program.LandmarkBeacon`). The
+maze is drawn from the run's placement stream (a perfect maze, or with ``maze.loops`` > 0 one with
+loops), and so is the robot's start cell.
 
 ``maze.landmarks = camera`` (default) ranges the landmarks with the robot's camera model; with
 ``infrared`` the landmarks are Kilobots broadcasting their coordinates and the robot ranges only
@@ -35,7 +35,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from kilonet.maze import (
+from kilonet.params import ParamError, Params
+from kilonet.placement import ROBOT_DIAMETER_MM
+from kilonet.simulation import Simulation, stream_for
+from protocols.maze.hardware import (
     Maze,
     MazeHardware,
     RangeSensor,
@@ -44,10 +47,7 @@ from kilonet.maze import (
     generate_maze,
     parse_size,
 )
-from kilonet.params import ParamError, Params
-from kilonet.placement import ROBOT_DIAMETER_MM
-from kilonet.simulation import Simulation, stream_for
-from protocols.maze import LANDMARK_COLORS, LandmarkBeacon, MazeParams, MazeRobot
+from protocols.maze.program import LANDMARK_COLORS, LandmarkBeacon, MazeParams, MazeRobot, MazeStage
 from scenarios.base import RunResult, Scenario, run
 
 if TYPE_CHECKING:  # pandas and matplotlib are imported where used: listing scenarios is fast
@@ -141,7 +141,7 @@ def _program(params: Params, positions: np.ndarray):
 
 
 def _stop_when(sim: Simulation) -> bool:
-    return sim.robots[_ROBOT].state == "done" or not sim.world.running[_ROBOT]
+    return sim.robots[_ROBOT].state is MazeStage.DONE or not sim.world.running[_ROBOT]
 
 
 # -- metrics ----------------------------------------------------------------------------------

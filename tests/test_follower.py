@@ -15,7 +15,7 @@ from kilonet.params import ParamError
 from kilonet.placement import save_csv
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
-from protocols.follower import (
+from protocols.follower.follower import (
     FRAME_BYTE,
     FRAME_WIDE,
     FrameReport,
@@ -27,7 +27,7 @@ from protocols.follower import (
     reachable_goal,
     turn_angle,
 )
-from protocols.turn_calibration import TurnCalibration
+from protocols.follower.turn_calibration import TurnCalibration
 from scenarios.base import ScenarioError, build_params, run, write_outputs
 from scenarios.follower import SCENARIO, calibrate_turns, frame_to_floor, run_many, trajectory
 

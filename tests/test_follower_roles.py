@@ -1,5 +1,5 @@
-"""The trilateration frame robots (protocols.follower's Origin, XAxisRobot, ThirdRobot) on the
-test kit: what each announces, when it flags its coordinates, the seed's LED colours; first
+"""The trilateration frame robots (protocols.follower.follower's Origin, XAxisRobot, ThirdRobot) on
+the test kit: what each announces, when it flags its coordinates, the seed's LED colours; first
 hearing scripted reports, then beside the real frame robots in the real medium."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import math
 import pytest
 
 from kilonet.geometry import place_references
-from protocols.follower import (
+from protocols.follower.follower import (
     FRAME_BYTE,
     FRAME_WIDE,
     ORIGIN,

@@ -16,10 +16,10 @@ from scipy.spatial.transform import Rotation
 
 import scenarios
 from kilonet.alignment import half_map, procrustes_rmse
-from protocols.frame_merging import TF_ROT, quaternion_fields, rotation_from_fields
-from protocols.gcs import phase_windows_s
-from protocols.gcs_base import GcsParams
-from protocols.unique_ids import ID
+from protocols.gcs.base import GcsParams
+from protocols.gcs.phase1_unique_ids import ID
+from protocols.gcs.phase6_merging import TF_ROT, quaternion_fields, rotation_from_fields
+from protocols.gcs.program import phase_windows_s
 
 GCS = scenarios.get("gcs")
 #: The full-size runs check the pipeline's machinery, so they take well-conditioned references:
@@ -98,7 +98,8 @@ def test_phase2_reports_an_impossible_topology_and_still_ends():
     [
         (40, 1),
         # IDs are unique only among neighbours: here a reference's table held another robot
-        # with the other reference's ID (see protocols.local_frames.reference_candidates).
+        # with the other reference's ID (see
+        # protocols.gcs.phase3_local_frames.reference_candidates).
         (100, 3),
     ],
 )
@@ -405,7 +406,7 @@ def test_analyze_predicts_the_lone_robot_before_a_full_run(tmp_path, capsys):
 
 
 def test_a_phase_class_without_a_window_is_refused_when_it_is_defined():
-    from protocols.gcs_base import Phase
+    from protocols.gcs.base import Phase
 
     with pytest.raises(TypeError, match="phase Unbounded must define window_s"):
 

@@ -11,11 +11,10 @@ import pytest
 
 import scenarios
 from kilonet.simulation import Simulation
-from protocols.frame_keys import FrameKey, Root
-from protocols.gcs import GcsRobot, phase_sequence
-from protocols.gcs_base import GcsParams
-from protocols.global_estimate import GlobalEstimate
-from protocols.global_refinement import (
+from protocols.gcs.base import GcsParams
+from protocols.gcs.frame_keys import FrameKey, Root
+from protocols.gcs.global_estimate import GlobalEstimate
+from protocols.gcs.phase7_refinement import (
     GPOS,
     GPOS_PLACED,
     GPOS_SETTLED,
@@ -24,6 +23,7 @@ from protocols.global_refinement import (
     frame_to_join,
     wave_reached,
 )
+from protocols.gcs.program import GcsRobot, phase_sequence
 from scenarios.base import build_params, place
 
 GCS = scenarios.get("gcs")

@@ -18,19 +18,24 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-import protocols.localize as localize_module
+import protocols.localize.program as localize_module
 import scenarios
 from kilonet.message import Message
-from protocols import (
-    island_solve,
-    localize_base,
-    localize_election,
-    localize_island,
-    localize_spread,
-    localize_termination,
-    refinement,
+from protocols.common import refinement
+from protocols.common.refinement import (
+    DIST,
+    SettleWindow,
+    distance_code,
+    gauss_newton_step,
+    unwrap_distance,
 )
-from protocols.localize_base import (
+from protocols.localize import base as localize_base
+from protocols.localize import island_solve
+from protocols.localize import phase1_election as localize_election
+from protocols.localize import phase2_spread as localize_spread
+from protocols.localize import phase3_termination as localize_termination
+from protocols.localize import phase4_island as localize_island
+from protocols.localize.base import (
     COMPLETE,
     LOCALIZED,
     NBR,
@@ -42,9 +47,8 @@ from protocols.localize_base import (
     choose_parent,
     distance_report,
 )
-from protocols.localize_election import ELECT, Election, echo_complete, election_key
-from protocols.localize_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR
-from protocols.localize_spread import (
+from protocols.localize.phase1_election import ELECT, Election, echo_complete, election_key
+from protocols.localize.phase2_spread import (
     CAND,
     POS,
     ROOT,
@@ -54,14 +58,8 @@ from protocols.localize_spread import (
     fix_with_candidates,
     overlap_vote,
 )
-from protocols.localize_termination import gives_up, subtree_complete
-from protocols.refinement import (
-    DIST,
-    SettleWindow,
-    distance_code,
-    gauss_newton_step,
-    unwrap_distance,
-)
+from protocols.localize.phase3_termination import gives_up, subtree_complete
+from protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR
 
 LOCALIZE = scenarios.get("localize")
 
@@ -464,7 +462,7 @@ def test_a_lone_robot_is_done_without_a_frame():
 
 
 def test_both_ends_of_a_pair_fit_the_same_distance():
-    # Each end fits the mean of the two ends' last reports (protocols.refinement): where both
+    # Each end fits the mean of the two ends' last reports (protocols.common.refinement): where both
     # last reports arrived, the two numbers are the same, however old the reports are. (Their
     # age does not matter: with 17 neighbours and a report every 0.6 s, a neighbour is reported
     # about once in a 10 s run, and a mean of the first few samples may lie 1 mm from the end's

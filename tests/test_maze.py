@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from kilonet.geometry import GeometryError, trilaterate_linear
-from kilonet.maze import (
+from kilonet.params import ParamError, Params
+from kilonet.simulation import Simulation
+from protocols.maze.hardware import (
     DIRECTIONS,
     Maze,
     MazeError,
@@ -21,9 +23,7 @@ from kilonet.maze import (
     generate_maze,
     parse_size,
 )
-from kilonet.params import ParamError, Params
-from kilonet.simulation import Simulation
-from protocols.maze import (
+from protocols.maze.program import (
     bayes_step,
     locate,
     nearest_unvisited,

@@ -14,8 +14,8 @@ from kilonet.geometry import (
     multilaterate,
     place_references,
 )
-from protocols.frame_keys import FrameKey
-from protocols.local_frames import reference_candidates
+from protocols.gcs.frame_keys import FrameKey
+from protocols.gcs.phase3_local_frames import reference_candidates
 from scenarios.base import build_params
 from scenarios.prediction import _final_frames, predict_from_seeds
 
