@@ -49,6 +49,7 @@ from protocols.local_frames import LocalFrames
 from protocols.localization import Localization
 from protocols.merging_groups import MergingGroups
 from protocols.neighbours import NeighbourTable
+from protocols.ranging_limit import trusted_range
 from protocols.recovery import RECOVER, EdgeSeeds, RecoveryFlood
 from protocols.seed_election import SeedElection
 from protocols.split_detection import POS, SplitCheck
@@ -521,8 +522,8 @@ class GcsRobot(Kilobot):
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
         phase = self.phase
-        if phase is None:
-            return
+        if phase is None or not trusted_range(distance_mm, self.params.neighbour_max_mm):
+            return  # a robot measured beyond the neighbourhood is none of its neighbours
         # Recovery floods and POS are rare: dispatch on the type byte, not a call per message.
         kind = message.type
         if kind == RECOVER.type:

@@ -40,6 +40,13 @@ class GcsParams:
     section_name = "gcs"
     until: Literal[PHASES] = param("merge", doc="last phase to run")
     id_bits: int = param(8, lo=2, hi=15, doc="random IDs are drawn from this many bits")
+    neighbour_max_mm: float = param(
+        85.0,
+        lo=33.0,
+        hi=255.0,
+        doc="a reception with a larger distance estimate is ignored: its sender is no neighbour "
+        "(the thesis's range; estimates saturate beyond kilolib's tables)",
+    )
     # Windows: lossless runs with a margin; a lossy channel needs longer ones (docs/gcs.md,
     # "Measured": how much of each window the robots use).
     ids_s: float = param(8.0, lo=0.5, hi=600.0, doc="phase 1 window")

@@ -57,6 +57,7 @@ from protocols.localize_election import ELECT, MAX_HOPS, Election
 from protocols.localize_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR, Island
 from protocols.localize_spread import CAND, POS, ROOT, VOTE, Spread
 from protocols.localize_termination import Termination
+from protocols.ranging_limit import trusted_range
 from protocols.refinement import DIST, Refiner, next_report
 
 __all__ = ["LocalizeRobot"]
@@ -250,8 +251,8 @@ class LocalizeRobot(Kilobot):
         self.termination.sent()
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        if self.stage == "done":
-            return
+        if self.stage == "done" or not trusted_range(distance_mm, self.params.neighbour_max_mm):
+            return  # a robot measured beyond the tables' range is none of its neighbours
         (sender,) = _SENDER(message.data)
         if sender == self.uid:
             if self.stage == "election":

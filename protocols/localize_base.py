@@ -97,6 +97,13 @@ class LocalizeParams:
     noise_samples: int = param(
         5, lo=2, hi=10_000, doc="receptions from a neighbour before its spread counts"
     )
+    neighbour_max_mm: float = param(
+        100.0,
+        lo=33.0,
+        hi=255.0,
+        doc="a reception with a larger distance estimate is ignored: its sender is no neighbour "
+        "(kilolib's tables end at 98 mm, estimates saturate beyond)",
+    )
     duplicate_after: int = param(
         10, lo=3, hi=10_000, doc="receptions from an ID before the duplicate test applies"
     )
