@@ -192,6 +192,14 @@ def _localization(context: Context) -> None:
     _blocks(context, pages_wanted={_LOCALIZE})
 
 
+def _validation(context: Context) -> None:
+    from experiments.validation import write_page
+
+    write_page(
+        ROOT / "docs" / "validation.md", stamp=stamp("python -m experiments.publish validation")
+    )
+
+
 def _default_gif(context: Context) -> None:
     import scenarios
     from kilonet.animation import animate_run
@@ -471,6 +479,13 @@ PUBLICATIONS: dict[str, Publication] = {
         "the benchmarks' figures in docs/performance.md (run it on a quiet machine)",
         (_PERFORMANCE,),
         lambda context: _blocks(context, pages_wanted={_PERFORMANCE}),
+    ),
+    "validation": Publication(
+        "validation",
+        "kilonet beside real Kilobots: the ARGoS communication data, ICRA 2012's ranging "
+        "and battery (experiments/validation.py)",
+        ("docs/validation.md", "docs/validation_files/"),
+        _validation,
     ),
     "default-gif": Publication(
         "default-gif",

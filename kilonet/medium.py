@@ -191,9 +191,10 @@ class InfraredMedium:
         # One channel slot per robot and one more, the last, for senders outside the swarm
         # (a test's scripted messages, see arrive()): it is a sender's slot only, never
         # a receiver's.
-        self.channel = Channel(n + 1)
+        self.channel = Channel(n + 1, p.sense_delay_s)
         self._outside = n
         self._busy_until = self.channel.busy_until
+        self._sensed_from = self.channel.sensed_from
         self.counts = MediumCounters(n)
         self._lost_by_code = {code: self.counts.lost(c) for code, c in _CODE_CAUSE.items()}
         self.limit: PayloadLimit = LIMITS[p.message_format]
@@ -420,7 +421,7 @@ class InfraredMedium:
         if not self._running[s]:
             return
         now = self.env._now
-        if self._csma and self._busy_until[s] > now:
+        if self._csma and self._busy_until[s] > now >= self._sensed_from[s]:
             self.counts.backoffs[s] += 1
             delay = self._uniform.next() * self._backoff[s]
         else:
@@ -603,7 +604,7 @@ class InfraredMedium:
 
     def receiving(self, robot: int) -> bool:
         """Whether a reception is in progress at ``robot`` now (kilolib's ``rx_busy``)."""
-        return self._busy_until[robot] > self.env._now
+        return self.channel.busy(robot, self.env._now)
 
 
 def _drop(message: Message, distance_mm: int) -> None:

@@ -114,6 +114,13 @@ class MediumParams:
         doc="airtime of one message; 0 derives it from format, bitrate and preamble",
     )
     csma: bool = param(True, doc="sense the carrier and back off while the channel is busy")
+    sense_delay_s: float = param(
+        0.0002,
+        lo=0.0,
+        hi=0.1,
+        doc="a reception is sensed as a carrier this long after it begins (about 6 bit "
+        "times; fitted to the ARGoS data's short links): senders starting closer collide",
+    )
     backoff_max_s: float = param(
         0.03264,
         lo=0.0,
@@ -132,6 +139,11 @@ class RangingParams:
         "received intensity (the sender's strength biases it; saturates beyond the tables); "
         "gaussian: round(true + receiver bias + N(0, sigma_mm)), independent per reception; "
         "or package.module:Class, your own (kilonet.reception)",
+    )
+    calibration_file: str = param(
+        "",
+        doc="tables: CSV of each robot's kilo_irhigh/kilo_irlow (columns irhigh_0..13, "
+        "irlow_0..13, a row per robot); empty: tables drawn from the intensity model",
     )
     intensity_noise: float = param(
         0.015, lo=0.0, hi=1.0, doc="tables: relative noise of each reception's intensity (sd)"

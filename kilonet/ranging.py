@@ -27,6 +27,7 @@ line by line (``dist = self.estimate_distance(d)``) sees the same numbers either
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,7 @@ __all__ = [
     "estimate_distance_array",
     "intensity",
     "measurement_for",
+    "read_calibration",
     "readings",
 ]
 
@@ -110,6 +112,57 @@ def calibration_tables(n: int, rng: np.random.Generator, spread: float = 0.05) -
             )
         )
     return tables
+
+
+def read_calibration(path: str, n: int) -> list[CalibrationTables]:
+    """The calibration tables of ``n`` robots from a CSV file: one row per robot, in robot
+    order, with columns ``irhigh_0`` ... ``irhigh_13`` and ``irlow_0`` ... ``irlow_13`` (the
+    values ``kilo_irhigh`` and ``kilo_irlow`` hold in each robot's EEPROM: ADC readings at 0,
+    5, ..., 65 mm between the bodies). Each robot's receiver gain is fitted to its high-gain
+    table against :func:`intensity`.
+
+    Raises
+    ------
+    kilonet.params.ParamError
+        One line naming the file and line: a missing or unreadable file, a missing column, a
+        value that is not an integer 0-1023, a table that rises with distance, or fewer rows
+        than robots.
+    """
+    import csv
+
+    from kilonet.errors import read_text
+    from kilonet.params import ParamError
+
+    where = f"ranging.calibration_file {path}"
+    text = read_text(path, ParamError, "calibration file", newline="")
+    reader = csv.DictReader(text.splitlines())
+    columns = [f"irhigh_{k}" for k in range(14)] + [f"irlow_{k}" for k in range(14)]
+    missing = [c for c in columns if c not in (reader.fieldnames or [])]
+    if missing:
+        raise ParamError(f"{where}: no column {missing[0]} (needs irhigh_0..13, irlow_0..13)")
+    tables = []
+    ideal = intensity(_GAPS_MM)
+    for line, row in enumerate(reader, start=2):
+        values = []
+        for c in columns:
+            raw = (row.get(c) or "").strip()
+            if not (raw.isascii() and raw.isdigit() and 0 <= int(raw) <= 1023):
+                raise ParamError(f"{where}:{line}: {c} = {raw!r} is not an integer 0-1023")
+            values.append(int(raw))
+        high, low = tuple(values[:14]), tuple(values[14:])
+        for name, table in (("irhigh", high), ("irlow", low)):
+            if any(b > a for a, b in itertools.pairwise(table)):
+                raise ParamError(f"{where}:{line}: {name} rises with distance: {list(table)}")
+        unsaturated = np.asarray(high) < 1023
+        if not unsaturated.any():
+            raise ParamError(f"{where}:{line}: irhigh is saturated (1023) at every distance")
+        gain = float(
+            np.median((np.asarray(high)[unsaturated] - 40.0) / (1400 * ideal[unsaturated]))
+        )
+        tables.append(CalibrationTables(high, low, gain))
+    if len(tables) < n:
+        raise ParamError(f"{where}: {len(tables)} robots' tables for a swarm of {n}")
+    return tables[:n]
 
 
 def _table_mm(reading: int, table: tuple[int, ...], beyond: int | None) -> int:

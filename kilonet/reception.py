@@ -181,6 +181,27 @@ class GaussianRanging(ReceptionModel):
         """The model for a run (how ``ranging.model`` builds it)."""
         return cls(context.params, context.n_robots, context.ranging_rng, context.loss_rng)
 
+    def effective_sigma_mm(
+        self, distance_mm: np.ndarray, samples: np.ndarray | float = 1.0
+    ) -> np.ndarray:
+        """The error of a link's distance estimate averaged over ``samples`` receptions, as a
+        standard deviation over links at ``distance_mm`` (mm): what averaging cannot remove
+        (here the receiver's bias) plus the per-reception noise and rounding divided by the
+        samples. The scenarios' Cramér–Rao bounds use it.
+
+        Examples
+        --------
+        >>> from kilonet.params import Params
+        >>> rng = np.random.default_rng(0)
+        >>> p = Params().with_overrides({"ranging.sigma_mm": 1.0, "ranging.bias_sigma_mm": 2.0})
+        >>> GaussianRanging(p, 2, rng, rng).effective_sigma_mm(np.array([50.0]), 4).round(3)
+        array([2.067])
+        """
+        d = np.atleast_1d(np.asarray(distance_mm, dtype=float))
+        per_reading = self.ranging.sigma_mm**2 + 1 / 12
+        variance = self.ranging.bias_sigma_mm**2 + per_reading / np.asarray(samples, dtype=float)
+        return np.sqrt(np.broadcast_to(variance, d.shape))
+
     def estimates(
         self, sender: int, receivers: np.ndarray, distance_mm: np.ndarray, rows: int
     ) -> np.ndarray:
@@ -250,6 +271,7 @@ class TableRanging(GaussianRanging):
         self._irlow = np.array([t.irlow for t in tables], dtype=np.int64)
         self._gain = np.array([t.gain for t in tables])
         self._strength = np.asarray(strength, dtype=float)
+        self._strength_sd = params.medium.tx_strength_sd
 
     @classmethod
     def from_context(cls, context: ModelContext) -> TableRanging:
@@ -282,15 +304,45 @@ class TableRanging(GaussianRanging):
     def systematic_mm(self, sender: int, receiver: int, distance_mm: float) -> float:
         """The estimate the link from ``sender`` to ``receiver`` gives at ``distance_mm``
         without noise, mm: its systematic error is this minus the true distance."""
+        at = np.array([receiver])
+        est = self._noiseless(self._strength[[sender]], at, np.array([float(distance_mm)]))
+        return float(est[0])
+
+    def _noiseless(
+        self, strength: np.ndarray, receivers: np.ndarray, distance_mm: np.ndarray
+    ) -> np.ndarray:
+        """Estimates without intensity noise of links of emitter ``strength[k]`` to receiver
+        ``receivers[k]`` at ``distance_mm[k]``, mm (clipped like every estimate)."""
         from kilonet.ranging import estimate_distance_array, intensity, readings
 
-        at = np.array([receiver])
-        mean = self._strength[sender] * self._gain[at] * intensity(max(distance_mm - 33.0, 0.0))
-        high, low = readings(mean[None, :])
+        gap = np.maximum(distance_mm - 33.0, 0.0)
+        high, low = readings(strength * self._gain[receivers] * intensity(gap))
         est = estimate_distance_array(
-            np.rint(high), np.rint(low), self._irhigh[at], self._irlow[at]
+            np.rint(high), np.rint(low), self._irhigh[receivers], self._irlow[receivers]
         )
-        return float(np.clip(est, self.ranging.min_mm, self.ranging.max_mm)[0, 0])
+        return np.clip(est, self.ranging.min_mm, self.ranging.max_mm).astype(float)
+
+    def effective_sigma_mm(
+        self, distance_mm: np.ndarray, samples: np.ndarray | float = 1.0
+    ) -> np.ndarray:
+        """As :meth:`GaussianRanging.effective_sigma_mm`. The systematic part is the rms error
+        of noiseless estimates over emitters of the model's strength spread and this swarm's
+        receivers (a fixed sample of 256 links per distance, drawn apart from the run's
+        streams); the noise part is ``(25 mm + gap) / 2 * intensity_noise`` (the inverse
+        square law's sensitivity, inside the tables) and rounding, divided by the samples."""
+        d = np.atleast_1d(np.asarray(distance_mm, dtype=float))
+        rng = np.random.default_rng(0)
+        strength = np.exp(self._strength_sd * rng.standard_normal(256))
+        receivers = rng.integers(len(self._gain), size=256)
+        grid, where = np.unique(np.round(d), return_inverse=True)
+        rms = np.array(
+            [
+                np.sqrt(np.mean((self._noiseless(strength, receivers, np.full(256, g)) - g) ** 2))
+                for g in grid
+            ]
+        )
+        noise = (25.0 + np.maximum(d - 33.0, 0.0)) / 2 * self.ranging.intensity_noise
+        return np.sqrt(rms[where] ** 2 + (noise**2 + 1 / 12) / np.asarray(samples))
 
 
 #: The reception models ``ranging.model`` names.

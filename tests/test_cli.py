@@ -110,6 +110,16 @@ REFUSED = [
     (["run", "gradient", "--until", "ids"], "--until is an option of the gcs scenario, not of"),
     (["run", "nosuch"], "unknown scenario 'nosuch'; known scenarios: follower, gcs"),
     (["run", "gradient", "--set", "medium.los=1"], "unknown parameter 'medium.los'"),
+    (["run", "gradient", "--set", "medium.reach=argos-x"], "medium.reach = 'argos-x' is not one"),
+    (
+        ["run", "gradient", "--set", "ranging.calibration_file={tmp}/in/cal.csv"],
+        "cal.csv: no such calibration file",
+    ),
+    (
+        ["run", "gradient", "--set", "ranging.calibration_file={line.csv}"],
+        "line.csv: no column irhigh_0",
+    ),
+    (["run", "gradient", "--set", "ranging.model=nowhere:Model"], "cannot import nowhere"),
     (["run", "gradient", "--set", "medium.range_mm"], "--set expects KEY=VALUE"),
     (["run", "gradient", "--duration", "nan"], "duration_s = nan is not a finite number"),
     (["run", "gradient", "--animate"], "--animate needs --out DIR"),

@@ -35,9 +35,10 @@ THESIS_TIMING = {
 }
 
 
-#: The thesis's and Kilombo's medium: one hard radius, iid ranging noise (the mechanisms below
-#: are tested on it; tests/validation/ checks the fitted default against real robots).
-DISC = {"medium.reach": "disc", "ranging.model": "gaussian"}
+#: The thesis's and Kilombo's medium: one hard radius, iid ranging noise, a carrier sensed the
+#: instant it begins (the mechanisms below are tested on it; tests/validation/ checks the
+#: fitted default against real robots).
+DISC = {"medium.reach": "disc", "ranging.model": "gaussian", "medium.sense_delay_s": 0.0}
 
 
 def quiet_params(overrides: dict | None = None, *, seed: int = 1) -> Params:
@@ -958,3 +959,19 @@ def test_a_tx_source_replaces_what_the_medium_asks_at_opportunities():
     sim.run(1.0)
     assert len(asked) == 5  # one opportunity every 200 ms
     assert [e[2:4] for e in entries(log, "rx", 1)] == [(0, 7)] * 5  # sender byte 0, seq 7
+
+
+@pytest.mark.parametrize(("gap_s", "collide"), [(0.0001, True), (0.0003, False)])
+def test_a_carrier_is_sensed_only_a_sense_delay_after_it_begins(gap_s, collide):
+    # Robot 1 starts 0.1 ms after robot 0: within the 0.2 ms it takes to sense robot 0's
+    # carrier, so both send and collide at robot 2; 0.3 ms after, robot 1 defers.
+    log: list = []
+    params = quiet_params({"medium.sense_delay_s": 0.0002, "robot.tx_jitter_s": 0.0})
+    sim = build([[0, 0], [40, 0], [20, 30]], params, log, r0={"max_messages": 1})
+    sim.medium.channel.occupy(_Tx(), 0, [1, 2], 0.0, sim.medium.airtime_s)
+    assert sim.medium.channel.busy(1, gap_s) is not collide
+    assert sim.medium.channel.busy(0, gap_s)  # a sender hears its own transmission at once
+
+
+class _Tx:
+    corrupted = None

@@ -18,7 +18,6 @@ from kilonet.placement import hex_lattice
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
 
-
 #: One hard radius (85 mm) and iid ranging noise: where a test needs the range to be one number.
 DISC = {"medium.reach": "disc", "ranging.model": "gaussian"}
 

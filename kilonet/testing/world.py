@@ -16,8 +16,8 @@ from simpy.events import URGENT, Event
 
 from kilonet.message import LIMITS, Layout, Message, PayloadError, message_crc
 from kilonet.params import Params
-from kilonet.radio import farthest_mm
 from kilonet.placement import ROBOT_DIAMETER_MM
+from kilonet.radio import farthest_mm
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
 from kilonet.testing.errors import ScriptError
