@@ -66,7 +66,11 @@ class GcsParams:
     localization_s: float = param(15.0, lo=1.0, hi=3600.0, doc="phase 4 window")
     max_rmse_mm: float = param(4.0, lo=0.1, hi=100.0, doc="reject fixes with larger residuals")
     sigma_mm: float = param(
-        1.0, lo=0.01, hi=100.0, doc="ranging noise the robots assume when judging a fix"
+        2.5,
+        lo=0.01,
+        hi=100.0,
+        doc="ranging error the robots assume when judging a fix (real robots: a few mm per "
+        "link that averaging cannot remove)",
     )
     groups_s: float = param(3.0, lo=0.5, hi=3600.0, doc="phase 5 window")
     min_group_width_mm: float = param(
