@@ -3,9 +3,10 @@ centroid (the seed ``trilateration-with-kilobots``).
 
 Four robots in role order: row 0 the origin (ID 1), row 1 the x-axis robot (ID 2), row 2 the
 third robot (ID 3), row 3 the follower (ID 4); a placement file must have exactly these four
-rows. A placement is refused when the robots stand beyond ranging distance of each other
+rows. A placement is refused when the frame robots stand beyond ranging distance of each other
 (:func:`ranging_mm`: the radio's reach, but at most ``follower.neighbour_max_mm``, beyond which
-kilolib's estimates saturate); a link that
+kilolib's estimates saturate) or the follower beyond a median link's reach of one of them (it
+may start where it hears but cannot range a robot: it then walks nearer); a link that
 occlusion weakens or blocks (``medium.occlusion``) is the follower's to deal with, as on the
 robots: it listens, makes its small first move and listens again for fresh messages.
 
@@ -187,8 +188,8 @@ def check_placement(positions: np.ndarray, params: Params) -> None:
     ------
     ScenarioError
         If there are not exactly four robots, robots 1–3 are (nearly) collinear, two of them
-        stand beyond :func:`ranging_mm` of each other, or a frame side is too long for the byte
-        message.
+        stand beyond :func:`ranging_mm` of each other, the follower beyond a median link's
+        reach of one of them, or a frame side is too long for the byte message.
     """
     pos = np.asarray(positions, dtype=float)
     if pos.shape != (4, 2):
@@ -202,15 +203,22 @@ def check_placement(positions: np.ndarray, params: Params) -> None:
             f"follower: robots 1-3 are nearly collinear (robot 3 is {abs(height):.1f} mm from "
             f"the line 1->2, need >= {_MIN_FRAME_HEIGHT_MM:g} mm): they form no frame"
         )
-    reach_mm = ranging_mm(params)
+    from kilonet.radio import reach_of
+
+    frame_mm, hearing_mm = ranging_mm(params), reach_of(params.medium).median_mm
     for a, b in ((0, 1), (0, 2), (1, 2), (0, 3), (1, 3), (2, 3)):
         d = float(np.linalg.norm(pos[a] - pos[b]))
-        if d > reach_mm:
-            who = "the follower" if b == 3 else f"robot {b + 1}"
+        if b == 3 and d > hearing_mm:
             raise ScenarioError(
-                f"follower: {who} stands {d:.1f} mm from robot {a + 1}, beyond the "
-                f"{reach_mm:g} mm it can range ({_ranging_source(params)}); the follower needs "
-                "distances to all three frame robots"
+                f"follower: the follower stands {d:.1f} mm from robot {a + 1}, beyond the "
+                f"{hearing_mm:g} mm a link reaches ({_ranging_source(params).split(',')[0]}); "
+                "the follower needs messages from all three frame robots"
+            )
+        if b < 3 and d > frame_mm:
+            raise ScenarioError(
+                f"follower: robot {b + 1} stands {d:.1f} mm from robot {a + 1}, beyond the "
+                f"{frame_mm:g} mm it can range ({_ranging_source(params)}); the frame robots "
+                "need distances to each other"
             )
     if params.scenario.message == "byte":
         side = max(float(np.linalg.norm(pos[a] - pos[b])) for a, b in ((0, 1), (0, 2), (1, 2)))
