@@ -90,7 +90,8 @@ class LocalizeRobot(Kilobot):
     root_key : int
         The election key of this robot's root (its frame's label).
     sigma_mm : float
-        The ranging noise per reception as this robot has measured it (mm).
+        The ranging error per reception this robot assumes (mm): the noise it has measured
+        and ``localize.link_error_mm``, which no spread of readings shows.
     """
 
     LED_KEY = (
@@ -117,7 +118,8 @@ class LocalizeRobot(Kilobot):
         )
         # Neighbours' NBR reports about each other, while electing and on the root.
         self.reports: dict[int, dict[int, float]] = {}
-        self.sigma_mm = p.sigma_mm  # ranging noise per reception, as this robot measures it
+        # Ranging error per reception, as this robot measures it, with the per-link error.
+        self.sigma_mm = math.hypot(p.sigma_mm, p.link_error_mm)
         self.position: tuple[float, float] | None = None
         self.is_root = False
         self.located_tick = 0
@@ -180,7 +182,7 @@ class LocalizeRobot(Kilobot):
             if neighbours.samples_total >= self._noise_due:
                 self._noise_due = neighbours.samples_total * _NOISE_REESTIMATE_GROWTH
                 noise = neighbours.noise_mm(p.noise_samples, p.sigma_mm)
-                self.sigma_mm = max(noise, _ROUNDING_SIGMA_MM)
+                self.sigma_mm = math.hypot(max(noise, _ROUNDING_SIGMA_MM), p.link_error_mm)
                 neighbours.duplicate_mm = p.duplicate_sigmas * self.sigma_mm
             self._work(tick, self.neighbours.fresh(self._round), full=True)
         elif self._news:
