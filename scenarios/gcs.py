@@ -471,7 +471,12 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
     from protocols.gcs.program import phase_windows_s
 
     events = sim.trace.events_frame()
-    links = LinkModel.from_params(sim.params.medium, sim.world.radius_mm).links(
+    from scenarios.neighbourhood import neighbourhood_mm
+
+    p = sim.params
+    # The protocol's neighbours: robots it hears, within gcs.neighbour_max_mm.
+    reach_mm = neighbourhood_mm(p.medium, p.scenario.neighbour_max_mm)
+    links = LinkModel.from_params(p.medium, sim.world.radius_mm, range_mm=reach_mm).links(
         sim.world.positions_mm
     )
     i, j = links.i, links.j

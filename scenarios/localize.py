@@ -33,6 +33,7 @@ import numpy as np
 
 from protocols.localize.base import LocalizeParams
 from scenarios.base import RunResult, Scenario
+from scenarios.neighbourhood import trusted_links
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
     import pandas as pd
@@ -125,7 +126,9 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
     rmse, aligned = pooled_aligned_rmse(np.nan_to_num(positions), truth, labels)
     error = np.hypot(*(aligned - truth).T)
     sizes = done.groupby("frame").size()
-    links = np.array(sim.medium.graph().edges(), dtype=np.intp).reshape(-1, 2)
+    # The links robots range: both ends' estimates within localize.neighbour_max_mm.
+    ranged = trusted_links(sim, p.scenario.neighbour_max_mm).to_undirected(reciprocal=True)
+    links = np.array(ranged.edges(), dtype=np.intp).reshape(-1, 2)
     i, j = links[:, 0], links[:, 1]
     out: dict[str, Any] = {
         "mean_neighbours": 2.0 * len(i) / n,

@@ -7,8 +7,9 @@ loops), and so is the robot's start cell.
 
 ``maze.landmarks = camera`` (default) ranges the landmarks with the robot's camera model; with
 ``infrared`` the landmarks are Kilobots broadcasting their coordinates and the robot ranges only
-what it hears, so every cell centre must be within ``min(medium.range_mm, ranging.max_mm)`` of
-at least three landmarks — for example::
+what it hears and ranges, so every cell centre must be within
+:func:`scenarios.neighbourhood.neighbourhood_mm` (a median link's reach, at most
+``maze.neighbour_max_mm``) of at least three landmarks — for example::
 
     kilonet run maze --set maze.landmarks=infrared --set maze.size=2x2 --set maze.cell_mm=50
 
@@ -91,14 +92,18 @@ def _placement(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def _check_infrared_reach(params: Params, maze: Maze, landmarks_mm: np.ndarray) -> None:
-    reach = min(params.medium.range_mm, float(params.ranging.max_mm))
+    from scenarios.neighbourhood import neighbourhood_mm
+
+    limit = min(params.scenario.neighbour_max_mm, float(params.ranging.max_mm))
+    reach = neighbourhood_mm(params.medium, limit)
     for cell in range(maze.n_cells):
         d = np.hypot(*(landmarks_mm - maze.centre_mm(cell)).T)
         if int((d <= reach).sum()) < 3:
             raise ParamError(
-                f"maze.landmarks = infrared: cell {cell} is within {reach:.0f} mm "
-                f"(medium.range_mm, ranging.max_mm) of only {int((d <= reach).sum())} landmarks; "
-                "use a smaller maze (maze.size, maze.cell_mm) or a longer medium.range_mm"
+                f"maze.landmarks = infrared: cell {cell} is within {reach:.0f} mm (the reach of "
+                "a median link, at most maze.neighbour_max_mm and ranging.max_mm) of only "
+                f"{int((d <= reach).sum())} landmarks; use a smaller maze (maze.size, "
+                "maze.cell_mm)"
             )
 
 

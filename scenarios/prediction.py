@@ -80,14 +80,18 @@ def predict_from_seeds(
     """
     p = params
     n = len(pos)
-    graph = communication_graph(pos, LinkModel.from_params(p.medium))
+    from scenarios.neighbourhood import neighbourhood_mm
+
+    # The protocol's neighbours: the robots it hears, within gcs.neighbour_max_mm.
+    reach_mm = neighbourhood_mm(p.medium, p.scenario.neighbour_max_mm)
+    graph = communication_graph(pos, LinkModel.from_params(p.medium, range_mm=reach_mm))
     members: dict[int, dict[int, tuple[float, float]]] = {}
     for s in seeds:
         inside = _frame_members(pos, graph, s, p.scenario)
         if inside is not None:
             members[s] = inside
     located = {i: sorted(s for s, m in members.items() if i in m) for i in range(n)}
-    groups = _groups(pos, graph, located, members, p.medium.range_mm, p.scenario)
+    groups = _groups(pos, graph, located, members, reach_mm, p.scenario)
     cases = failure_cases(range(n), located, list(seeds), groups)
     final = _final_frames(cases["frames"], located, frame_keys, cases["isolated_seeds"])
     boundary = sorted(

@@ -67,12 +67,13 @@ u₂v₂) is only where planning starts. What the seed leaves open is handled as
   and the dead-reckoned previous position pick one of the two circle intersections, never one
   within hearing of the robot unheard, and only one that both handedness agree on while the
   handedness is open. A distance at the sensor's ceiling (``saturation_mm``, kilolib's 255) is
-  "at least that far": it only rules out candidates. A step after which it cannot locate
-  itself at all is undone: the way back to the last fix is planned in the robot's own body
-  frame. When that does not help, or a distance is saturated, the follower walks to reduce its
-  nearest distance (measuring the bearing from how that distance changes) until it can locate
-  itself again. Before its first move it only waits. After ``give_up_s`` of silence or
-  ``max_steps`` steps it gives up.
+  "at least that far": it only rules out candidates; so is one above ``neighbour_max_mm``,
+  where kilolib's estimates saturate (:mod:`protocols.ranging_limit`). A step after which it
+  cannot locate itself at all is undone: the way back to the last fix is planned in the
+  robot's own body frame. When that does not help, or a distance is saturated, the follower
+  walks to reduce its nearest distance (measuring the bearing from how that distance changes)
+  until it can locate itself again. Before its first move it only waits. After ``give_up_s``
+  of silence or ``max_steps`` steps it gives up.
 * **Calibration error.** The follower learns its real speed from its free steps and, with
   ``adapt_turns``, the real rate of each motor from conclusive turns (each motor has its own
   curve and stored value).
@@ -98,6 +99,7 @@ from kilonet.geometry import (
 from kilonet.message import Message
 from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
+from protocols.common.ranging_limit import trusted_range
 from protocols.follower.frame_robots import (
     FOLLOWER,
     FRAME_BYTE,
@@ -229,6 +231,13 @@ class FollowerParams:
     )
     frame_samples: int = param(8, lo=1, hi=1000, doc="readings robots 2, 3 average")
     listen_samples: int = param(4, lo=1, hi=1000, doc="fresh readings per robot per fix")
+    neighbour_max_mm: float = param(
+        100.0,
+        lo=33.0,
+        hi=255.0,
+        doc="follower: a larger reading means only 'at least this far' (kilolib's tables end at "
+        "98 mm, estimates saturate beyond)",
+    )
     listen_timeout_s: float = param(3.0, lo=0.1, hi=600.0, doc="then fix without the unheard")
     give_up_s: float = param(60.0, lo=1.0, hi=1e5, doc="silence before the follower gives up")
     first_step_mm: float = param(10.0, lo=1.0, hi=500.0, doc="first and probe step length")
@@ -434,7 +443,10 @@ class Follower(Kilobot):
         """Mean reading in mm; ``None`` if unheard, ``inf`` if at the sensor's ceiling."""
         if not readings:
             return None
-        if max(readings) >= self.saturation_mm:
+        farthest = max(readings)
+        if farthest >= self.saturation_mm or not trusted_range(
+            farthest, self.params.neighbour_max_mm
+        ):
             return math.inf
         return sum(readings) / len(readings)
 
@@ -460,7 +472,7 @@ class Follower(Kilobot):
         candidates = circle_intersections(anchors[i], di, anchors[j], dj)
         (k,) = set(anchors) - {i, j}
         if distances[k] is not None:  # saturated: at least the ceiling away from robot k
-            floor_mm = self.saturation_mm - 3
+            floor_mm = min(self.saturation_mm, self.params.neighbour_max_mm) - 3
         else:  # unheard for a whole window: most likely out of hearing
             floor_mm = self.hearing_mm - UNHEARD_MARGIN_MM
         candidates = [p for p in candidates if _dist(p, anchors[k]) >= floor_mm]

@@ -66,6 +66,13 @@ class GcsParams:
     section_name = "gcs"
     until: Literal[PHASES] = param("merge", doc="last phase to run")
     id_bits: int = param(8, lo=2, hi=15, doc="random IDs are drawn from this many bits")
+    neighbour_max_mm: float = param(
+        85.0,
+        lo=33.0,
+        hi=255.0,
+        doc="a reception with a larger distance estimate is ignored: its sender is no neighbour "
+        "(the thesis's range; estimates saturate beyond kilolib's tables)",
+    )
     # Windows: lossless runs with a margin; a lossy channel needs longer ones (docs/gcs.md,
     # "Measured": how much of each window the robots use).
     ids_s: float = param(8.0, lo=0.5, hi=600.0, doc="phase 1 window")
@@ -85,7 +92,11 @@ class GcsParams:
     localization_s: float = param(15.0, lo=1.0, hi=3600.0, doc="phase 4 window")
     max_rmse_mm: float = param(4.0, lo=0.1, hi=100.0, doc="reject fixes with larger residuals")
     sigma_mm: float = param(
-        1.0, lo=0.01, hi=100.0, doc="ranging noise the robots assume when judging a fix"
+        2.5,
+        lo=0.01,
+        hi=100.0,
+        doc="ranging error the robots assume when judging a fix (real robots: a few mm per "
+        "link that averaging cannot remove)",
     )
     groups_s: float = param(3.0, lo=0.5, hi=3600.0, doc="phase 5 window")
     min_group_width_mm: float = param(

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from kilonet.message import Message
 from kilonet.robot import Kilobot
 from protocols.common.neighbours import NeighbourTable
+from protocols.common.ranging_limit import trusted_range
 from protocols.gcs.base import PHASES, SENDER, GcsParams, Phase
 from protocols.gcs.frame_keys import FrameKey, Root
 from protocols.gcs.global_estimate import GlobalEstimate
@@ -526,8 +527,8 @@ class GcsRobot(Kilobot):
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
         phase = self.phase
-        if phase is None:
-            return
+        if phase is None or not trusted_range(distance_mm, self.params.neighbour_max_mm):
+            return  # a robot measured beyond the neighbourhood is none of its neighbours
         # Recovery floods and POS are rare: dispatch on the type byte, not a call per message.
         kind = message.type
         if kind == RECOVER.type:

@@ -97,6 +97,20 @@ class LocalizeParams:
     noise_samples: int = param(
         5, lo=2, hi=10_000, doc="receptions from a neighbour before its spread counts"
     )
+    link_error_mm: float = param(
+        2.0,
+        lo=0.0,
+        hi=100.0,
+        doc="per-link ranging error robots add to the noise they measure (real robots: the "
+        "emitter's strength biases each link, which repeated readings cannot show)",
+    )
+    neighbour_max_mm: float = param(
+        90.0,
+        lo=33.0,
+        hi=255.0,
+        doc="a reception with a larger distance estimate is ignored: its sender is no neighbour "
+        "(kilolib's tables end at 98 mm; near their end a strong emitter reads up to 10 mm near)",
+    )
     duplicate_after: int = param(
         10, lo=3, hi=10_000, doc="receptions from an ID before the duplicate test applies"
     )

@@ -39,6 +39,7 @@ import struct
 
 from kilonet.message import Message
 from kilonet.robot import Kilobot
+from protocols.common.ranging_limit import trusted_range
 from protocols.common.refinement import DIST, Refiner, next_report
 from protocols.localize.base import (
     COMPLETE,
@@ -90,7 +91,8 @@ class LocalizeRobot(Kilobot):
     root_key : int
         The election key of this robot's root (its frame's label).
     sigma_mm : float
-        The ranging noise per reception as this robot has measured it (mm).
+        The ranging error per reception this robot assumes (mm): the noise it has measured
+        and ``localize.link_error_mm``, which no spread of readings shows.
     """
 
     LED_KEY = (
@@ -117,7 +119,8 @@ class LocalizeRobot(Kilobot):
         )
         # Neighbours' NBR reports about each other, while electing and on the root.
         self.reports: dict[int, dict[int, float]] = {}
-        self.sigma_mm = p.sigma_mm  # ranging noise per reception, as this robot measures it
+        # Ranging error per reception, as this robot measures it, with the per-link error.
+        self.sigma_mm = math.hypot(p.sigma_mm, p.link_error_mm)
         self.position: tuple[float, float] | None = None
         self.is_root = False
         self.located_tick = 0
@@ -180,7 +183,7 @@ class LocalizeRobot(Kilobot):
             if neighbours.samples_total >= self._noise_due:
                 self._noise_due = neighbours.samples_total * _NOISE_REESTIMATE_GROWTH
                 noise = neighbours.noise_mm(p.noise_samples, p.sigma_mm)
-                self.sigma_mm = max(noise, _ROUNDING_SIGMA_MM)
+                self.sigma_mm = math.hypot(max(noise, _ROUNDING_SIGMA_MM), p.link_error_mm)
                 neighbours.duplicate_mm = p.duplicate_sigmas * self.sigma_mm
             self._work(tick, self.neighbours.fresh(self._round), full=True)
         elif self._news:
@@ -253,8 +256,8 @@ class LocalizeRobot(Kilobot):
         self.termination.sent()
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        if self.stage == "done":
-            return
+        if self.stage == "done" or not trusted_range(distance_mm, self.params.neighbour_max_mm):
+            return  # a robot measured beyond the tables' range is none of its neighbours
         (sender,) = _SENDER(message.data)
         if sender == self.uid:
             if self.stage == "election":

@@ -7,8 +7,9 @@ standing still at a cell centre:
 1. **Ranges the landmarks** — with its camera (``landmarks = "camera"``, the seed), or by
    listening for ``listen_s`` to landmark beacons on the infrared medium (``"infrared"``): each
    beacon is a Kilobot broadcasting its index and coordinates, and the robot uses the median
-   distance estimate of each beacon it heard. It says so (event ``few_landmarks``) when it has
-   fewer than three ranges.
+   distance estimate of each beacon it heard within ``neighbour_max_mm`` (beyond, kilolib's
+   estimates saturate: :mod:`protocols.ranging_limit`). It says so (event ``few_landmarks``)
+   when it has fewer than three ranges.
 2. **Trilaterates** — with the seed's linear formula (A…F, :func:`kilonet.geometry.
    trilaterate_linear`) over the first three landmarks it has (the fourth ignored, as the seed
    ignores its yellow cylinder), or with least squares over all it has when it has four
@@ -52,6 +53,7 @@ from kilonet.message import Layout, Message
 from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
 from protocols.common.phases import Stage
+from protocols.common.ranging_limit import trusted_range
 from protocols.maze.hardware import (
     DIRECTIONS,
     Maze,
@@ -326,6 +328,13 @@ class MazeParams:
     landmarks: Literal["camera", "infrared"] = param(
         "camera", doc="range landmarks by camera model, or by hearing Kilobot beacons"
     )
+    neighbour_max_mm: float = param(
+        90.0,
+        lo=33.0,
+        hi=255.0,
+        doc="infrared: a beacon heard at a larger estimate is not ranged (kilolib's tables "
+        "end at 98 mm; near their end a strong emitter reads up to 10 mm near)",
+    )
     fit: Literal["lsq", "linear"] = param(
         "lsq", doc="least squares over four landmarks, or always the seed's linear formula"
     )
@@ -447,7 +456,7 @@ class MazeRobot(MazeKilobot):
     def message_rx(self, message: Message, distance_mm: int) -> None:
         if self.params.landmarks != "infrared" or self.state is not MazeStage.LISTEN:
             return
-        if LANDMARK.matches(message):
+        if LANDMARK.matches(message) and trusted_range(distance_mm, self.params.neighbour_max_mm):
             beacon = LANDMARK.unpack(message)
             self._heard.setdefault(beacon.landmark, (beacon.x_mm, beacon.y_mm, []))[2].append(
                 distance_mm
