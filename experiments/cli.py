@@ -10,8 +10,9 @@ runs missing from DIR are run. ``--resume`` says so explicitly and lets the swee
 out (DIR keeps the definition).
 
 Exit status: 0 when the sweep finished (failed runs are stored, listed, and counted in the
-message), 1 when it had to stop (a worker process died, the cluster is unreachable), 2 for a
-user error, 130 when interrupted.
+message), 1 when it had to stop (a worker process died, the cluster is unreachable or has no
+workers, the disk is full), 2 for a user error (including a damaged results store), 130 when
+interrupted. Every error is one line on stderr.
 """
 
 from __future__ import annotations
@@ -167,6 +168,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
         )
     except (ReportError, StoreError) as exc:
         raise UsageError(str(exc)) from None
+    except OSError as exc:  # a full disk, a directory we may not write
+        print(f"kilonet: error: cannot write {args.out}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
     figures = sum(1 for p in written if p.suffix == ".png")
     extra = f" and {figures} figures" if figures else ""
     print(f"wrote {written[0]}{extra}", file=sys.stderr)

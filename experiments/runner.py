@@ -40,7 +40,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from experiments.store import ResultStore, RunRecord
+from experiments.store import ResultStore, RunRecord, StoreError, lock_directory
 from experiments.sweep import Run, Sweep
 
 __all__ = ["SweepAborted", "SweepOutcome", "default_workers", "execute_run", "run_sweep"]
@@ -181,7 +181,11 @@ def run_sweep(
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be at least 1, not {workers}")
     runs = sweep.runs()
-    with ResultStore.create_or_open(directory, sweep, source=source) as store, store.lock():
+    with (
+        lock_directory(directory),
+        ResultStore.create_or_open(directory, sweep, source=source) as store,
+    ):
+        store.records()  # every stored row checked against its checksum before resuming
         done = store.finished_ids(include_failed=not retry_failed)
         todo = [r for r in runs if r.run_id not in done]
         ok = failed = 0
@@ -196,7 +200,7 @@ def run_sweep(
                 futures = {executor.submit(execute_run, run): run for run in todo}
                 for future in cf.as_completed(futures):
                     record = _record_of(future, futures[future])
-                    store.append(record)
+                    _store(store, record)
                     if record.status == "ok":
                         ok += 1
                     else:
@@ -204,6 +208,16 @@ def run_sweep(
                     bar.set_postfix_str(f"{failed_before + failed} failed", refresh=False)
                     bar.update()
         return SweepOutcome(len(runs), len(runs) - len(todo), ok, failed, Path(directory))
+
+
+def _store(store: ResultStore, record: RunRecord) -> None:
+    """Append ``record``; a store that cannot take it (a full disk) ends the sweep."""
+    try:
+        store.append(record)
+    except StoreError as exc:
+        raise SweepAborted(
+            f"{exc}; the runs stored so far are kept: fix that, then run the same command to resume"
+        ) from None
 
 
 def _record_of(future: cf.Future, run: Run) -> RunRecord:
