@@ -1,7 +1,7 @@
 """``kilonet sweep`` and ``kilonet report``: the command-line face of the experiments package.
 
-    kilonet sweep SWEEP.toml --out DIR [--workers N | --scheduler ADDRESS]
-                  [--resume] [--retry-failed] [--no-progress]
+    kilonet sweep SWEEP.toml --out DIR [--workers N | --scheduler ADDRESS
+                  [--no-workers-timeout S]] [--resume] [--retry-failed] [--no-progress]
     kilonet report DIR --out REPORT.html|REPORT.md [--x KEY] [--metric NAME ...]
                    [--confidence 0.95]
 
@@ -42,6 +42,14 @@ def register_sweep(subparsers: Any) -> None:
         "--scheduler",
         metavar="ADDRESS",
         help="run on a Dask distributed cluster (e.g. tcp://host:8786) instead of locally",
+    )
+    sweep.add_argument(
+        "--no-workers-timeout",
+        type=float,
+        default=300.0,
+        metavar="S",
+        help="with --scheduler: stop (and keep the stored runs) when the cluster has had no "
+        "workers for S seconds (default: 300; inf: wait for workers however long)",
     )
     sweep.add_argument(
         "--resume",
@@ -91,6 +99,10 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         raise UsageError(f"--workers must be at least 1, not {args.workers}")
     if args.workers is not None and args.scheduler is not None:
         raise UsageError("--workers is for the local pool; with --scheduler the cluster decides")
+    if not args.no_workers_timeout > 0:  # also refuses nan
+        raise UsageError(
+            f"--no-workers-timeout must be a number of seconds > 0, not {args.no_workers_timeout}"
+        )
     out = Path(args.out)
     if args.resume and not is_sweep_dir(out):
         raise UsageError(f"--resume: {out} holds no sweep to resume")
@@ -113,6 +125,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             retry_failed=args.retry_failed,
             progress=not args.no_progress,
             source=source,
+            no_workers_timeout_s=args.no_workers_timeout,
         )
     except (SweepError, StoreError) as exc:
         raise UsageError(str(exc)) from None

@@ -5,6 +5,7 @@ directory. Each failure must be one line on stderr and leave the stored runs int
 from __future__ import annotations
 
 import json
+import os
 import resource
 import signal
 import sqlite3
@@ -17,7 +18,7 @@ from pathlib import Path
 import pytest
 
 import kilonet.cli
-from experiments.runner import run_sweep
+from experiments.runner import WorkerWatch, run_sweep
 from experiments.store import (
     DB_NAME,
     ResultStore,
@@ -306,3 +307,142 @@ def test_a_store_created_by_another_process_meanwhile_is_opened(tmp_path, monkey
     with ResultStore.create_or_open(tmp_path, sweep) as store:
         assert store.sweep() == sweep
     assert sorted(p.name for p in tmp_path.iterdir()) == [DB_NAME]
+
+
+# ---------------------------------------------------------------------------- processes
+
+
+def _descendants(pid: int) -> set[int]:
+    """Every live process below ``pid`` (from /proc), e.g. a sweep's fork server, resource
+    tracker and workers."""
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            parents[int(entry.name)] = int(stat.rpartition(")")[2].split()[1])
+    found, frontier = set(), {pid}
+    while frontier:
+        frontier = {p for p, parent in parents.items() if parent in frontier} - found
+        found |= frontier
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
+def test_kill_9_of_a_sweep_leaves_no_process_behind(tmp_path):
+    sweep_file = tmp_path / "long.toml"
+    sweep_file.write_text(
+        SMALL.replace("seeds = 2", "seeds = 20").replace("duration_s = 5.0", "duration_s = 60.0")
+    )
+    out = tmp_path / "out"
+    argv = [sys.executable, "-c", _CLI, "sweep", str(sweep_file), "--out", str(out)]
+    process = subprocess.Popen([*argv, "--workers", "2", "--no-progress"], stderr=subprocess.PIPE)
+    try:
+        db = out / DB_NAME
+        helpers: set[int] = set()
+        deadline = time.monotonic() + 120
+        # two workers, the fork server and the resource tracker, and a first run stored
+        while process.poll() is None and time.monotonic() < deadline:
+            helpers = _descendants(process.pid)
+            if len(helpers) >= 4 and db.exists() and _rows(db) >= 1:
+                break
+            time.sleep(0.05)
+        assert process.poll() is None, process.stderr.read()
+        assert len(helpers) >= 4, helpers
+        process.kill()
+        process.wait()
+        deadline = time.monotonic() + 60
+        while any(_alive(p) for p in helpers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        left = sorted(p for p in helpers if _alive(p))
+    finally:
+        for pid in _descendants(process.pid) | helpers:  # only ours, by pid
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
+        process.kill()
+        process.wait()
+    assert left == [], f"processes left behind: {left}"
+    assert 1 <= len(stored_runs(out)) < 40  # the rows stored before the kill are intact
+
+
+def _rows(db: Path) -> int:
+    try:
+        with sqlite3.connect(db) as conn:
+            return conn.execute("SELECT COUNT(*) FROM runs").fetchone()[0]
+    except sqlite3.OperationalError:
+        return 0
+
+
+def stored_runs(out: Path) -> list[RunRecord]:
+    with ResultStore.open(out) as store:
+        return store.records()
+
+
+def test_a_cluster_without_workers_stops_the_sweep_with_one_line(tmp_path, capsys):
+    from distributed import LocalCluster
+
+    sweep_file = tmp_path / "small.toml"
+    sweep_file.write_text(SMALL)
+    out = tmp_path / "out"
+    with LocalCluster(n_workers=0, processes=True, dashboard_address=None) as cluster:
+        argv = ["sweep", str(sweep_file), "--out", str(out), "--no-progress"]
+        argv += ["--scheduler", cluster.scheduler_address, "--no-workers-timeout", "1.5"]
+        assert kilonet.cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert err.startswith(
+        f"kilonet: sweep stopped: the Dask cluster at {cluster.scheduler_address} has had no "
+        "workers for 1.5 s (4 runs waiting); start workers, then run the same command"
+    )
+    assert stored_runs(out) == [] and not (out / ".sweep.lock").exists()
+
+
+def test_worker_watch_resets_when_workers_come_back():
+    watch = WorkerWatch(5.0)
+    states = []
+    for now, workers in [(0, 2), (1, 0), (3, 0), (5, 1), (6, 0), (10, 0), (11, 0)]:
+        watch = watch.observe(workers, now)
+        states.append((watch.empty_since_s, watch.expired(now)))
+    assert states == [
+        (None, False),
+        (1, False),
+        (1, False),
+        (None, False),
+        (6, False),
+        (6, False),
+        (6, True),
+    ]
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan"])
+def test_no_workers_timeout_must_be_positive(tmp_path, capsys, value):
+    (tmp_path / "s.toml").write_text(SMALL)
+    argv = ["sweep", str(tmp_path / "s.toml"), "--out", str(tmp_path / "out")]
+    assert kilonet.cli.main([*argv, "--no-workers-timeout", value]) == 2
+    _one_line_error(capsys.readouterr().err, "--no-workers-timeout must be a number of seconds")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_folder_named_like_a_package_in_the_working_directory_shadows_nothing(tmp_path):
+    # what the `kilonet` console script does: the working directory is not on the sweep's path
+    script = Path(sys.executable).with_name("kilonet")
+    if not script.exists():
+        pytest.skip("the kilonet console script is not installed beside this Python")
+    (tmp_path / "scenarios").mkdir()
+    (tmp_path / "scenarios" / "__init__.py").write_text('"""my own scenario notes"""\n')
+    (tmp_path / "s.toml").write_text(SMALL)
+    argv = [str(script), "sweep", "s.toml", "--out", "out", "--workers", "2", "--no-progress"]
+    done = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert {r.status for r in stored_runs(tmp_path / "out")} == {"ok"}
+    assert len(stored_runs(tmp_path / "out")) == 4
