@@ -81,8 +81,8 @@ class MediumParams:
         0.0, lo=0.0, hi=1.0, doc="airtime of one message; 0 derives it from bitrate and format"
     )
     csma: bool = param(True, doc="sense the carrier and back off while the channel is busy")
-    backoff_max_s: float = param(
-        0.032, lo=0.0, hi=10.0, doc="random back-off is U(0, this), own clock (kilolib: a tick)"
+    backoff_max_s: float = param(  # lo: one count of kilolib's 7,812.5 Hz timer, its least wait
+        0.032, lo=1.28e-4, hi=10.0, doc="random back-off is U(0, this), own clock (kilolib: a tick)"
     )
 
 
