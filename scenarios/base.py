@@ -104,6 +104,10 @@ class Scenario:
     progress_note : callable, optional
         ``progress_note(sim) -> str``: where the run is (the current phase), for the progress
         display.
+    message_formats : tuple of str
+        The ``medium.message_format`` values its programs' messages fit; any other is refused
+        when the parameters are built (the thesis's 23 bits hold no type byte and too few
+        bytes for most protocols' messages).
     """
 
     name: str
@@ -121,6 +125,7 @@ class Scenario:
     expected_end_s: Callable[[Params], float | None] | None = None
     ends_when: str = ""
     progress_note: Callable[[Simulation], str] | None = None
+    message_formats: tuple[str, ...] = ("kilolib", "thesis")
 
 
 @dataclass
@@ -141,13 +146,21 @@ def build_params(
     Raises
     ------
     kilonet.params.ParamError
-        For an unknown key or an invalid value.
+        For an unknown key or an invalid value, or a ``medium.message_format`` the scenario's
+        messages do not fit.
     """
     params = Params(scenario=scenario.section() if scenario.section else None)
     params = params.with_overrides(scenario.defaults)
     params = params.with_overrides(dict(overrides or {}))
     if seed is not None:
         params = params.with_overrides({"seed": seed})
+    fmt = params.medium.message_format
+    if fmt not in scenario.message_formats:
+        raise ParamError(
+            f"medium.message_format = {fmt!r}: the {scenario.name} scenario's messages need "
+            f"the {' or '.join(map(repr, scenario.message_formats))} format (its type byte "
+            "and payload do not fit the thesis's 23 bits)"
+        )
     return params
 
 

@@ -500,6 +500,7 @@ def _outputs(result: RunResult, out_dir: Path) -> None:
 
 SCENARIO = Scenario(
     name="follower",
+    message_formats=("kilolib",),  # type bytes and 9-byte payloads
     summary="trilateration: three robots build a frame, a fourth walks to their centroid",
     program=_program,
     section=FollowerParams,
