@@ -426,22 +426,21 @@ def check_case(case: tuple[list[str], dict[str, bytes]]) -> None:
         assert not (Path(tmp) / "out").exists(), f"{argv}: exit 2 left {tmp}/out behind"
 
 
-@settings(
-    max_examples=40,
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-)
+#: Hypothesis settings of both fuzz tests: the time limit is LIMIT_S, not a deadline.
+_FUZZ = {
+    "deadline": None,
+    "suppress_health_check": [HealthCheck.too_slow, HealthCheck.data_too_large],
+}
+
+
+@settings(max_examples=40, **_FUZZ)
 @given(CASES)
 def test_cli_fuzz(case):
     check_case(case)
 
 
 @pytest.mark.slow
-@settings(
-    max_examples=2000,
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-)
+@settings(max_examples=2000, **_FUZZ)
 @given(CASES)
 def test_cli_fuzz_campaign(case):
     check_case(case)

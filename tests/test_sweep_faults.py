@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
+from test_experiments import SMALL  # four runs of 20 robots for 5 s
 
 import kilonet.cli
 from experiments.runner import WorkerWatch, run_sweep
@@ -28,16 +29,6 @@ from experiments.store import (
     row_checksum,
 )
 from experiments.sweep import parse_sweep
-
-SMALL = """
-scenario = "gradient"
-seeds = 2
-[fixed]
-duration_s = 5.0
-"placement.robots" = 20
-[grid]
-"medium.loss_prob" = [0.0, 0.3]
-"""
 
 _CLI = "import sys, kilonet.cli as c; sys.exit(c.main(sys.argv[1:]))"
 
