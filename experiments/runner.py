@@ -12,6 +12,10 @@ stderr shows runs done, failures and the time left.
 
 Interrupts: Ctrl-C (SIGINT) and SIGTERM stop the sweep cleanly: pending runs are cancelled, local
 workers are terminated, the stored rows stay, and :class:`KeyboardInterrupt` reaches the caller.
+A sweep killed outright (``kill -9``) leaves no process behind: each local worker ends itself
+when the sweep's process ends, and the fork server and resource tracker follow. On a Dask
+cluster that has had no workers for ``no_workers_timeout_s`` the sweep stops with
+:class:`SweepAborted` instead of waiting for ever.
 
 Local workers are started with the ``forkserver`` method, so, as with any non-``fork``
 multiprocessing, a script that calls :func:`run_sweep` must do so under
