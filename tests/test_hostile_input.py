@@ -4,7 +4,7 @@ on stderr with exit 2, never a traceback, a hang or a half-written output.
 The regression tests pin the cases found by hand and by the fuzz campaign; the Hypothesis tests
 draw placements, ``--set`` values and sweep files and run the real ``kilonet`` entry point
 (:func:`kilonet.cli.main`) in-process on tiny swarms. ``test_cli_fuzz_campaign`` is the long
-campaign (``-m slow``).
+campaign (``-m slow``; ``KILONET_FUZZ_EXAMPLES`` cases, default 2000).
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import dataclasses
 import io
 import json
 import math
+import os
 import signal
 import tempfile
 import typing
@@ -440,7 +441,7 @@ def test_cli_fuzz(case):
 
 
 @pytest.mark.slow
-@settings(max_examples=2000, **_FUZZ)
+@settings(max_examples=int(os.environ.get("KILONET_FUZZ_EXAMPLES", "2000")), **_FUZZ)
 @given(CASES)
 def test_cli_fuzz_campaign(case):
     check_case(case)
