@@ -103,7 +103,7 @@ def _figure(result: RunResult, out_dir: Path) -> None:
 
 SCENARIO = Scenario(
     name="gradient",
-    message_formats=("kilolib",),  # type bytes and 9-byte payloads
+    supports={"medium.message_format": ("kilolib",), "robot.rx_mode": ("callback",)},
     summary="hop-count gradient from one source robot (Kilobot self-assembly building block)",
     program=_program,
     section=GradientParams,

@@ -187,7 +187,7 @@ def _mm(value: float | None) -> str:
 
 SCENARIO = Scenario(
     name="localize",
-    message_formats=("kilolib",),  # type bytes and 9-byte payloads
+    supports={"medium.message_format": ("kilolib",), "robot.rx_distance": ("estimate",)},
     summary="one global frame by root election, multilateration spreading outward and "
     "distributed refinement, ended by the swarm itself",
     program=_program,

@@ -45,19 +45,45 @@ def _one_line(err: str) -> str:
 # ---------------------------------------------------------------------------- regressions
 
 
-@pytest.mark.parametrize("scenario", ["gradient", "localize", "follower", "gcs"])
-def test_the_thesis_message_format_is_refused_in_one_line_by_scenarios_it_cannot_carry(
-    tmp_path, capsys, scenario
+@pytest.mark.parametrize(
+    ("scenario", "setting", "allowed"),
+    [
+        *((s, "medium.message_format=thesis", "'kilolib'") for s in SCENARIOS if s != "maze"),
+        # found by the fuzz test: raw measurements where the programs add millimetres
+        *((s, "robot.rx_distance=raw", "'estimate'") for s in SCENARIOS if s != "gradient"),
+        # programs that implement only message_rx hear nothing from a polled buffer
+        *((s, "robot.rx_mode=polled", "'callback'") for s in ("gradient", "follower", "maze")),
+    ],
+)
+def test_a_setting_a_scenarios_programs_are_not_written_for_is_refused_in_one_line(
+    tmp_path, capsys, scenario, setting, allowed
 ):
-    argv = ["run", scenario, "--duration", "2", "--set", "medium.message_format=thesis"]
+    argv = ["run", scenario, "--duration", "2", "--set", setting]
     status, err = _kilonet([*argv, "--out", str(tmp_path / "out")], capsys)
     assert status == 2
+    key, _, value = setting.partition("=")
     assert _one_line(err) == (
-        f"kilonet: error: medium.message_format = 'thesis': the {scenario} scenario's messages "
-        "need the 'kilolib' format (its type byte and payload do not fit the thesis's 23 "
-        "bits)\n"
+        f"kilonet: error: {key} = {value!r}: the {scenario} scenario's programs are written "
+        f"for {allowed} only\n"
     )
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("scenario", "setting"),
+    [
+        ("maze", "medium.message_format=thesis"),
+        ("gradient", "robot.rx_distance=raw"),
+        ("localize", "robot.rx_mode=polled"),
+        ("gcs", "robot.rx_mode=polled"),
+    ],
+)
+def test_settings_a_scenario_supports_run(capsys, scenario, setting):
+    argv = ["run", scenario, "--duration", "3", "--json", "--set", setting]
+    if scenario not in ("maze", "follower"):
+        argv += ["--robots", "8"]
+    status, err = _kilonet(argv, capsys)
+    assert status == 0, err
 
 
 def test_a_sweep_over_the_message_format_is_refused_naming_the_cell(tmp_path, capsys):
@@ -70,14 +96,9 @@ def test_a_sweep_over_the_message_format_is_refused_naming_the_cell(tmp_path, ca
     assert status == 2
     assert _one_line(err).startswith(
         f"kilonet: error: {sweep}: [grid] medium.message_format = 'thesis': the gradient "
+        "scenario's programs are written for 'kilolib' only"
     )
     assert not (tmp_path / "out").exists()
-
-
-def test_the_maze_runs_with_the_thesis_message_format(capsys):
-    argv = ["run", "maze", "--duration", "5", "--json", "--set", "medium.message_format=thesis"]
-    status, err = _kilonet(argv, capsys)
-    assert status == 0, err
 
 
 def test_localize_with_every_robot_crashed_writes_its_figure(tmp_path, capsys):
