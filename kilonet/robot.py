@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from kilonet.message import Message
+from kilonet.message import Message, message_crc
 from kilonet.ranging import CalibrationTables, DistanceMeasurement, estimate_distance
 
 if TYPE_CHECKING:
@@ -43,10 +43,43 @@ if TYPE_CHECKING:
 
     from kilonet.simulation import Simulation
 
-__all__ = ["TIMER_COUNTS_PER_S", "Kilobot", "RobotStopped"]
+__all__ = [
+    "ADC_CONVERSION_S",
+    "RGB",
+    "TICKS_PER_SEC",
+    "TIMER_COUNTS_PER_S",
+    "Kilobot",
+    "RobotStopped",
+]
 
 #: kilolib's ``kilo_tx_period`` unit: timer-0 counts, 8 MHz / 1024 = 7812.5 per second.
 TIMER_COUNTS_PER_S = 7812.5
+#: kilolib's ``TICKS_PER_SEC`` macro (``kilolib.h``); :attr:`Kilobot.TICKS_PER_SEC` follows
+#: ``robot.ticks_per_s`` when a run changes it.
+TICKS_PER_SEC = 31
+#: One ADC conversion of ``get_ambientlight``/``get_voltage``/``get_temperature``: 13 ADC
+#: clock cycles at 8 MHz / 64 (kilolib's prescaler), in seconds of the robot's clock.
+ADC_CONVERSION_S = 13 * 64 / 8e6
+
+
+def RGB(r: int, g: int, b: int) -> int:
+    """kilolib's ``RGB(r, g, b)`` macro: the three 2-bit channels packed in one byte
+    (``r | g << 2 | b << 4``), which :meth:`Kilobot.set_color` accepts as its one argument.
+
+    Raises
+    ------
+    ValueError
+        If a channel is not an integer 0-3 (the C macro would silently mask it).
+
+    Examples
+    --------
+    >>> RGB(3, 0, 0), RGB(0, 3, 0), RGB(1, 2, 3)
+    (3, 12, 57)
+    """
+    color = (r, g, b)
+    if any(not isinstance(c, int | np.integer) or not 0 <= c <= 3 for c in color):
+        raise ValueError(f"RGB channels must be integers 0-3, got {color}")
+    return int(r) | int(g) << 2 | int(b) << 4
 
 
 class RobotStopped(RuntimeError):
@@ -88,6 +121,7 @@ class Kilobot:
         "_kprocess",
         "_ksoft",
         "_ktables",
+        "_ktx_period",
         "_kuid",
         "_rate",
         "_rx_buffer",
@@ -154,6 +188,7 @@ class Kilobot:
         self._ksoft = [0xAA, 0]  # rand_soft's seed and accumulator, as kilolib starts them
         self._kdelay = None  # the delay a generator program has not yielded yet
         self._kprocess = False  # runs as a SimPy process (a generator setup or loop)
+        self._ktx_period: int | None = None  # kilo_tx_period as the program last set it
         self._ktables: CalibrationTables = sim.calibration_tables[index]
         cal = sim.motion.calibrations[index]
         self.kilo_turn_left, self.kilo_turn_right = cal.turn_left, cal.turn_right
@@ -170,6 +205,12 @@ class Kilobot:
         """kilolib's ``TICKS_PER_SEC`` (31): the nominal rate; this robot's true rate differs
         by its clock error."""
         return self._sim.params.robot.ticks_per_s
+
+    @property
+    def TICKS_PER_SEC(self) -> int:
+        """kilolib's ``TICKS_PER_SEC`` as an integer: 31, or ``robot.ticks_per_s`` rounded
+        when a run sets another nominal rate (Kilombo's 32)."""
+        return round(self._sim.params.robot.ticks_per_s)
 
     def delay(self, ms: float) -> Timeout:
         """kilolib's ``delay(ms)``: in a generator ``setup`` or ``loop``, ``yield
@@ -198,14 +239,24 @@ class Kilobot:
 
     @property
     def kilo_tx_period(self) -> int:
-        """The transmit period in kilolib's timer counts (3906 for 0.5 s of this robot's clock)."""
-        return round(self._sim.medium.tx_period_own_s(self._index) * TIMER_COUNTS_PER_S)
+        """kilolib's transmit period in timer counts (default 3906). kilolib's timer adds 255
+        counts a tick and offers a message at the first tick past this many, so the period is
+        ``kilo_tx_period // 255 + 1`` ticks (3906: 16 ticks, 0.524 s of this robot's clock)."""
+        if self._ktx_period is not None:
+            return self._ktx_period
+        own_s = self._sim.medium.tx_period_own_s(self._index)
+        ticks = own_s * TIMER_COUNTS_PER_S / 256
+        if abs(ticks - 16) < 1e-9:
+            return 3906
+        return round(own_s * TIMER_COUNTS_PER_S)
 
     @kilo_tx_period.setter
     def kilo_tx_period(self, counts: int) -> None:
         if not 0 < counts <= 0xFFFF:
             raise ValueError(f"kilo_tx_period is a uint16 of timer counts > 0, got {counts}")
-        self._sim.medium.set_tx_period(self._index, counts / TIMER_COUNTS_PER_S)
+        self._ktx_period = int(counts)
+        ticks = counts // 255 + 1
+        self._sim.medium.set_tx_period(self._index, ticks * 256 / TIMER_COUNTS_PER_S)
 
     # -- identity and randomness -------------------------------------------------------------
     @property
@@ -259,14 +310,19 @@ class Kilobot:
         return int(self.rand.integers(256))
 
     # -- the LED and the motors --------------------------------------------------------------
-    def set_color(self, r: int, g: int, b: int) -> None:
-        """Set the RGB LED; each channel 0–3 as kilolib's ``RGB(r, g, b)``.
+    def set_color(self, r: int, g: int | None = None, b: int | None = None) -> None:
+        """Set the RGB LED: ``set_color(r, g, b)``, each channel 0–3, or kilolib's
+        ``set_color(RGB(r, g, b))`` with one packed byte (see :func:`RGB`).
 
         Raises
         ------
         ValueError
-            If a channel is not an integer in 0–3.
+            If a channel is not an integer in 0–3, or a packed colour not one of 0–63.
         """
+        if g is None and b is None:
+            if not isinstance(r, int | np.integer) or not 0 <= r <= 63:
+                raise ValueError(f"set_color(RGB(r, g, b)) takes a byte 0-63, got {r!r}")
+            r, g, b = r & 3, (r >> 2) & 3, (r >> 4) & 3
         color = (r, g, b)
         if any(not isinstance(c, int | np.integer) or not 0 <= c <= 3 for c in color):
             raise ValueError(f"set_color channels must be integers 0-3, got {color}")
@@ -304,7 +360,13 @@ class Kilobot:
         burst moves the robot by nothing instead of about 0.3 mm.)"""
         self._sim.motion.set_motors(self._index, 255, 255)
 
-    # -- receptions --------------------------------------------------------------------------
+    # -- messages and receptions -------------------------------------------------------------
+    @staticmethod
+    def message_crc(message: Message) -> int:
+        """kilolib's ``message_crc(&msg)``: the CRC a receiver expects (see
+        :func:`kilonet.message.message_crc`); ``replace(msg, crc=self.message_crc(msg))``."""
+        return message_crc(message)
+
     def get_message(self) -> tuple[Message, int] | None:
         """Polled mode: the oldest buffered ``(message, distance)``, or ``None``."""
         return self._rx_buffer.popleft() if self._rx_buffer else None
@@ -319,7 +381,7 @@ class Kilobot:
         """kilolib's ``get_ambientlight()``: a 10-bit reading of the light where the robot
         stands, or -1 while a message is arriving (the ADC is busy measuring it)."""
         sim = self._sim
-        if sim.medium.receiving(self._index):
+        if self._kadc_busy():
             return -1
         return sim.sensors.ambient_light(self._index)
 
@@ -327,7 +389,7 @@ class Kilobot:
         """kilolib's ``get_voltage()``: a 10-bit reading of the battery (about ``169 * V +
         6``: 547 at 3.2 V, 716 at 4.2 V), or -1 while a message is arriving."""
         sim = self._sim
-        if sim.medium.receiving(self._index):
+        if self._kadc_busy():
             return -1
         return sim.sensors.voltage_reading(self._index)
 
@@ -336,9 +398,21 @@ class Kilobot:
         sensor against its 1.1 V reference (about 292 at 25 °C), or -1 while a message is
         arriving."""
         sim = self._sim
-        if sim.medium.receiving(self._index):
+        if self._kadc_busy():
             return -1
         return sim.sensors.temperature_reading(self._index)
+
+    def _kadc_busy(self) -> bool:
+        """Whether this ADC reading finds a message arriving. Each reading takes
+        :data:`ADC_CONVERSION_S` of the robot's time, and readings in one callback follow each
+        other, so a callback that spins on ``while get_ambientlight() == -1`` (kilolib's
+        idiom) reads a real value once the message has ended, as on the robot, although the
+        simulation's clock stands still until the callback returns."""
+        now = self._env._now
+        last = self.__dict__.get("_kadc")
+        at = last[1] + ADC_CONVERSION_S if last is not None and last[0] == now else now
+        self._kadc = (now, at)
+        return self._sim.medium.channel.busy(self._index, at)  # a carrier at `at`
 
     # -- the run's record --------------------------------------------------------------------
     def log(self, event: str, **fields: Any) -> None:

@@ -35,7 +35,8 @@ from kilonet.message import Message
 from kilonet.motion import Motion
 from kilonet.params import Params
 from kilonet.placement import ROBOT_DIAMETER_MM, validate_positions
-from kilonet.ranging import calibration_tables, measurement_for
+from kilonet.radio import Transceivers, reach_of
+from kilonet.ranging import calibration_tables, measurement_for, read_calibration
 from kilonet.robot import Kilobot
 from kilonet.sensors import Sensors
 from kilonet.trace import Trace
@@ -63,6 +64,7 @@ STREAMS = (
     "clock",
     "sensors",
     "calibration",
+    "radio",
 )
 
 
@@ -167,6 +169,12 @@ class Simulation:
         rp = self.params.robot
         self.clocks = RobotClocks.draw(n, rp.ticks_per_s, rp.clock_sd, self.stream("clock"))
         self.calibration_tables = calibration_tables(n, self.stream("calibration"))
+        if self.params.ranging.calibration_file:
+            self.calibration_tables = read_calibration(self.params.ranging.calibration_file, n)
+        mp = self.params.medium
+        self.transceivers = Transceivers.draw(
+            n, reach_of(mp), mp.tx_strength_sd, self.stream("radio")
+        )
         self.motion = Motion(self)
         self.robots: list[Kilobot] = []
         build = program if not _is_program_class(program) else (lambda _i: program())

@@ -1,6 +1,6 @@
 """``gcs``: Rubenstein's global coordinate system, phases 1–6, on a swarm without UIDs.
 
-Runs :class:`protocols.gcs.GcsRobot` on every robot (``robot.hardware_uids = false``: the
+Runs :class:`protocols.gcs.program.GcsRobot` on every robot (``robot.hardware_uids = false``: the
 robots build their own IDs) and measures each phase against ground truth:
 
 * ids — duplicate IDs left among neighbours (in the line-of-sight graph);
@@ -16,17 +16,17 @@ robots build their own IDs) and measures each phase against ground truth:
   the receptions averaged, the centralized solver on the run's measured distances) and
   ``done_s``, when the last seed was done merging (``done_over_hop_limit``: over
   ``hop_diameter × robot.tx_period_s``);
-* refine (``gcs.refine = true``, :mod:`protocols.global_refinement`) — the summary's estimates,
+* refine (``gcs.refine = true``, :mod:`protocols.gcs.phase7_refinement`) — the summary's estimates,
   ``rmse_mm`` and the figures are the refined ones; ``merge_rmse_mm`` keeps the RMSE the merged
   estimates had, ``refined_fraction`` the share of robots that refined, and ``done_s`` is when
   the last robot stopped refining;
 * failures (thesis §7) — ``failures``: what the run built (unlocalizable robots, isolated seeds,
   the frame graph's components, robots next to another final frame); ``predicted``: what the
   geometry and phase 2's election predicted (:mod:`scenarios.prediction`); ``detected``: what
-  the swarm flagged itself (:mod:`protocols.split_detection`); ``recoveries`` and
-  ``edge_seeds`` (:mod:`protocols.recovery`). ``robots.csv`` carries the same per robot.
+  the swarm flagged itself (:mod:`protocols.gcs.split_detection`); ``recoveries`` and
+  ``edge_seeds`` (:mod:`protocols.gcs.recovery`). ``robots.csv`` carries the same per robot.
 
-Every figure comes from one read of each robot's :meth:`~protocols.gcs.GcsRobot.outcome` at
+Every figure comes from one read of each robot's :meth:`~protocols.gcs.program.GcsRobot.outcome` at
 the end of the run (:func:`run_outcomes`), shared by the summary, ``robots.csv``'s columns and
 the figure.
 
@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from protocols.gcs_base import PHASES, GcsParams
+from protocols.gcs.base import PHASES, GcsParams
 from scenarios.base import RunResult, Scenario, ScenarioOption
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
@@ -54,14 +54,21 @@ if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios 
 
     from kilonet.params import Params
     from kilonet.simulation import Simulation
-    from protocols.frame_keys import FrameKey
-    from protocols.gcs import GcsRobot, RobotOutcome
+    from protocols.gcs.frame_keys import FrameKey
+    from protocols.gcs.program import GcsRobot, RobotOutcome
 
-__all__ = ["SCENARIO", "RunOutcomes", "estimates_frame", "local_frames_frame", "run_outcomes"]
+__all__ = [
+    "SCENARIO",
+    "RunOutcomes",
+    "estimates_frame",
+    "local_frames_frame",
+    "own_components",
+    "run_outcomes",
+]
 
 
 def _program(params: Any, positions: np.ndarray):
-    from protocols.gcs import GcsRobot
+    from protocols.gcs.program import GcsRobot
 
     return lambda _i: GcsRobot(params.scenario)
 
@@ -72,15 +79,15 @@ _CHECK_S = 5.0
 
 
 def _stop_when(sim: Simulation) -> bool:
-    from protocols.gcs import phase_windows_s
+    from protocols.gcs.program import OPEN_ENDED, phase_windows_s
 
     windows = phase_windows_s(sim.params.scenario)
     name, _, end = windows[-1]
     now = sim.env.now
-    if name not in ("merge", "refine"):
+    if name not in OPEN_ENDED:
         return now >= end + 1.0  # a second more, so every robot has closed the last window
-    merge_start = windows[PHASES.index("merge")][1]
-    if now <= merge_start:
+    open_start = next(start for phase, start, _ in windows if phase in OPEN_ENDED)
+    if now <= open_start:
         return False
     running = sim.world.running
     robots = [r for i, r in enumerate(sim.robots) if running[i]]  # a crashed seed is never done
@@ -95,6 +102,8 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
     robot still merging is about to refine (its estimate settled, :meth:`FrameMerging.finished`
     counting) or is a seed not done, all merge in one epoch, and no recovery is announced or
     awaited."""
+    from protocols.gcs.program import OPEN_ENDED
+
     if len({r.epoch for r in robots}) > 1 or any(r.awaiting_recovery() for r in robots):
         return False
     for r in robots:
@@ -105,7 +114,7 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
             r.phase.settled_since is not None or (r.is_seed and not r.merge_done)
         ):
             return False
-        if name not in ("merge", "refine", ""):
+        if name and name not in OPEN_ENDED:
             return False
     return any(r.phase_name != "merge" for r in robots) or not any(
         r.estimate.settled() for r in robots
@@ -115,7 +124,7 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
 def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
     """Nothing more will happen: every seed is done, every robot merges in the same epoch, and
     no recovery is announced or about to be (the robots then get :data:`_CHECK_S` to check
-    their neighbours, :mod:`protocols.split_detection`)."""
+    their neighbours, :mod:`protocols.gcs.split_detection`)."""
     if not seeds or not all(r.merge_done for r in seeds):
         return False
     if len({r.epoch for r in robots}) > 1:
@@ -125,7 +134,7 @@ def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
 
 def _expected_end_s(params: Params) -> float | None:
     """Where :func:`_stop_when` ends a run that stops before merging; merging has no known end."""
-    from protocols.gcs import phase_windows_s
+    from protocols.gcs.program import phase_windows_s
 
     end = phase_windows_s(params.scenario)[-1][2]
     return end + 1.0 if math.isfinite(end) else None
@@ -133,7 +142,7 @@ def _expected_end_s(params: Params) -> float | None:
 
 def _phase_note(sim: Simulation) -> str:
     """The phase the run is in, for the progress display: ``phase 3/6 frames (to 41 s)``."""
-    from protocols.gcs import phase_windows_s
+    from protocols.gcs.program import phase_windows_s
 
     windows = phase_windows_s(sim.params.scenario)
     now = sim.env.now
@@ -171,8 +180,8 @@ _READ: weakref.WeakKeyDictionary[Simulation, tuple[float, RunOutcomes]] = (
 
 
 def run_outcomes(sim: Simulation) -> RunOutcomes:
-    """Every robot's :meth:`~protocols.gcs.GcsRobot.outcome`, read once per simulated moment:
-    the summary, ``robots.csv`` and the figure of a run all use the same read."""
+    """Every robot's :meth:`~protocols.gcs.program.GcsRobot.outcome`, read once per simulated
+    moment: the summary, ``robots.csv`` and the figure of a run all use the same read."""
     read = _READ.get(sim)
     if read is not None and read[0] == sim.env.now:
         return read[1]
@@ -219,7 +228,7 @@ def _estimates(
 
 def estimates_frame(sim: Simulation) -> pd.DataFrame:
     """Per robot: role, ID, frames held, global estimate, final frame label
-    (:attr:`protocols.frame_keys.Root.label`) and the robot that seeded that root's frame
+    (:attr:`protocols.gcs.frame_keys.Root.label`) and the robot that seeded that root's frame
     (``root_robot``), the estimate aligned to the truth and its error
     (:func:`scenarios.estimates.with_alignment`), failure flags: ``robots.csv``'s columns."""
     return run_outcomes(sim).estimates
@@ -258,6 +267,23 @@ def _per_frame(
     return [(g[xy].to_numpy(), truth[g.robot.to_numpy()]) for _, g in table.groupby(by)]
 
 
+def own_components(components: list[list[int]], located: dict[int, list[int]]) -> list[list[int]]:
+    """The components of the frame graph that are a global frame of their own: some robot is
+    located in frames of that component only. A seed in no merging group whose robots are all
+    located in other frames too splits nothing (it is the thesis's case 2, not case 3).
+
+    Examples
+    --------
+    >>> own_components([[1, 2], [3], [4]], {10: [1, 3], 11: [2], 12: [4]})
+    [[1, 2], [4]]
+    """
+    return [
+        c
+        for c in components
+        if any(frames and set(frames) <= set(c) for frames in located.values())
+    ]
+
+
 def _failures(sim: Simulation, outcomes: RunOutcomes) -> dict[str, Any]:
     """The thesis's failure cases as this run produced them (robot indices), with the
     communication graph's rigidity facts that explain them."""
@@ -271,10 +297,11 @@ def _failures(sim: Simulation, outcomes: RunOutcomes) -> dict[str, Any]:
     ]
     cases = failure_cases(range(sim.n_robots), located, sorted(seeds.values()), groups)
     facts = rigidity_facts(sim.medium.graph())
+    own = own_components(cases["frames"], located)
     return {
         "unlocalizable": cases["unlocalizable"],
         "isolated_seeds": cases["isolated_seeds"],
-        "split_frames": len(cases["frames"]) if cases["split"] else 0,
+        "split_frames": len(own) if len(own) > 1 else 0,
         "frame_components": cases["frames"],
         "articulation_points": facts["articulation_points"],
         "robots_with_fewer_than_3_neighbours": facts["low_degree"],
@@ -441,10 +468,15 @@ def _boundary(est: pd.DataFrame, i: np.ndarray, j: np.ndarray) -> list[int]:
 
 def _metrics(sim: Simulation) -> dict[str, Any]:
     from kilonet.visibility import LinkModel
-    from protocols.gcs import phase_windows_s
+    from protocols.gcs.program import phase_windows_s
 
     events = sim.trace.events_frame()
-    links = LinkModel.from_params(sim.params.medium, sim.world.radius_mm).links(
+    from scenarios.neighbourhood import neighbourhood_mm
+
+    p = sim.params
+    # The protocol's neighbours: robots it hears, within gcs.neighbour_max_mm.
+    reach_mm = neighbourhood_mm(p.medium, p.scenario.neighbour_max_mm)
+    links = LinkModel.from_params(p.medium, sim.world.radius_mm, range_mm=reach_mm).links(
         sim.world.positions_mm
     )
     i, j = links.i, links.j
@@ -527,6 +559,6 @@ SCENARIO = Scenario(
     robot_columns=estimates_frame,
     options=(ScenarioOption("--until", "gcs.until", "stop after this phase"),),
     expected_end_s=_expected_end_s,
-    ends_when="every seed is done merging (with gcs.refine: every robot done refining)",
+    ends_when="merging (or with gcs.refine, refining) is done",
     progress_note=_phase_note,
 )
