@@ -37,6 +37,10 @@ Messages (the sender first, then the member that measured the distance)::
                       distance:uint8 (mm)                                     9 bytes
     ISLAND_FULL (89)  sender:uint16                                           2 bytes
 
+A link's x and y travel modulo 6,553.6 mm (:func:`~protocols.localize_base.wrapped_position`)
+and a member unwraps them near a position it knows whole, its placed neighbours' (an island
+is far smaller than 3.2 m; :meth:`~protocols.localize.LocalizeRobot.reference_position`).
+
 A link's distance is carried in whole millimetres, as kilolib's ``estimate_distance`` returns
 it: links longer than 255 mm are not reported, and the solve counts the rounding (a spread of
 1/√12 mm) into its noise. A link is known by its origin and the placed robot's position: a
@@ -53,7 +57,7 @@ from typing import TYPE_CHECKING
 
 from kilonet.message import Layout, Message
 from protocols.island_solve import Tolerances, solve_island
-from protocols.localize_base import Neighbour
+from protocols.localize_base import Neighbour, unwrap_coordinate, wrapped_position
 
 if TYPE_CHECKING:
     from protocols.localize import LocalizeRobot
@@ -238,7 +242,10 @@ class Island:
     def link_rx(self, n: Neighbour, message: Message) -> None:
         m = ISLAND_LINK.unpack(message)
         if m.origin != self.robot.uid:
-            news = self.reports.link(m.origin, m.x_mm, m.y_mm, m.distance_mm)
+            near = self.robot.reference_position()
+            x = unwrap_coordinate(m.x_mm, near[0])
+            y = unwrap_coordinate(m.y_mm, near[1])
+            news = self.reports.link(m.origin, x, y, m.distance_mm)
             self._heard(news, ISLAND_LINK, m)
 
     def full_rx(self, n: Neighbour, message: Message) -> None:
@@ -310,11 +317,7 @@ class Island:
                 d = round(d)
                 if self.reports.link(uid, n.x_mm, n.y_mm, float(d)):
                     self._changed(tick)
-                    self.outbox.append(
-                        ISLAND_LINK.pack(
-                            sender=uid, origin=uid, x_mm=n.x_mm, y_mm=n.y_mm, distance_mm=d
-                        )
-                    )
+                    self.outbox.append(_link_message(uid, uid, (n.x_mm, n.y_mm), d))
         if self.reports.full and not self.closed:
             self._overflowed()
 
@@ -329,10 +332,7 @@ class Island:
             ISLAND_PAIR.pack(sender=uid, origin=a, neighbour=b, distance_mm=d)
             for (a, b), d in self.reports.pairs.items()
         ]
-        out += [
-            ISLAND_LINK.pack(sender=uid, origin=o, x_mm=x, y_mm=y, distance_mm=round(d))
-            for o, (x, y), d in self.reports.links
-        ]
+        out += [_link_message(uid, o, p, round(d)) for o, p, d in self.reports.links]
         return out
 
     def _solve(self) -> None:
@@ -353,3 +353,9 @@ class Island:
         if r.uid in found:
             x, y = found[r.uid]
             r.spread.place(x, y, "island", len(found))
+
+
+def _link_message(sender: int, origin: int, position: Point, distance_mm: int) -> Message:
+    """ISLAND_LINK: ``origin``'s distance to the placed robot at ``position`` (wrapped)."""
+    x, y, _ = wrapped_position(*position)
+    return ISLAND_LINK.pack(sender=sender, origin=origin, x_mm=x, y_mm=y, distance_mm=distance_mm)

@@ -55,10 +55,15 @@ Messages::
 
     ROOT (81)  sender:uint16  axis:uint16  third:uint16  flags:uint8             7 bytes
                the root, at (0, 0), hop 0; axis/third 0xFFFF while not chosen
-    POS  (82)  sender:uint16  x:int16  y:int16 (0.1 mm)  hops:uint8  flags:uint8  8 bytes
+    POS  (82)  sender:uint16  x:int16  y:int16 (0.1 mm)  hops:uint8  flags:uint8
+               windings:uint8                                                    9 bytes
                every other robot; x, y are 0 while the LOCALIZED flag is clear
-    CAND (84)  sender:uint16  x:int16  y:int16 (0.1 mm)  index:uint8  version:uint8  8 bytes
+    CAND (84)  sender:uint16  x:int16  y:int16 (0.1 mm)  index:uint8  version:uint8
+               windings:uint8                                                    9 bytes
                one of a robot's two candidates; the version changes with its anchors
+
+x and y travel modulo 6,553.6 mm, with both winding numbers in ``windings``
+(:func:`~protocols.localize_base.wrapped_position`): a frame up to 49 m from its root fits.
     VOTE (86)  sender:uint16  target:uint16  index:uint8  version:uint8              6 bytes
                the candidate of ``target``'s pair (of that version) that is possible
 
@@ -76,7 +81,14 @@ import numpy as np
 
 from kilonet.geometry import Fix, GeometryError, multilaterate, place_references
 from kilonet.message import Layout, Message
-from protocols.localize_base import LOCALIZED, MAX_COORDINATE_MM, NO_ID, Neighbour
+from protocols.localize_base import (
+    LOCALIZED,
+    MAX_COORDINATE_MM,
+    NO_ID,
+    Neighbour,
+    absolute_position,
+    wrapped_position,
+)
 
 if TYPE_CHECKING:
     from protocols.localize import LocalizeRobot
@@ -108,6 +120,7 @@ POS = Layout(
         ("y_mm", "h", 0.1),
         ("hops", "B"),
         ("flags", "B"),
+        ("windings", "B"),
     ],
 )
 CAND = Layout(
@@ -119,6 +132,7 @@ CAND = Layout(
         ("y_mm", "h", 0.1),
         ("index", "B"),
         ("version", "B"),
+        ("windings", "B"),
     ],
 )
 VOTE = Layout(
@@ -438,9 +452,14 @@ class Spread:
             self.cand_turn = (self.cand_turn + 1) % 3
             if self.cand_turn < 2:
                 version, points = self.candidates
-                x, y = points[self.cand_turn]
+                x, y, windings = wrapped_position(*points[self.cand_turn])
                 return CAND.pack(
-                    sender=r.uid, x_mm=x, y_mm=y, index=self.cand_turn, version=version
+                    sender=r.uid,
+                    x_mm=x,
+                    y_mm=y,
+                    index=self.cand_turn,
+                    version=version,
+                    windings=windings,
                 )
         return self.state_message()
 
@@ -449,8 +468,8 @@ class Spread:
         r = self.robot
         if r.is_root:
             return ROOT.pack(sender=r.uid, axis=self.axis, third=self.third, flags=r.flags)
-        x, y = r.position if r.position is not None else (0.0, 0.0)
-        return POS.pack(sender=r.uid, x_mm=x, y_mm=y, hops=r.hops, flags=r.flags)
+        x, y, windings = wrapped_position(*r.position) if r.position is not None else (0, 0, 0)
+        return POS.pack(sender=r.uid, x_mm=x, y_mm=y, hops=r.hops, flags=r.flags, windings=windings)
 
     def root_rx(self, n: Neighbour, message: Message) -> None:
         m = ROOT.unpack(message)
@@ -465,7 +484,7 @@ class Spread:
         m = POS.unpack(message)
         n.hops, n.flags = m.hops, m.flags
         if m.flags & LOCALIZED:
-            n.x_mm, n.y_mm = m.x_mm, m.y_mm
+            n.x_mm, n.y_mm = absolute_position(m.x_mm, m.y_mm, m.windings)
             n.candidates = None
         else:
             n.x_mm = n.y_mm = None
@@ -474,7 +493,7 @@ class Spread:
         m = CAND.unpack(message)
         if n.candidates is None or n.candidates[0] != m.version:
             n.candidates = (m.version, [None, None])
-        n.candidates[1][m.index] = (m.x_mm, m.y_mm)
+        n.candidates[1][m.index] = absolute_position(m.x_mm, m.y_mm, m.windings)
         n.x_mm = n.y_mm = None
 
     def vote_rx(self, n: Neighbour, message: Message) -> None:

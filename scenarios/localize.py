@@ -20,7 +20,10 @@ never saw:
   unless every running robot did; ``done_fraction`` is the share of running robots that heard
   DONE or declared it);
   ``hop_diameter`` of the communication graph, and ``done_over_hop_limit``, ``done_s`` over
-  ``hop_diameter × robot.tx_period_s`` (the time information needs to cross the swarm).
+  ``hop_diameter × robot.tx_period_s`` (the time information needs to cross the swarm);
+* ``unsendable_messages`` (messages a robot could not pack, sent as nothing) and
+  ``out_of_frame_robots`` (robots that refused a position beyond the coordinates messages
+  carry, :data:`protocols.localize_base.MAX_COORDINATE_MM`, 49 m from the root).
 """
 
 from __future__ import annotations
@@ -155,7 +158,13 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
     out["done_s"] = phases.get("all_done", math.nan) if out["done_fraction"] == 1 else math.nan
     if hop_diameter:
         out["done_over_hop_limit"] = out["done_s"] / (hop_diameter * p.robot.tx_period_s)
-    out["id_redraws"] = int((sim.trace.events_frame().event == "id").sum())
+    events = sim.trace.events_frame()
+    out["id_redraws"] = int((events.event == "id").sum()) if len(events) else 0
+    # Values the protocol could not send: never a crash, always counted.
+    out["unsendable_messages"] = int(sum(r.unsendable for r in sim.robots))
+    out["out_of_frame_robots"] = (
+        int(events.robot[events.event == "out_of_frame"].nunique()) if len(events) else 0
+    )
     return out
 
 

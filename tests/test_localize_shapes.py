@@ -1,0 +1,113 @@
+"""``localize`` and the centralized reference on shapes beyond discs and lattices: long
+corridors (coordinates beyond one int16 field), sparse random swarms and non-convex C shapes.
+
+The coordinate rules and small runs are in the default suite; the issue's swarms (300–600
+robots, with and without loss) are marked slow (``pytest -m slow``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import protocols.localize as localize_module
+import scenarios
+from protocols.localize_base import (
+    COORDINATE_PERIOD_MM,
+    MAX_COORDINATE_MM,
+    absolute_position,
+    distance_report,
+    unwrap_coordinate,
+    wrapped_position,
+)
+from protocols.localize_spread import CAND, POS
+from protocols.refinement import DIST
+
+LOCALIZE = scenarios.get("localize")
+
+coordinate = st.floats(-MAX_COORDINATE_MM, MAX_COORDINATE_MM)
+
+
+# ----------------------------------------------------------------------------- coordinates
+
+
+@given(coordinate, coordinate)
+def test_every_position_a_robot_can_hold_fits_pos_and_comes_back(x, y):
+    wx, wy, windings = wrapped_position(x, y)
+    message = POS.pack(sender=1, x_mm=wx, y_mm=wy, hops=3, flags=1, windings=windings)
+    m = POS.unpack(message)
+    assert absolute_position(m.x_mm, m.y_mm, m.windings) == pytest.approx((x, y), abs=0.05 + 1e-9)
+
+
+@given(coordinate, st.floats(-3200.0, 3200.0))
+def test_a_wrapped_coordinate_unwraps_near_any_position_within_3_2_m(x, offset):
+    wx, _, _ = wrapped_position(x, 0.0)
+    assert unwrap_coordinate(wx, x + offset) == pytest.approx(x, abs=0.05 + 1e-9)
+
+
+def test_the_period_is_the_int16_field_of_tenths():
+    assert COORDINATE_PERIOD_MM == 65536 * 0.1
+    assert wrapped_position(3276.7, -3276.8)[:2] == (3276.7, -3276.8)
+    assert wrapped_position(3276.8, 0.0)[:2] == (-3276.8, 0.0)
+
+
+def _robot(sim, index: int) -> localize_module.LocalizeRobot:
+    robot = localize_module.LocalizeRobot(sim.robots[0].params)
+    robot._attach(sim, index, np.random.default_rng(index))
+    robot.setup()
+    robot.stage = "localize"
+    return robot
+
+
+def test_robots_tens_of_metres_from_the_root_talk_in_whole_positions():
+    sim = scenarios.run(LOCALIZE, {"placement.robots": 5}, seed=1).sim
+    far, near = _robot(sim, 0), _robot(sim, 1)
+    far.locate(20_000.0, -7_123.4)  # 20 m east, 7 m south of the root
+    far.hops = 90
+    near.message_rx(far.spread.state_message(), 60)
+    record = near.neighbours[far.uid]
+    assert record.position == pytest.approx((20_000.0, -7_123.4))
+    # DIST carries no winding numbers: the receiver unwraps them near what it knows.
+    record.x_mm, record.y_mm = 19_990.0, -7_100.0
+    moved = far.neighbours.heard(near.uid, 60, 1)
+    far.locate(20_004.5, -7_120.0)
+    near.message_rx(distance_report(far.uid, far.position, moved), 60)
+    assert record.position == pytest.approx((20_004.5, -7_120.0))
+    # An unplaced robot's candidates are far from the root too.
+    far.position = None
+    far.spread.candidates = (3, [(-15_000.0, 4_000.0), (-15_040.0, 4_060.0)])
+    for _ in range(8):  # CAND, CAND and POS in turn, between distance reports
+        message = far.message_tx()
+        if message.type == CAND.type:
+            near.message_rx(message, 60)
+    assert record.candidates == (3, [(-15_000.0, 4_000.0), (-15_040.0, 4_060.0)])
+
+
+def test_a_position_beyond_the_coordinates_is_refused_and_counted():
+    sim = scenarios.run(LOCALIZE, {"placement.robots": 5}, seed=1).sim
+    robot = _robot(sim, 0)
+    robot.spread.place(MAX_COORDINATE_MM + 1.0, 0.0, "anchors", 3)
+    assert robot.position is None
+    events = sim.trace.events_frame()
+    assert (events.event == "out_of_frame").sum() == 1
+
+
+def test_a_message_that_cannot_be_packed_is_counted_not_raised():
+    sim = scenarios.run(LOCALIZE, {"placement.robots": 5}, seed=1).sim
+    robot = _robot(sim, 0)
+    robot.hops = 300  # beyond POS's hop byte: a protocol bug, which must not end the run
+    robot.locate(10.0, 0.0)
+    robot._turn = 1
+    assert robot.message_tx() is None
+    assert robot.unsendable == 1
+    events = sim.trace.events_frame()
+    assert "does not fit" in events.data[events.event == "unsendable"].iloc[0]
+
+
+def test_dist_layout_is_unchanged_by_wrapping():
+    n = localize_module.Neighbour(9)
+    n.distance_sum_mm, n.samples = 60.0, 1
+    m = DIST.unpack(distance_report(1, (10_000.0, -5.0), n))
+    assert (m.x_mm, m.y_mm) == pytest.approx((10_000.0 - COORDINATE_PERIOD_MM * 2, -5.0))
