@@ -145,6 +145,13 @@ class LocalizeParams:
     overlap_mm: float = param(
         28.0, lo=0.0, hi=200.0, doc="a candidate nearer than this to a located robot is impossible"
     )
+    heard_mm: float = param(
+        55.0,
+        lo=0.0,
+        hi=1000.0,
+        doc="a candidate nearer than this to a settled robot it does not hear is impossible "
+        "(0: off)",
+    )
     retry_s: float = param(
         2.0, lo=0.2, hi=600.0, doc="an unlocalized robot retries an unchanged fix this often"
     )

@@ -43,9 +43,13 @@ have one (their announced positions, the distances both ends agree on):
    than ``localize.overlap_mm`` to one of them would put two Kilobots (33 mm across) on top of
    each other, so it is impossible; when exactly one candidate is, the located robot sends a
    VOTE for the other (:func:`overlap_vote`), and a robot that holds votes for one of its
-   candidates and none for the other takes it. This breaks the mirror ambiguity of robots
-   that only two anchors reach — at the swarm's edge, and where the frame has to squeeze
-   through a gap — with the knowledge of robots two hops away.
+   candidates and none for the other takes it. *Nor is a robot deaf*: a candidate closer than
+   ``localize.heard_mm`` to a settled robot (other than the two anchors) is impossible too,
+   since the robot there would hear it and hold three anchors. The mirror image of a robot at
+   the frame's edge usually points back into the frame, among robots it does not hear. This
+   breaks the mirror ambiguity of robots that only two anchors reach — at the swarm's edge,
+   and where the frame has to squeeze through a gap — with the knowledge of robots two hops
+   away.
 
 A robot that fails retries when its anchors or candidates change, or every
 ``localize.retry_s``. Candidates come from anchors only, never from other candidates, so no
@@ -85,6 +89,7 @@ from protocols.localize_base import (
     LOCALIZED,
     MAX_COORDINATE_MM,
     NO_ID,
+    SETTLED,
     Neighbour,
     absolute_position,
     wrapped_position,
@@ -383,11 +388,23 @@ def _reflect(p: Point, line: tuple[Point, Point, float]) -> Point:
 
 
 def overlap_vote(
-    candidates: tuple[Point, Point], others: Sequence[Point], overlap_mm: float
+    candidates: tuple[Point, Point],
+    others: Sequence[Point],
+    overlap_mm: float,
+    *,
+    settled: Sequence[Point] = (),
+    heard_mm: float = 0.0,
+    same_mm: float = 5.0,
 ) -> int | None:
-    """The index of the only candidate that keeps clear of every robot in ``others``, or None
-    when both or neither do: a candidate closer than ``overlap_mm`` to another robot would
-    put two bodies in one place.
+    """The index of the only possible candidate, or None when both or neither are.
+
+    A candidate is impossible when it lies closer than ``overlap_mm`` to a robot in
+    ``others`` (two bodies in one place), or closer than ``heard_mm`` to a robot in
+    ``settled`` that is not about as far (within ``same_mm``) from both candidates: a robot
+    there would hear that placed robot and hold three anchors, not two candidates. The
+    candidates' own two anchors lie on their mirror line, as far from both, and never count;
+    ``settled`` robots have held their positions long enough for every robot near them to
+    have heard them.
 
     Examples
     --------
@@ -395,10 +412,25 @@ def overlap_vote(
     0
     >>> overlap_vote(((0.0, 40.0), (0.0, -40.0)), [(80.0, 0.0)], 28.0) is None
     True
+
+    A settled robot 50 mm from the second candidate, which the candidates' holder would hear
+    there (the anchors at (±30, 0) are as far from both and tell nothing):
+
+    >>> anchors = [(-30.0, 0.0), (30.0, 0.0)]
+    >>> overlap_vote(((0.0, 40.0), (0.0, -40.0)), anchors, 28.0,
+    ...              settled=[*anchors, (30.0, -80.0)], heard_mm=55.0)
+    0
     """
     clash = [
         any(math.hypot(cx - x, cy - y) < overlap_mm for x, y in others) for cx, cy in candidates
     ]
+    if heard_mm > 0.0:
+        (ax, ay), (bx, by) = candidates
+        for x, y in settled:
+            da, db = math.hypot(ax - x, ay - y), math.hypot(bx - x, by - y)
+            if abs(da - db) >= same_mm:
+                clash[0] |= da < heard_mm
+                clash[1] |= db < heard_mm
     if clash[0] == clash[1]:
         return None
     return 1 if clash[0] else 0
@@ -528,7 +560,13 @@ class Spread:
             self.voted[key] = tick + self.retry_ticks
             if others is None:
                 others = [(m.x_mm, m.y_mm) for m in fresh if m.x_mm is not None]
-            index = overlap_vote(tuple(held[1]), others, self.robot.params.overlap_mm)
+                settled = [
+                    (m.x_mm, m.y_mm) for m in fresh if m.x_mm is not None and m.flags & SETTLED
+                ]
+            p = self.robot.params
+            index = overlap_vote(
+                tuple(held[1]), others, p.overlap_mm, settled=settled, heard_mm=p.heard_mm
+            )
             if index is not None:
                 self.votes_out.append((n.uid, index, held[0]))
 

@@ -111,3 +111,36 @@ def test_dist_layout_is_unchanged_by_wrapping():
     n.distance_sum_mm, n.samples = 60.0, 1
     m = DIST.unpack(distance_report(1, (10_000.0, -5.0), n))
     assert (m.x_mm, m.y_mm) == pytest.approx((10_000.0 - COORDINATE_PERIOD_MM * 2, -5.0))
+
+
+# ------------------------------------------------------------------ a robot is not deaf
+
+
+def test_a_candidate_near_a_settled_robot_it_does_not_hear_is_impossible():
+    from protocols.localize_spread import overlap_vote
+
+    anchors = [(-30.0, 0.0), (30.0, 0.0)]
+    pair = ((0.0, 40.0), (0.0, -40.0))
+    # A settled robot 50 mm from the second candidate: a robot there would hear it.
+    assert overlap_vote(pair, anchors, 28.0, settled=[(30.0, -80.0)], heard_mm=55.0) == 0
+    assert overlap_vote(pair, anchors, 28.0, settled=[(30.0, 80.0)], heard_mm=55.0) == 1
+    # 56 mm away: a robot there may not hear it; the anchors are as far from both.
+    assert overlap_vote(pair, anchors, 28.0, settled=[(0.0, -96.0)], heard_mm=55.0) is None
+    assert overlap_vote(pair, anchors, 28.0, settled=anchors, heard_mm=55.0) is None
+    assert overlap_vote(pair, anchors, 28.0, settled=[(30.0, -80.0)], heard_mm=0.0) is None
+
+
+def test_the_spread_alone_places_the_island_that_multilateration_left_out():
+    # The 100 random robots of seed 1 whose island tests/test_localize.py places after DONE:
+    # with the rule, the frame itself reaches every robot, islands off.
+    overrides = {
+        "placement.kind": "random",
+        "placement.area": "disc",
+        "placement.density_per_m2": 400,
+        "placement.robots": 100,
+        "localize.island_max_reports": 0,
+    }
+    s = scenarios.run(LOCALIZE, overrides, seed=1).summary
+    assert s["localized_fraction"] == 1.0
+    assert s["max_error_mm"] < 5.0
+    assert s["rmse_mm"] < s["crlb_rmse_mm"]
