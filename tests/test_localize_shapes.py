@@ -144,3 +144,17 @@ def test_the_spread_alone_places_the_island_that_multilateration_left_out():
     assert s["localized_fraction"] == 1.0
     assert s["max_error_mm"] < 5.0
     assert s["rmse_mm"] < s["crlb_rmse_mm"]
+
+
+def test_a_robot_whose_neighbours_all_fell_silent_is_done():
+    # It missed every DONE its neighbours sent (collisions at the edge of a sparse swarm) and
+    # ran on alone until the run's time-out; now it stops once no neighbour is fresh.
+    sim = scenarios.run(LOCALIZE, {"placement.robots": 5}, seed=1).sim
+    robot = _robot(sim, 0)
+    robot.neighbours.heard(7, 50, 0)  # one neighbour, heard once, long ago
+    robot.locate(10.0, 0.0)
+    robot._round = 100  # far beyond localize.stale_s
+    robot.termination.round(robot.kilo_ticks, robot.neighbours.fresh(robot._round))
+    assert robot.termination.done
+    events = sim.trace.events_frame()
+    assert '"silent"' in events.data[events.event == "done"].iloc[-1]
