@@ -24,6 +24,7 @@ from protocols.localize_base import (
 )
 from protocols.localize_spread import CAND, POS
 from protocols.refinement import DIST
+from scenarios.localize import estimates_frame
 
 LOCALIZE = scenarios.get("localize")
 
@@ -158,3 +159,23 @@ def test_a_robot_whose_neighbours_all_fell_silent_is_done():
     assert robot.termination.done
     events = sim.trace.events_frame()
     assert '"silent"' in events.data[events.event == "done"].iloc[-1]
+
+
+def test_a_run_that_leaves_robots_out_says_which_and_why():
+    # 60 robots at 300 per m² (about 4 neighbours): too sparse for every robot to be rigid.
+    overrides = {
+        "placement.kind": "random",
+        "placement.density_per_m2": 300,
+        "placement.robots": 60,
+    }
+    result = scenarios.run(LOCALIZE, overrides, seed=1)
+    s = result.summary
+    unplaced = [i for i, r in enumerate(result.sim.robots) if not r.in_frame]
+    assert unplaced and s["unplaced_robots"] == unplaced
+    assert sum(s["unplaced_why"].values()) == len(unplaced)
+    table = estimates_frame(result.sim).set_index("robot")
+    keys = ["no_anchor", "one_anchor", "two_anchors", "anchors_rejected"]
+    for i in unplaced:  # each reason counts the placed neighbours the robot knew
+        anchors = sum(n.x_mm is not None for n in result.sim.robots[i].neighbours.known())
+        assert table.why_unplaced[i].split("+")[0] == keys[min(anchors, 3)]
+    assert (table.why_unplaced[table.localized] == "").all()
