@@ -179,3 +179,86 @@ def test_a_run_that_leaves_robots_out_says_which_and_why():
         anchors = sum(n.x_mm is not None for n in result.sim.robots[i].neighbours.known())
         assert table.why_unplaced[i].split("+")[0] == keys[min(anchors, 3)]
     assert (table.why_unplaced[table.localized] == "").all()
+
+
+# -------------------------------------------------------------------- the issue's swarms
+
+SPARSE = {
+    "placement.kind": "random",
+    "placement.area": "disc",
+    "placement.density_per_m2": 350,
+    "placement.robots": 400,
+}
+
+
+def _sound(s):
+    """What every run must say, whatever the swarm: no value it could not send, every robot
+    done, and the reference at its optimum."""
+    assert s["unsendable_messages"] == 0
+    assert s["out_of_frame_robots"] == 0
+    assert s["done_fraction"] == 1.0
+    assert s["central_rmse_mm"] <= 3.0 * s["crlb_rmse_mm"]
+
+
+@pytest.mark.slow
+def test_a_sparse_swarm_no_longer_stalls_at_its_edge():
+    # Without the hearing test the frame stopped where robots hold two anchors each.
+    stalled = scenarios.run(LOCALIZE, {**SPARSE, "localize.heard_mm": 0.0}, seed=2).summary
+    assert stalled["localized_fraction"] < 0.5
+    assert set(stalled["unplaced_why"]) <= {
+        "no_anchor",
+        "one_anchor",
+        "two_anchors",
+        "anchors_rejected",
+        "no_anchor+island_full",
+        "one_anchor+island_full",
+        "two_anchors+island_full",
+        "anchors_rejected+island_full",
+    }
+    s = scenarios.run(LOCALIZE, SPARSE, seed=2).summary
+    assert s["largest_frame_over_central"] >= 0.95
+    _sound(s)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("loss", [0.0, 0.2])
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_sparse_swarms_reach_the_central_reference(seed, loss):
+    s = scenarios.run(LOCALIZE, {**SPARSE, "medium.loss_prob": loss}, seed=seed).summary
+    assert 6.0 <= s["mean_neighbours"] <= 7.0
+    assert s["frames"] == 1
+    assert s["largest_frame_over_central"] >= 0.95
+    assert s["rmse_over_crlb"] <= 1.5
+    _sound(s)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_corridor_longer_than_a_coordinate_field_localizes(seed):
+    from kilonet.placement import corridor
+
+    positions = corridor(600, length_mm=7000.0, width_mm=160.0, rng=np.random.default_rng(7))
+    result = scenarios.run(LOCALIZE, {}, seed=seed, placement=positions)
+    s = result.summary
+    _sound(s)
+    assert s["frames"] == 1
+    assert s["largest_frame_over_central"] >= 0.95
+    assert s["rmse_over_crlb"] <= 1.5
+    # The frame reaches beyond one int16 field of tenths (±3,276.7 mm) from its root.
+    table = estimates_frame(result.sim)
+    assert np.nanmax(np.abs(table[["est_x_mm", "est_y_mm"]].to_numpy())) > 3276.8
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_c_shape_localizes_and_its_reference_is_the_optimum(seed):
+    from kilonet.placement import c_shape
+
+    positions = c_shape(
+        300, outer_radius_mm=700.0, inner_radius_mm=450.0, rng=np.random.default_rng(33)
+    )
+    s = scenarios.run(LOCALIZE, {}, seed=seed, placement=positions).summary
+    _sound(s)
+    assert s["central_localized_fraction"] >= 0.98
+    assert s["largest_frame_over_central"] >= 0.95
+    assert s["rmse_over_crlb"] <= 1.5
