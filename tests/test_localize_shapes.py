@@ -162,22 +162,25 @@ def test_a_robot_whose_neighbours_all_fell_silent_is_done():
 
 
 def test_a_run_that_leaves_robots_out_says_which_and_why():
-    # 60 robots at 300 per m² (about 4 neighbours): too sparse for every robot to be rigid.
-    overrides = {
-        "placement.kind": "random",
-        "placement.density_per_m2": 300,
-        "placement.robots": 60,
-    }
-    result = scenarios.run(LOCALIZE, overrides, seed=1)
+    # A lattice patch, a robot 2 m away (a lone root is no frame) and a row of three beyond
+    # it: whatever the reach, the lone robot and the row hold no placed neighbour.
+    from kilonet.placement import hex_lattice
+
+    positions = np.vstack(
+        [hex_lattice(19), [[2000.0, 0.0]], [[4000.0, 0.0], [4040.0, 0.0], [4080.0, 0.0]]]
+    )
+    result = scenarios.run(LOCALIZE, {}, seed=1, placement=positions)
     s = result.summary
     unplaced = [i for i, r in enumerate(result.sim.robots) if not r.in_frame]
-    assert unplaced and s["unplaced_robots"] == unplaced
+    assert set(unplaced) >= {19, 20, 21, 22}
+    assert s["unplaced_robots"] == unplaced
     assert sum(s["unplaced_why"].values()) == len(unplaced)
     table = estimates_frame(result.sim).set_index("robot")
     keys = ["no_anchor", "one_anchor", "two_anchors", "anchors_rejected"]
     for i in unplaced:  # each reason counts the placed neighbours the robot knew
         anchors = sum(n.x_mm is not None for n in result.sim.robots[i].neighbours.known())
         assert table.why_unplaced[i].split("+")[0] == keys[min(anchors, 3)]
+    assert table.why_unplaced[19] == "no_anchor"
     assert (table.why_unplaced[table.localized] == "").all()
 
 
