@@ -326,10 +326,12 @@ class LocalizeRobot(Kilobot):
 
     def _island_work(self, tick: int, known: list[Neighbour]) -> None:
         """A round after DONE, for an island: the spread's rules and the island's solve while
-        unplaced, refinement once placed (the frame around stands still now), until the
-        island's work is over or the run's time-out."""
-        if self.position is None:
-            self.spread.round(tick, known)
+        unplaced, refinement and votes once placed (the frame around stands still now), until
+        the island's work is over or the run's time-out."""
+        # Unplaced, the spread's rules; placed, rule 4's votes on neighbours' candidates (the
+        # frame's robots are silent now, and a member placed here may be the only anchor
+        # left awake to vote).
+        self.spread.round(tick, known)
         self.island.round(tick, known)
         if self.position is not None:
             self._refine(known)

@@ -289,7 +289,7 @@ class Island:
         """Whether this robot's island work is over: it heard no report within
         ``island_quiet_s`` of waking; or it placed itself, its position has settled and it has
         passed on what its unplaced neighbours may need (nothing, once the island is closed
-        as too large); or, unplaced, it has solved with
+        as too large) and the votes it owes them; or, unplaced, it has solved with
         every report it holds and heard nothing new for twice ``island_quiet_s``."""
         r = self.robot
         if not self.active:
@@ -297,7 +297,7 @@ class Island:
         if r.position is not None:
             # A closed island's outbox is never sent (message_tx): nothing to wait for.
             pending = self.outbox and self.unplaced_near and not self.closed
-            return r.refiner.settled and not pending
+            return r.refiner.settled and not pending and not r.spread.votes_out
         solved = self.closed or self.version == self.solved_version
         return solved and tick - self.changed_tick >= 2 * self.quiet_ticks
 
