@@ -5,8 +5,11 @@ What a distributed localization is measured against. Given the distances the rob
 maximum-likelihood positions under independent Gaussian range noise minimise the weighted
 sum of squared range residuals ``Σ wₑ (|pᵢ − pⱼ| − dₑ)²``. :func:`solve_positions` finds them
 with :func:`scipy.optimize.least_squares` (trust region reflective, sparse Jacobian, LSMR
-steps), one connected component at a time, started from classical multidimensional scaling of
-the shortest-path distances through the measured graph. Distances fix positions only up to a
+steps), one connected component at a time, from two starts — small patches of a few hops,
+each solved alone and stitched together (:func:`_patch_start`), and classical multidimensional
+scaling of the shortest-path distances through the measured graph — keeping the fit of lower
+cost. MDS alone bends non-convex and long shapes (a C's shortest paths run round its inside),
+and least squares from a bent start stops in a local minimum. Distances fix positions only up to a
 rigid motion and a reflection; :func:`central_reference` removes that freedom by aligning each
 component to the truth (Procrustes) and reports the error, so the result is directly
 comparable with a swarm's own estimates.
@@ -123,7 +126,23 @@ def _checked(n, pairs, distances_mm, weights):
 
 
 def _solve_component(m: int, pairs: np.ndarray, dist: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Positions (m, 2) of one connected component: MDS start, then least squares."""
+    """Positions (m, 2) of one connected component: least squares from two starts (stitched
+    patches, MDS of shortest paths), the lower cost kept."""
+    mds = _mds_start(m, pairs, dist)
+    fits = [_least_squares(m, pairs, dist, w, mds)]
+    stitched = _patch_start(m, pairs, dist, w)
+    placed = np.isfinite(stitched[:, 0])
+    if placed.sum() >= MIN_COMPONENT:
+        # Robots no patch reached: the MDS start, moved onto the stitched ones.
+        stitched[~placed] = _rigid_onto(mds, stitched, placed)[~placed]
+        fits.append(_least_squares(m, pairs, dist, w, stitched))
+    # The lower cost is the better optimum: the choice uses the measurements alone.
+    return min(fits, key=lambda f: f.cost).x.reshape(m, 2)
+
+
+def _least_squares(m: int, pairs: np.ndarray, dist: np.ndarray, w: np.ndarray, start):
+    """:func:`scipy.optimize.least_squares` of the weighted range residuals from ``start``
+    (m, 2); returns scipy's result (``x``, ``cost``)."""
     from scipy.optimize import least_squares
     from scipy.sparse import csr_matrix
 
@@ -146,21 +165,161 @@ def _solve_component(m: int, pairs: np.ndarray, dist: np.ndarray, w: np.ndarray)
         vals = np.stack([u[:, 0], u[:, 1], -u[:, 0], -u[:, 1]], axis=1).ravel()
         return csr_matrix((vals, (rows, cols)), shape=(e, 2 * m))
 
-    start = _mds_start(m, pairs, dist)
-    scale = float(np.median(dist))
-    fit = least_squares(
+    return least_squares(
         residuals,
-        start.ravel(),
+        np.asarray(start, dtype=float).ravel(),
         jac=jacobian,
         method="trf",
         tr_solver="lsmr",
-        x_scale=scale,
+        x_scale=float(np.median(dist)),
         xtol=1e-10,
         ftol=1e-12,
         gtol=1e-12,
         max_nfev=200,
     )
-    return fit.x.reshape(m, 2)
+
+
+#: Hops from its centre a patch of the stitched start reaches, and its largest size.
+_PATCH_HOPS = 2
+_PATCH_ROBOTS = 30
+#: Robots a patch shares with the stitched ones must lie at least this far off one line, mm.
+_STITCH_MIN_WIDTH_MM = 10.0
+
+
+def _patch_start(m: int, pairs: np.ndarray, dist: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """A start stitched from small patches, (m, 2) with NaN where no patch reached.
+
+    Each patch is the robots within ``_PATCH_HOPS`` hops of a centre, at most
+    ``_PATCH_ROBOTS`` (centres picked best-connected first, each outside the previous centres'
+    one-hop neighbourhoods), solved
+    on its own (MDS of its shortest paths, then least squares): so small a patch is nearly
+    convex, and its shortest paths nearly straight. Patches are then joined one by one, the
+    one sharing most robots with those placed first, by the rigid motion (reflection
+    allowed) of the shared robots (at least three, not on one line). Shortest paths through a
+    whole C shape or a zig-zagging corridor are longer than the straight distances, and MDS of
+    them bends the shape; the patches never see more than a few hops.
+    """
+    from scipy.sparse import coo_matrix
+
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m)).tocsr()
+    graph = (graph + graph.T).tocsr()
+    degree = np.diff(graph.indptr)
+    covered = np.zeros(m, dtype=bool)
+    patches: list[tuple[np.ndarray, np.ndarray]] = []
+    for c in np.argsort(-degree, kind="stable"):
+        if covered[c]:
+            continue
+        nbrs = graph.indices[graph.indptr[c] : graph.indptr[c + 1]]
+        covered[c] = True
+        covered[nbrs] = True
+        members = _within_hops(graph, int(c), _PATCH_HOPS)
+        if len(members) < MIN_COMPONENT:
+            continue
+        local = np.full(m, -1)
+        local[members] = np.arange(len(members))
+        keep = (local[pairs[:, 0]] >= 0) & (local[pairs[:, 1]] >= 0)
+        sub = local[pairs[keep]]
+        solved = _patch_fit(len(members), sub, dist[keep], w[keep])
+        patches.append((members, solved))
+    out = np.full((m, 2), np.nan)
+    if not patches:
+        return out
+    first, xy = max(patches, key=lambda p: len(p[0]))
+    out[first] = xy
+    todo = [p for p in patches if p[0] is not first]
+    while todo:
+        best, best_shared = None, 0
+        for k, (members, _) in enumerate(todo):
+            shared = int(np.isfinite(out[members, 0]).sum())
+            if shared > best_shared:
+                best, best_shared = k, shared
+        if best is None or best_shared < MIN_COMPONENT:
+            break
+        members, xy = todo.pop(best)
+        shared = np.isfinite(out[members, 0])
+        if shared.all():
+            continue
+        if not _wide(out[members[shared]]):
+            continue
+        moved = _rigid_onto(xy, out[members], shared)
+        out[members[~shared]] = moved[~shared]
+    return out
+
+
+def _patch_fit(k: int, pairs: np.ndarray, dist: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """One patch's positions (k, 2): MDS of its shortest paths, then least squares —
+    Levenberg–Marquardt on a dense Jacobian (a patch is a few dozen robots; the sparse solver's
+    overhead would dominate), or the sparse one when the patch has fewer measurements than
+    coordinates."""
+    from scipy.optimize import least_squares
+
+    start = _mds_start(k, pairs, dist)
+    e = len(pairs)
+    if e < 2 * k:
+        return _least_squares(k, pairs, dist, w, start).x.reshape(k, 2)
+    a, b = pairs[:, 0], pairs[:, 1]
+    sw = np.sqrt(w)
+    rows = np.arange(e)
+
+    def residuals(x):
+        diff = x.reshape(k, 2)[a] - x.reshape(k, 2)[b]
+        return sw * (np.sqrt((diff * diff).sum(axis=1)) - dist)
+
+    def jacobian(x):
+        diff = x.reshape(k, 2)[a] - x.reshape(k, 2)[b]
+        u = diff * (sw / np.maximum(np.sqrt((diff * diff).sum(axis=1)), 1e-9))[:, None]
+        jac = np.zeros((e, 2 * k))
+        jac[rows, 2 * a], jac[rows, 2 * a + 1] = u[:, 0], u[:, 1]
+        jac[rows, 2 * b], jac[rows, 2 * b + 1] = -u[:, 0], -u[:, 1]
+        return jac
+
+    # A start, not the answer: the whole component's least squares follows.
+    fit = least_squares(
+        residuals, start.ravel(), jac=jacobian, method="lm", xtol=1e-6, ftol=1e-8, max_nfev=50
+    )
+    return fit.x.reshape(k, 2)
+
+
+def _within_hops(graph, centre: int, hops: int) -> np.ndarray:
+    """A patch: ``centre``, its neighbours, and the robots up to ``hops`` hops away while the
+    patch stays within ``_PATCH_ROBOTS`` (of a farther ring, those with the most links into
+    the patch first, ties by index), in the CSR ``graph``."""
+    indptr, indices = graph.indptr, graph.indices
+    members = [centre, *indices[indptr[centre] : indptr[centre + 1]].tolist()]
+    seen = set(members)
+    frontier = members[1:]
+    for _ in range(hops - 1):
+        links: dict[int, int] = {}
+        for u in frontier:
+            for v in indices[indptr[u] : indptr[u + 1]].tolist():
+                if v not in seen:
+                    links[v] = links.get(v, 0) + 1
+        room = _PATCH_ROBOTS - len(members)
+        if room <= 0 or not links:
+            break
+        ring = sorted(links, key=lambda v: (-links[v], v))[:room]
+        members += ring
+        seen.update(ring)
+        frontier = ring
+    return np.array(members, dtype=np.intp)
+
+
+def _wide(points: np.ndarray) -> bool:
+    """Whether ``points`` (k, 2) lie at least ``_STITCH_MIN_WIDTH_MM`` off their best line."""
+    if len(points) < MIN_COMPONENT:
+        return False
+    spread = points - points.mean(axis=0)
+    normal = np.linalg.svd(spread, full_matrices=False)[2][-1]
+    return bool(np.abs(spread @ normal).max() >= _STITCH_MIN_WIDTH_MM)
+
+
+def _rigid_onto(source: np.ndarray, target: np.ndarray, common: np.ndarray) -> np.ndarray:
+    """``source`` moved by the rigid motion (reflection allowed) that best maps its
+    ``common`` rows onto ``target``'s (Kabsch)."""
+    s, t = source[common], target[common]
+    sc, tc = s.mean(axis=0), t.mean(axis=0)
+    u, _, vt = np.linalg.svd((s - sc).T @ (t - tc))
+    return (source - sc) @ (u @ vt) + tc
 
 
 def _mds_start(m: int, pairs: np.ndarray, dist: np.ndarray) -> np.ndarray:

@@ -30,6 +30,8 @@ __all__ = [
     "ROBOT_DIAMETER_MM",
     "PlacementError",
     "PlacementFile",
+    "c_shape",
+    "corridor",
     "generate",
     "hex_lattice",
     "line",
@@ -343,6 +345,97 @@ def random_uniform(
             f"{region} ({n / area_mm2 * 1e6 if area_mm2 else math.inf:.1f} per m², "
             f"{diameter_mm:g} mm bodies cover {fraction:.2f} of it) after {tries} tries; "
             "random placement rarely exceeds an area fraction of 0.5"
+        )
+    return xy
+
+
+def corridor(
+    n: int,
+    *,
+    length_mm: float,
+    width_mm: float,
+    rng: np.random.Generator,
+    diameter_mm: float = ROBOT_DIAMETER_MM,
+) -> np.ndarray:
+    """Non-overlapping robots uniformly at random in a long rectangle along the x axis,
+    ``[0, length_mm] × [0, width_mm]`` (random sequential adsorption, as
+    :func:`random_uniform`): a swarm much longer than wide.
+
+    Raises
+    ------
+    ValueError
+        As :func:`random_uniform`: a size that is not finite and positive, or too many robots
+        for the area.
+
+    Examples
+    --------
+    >>> from scipy.spatial.distance import pdist
+    >>> xy = corridor(100, length_mm=2000.0, width_mm=150.0, rng=np.random.default_rng(1))
+    >>> xy.shape, bool(xy[:, 0].max() > 1900.0), bool(xy[:, 1].max() <= 150.0)
+    ((100, 2), True, True)
+    >>> bool(pdist(xy).min() >= 33.0)
+    True
+    """
+    xy = random_uniform(n, width_mm=length_mm, height_mm=width_mm, rng=rng, diameter_mm=diameter_mm)
+    return xy + np.array([0.5 * length_mm, 0.5 * width_mm])
+
+
+def c_shape(
+    n: int,
+    *,
+    outer_radius_mm: float,
+    inner_radius_mm: float,
+    opening_deg: float = 90.0,
+    rng: np.random.Generator,
+    diameter_mm: float = ROBOT_DIAMETER_MM,
+    max_tries: int | None = None,
+) -> np.ndarray:
+    """Non-overlapping robots uniformly at random in a C: the ring between the two radii
+    about the origin, less the sector of ``opening_deg`` degrees centred on the +x axis — a
+    non-convex swarm whose ends face each other across the opening.
+
+    Raises
+    ------
+    ValueError
+        If the radii are not finite with ``0 <= inner < outer``, the opening is not within
+        [0, 360), or the robots do not fit (as :func:`random_uniform`).
+
+    Examples
+    --------
+    >>> xy = c_shape(60, outer_radius_mm=400.0, inner_radius_mm=250.0,
+    ...              rng=np.random.default_rng(2))
+    >>> r = np.hypot(*xy.T)
+    >>> bool(r.min() >= 250.0), bool(r.max() <= 400.0)
+    (True, True)
+    >>> bool((np.abs(np.degrees(np.arctan2(xy[:, 1], xy[:, 0]))) >= 45.0).all())
+    True
+    """
+    n = _count(n)
+    _check_rng(rng, "c_shape")
+    if (
+        not (math.isfinite(outer_radius_mm) and math.isfinite(inner_radius_mm))
+        or not 0 <= inner_radius_mm < outer_radius_mm
+    ):
+        raise ValueError(
+            f"c_shape: need 0 <= inner_radius_mm < outer_radius_mm, got {inner_radius_mm} "
+            f"and {outer_radius_mm}"
+        )
+    if not 0 <= opening_deg < 360:
+        raise ValueError(f"c_shape: opening_deg={opening_deg} must lie in [0, 360)")
+    half_gap = math.radians(opening_deg) / 2.0
+    arc = 2.0 * math.pi - 2.0 * half_gap
+
+    def draw(k: int) -> np.ndarray:
+        # Uniform in the ring's sector: radius by area, angle uniform outside the opening.
+        r = np.sqrt(inner_radius_mm**2 + rng.random(k) * (outer_radius_mm**2 - inner_radius_mm**2))
+        theta = half_gap + arc * rng.random(k)
+        return np.column_stack([r * np.cos(theta), r * np.sin(theta)])
+
+    max_tries = 1000 * n if max_tries is None else operator.index(max_tries)
+    xy, tries = _sequential_adsorption(n, draw, float(diameter_mm), max_tries)
+    if len(xy) < n:
+        raise ValueError(
+            f"c_shape: density too high: placed only {len(xy)} of {n} robots after {tries} tries"
         )
     return xy
 

@@ -20,7 +20,13 @@ never saw:
   unless every running robot did; ``done_fraction`` is the share of running robots that heard
   DONE or declared it);
   ``hop_diameter`` of the communication graph, and ``done_over_hop_limit``, ``done_s`` over
-  ``hop_diameter × robot.tx_period_s`` (the time information needs to cross the swarm).
+  ``hop_diameter × robot.tx_period_s`` (the time information needs to cross the swarm);
+* ``unplaced_why``: the unplaced running robots counted by why they stayed so
+  (:func:`why_unplaced`; ``why_unplaced`` in ``robots.csv``), and ``unplaced_robots``, the
+  first 50 of them by index;
+* ``unsendable_messages`` (messages a robot could not pack, sent as nothing) and
+  ``out_of_frame_robots`` (robots that refused a position beyond the coordinates messages
+  carry, :data:`protocols.localize_base.MAX_COORDINATE_MM`, 49 m from the root).
 """
 
 from __future__ import annotations
@@ -40,7 +46,11 @@ if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios 
 
     from kilonet.simulation import Simulation
 
-__all__ = ["SCENARIO", "estimates_frame"]
+__all__ = ["SCENARIO", "WHY_UNPLACED", "estimates_frame", "why_unplaced"]
+
+
+#: Unplaced robots the summary names by index, at most (``robots.csv`` has every one).
+_LISTED_UNPLACED = 50
 
 
 def _program(params: Any, positions: np.ndarray):
@@ -52,6 +62,31 @@ def _program(params: Any, positions: np.ndarray):
 def _stop_when(sim: Simulation) -> bool:
     running = sim.world.running
     return all(r.stage == "done" for i, r in enumerate(sim.robots) if running[i])
+
+
+#: Why a robot ended unplaced, by the placed neighbours (anchors) it knew at the end: the
+#: rule of :mod:`protocols.localize_spread` that could not place it.
+WHY_UNPLACED = {
+    "no_anchor": "no placed neighbour: every rule needs two or more",
+    "one_anchor": "one placed neighbour: rules 1-3 need two or more",
+    "two_anchors": "two placed neighbours: the mirror ambiguity stayed (rules 3-4)",
+    "anchors_rejected": "three or more placed neighbours, rejected by rule 1 (one line, poor "
+    "fit, or a mirror image that fits as well)",
+}
+
+
+def why_unplaced(anchors: int, *, island_closed: bool = False) -> str:
+    """The reason an unplaced robot with ``anchors`` placed neighbours stayed so (a key of
+    :data:`WHY_UNPLACED`), with ``+island_full`` when its island was too large to solve
+    (``localize.island_max_reports``).
+
+    Examples
+    --------
+    >>> why_unplaced(2), why_unplaced(0, island_closed=True), why_unplaced(5)
+    ('two_anchors', 'no_anchor+island_full', 'anchors_rejected')
+    """
+    key = ("no_anchor", "one_anchor", "two_anchors")[anchors] if anchors < 3 else "anchors_rejected"
+    return key + ("+island_full" if island_closed else "")
 
 
 def estimates_frame(sim: Simulation) -> pd.DataFrame:
@@ -81,6 +116,12 @@ def estimates_frame(sim: Simulation) -> pd.DataFrame:
                 "settled": r.termination.settled,
                 "done": r.termination.done,
                 "neighbours_heard": len(r.neighbours),
+                "why_unplaced": ""
+                if located or not sim.world.running[i]
+                else why_unplaced(
+                    sum(n.x_mm is not None for n in r.neighbours.known()),
+                    island_closed=r.island.closed,
+                ),
             }
         )
     return with_alignment(pd.DataFrame(rows), sim.world.positions_mm)
@@ -158,7 +199,18 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
     out["done_s"] = phases.get("all_done", math.nan) if out["done_fraction"] == 1 else math.nan
     if hop_diameter:
         out["done_over_hop_limit"] = out["done_s"] / (hop_diameter * p.robot.tx_period_s)
-    out["id_redraws"] = int((sim.trace.events_frame().event == "id").sum())
+    events = sim.trace.events_frame()
+    out["id_redraws"] = int((events.event == "id").sum()) if len(events) else 0
+    # Values the protocol could not send: never a crash, always counted.
+    # Which robots a run leaves out, and which rule could not place them.
+    left = est[est.why_unplaced != ""]
+    counts = left.why_unplaced.value_counts().sort_index()
+    out["unplaced_why"] = {k: int(v) for k, v in counts.items()}
+    out["unplaced_robots"] = [int(i) for i in left.robot[:_LISTED_UNPLACED]]
+    out["unsendable_messages"] = int(sum(r.unsendable for r in sim.robots))
+    out["out_of_frame_robots"] = (
+        int(events.robot[events.event == "out_of_frame"].nunique()) if len(events) else 0
+    )
     return out
 
 

@@ -45,6 +45,7 @@ from protocols.common.refinement import (
 
 __all__ = [
     "COMPLETE",
+    "COORDINATE_PERIOD_MM",
     "DONE",
     "LOCALIZED",
     "MAX_COORDINATE_MM",
@@ -54,15 +55,28 @@ __all__ = [
     "LocalizeParams",
     "Neighbour",
     "Neighbours",
+    "absolute_position",
     "children_complete",
     "choose_parent",
     "distance_report",
+    "unwrap_coordinate",
+    "wrapped_position",
 ]
 
 #: No robot: an empty ID field (IDs are drawn from 0 .. 0xFFFE).
 NO_ID = 0xFFFF
-#: Largest coordinate a message can carry, mm (int16 tenths of a millimetre).
-MAX_COORDINATE_MM = 3276.7
+#: Coordinates travel as int16 tenths of a millimetre *modulo* this period, mm (2¹⁶ tenths):
+#: every message's x and y fields wrap, and a receiver unwraps them near a position it knows
+#: (:func:`unwrap_coordinate`). POS and CAND also carry the winding numbers, so a robot that
+#: knows no position yet learns its anchors' positions whole (:func:`absolute_position`).
+COORDINATE_PERIOD_MM = 6553.6
+_PERIOD_TENTHS = 65536
+_HALF_PERIOD_TENTHS = 32768
+#: Winding numbers are signed 4-bit values, -8 .. 7, one per axis in one byte.
+_MAX_WINDING = 7
+#: Largest coordinate a robot can hold, mm: 7 whole periods and the int16 field's 3,276.7 mm
+#: (49.2 m from the root; a frame farther than that refuses the position, ``out_of_frame``).
+MAX_COORDINATE_MM = _MAX_WINDING * COORDINATE_PERIOD_MM + 3276.7
 
 # State flags of POS and ROOT messages (protocols.localize.phase3_termination sets the last three).
 #: The sender has a position in the frame.
@@ -144,6 +158,13 @@ class LocalizeParams:
     )
     overlap_mm: float = param(
         28.0, lo=0.0, hi=200.0, doc="a candidate nearer than this to a located robot is impossible"
+    )
+    heard_mm: float = param(
+        55.0,
+        lo=0.0,
+        hi=1000.0,
+        doc="a candidate nearer than this to a settled robot it does not hear is impossible "
+        "(0: off)",
     )
     retry_s: float = param(
         2.0, lo=0.2, hi=600.0, doc="an unlocalized robot retries an unchanged fix this often"
@@ -421,13 +442,65 @@ def distance_report(uid: int, position: tuple[float, float] | None, n: Neighbour
         n.sent_mm = round(n.mean_mm, 2)
         return NBR.pack(sender=uid, neighbour=n.uid, distance_mm=n.mean_mm)
     n.sent_mm = round(n.mean_mm / DISTANCE_STEP_MM) * DISTANCE_STEP_MM
+    x_mm, y_mm, _ = wrapped_position(*position)
     return DIST.pack(
         sender=uid,
-        x_mm=position[0],
-        y_mm=position[1],
+        x_mm=x_mm,
+        y_mm=y_mm,
         neighbour=n.uid,
         distance=distance_code(n.mean_mm),
     )
+
+
+def _wrap(v_mm: float) -> tuple[float, int]:
+    tenths = round(v_mm / 0.1)  # as Layout rounds a 0.1 mm field
+    winding = (tenths + _HALF_PERIOD_TENTHS) // _PERIOD_TENTHS
+    return (tenths - winding * _PERIOD_TENTHS) / 10.0, winding
+
+
+def wrapped_position(x_mm: float, y_mm: float) -> tuple[float, float, int]:
+    """A position as messages carry it: x and y modulo :data:`COORDINATE_PERIOD_MM`, each in
+    [-3276.8, 3276.7] mm (0.1 mm steps, an int16 field), and the byte of both winding
+    numbers (x in the low nibble, y in the high one, signed 4-bit). Coordinates beyond
+    :data:`MAX_COORDINATE_MM` are the caller's to refuse; their windings wrap.
+
+    Examples
+    --------
+    >>> wrapped_position(12.34, -5.0)
+    (12.3, -5.0, 0)
+    >>> wrapped_position(3297.6, -4000.0)  # the 5 m corridor's overflow, and its mirror
+    (-3256.0, 2553.6, 241)
+    >>> [round(v, 6) for v in absolute_position(-3256.0, 2553.6, 241)]
+    [3297.6, -4000.0]
+    """
+    wx, kx = _wrap(x_mm)
+    wy, ky = _wrap(y_mm)
+    return wx, wy, (kx & 15) | (ky & 15) << 4
+
+
+def absolute_position(x_mm: float, y_mm: float, windings: int) -> tuple[float, float]:
+    """The position a message's wrapped ``x_mm``, ``y_mm`` and winding byte stand for, mm
+    (the inverse of :func:`wrapped_position`, to 0.1 mm; with no winding, the coordinates
+    as they came)."""
+    kx, ky = windings & 15, windings >> 4
+    kx -= 16 if kx > _MAX_WINDING else 0
+    ky -= 16 if ky > _MAX_WINDING else 0
+    return x_mm + kx * COORDINATE_PERIOD_MM, y_mm + ky * COORDINATE_PERIOD_MM
+
+
+def unwrap_coordinate(wrapped_mm: float, near_mm: float) -> float:
+    """The coordinate equal to ``wrapped_mm`` modulo :data:`COORDINATE_PERIOD_MM` that lies
+    nearest ``near_mm`` (a position the receiver knows within 3.2 m of the sender: its own, or
+    the sender's last), mm. Messages without winding numbers (DIST, ISLAND_LINK) are read so.
+
+    Examples
+    --------
+    >>> round(unwrap_coordinate(-3256.0, 3200.0), 6), unwrap_coordinate(-3256.0, -3000.0)
+    (3297.6, -3256.0)
+    >>> round(unwrap_coordinate(100.0, 13200.0), 6)
+    13207.2
+    """
+    return wrapped_mm + round((near_mm - wrapped_mm) / COORDINATE_PERIOD_MM) * COORDINATE_PERIOD_MM
 
 
 def choose_parent(current: int, hops: int, neighbours: Iterable[Neighbour]) -> int:

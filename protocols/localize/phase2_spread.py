@@ -43,9 +43,13 @@ have one (their announced positions, the distances both ends agree on):
    than ``localize.overlap_mm`` to one of them would put two Kilobots (33 mm across) on top of
    each other, so it is impossible; when exactly one candidate is, the located robot sends a
    VOTE for the other (:func:`overlap_vote`), and a robot that holds votes for one of its
-   candidates and none for the other takes it. This breaks the mirror ambiguity of robots
-   that only two anchors reach — at the swarm's edge, and where the frame has to squeeze
-   through a gap — with the knowledge of robots two hops away.
+   candidates and none for the other takes it. *Nor is a robot deaf*: a candidate closer than
+   ``localize.heard_mm`` to a settled robot (other than the two anchors) is impossible too,
+   since the robot there would hear it and hold three anchors. The mirror image of a robot at
+   the frame's edge usually points back into the frame, among robots it does not hear. This
+   breaks the mirror ambiguity of robots that only two anchors reach — at the swarm's edge,
+   and where the frame has to squeeze through a gap — with the knowledge of robots two hops
+   away.
 
 A robot that fails retries when its anchors or candidates change, or every
 ``localize.retry_s``. Candidates come from anchors only, never from other candidates, so no
@@ -55,10 +59,15 @@ Messages::
 
     ROOT (81)  sender:uint16  axis:uint16  third:uint16  flags:uint8             7 bytes
                the root, at (0, 0), hop 0; axis/third 0xFFFF while not chosen
-    POS  (82)  sender:uint16  x:int16  y:int16 (0.1 mm)  hops:uint8  flags:uint8  8 bytes
+    POS  (82)  sender:uint16  x:int16  y:int16 (0.1 mm)  hops:uint8  flags:uint8
+               windings:uint8                                                    9 bytes
                every other robot; x, y are 0 while the LOCALIZED flag is clear
-    CAND (84)  sender:uint16  x:int16  y:int16 (0.1 mm)  index:uint8  version:uint8  8 bytes
+    CAND (84)  sender:uint16  x:int16  y:int16 (0.1 mm)  index:uint8  version:uint8
+               windings:uint8                                                    9 bytes
                one of a robot's two candidates; the version changes with its anchors
+
+x and y travel modulo 6,553.6 mm, with both winding numbers in ``windings``
+(:func:`~protocols.localize_base.wrapped_position`): a frame up to 49 m from its root fits.
     VOTE (86)  sender:uint16  target:uint16  index:uint8  version:uint8              6 bytes
                the candidate of ``target``'s pair (of that version) that is possible
 
@@ -84,7 +93,15 @@ from kilonet.geometry import (
     robust_height,
 )
 from kilonet.message import Layout, Message
-from protocols.localize.base import LOCALIZED, MAX_COORDINATE_MM, NO_ID, Neighbour
+from protocols.localize.base import (
+    LOCALIZED,
+    MAX_COORDINATE_MM,
+    NO_ID,
+    SETTLED,
+    Neighbour,
+    absolute_position,
+    wrapped_position,
+)
 
 if TYPE_CHECKING:
     from protocols.localize.program import LocalizeRobot
@@ -116,6 +133,7 @@ POS = Layout(
         ("y_mm", "h", 0.1),
         ("hops", "B"),
         ("flags", "B"),
+        ("windings", "B"),
     ],
 )
 CAND = Layout(
@@ -127,6 +145,7 @@ CAND = Layout(
         ("y_mm", "h", 0.1),
         ("index", "B"),
         ("version", "B"),
+        ("windings", "B"),
     ],
 )
 VOTE = Layout(
@@ -332,11 +351,23 @@ def _reflect(p: Point, line: tuple[Point, Point, float]) -> Point:
 
 
 def overlap_vote(
-    candidates: tuple[Point, Point], others: Sequence[Point], overlap_mm: float
+    candidates: tuple[Point, Point],
+    others: Sequence[Point],
+    overlap_mm: float,
+    *,
+    settled: Sequence[Point] = (),
+    heard_mm: float = 0.0,
+    same_mm: float = 5.0,
 ) -> int | None:
-    """The index of the only candidate that keeps clear of every robot in ``others``, or None
-    when both or neither do: a candidate closer than ``overlap_mm`` to another robot would
-    put two bodies in one place.
+    """The index of the only possible candidate, or None when both or neither are.
+
+    A candidate is impossible when it lies closer than ``overlap_mm`` to a robot in
+    ``others`` (two bodies in one place), or closer than ``heard_mm`` to a robot in
+    ``settled`` that is not about as far (within ``same_mm``) from both candidates: a robot
+    there would hear that placed robot and hold three anchors, not two candidates. The
+    candidates' own two anchors lie on their mirror line, as far from both, and never count;
+    ``settled`` robots have held their positions long enough for every robot near them to
+    have heard them.
 
     Examples
     --------
@@ -344,10 +375,25 @@ def overlap_vote(
     0
     >>> overlap_vote(((0.0, 40.0), (0.0, -40.0)), [(80.0, 0.0)], 28.0) is None
     True
+
+    A settled robot 50 mm from the second candidate, which the candidates' holder would hear
+    there (the anchors at (±30, 0) are as far from both and tell nothing):
+
+    >>> anchors = [(-30.0, 0.0), (30.0, 0.0)]
+    >>> overlap_vote(((0.0, 40.0), (0.0, -40.0)), anchors, 28.0,
+    ...              settled=[*anchors, (30.0, -80.0)], heard_mm=55.0)
+    0
     """
     clash = [
         any(math.hypot(cx - x, cy - y) < overlap_mm for x, y in others) for cx, cy in candidates
     ]
+    if heard_mm > 0.0:
+        (ax, ay), (bx, by) = candidates
+        for x, y in settled:
+            da, db = math.hypot(ax - x, ay - y), math.hypot(bx - x, by - y)
+            if abs(da - db) >= same_mm:
+                clash[0] |= da < heard_mm
+                clash[1] |= db < heard_mm
     if clash[0] == clash[1]:
         return None
     return 1 if clash[0] else 0
@@ -401,9 +447,14 @@ class Spread:
             self.cand_turn = (self.cand_turn + 1) % 3
             if self.cand_turn < 2:
                 version, points = self.candidates
-                x, y = points[self.cand_turn]
+                x, y, windings = wrapped_position(*points[self.cand_turn])
                 return CAND.pack(
-                    sender=r.uid, x_mm=x, y_mm=y, index=self.cand_turn, version=version
+                    sender=r.uid,
+                    x_mm=x,
+                    y_mm=y,
+                    index=self.cand_turn,
+                    version=version,
+                    windings=windings,
                 )
         return self.state_message()
 
@@ -412,8 +463,8 @@ class Spread:
         r = self.robot
         if r.is_root:
             return ROOT.pack(sender=r.uid, axis=self.axis, third=self.third, flags=r.flags)
-        x, y = r.position if r.position is not None else (0.0, 0.0)
-        return POS.pack(sender=r.uid, x_mm=x, y_mm=y, hops=r.hops, flags=r.flags)
+        x, y, windings = wrapped_position(*r.position) if r.position is not None else (0, 0, 0)
+        return POS.pack(sender=r.uid, x_mm=x, y_mm=y, hops=r.hops, flags=r.flags, windings=windings)
 
     def root_rx(self, n: Neighbour, message: Message) -> None:
         m = ROOT.unpack(message)
@@ -428,7 +479,7 @@ class Spread:
         m = POS.unpack(message)
         n.hops, n.flags = m.hops, m.flags
         if m.flags & LOCALIZED:
-            n.x_mm, n.y_mm = m.x_mm, m.y_mm
+            n.x_mm, n.y_mm = absolute_position(m.x_mm, m.y_mm, m.windings)
             n.candidates = None
         else:
             n.x_mm = n.y_mm = None
@@ -437,7 +488,7 @@ class Spread:
         m = CAND.unpack(message)
         if n.candidates is None or n.candidates[0] != m.version:
             n.candidates = (m.version, [None, None])
-        n.candidates[1][m.index] = (m.x_mm, m.y_mm)
+        n.candidates[1][m.index] = absolute_position(m.x_mm, m.y_mm, m.windings)
         n.x_mm = n.y_mm = None
 
     def vote_rx(self, n: Neighbour, message: Message) -> None:
@@ -472,7 +523,13 @@ class Spread:
             self.voted[key] = tick + self.retry_ticks
             if others is None:
                 others = [(m.x_mm, m.y_mm) for m in fresh if m.x_mm is not None]
-            index = overlap_vote(tuple(held[1]), others, self.robot.params.overlap_mm)
+                settled = [
+                    (m.x_mm, m.y_mm) for m in fresh if m.x_mm is not None and m.flags & SETTLED
+                ]
+            p = self.robot.params
+            index = overlap_vote(
+                tuple(held[1]), others, p.overlap_mm, settled=settled, heard_mm=p.heard_mm
+            )
             if index is not None:
                 self.votes_out.append((n.uid, index, held[0]))
 

@@ -14,7 +14,9 @@ names it parent reports complete. When the root has been complete for
 ``localize.done_confirm_rounds`` rounds it declares the swarm *done*; DONE floods outward (a
 robot that hears the flag is done too), every robot freezes its estimate, sends
 ``localize.done_repeats`` more messages so its neighbours hear the flag, and falls silent. A
-robot that is still running after ``localize.run_timeout_s`` declares itself done.
+robot that hears no neighbour any more (for ``localize.stale_s``: they are done and it
+missed every DONE they sent, or they crashed) is done too, and one that is still running
+after ``localize.run_timeout_s`` declares itself done.
 
 The flags travel in POS and ROOT messages (:mod:`protocols.localize.phase2_spread`).
 """
@@ -117,11 +119,15 @@ class Termination:
             self.confirmed_rounds = self.confirmed_rounds + 1 if self.complete else 0
             if self.confirmed_rounds >= r.params.done_confirm_rounds:
                 self.finish("complete")
+        if not fresh and r.neighbours.samples_total:
+            # Every neighbour has fallen silent (done, with every DONE it sent lost, or
+            # crashed): no one is left to hear DONE from, nor to localize with.
+            self.finish("silent")
         if tick >= self.run_timeout_tick:
             self.finish("run_timeout")
 
     def finish(self, cause: str) -> None:
-        """Declare this robot done (``cause``: complete, heard, run_timeout)."""
+        """Declare this robot done (``cause``: complete, heard, silent, run_timeout)."""
         if not self.done:
             self.done = True
             self.robot.log("done", cause=cause)

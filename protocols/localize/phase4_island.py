@@ -37,6 +37,10 @@ Messages (the sender first, then the member that measured the distance)::
                       distance:uint8 (mm)                                     9 bytes
     ISLAND_FULL (89)  sender:uint16                                           2 bytes
 
+A link's x and y travel modulo 6,553.6 mm (:func:`~protocols.localize_base.wrapped_position`)
+and a member unwraps them near a position it knows whole, its placed neighbours' (an island
+is far smaller than 3.2 m; :meth:`~protocols.localize.LocalizeRobot.reference_position`).
+
 A link's distance is carried in whole millimetres, as kilolib's ``estimate_distance`` returns
 it: links longer than 255 mm are not reported, and the solve counts the rounding (a spread of
 1/√12 mm) into its noise. A link is known by its origin and the placed robot's position: a
@@ -52,7 +56,7 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 from kilonet.message import Layout, Message
-from protocols.localize.base import Neighbour
+from protocols.localize.base import Neighbour, unwrap_coordinate, wrapped_position
 from protocols.localize.island_solve import Tolerances, solve_island
 
 if TYPE_CHECKING:
@@ -238,7 +242,10 @@ class Island:
     def link_rx(self, n: Neighbour, message: Message) -> None:
         m = ISLAND_LINK.unpack(message)
         if m.origin != self.robot.uid:
-            news = self.reports.link(m.origin, m.x_mm, m.y_mm, m.distance_mm)
+            near = self.robot.reference_position()
+            x = unwrap_coordinate(m.x_mm, near[0])
+            y = unwrap_coordinate(m.y_mm, near[1])
+            news = self.reports.link(m.origin, x, y, m.distance_mm)
             self._heard(news, ISLAND_LINK, m)
 
     def full_rx(self, n: Neighbour, message: Message) -> None:
@@ -281,13 +288,16 @@ class Island:
     def finished(self, tick: int) -> bool:
         """Whether this robot's island work is over: it heard no report within
         ``island_quiet_s`` of waking; or it placed itself, its position has settled and it has
-        passed on what its unplaced neighbours may need; or, unplaced, it has solved with
+        passed on what its unplaced neighbours may need (nothing, once the island is closed
+        as too large) and the votes it owes them; or, unplaced, it has solved with
         every report it holds and heard nothing new for twice ``island_quiet_s``."""
         r = self.robot
         if not self.active:
             return tick - self.awake_tick >= self.quiet_ticks
         if r.position is not None:
-            return r.refiner.settled and not (self.outbox and self.unplaced_near)
+            # A closed island's outbox is never sent (message_tx): nothing to wait for.
+            pending = self.outbox and self.unplaced_near and not self.closed
+            return r.refiner.settled and not pending and not r.spread.votes_out
         solved = self.closed or self.version == self.solved_version
         return solved and tick - self.changed_tick >= 2 * self.quiet_ticks
 
@@ -310,11 +320,7 @@ class Island:
                 d = round(d)
                 if self.reports.link(uid, n.x_mm, n.y_mm, float(d)):
                     self._changed(tick)
-                    self.outbox.append(
-                        ISLAND_LINK.pack(
-                            sender=uid, origin=uid, x_mm=n.x_mm, y_mm=n.y_mm, distance_mm=d
-                        )
-                    )
+                    self.outbox.append(_link_message(uid, uid, (n.x_mm, n.y_mm), d))
         if self.reports.full and not self.closed:
             self._overflowed()
 
@@ -329,10 +335,7 @@ class Island:
             ISLAND_PAIR.pack(sender=uid, origin=a, neighbour=b, distance_mm=d)
             for (a, b), d in self.reports.pairs.items()
         ]
-        out += [
-            ISLAND_LINK.pack(sender=uid, origin=o, x_mm=x, y_mm=y, distance_mm=round(d))
-            for o, (x, y), d in self.reports.links
-        ]
+        out += [_link_message(uid, o, p, round(d)) for o, p, d in self.reports.links]
         return out
 
     def _solve(self) -> None:
@@ -353,3 +356,9 @@ class Island:
         if r.uid in found:
             x, y = found[r.uid]
             r.spread.place(x, y, "island", len(found))
+
+
+def _link_message(sender: int, origin: int, position: Point, distance_mm: int) -> Message:
+    """ISLAND_LINK: ``origin``'s distance to the placed robot at ``position`` (wrapped)."""
+    x, y, _ = wrapped_position(*position)
+    return ISLAND_LINK.pack(sender=sender, origin=origin, x_mm=x, y_mm=y, distance_mm=distance_mm)

@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 import struct
 
-from kilonet.message import Message
+from kilonet.message import Message, PayloadError
 from kilonet.robot import Kilobot
 from protocols.common.ranging_limit import trusted_range
 from protocols.common.refinement import DIST, Refiner, next_report
@@ -54,6 +54,7 @@ from protocols.localize.base import (
     Neighbours,
     choose_parent,
     distance_report,
+    unwrap_coordinate,
 )
 from protocols.localize.phase1_election import ELECT, MAX_HOPS, Election
 from protocols.localize.phase2_spread import CAND, POS, ROOT, VOTE, Spread
@@ -152,6 +153,7 @@ class LocalizeRobot(Kilobot):
         self._news = False  # a neighbour's echo or flags changed since the last work
         self._urgent = False  # this robot's own state changed: send it next
         self._turn = 0
+        self.unsendable = 0  # messages message_tx could not pack (a counted event)
         self._handlers = {
             ELECT.type: self._elect_rx,
             DIST.type: self._dist_rx,
@@ -229,6 +231,15 @@ class LocalizeRobot(Kilobot):
             self._urgent = True
 
     def message_tx(self) -> Message | None:
+        try:
+            return self._message_tx()
+        except PayloadError as exc:
+            # A value the protocol cannot pack is a counted event, never a crash of the run.
+            self.unsendable += 1
+            self.log("unsendable", error=str(exc))
+            return None
+
+    def _message_tx(self) -> Message | None:
         if self.stage == "done":
             return self.spread.state_message() if self.termination.owes_done() else None
         self._turn += 1
@@ -321,10 +332,12 @@ class LocalizeRobot(Kilobot):
 
     def _island_work(self, tick: int, known: list[Neighbour]) -> None:
         """A round after DONE, for an island: the spread's rules and the island's solve while
-        unplaced, refinement once placed (the frame around stands still now), until the
-        island's work is over or the run's time-out."""
-        if self.position is None:
-            self.spread.round(tick, known)
+        unplaced, refinement and votes once placed (the frame around stands still now), until
+        the island's work is over or the run's time-out."""
+        # Unplaced, the spread's rules; placed, rule 4's votes on neighbours' candidates (the
+        # frame's robots are silent now, and a member placed here may be the only anchor
+        # left awake to vote).
+        self.spread.round(tick, known)
         self.island.round(tick, known)
         if self.position is not None:
             self._refine(known)
@@ -342,7 +355,7 @@ class LocalizeRobot(Kilobot):
             return
         links = [(n.x_mm, n.y_mm, n.range_mm) for n in fresh if n.x_mm is not None]
         x, y = self.refiner.step(x, y, links, fix_y=self.uid == self.spread.axis)
-        # Messages carry ±3276.7 mm: a frame that large is out of the protocol's range.
+        # Positions beyond MAX_COORDINATE_MM cannot be sent: the frame ends there.
         x = min(max(x, -MAX_COORDINATE_MM), MAX_COORDINATE_MM)
         y = min(max(y, -MAX_COORDINATE_MM), MAX_COORDINATE_MM)
         self.position = (x, y)
@@ -357,9 +370,25 @@ class LocalizeRobot(Kilobot):
         n.sent_round = self._round
         return distance_report(self.uid, self.position, n)
 
+    def reference_position(self, n: Neighbour | None = None) -> tuple[float, float]:
+        """A position known whole near neighbour ``n``, to unwrap the coordinates of messages
+        without winding numbers (DIST, ISLAND_LINK) near: its last, else this robot's, else
+        any neighbour's, else the root's (0, 0) — a robot that knows no position at all
+        takes them as they come, as a swarm within 3.2 m of its root always may."""
+        if n is not None and n.x_mm is not None:
+            return n.x_mm, n.y_mm
+        if self.position is not None:
+            return self.position
+        for other in self.neighbours.known():
+            if other.x_mm is not None:
+                return other.x_mm, other.y_mm
+        return 0.0, 0.0
+
     def _dist_rx(self, n: Neighbour, message: Message) -> None:
         m = DIST.unpack(message)
-        n.x_mm, n.y_mm = m.x_mm, m.y_mm
+        near_x, near_y = self.reference_position(n)
+        n.x_mm = unwrap_coordinate(m.x_mm, near_x)
+        n.y_mm = unwrap_coordinate(m.y_mm, near_y)
         if m.neighbour == self.uid:
             self.neighbours.report(n, m.distance)
 

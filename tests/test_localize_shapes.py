@@ -1,0 +1,286 @@
+"""``localize`` and the centralized reference on shapes beyond discs and lattices: long
+corridors (coordinates beyond one int16 field), sparse random swarms and non-convex C shapes.
+
+The coordinate rules and small runs are in the default suite; the issue's swarms (300–600
+robots, with and without loss) are marked slow (``pytest -m slow``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import protocols.localize.program as localize_module
+import scenarios
+from protocols.common.refinement import DIST
+from protocols.localize.base import (
+    COORDINATE_PERIOD_MM,
+    MAX_COORDINATE_MM,
+    absolute_position,
+    distance_report,
+    unwrap_coordinate,
+    wrapped_position,
+)
+from protocols.localize.phase2_spread import CAND, POS
+from scenarios.localize import estimates_frame
+
+LOCALIZE = scenarios.get("localize")
+
+coordinate = st.floats(-MAX_COORDINATE_MM, MAX_COORDINATE_MM)
+
+
+# ----------------------------------------------------------------------------- coordinates
+
+
+@given(coordinate, coordinate)
+def test_every_position_a_robot_can_hold_fits_pos_and_comes_back(x, y):
+    wx, wy, windings = wrapped_position(x, y)
+    message = POS.pack(sender=1, x_mm=wx, y_mm=wy, hops=3, flags=1, windings=windings)
+    m = POS.unpack(message)
+    assert absolute_position(m.x_mm, m.y_mm, m.windings) == pytest.approx((x, y), abs=0.05 + 1e-9)
+
+
+@given(coordinate, st.floats(-3200.0, 3200.0))
+def test_a_wrapped_coordinate_unwraps_near_any_position_within_3_2_m(x, offset):
+    wx, _, _ = wrapped_position(x, 0.0)
+    assert unwrap_coordinate(wx, x + offset) == pytest.approx(x, abs=0.05 + 1e-9)
+
+
+def test_the_period_is_the_int16_field_of_tenths():
+    assert COORDINATE_PERIOD_MM == 65536 * 0.1
+    assert wrapped_position(3276.7, -3276.8)[:2] == (3276.7, -3276.8)
+    assert wrapped_position(3276.8, 0.0)[:2] == (-3276.8, 0.0)
+
+
+def _robot(sim, index: int) -> localize_module.LocalizeRobot:
+    robot = localize_module.LocalizeRobot(sim.robots[0].params)
+    robot._attach(sim, index, np.random.default_rng(index))
+    robot.setup()
+    robot.stage = "localize"
+    return robot
+
+
+def test_robots_tens_of_metres_from_the_root_talk_in_whole_positions():
+    sim = scenarios.run(LOCALIZE, {"placement.robots": 5}, seed=1).sim
+    far, near = _robot(sim, 0), _robot(sim, 1)
+    far.locate(20_000.0, -7_123.4)  # 20 m east, 7 m south of the root
+    far.hops = 90
+    near.message_rx(far.spread.state_message(), 60)
+    record = near.neighbours[far.uid]
+    assert record.position == pytest.approx((20_000.0, -7_123.4))
+    # DIST carries no winding numbers: the receiver unwraps them near what it knows.
+    record.x_mm, record.y_mm = 19_990.0, -7_100.0
+    moved = far.neighbours.heard(near.uid, 60, 1)
+    far.locate(20_004.5, -7_120.0)
+    near.message_rx(distance_report(far.uid, far.position, moved), 60)
+    assert record.position == pytest.approx((20_004.5, -7_120.0))
+    # An unplaced robot's candidates are far from the root too.
+    far.position = None
+    far.spread.candidates = (3, [(-15_000.0, 4_000.0), (-15_040.0, 4_060.0)])
+    for _ in range(8):  # CAND, CAND and POS in turn, between distance reports
+        message = far.message_tx()
+        if message.type == CAND.type:
+            near.message_rx(message, 60)
+    assert record.candidates == (3, [(-15_000.0, 4_000.0), (-15_040.0, 4_060.0)])
+
+
+def test_a_position_beyond_the_coordinates_is_refused_and_counted():
+    sim = scenarios.run(LOCALIZE, {"placement.robots": 5}, seed=1).sim
+    robot = _robot(sim, 0)
+    robot.spread.place(MAX_COORDINATE_MM + 1.0, 0.0, "anchors", 3)
+    assert robot.position is None
+    events = sim.trace.events_frame()
+    assert (events.event == "out_of_frame").sum() == 1
+
+
+def test_a_message_that_cannot_be_packed_is_counted_not_raised():
+    sim = scenarios.run(LOCALIZE, {"placement.robots": 5}, seed=1).sim
+    robot = _robot(sim, 0)
+    robot.hops = 300  # beyond POS's hop byte: a protocol bug, which must not end the run
+    robot.locate(10.0, 0.0)
+    robot._turn = 1
+    assert robot.message_tx() is None
+    assert robot.unsendable == 1
+    events = sim.trace.events_frame()
+    assert "does not fit" in events.data[events.event == "unsendable"].iloc[0]
+
+
+def test_dist_layout_is_unchanged_by_wrapping():
+    n = localize_module.Neighbour(9)
+    n.distance_sum_mm, n.samples = 60.0, 1
+    m = DIST.unpack(distance_report(1, (10_000.0, -5.0), n))
+    assert (m.x_mm, m.y_mm) == pytest.approx((10_000.0 - COORDINATE_PERIOD_MM * 2, -5.0))
+
+
+# ------------------------------------------------------------------ a robot is not deaf
+
+
+def test_a_candidate_near_a_settled_robot_it_does_not_hear_is_impossible():
+    from protocols.localize.phase2_spread import overlap_vote
+
+    anchors = [(-30.0, 0.0), (30.0, 0.0)]
+    pair = ((0.0, 40.0), (0.0, -40.0))
+    # A settled robot 50 mm from the second candidate: a robot there would hear it.
+    assert overlap_vote(pair, anchors, 28.0, settled=[(30.0, -80.0)], heard_mm=55.0) == 0
+    assert overlap_vote(pair, anchors, 28.0, settled=[(30.0, 80.0)], heard_mm=55.0) == 1
+    # 56 mm away: a robot there may not hear it; the anchors are as far from both.
+    assert overlap_vote(pair, anchors, 28.0, settled=[(0.0, -96.0)], heard_mm=55.0) is None
+    assert overlap_vote(pair, anchors, 28.0, settled=anchors, heard_mm=55.0) is None
+    assert overlap_vote(pair, anchors, 28.0, settled=[(30.0, -80.0)], heard_mm=0.0) is None
+
+
+def test_the_spread_alone_places_the_island_that_multilateration_left_out():
+    # The 100 random robots of seed 1 whose island tests/test_localize.py places after DONE:
+    # with the rule, the frame itself reaches every robot, islands off.
+    overrides = {
+        "placement.kind": "random",
+        "placement.area": "disc",
+        "placement.density_per_m2": 400,
+        "placement.robots": 100,
+        "localize.island_max_reports": 0,
+    }
+    s = scenarios.run(LOCALIZE, overrides, seed=1).summary
+    assert s["localized_fraction"] == 1.0
+    # On the real-robot medium each link keeps its own systematic error, which no averaging
+    # removes: the run sits near the bound of that error (kilonet.reception's
+    # effective_sigma_mm), not below it as on iid noise.
+    assert s["max_error_mm"] < 3 * s["crlb_rmse_mm"]
+    assert s["rmse_mm"] < 1.5 * s["crlb_rmse_mm"]
+
+
+def test_a_robot_whose_neighbours_all_fell_silent_is_done():
+    # It missed every DONE its neighbours sent (collisions at the edge of a sparse swarm) and
+    # ran on alone until the run's time-out; now it stops once no neighbour is fresh.
+    sim = scenarios.run(LOCALIZE, {"placement.robots": 5}, seed=1).sim
+    robot = _robot(sim, 0)
+    robot.neighbours.heard(7, 50, 0)  # one neighbour, heard once, long ago
+    robot.locate(10.0, 0.0)
+    robot._round = 100  # far beyond localize.stale_s
+    robot.termination.round(robot.kilo_ticks, robot.neighbours.fresh(robot._round))
+    assert robot.termination.done
+    events = sim.trace.events_frame()
+    assert '"silent"' in events.data[events.event == "done"].iloc[-1]
+
+
+def test_a_run_that_leaves_robots_out_says_which_and_why():
+    # A lattice patch, a robot 2 m away (a lone root is no frame) and a row of three beyond
+    # it: whatever the reach, the lone robot and the row hold no placed neighbour.
+    from kilonet.placement import hex_lattice
+
+    positions = np.vstack(
+        [hex_lattice(19), [[2000.0, 0.0]], [[4000.0, 0.0], [4040.0, 0.0], [4080.0, 0.0]]]
+    )
+    result = scenarios.run(LOCALIZE, {}, seed=1, placement=positions)
+    s = result.summary
+    unplaced = [i for i, r in enumerate(result.sim.robots) if not r.in_frame]
+    assert set(unplaced) >= {19, 20, 21, 22}
+    assert s["unplaced_robots"] == unplaced
+    assert sum(s["unplaced_why"].values()) == len(unplaced)
+    table = estimates_frame(result.sim).set_index("robot")
+    keys = ["no_anchor", "one_anchor", "two_anchors", "anchors_rejected"]
+    for i in unplaced:  # each reason counts the placed neighbours the robot knew
+        anchors = sum(n.x_mm is not None for n in result.sim.robots[i].neighbours.known())
+        assert table.why_unplaced[i].split("+")[0] == keys[min(anchors, 3)]
+    assert table.why_unplaced[19] == "no_anchor"
+    assert (table.why_unplaced[table.localized] == "").all()
+
+
+# -------------------------------------------------------------------- the issue's swarms
+
+SPARSE = {
+    "placement.kind": "random",
+    "placement.area": "disc",
+    "placement.density_per_m2": 350,
+    "placement.robots": 400,
+}
+
+
+def _sound(s):
+    """What every run must say, whatever the swarm: no value it could not send, every robot
+    done, and a reference that places nearly every robot (its RMSE is no test: a robot with
+    two neighbours lands on either side of its mirror, tens of millimetres off)."""
+    assert s["unsendable_messages"] == 0
+    assert s["out_of_frame_robots"] == 0
+    assert s["done_fraction"] == 1.0
+    assert s["central_localized_fraction"] >= 0.95
+
+
+@pytest.mark.slow
+def test_a_sparse_swarm_no_longer_stalls_at_its_edge():
+    # Without the hearing test the frame stopped where robots hold two anchors each.
+    stalled = scenarios.run(LOCALIZE, {**SPARSE, "localize.heard_mm": 0.0}, seed=2).summary
+    assert stalled["localized_fraction"] < 0.5
+    assert set(stalled["unplaced_why"]) <= {
+        "no_anchor",
+        "one_anchor",
+        "two_anchors",
+        "anchors_rejected",
+        "no_anchor+island_full",
+        "one_anchor+island_full",
+        "two_anchors+island_full",
+        "anchors_rejected+island_full",
+    }
+    s = scenarios.run(LOCALIZE, SPARSE, seed=2).summary
+    assert s["largest_frame_over_central"] >= 0.95
+    _sound(s)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("loss", [0.0, 0.2])
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_sparse_swarms_reach_the_central_reference(seed, loss):
+    s = scenarios.run(LOCALIZE, {**SPARSE, "medium.loss_prob": loss}, seed=seed).summary
+    assert 6.0 <= s["mean_neighbours"] <= 7.0
+    assert s["frames"] == 1
+    assert s["largest_frame_over_central"] >= 0.95
+    assert s["rmse_over_crlb"] <= 1.5
+    _sound(s)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_issues_corridor_runs_to_the_end_in_one_frame(seed):
+    # 600 robots, 5 m x 0.2 m: the corridor whose runs ended in a PayloadError. (The frame
+    # does not always reach the far end: docs/localize.md, Limits.)
+    from kilonet.placement import corridor
+
+    positions = corridor(600, length_mm=5000.0, width_mm=200.0, rng=np.random.default_rng(5))
+    s = scenarios.run(LOCALIZE, {}, seed=seed, placement=positions).summary
+    _sound(s)
+    assert s["frames"] == 1
+    assert s["localized_fraction"] >= 0.5
+    assert s["rmse_over_crlb"] <= 1.5
+    assert sum(s["unplaced_why"].values()) == round(600 * (1 - s["localized_fraction"]))
+
+
+@pytest.mark.slow
+def test_a_frame_grows_past_one_coordinate_field():
+    # 7 m: the frame reaches beyond one int16 field of tenths (±3,276.7 mm) from its root
+    # and its messages still pack. (It stops short of the far end: robots ahead of a slow
+    # front give up before it arrives; docs/localize.md, Limits.)
+    from kilonet.placement import corridor
+
+    positions = corridor(600, length_mm=7000.0, width_mm=160.0, rng=np.random.default_rng(7))
+    result = scenarios.run(LOCALIZE, {}, seed=1, placement=positions)
+    _sound(result.summary)
+    table = estimates_frame(result.sim)
+    located = table[table.localized]
+    assert np.abs(located[["est_x_mm", "est_y_mm"]].to_numpy()).max() > 3276.8
+    assert located.error_mm.max() < 5.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_c_shape_localizes_and_its_reference_is_the_optimum(seed):
+    from kilonet.placement import c_shape
+
+    positions = c_shape(
+        300, outer_radius_mm=700.0, inner_radius_mm=450.0, rng=np.random.default_rng(33)
+    )
+    s = scenarios.run(LOCALIZE, {}, seed=seed, placement=positions).summary
+    _sound(s)
+    assert s["central_localized_fraction"] >= 0.98
+    assert s["largest_frame_over_central"] >= 0.95
+    assert s["rmse_over_crlb"] <= 1.5
