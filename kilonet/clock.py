@@ -9,27 +9,39 @@ first tick, so robots that start together on the overhead controller's signal st
 Everything a program sees runs on its own clock: ``kilo_ticks``, ``delay``, the loop rate and
 the transmit period.
 
-**Cheap callbacks.** The medium schedules two wake-ups per message and every robot's loop one
-per tick; a ``simpy.Timeout`` builds a full event for each. Here the queue entry is a bare
-object carrying exactly what ``Environment.step`` reads (``callbacks``, ``_ok``, ``_value``),
-pushed onto the environment's queue with the key a Timeout would get (time, NORMAL priority,
-insertion counter), so ordering and determinism are SimPy's own. A :class:`Timer` is reusable:
-an entity with at most one pending wake-up (a robot's next transmit opportunity) allocates
-nothing per wake-up. The robots' plain loops share one :class:`LoopSchedule`, which runs them at
-the times and in the order one Timer each would, mostly without going through the queue.
+**The kernel's environment.** :class:`KernelEnvironment` is a documented subclass of
+``simpy.Environment`` that keeps its own event queue and clock behind SimPy's public interface
+(``now``, ``schedule``, ``peek``, ``step``, ``run``), so SimPy's processes, timeouts and
+conditions run on it unchanged and nothing here reads or writes SimPy's private state. Three
+things it adds, all for the hot path:
+
+* a negative delay is refused where it would be queued (an event in the past would run the
+  clock backwards);
+* :meth:`KernelEnvironment.schedule_at` queues at an absolute time (no ``at - now + now``
+  rounding), and the queue takes any object with the event protocol its step loop reads
+  (``callbacks``, ``ok``, ``defused``, ``value``), so a :class:`Timer` is a reusable queue entry
+  that allocates nothing per wake-up;
+* recurring callbacks (every robot's plain ``loop()``, each on its own clock) live in a second
+  heap that the step loop merges with the queue, so a loop call costs no event at all, yet runs
+  exactly when and in the order one Timer each would: its key is the one such a Timer would
+  have (time accumulated as ``t + period_s``, NORMAL priority, an insertion number drawn when
+  added and each time it runs).
 
 Examples
 --------
->>> import simpy
->>> env = simpy.Environment()
+>>> env = KernelEnvironment()
 >>> log = []
->>> timer = Timer(env, lambda t: log.append((env.now, t._value)), 7)
+>>> timer = Timer(env, lambda t: log.append((env.now, t.value)), 7)
 >>> timer.schedule(1.0)
 >>> env.run()
 >>> timer.schedule(0.5)
 >>> env.run()
 >>> log
 [(1.0, 7), (1.5, 7)]
+>>> env.schedule(env.event(), delay=-0.1)
+Traceback (most recent call last):
+...
+ValueError: an event cannot be scheduled in the past: delay -0.1 s at 1.5 s
 """
 
 from __future__ import annotations
@@ -37,19 +49,16 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from heapq import heapify, heappop, heappush, heapreplace
+from heapq import heappop, heappush, heapreplace
+from itertools import count
 from typing import Any
 
 import numpy as np
 import simpy
-from simpy.events import NORMAL
+from simpy.core import EmptySchedule, StopSimulation
+from simpy.events import NORMAL, URGENT, Event
 
-__all__ = ["LoopSchedule", "RobotClocks", "Timer", "push"]
-
-
-def push(env: simpy.Environment, at_s: float, event: Any) -> None:
-    """Queue ``event`` (anything with ``callbacks``, ``_ok``, ``_value``) at time ``at_s``."""
-    heappush(env._queue, (at_s, NORMAL, next(env._eid), event))
+__all__ = ["KernelEnvironment", "RobotClocks", "Timer"]
 
 
 @dataclass(frozen=True)
@@ -116,133 +125,220 @@ class RobotClocks:
 
 
 class Timer:
-    """A reusable wake-up: ``callback(timer)`` runs each time a scheduled delay ends.
+    """A reusable wake-up on a :class:`KernelEnvironment`: ``callback(timer)`` runs each time a
+    scheduled delay ends; ``value`` is whatever the owner wants the callback to see.
 
-    Schedule it again only after it fired (``step()`` clears ``callbacks`` when it runs).
+    Schedule it again only after it fired (the step loop clears ``callbacks`` when it runs).
     """
 
-    __slots__ = ("_callbacks", "_env", "_ok", "_value", "callbacks")
+    __slots__ = ("_callbacks", "_env", "callbacks", "value")
+    ok = True  # the event protocol of KernelEnvironment's step loop: never a failed event
+    defused = False
 
-    def __init__(self, env: simpy.Environment, callback: Callable[[Timer], None], value: Any):
+    def __init__(
+        self, env: KernelEnvironment, callback: Callable[[Timer], None], value: Any
+    ) -> None:
         self._env = env
-        self._callbacks = [callback]  # step() only iterates it, so one list serves every run
+        self._callbacks = [callback]  # the step loop only iterates it: one list serves every run
         self.callbacks: list | None = None
-        self._value = value
-        self._ok = True
+        self.value = value
 
     def schedule(self, delay_s: float) -> None:
-        """Fire after ``delay_s`` simulated seconds."""
+        """Fire after ``delay_s`` simulated seconds.
+
+        Raises
+        ------
+        ValueError
+            If ``delay_s`` is negative.
+        """
         self.callbacks = self._callbacks
-        env = self._env
-        heappush(env._queue, (env._now + delay_s, NORMAL, next(env._eid), self))
+        self._env.schedule(self, NORMAL, delay_s)
 
 
-class LoopSchedule:
-    """Callbacks that each recur with a period of their own (every robot's ``loop()`` on its
-    own clock), run exactly when and in the order separate :class:`Timer` s would run them, but
-    with one entry in the event queue for all of them.
+class KernelEnvironment(simpy.Environment):
+    """A ``simpy.Environment`` with its own queue, refusing events in the past, taking
+    reusable entries, and running recurring callbacks without events (see the module
+    docstring).
 
-    The schedule keeps its own heap of next calls. After one runs, it runs the next at once
-    (moving the clock to its time) as long as that comes before everything in SimPy's queue,
-    and queues itself only when something else comes first; at 1,000 robots loops are about two
-    events in three, and most of them then never touch SimPy's queue.
+    It overrides SimPy's public interface (``now``, ``schedule``, ``peek``, ``step``, ``run``)
+    and nothing else, so SimPy's own events and processes run on it as on SimPy's
+    environment. A queue entry is any object with ``callbacks`` (a list, cleared to ``None``
+    when it runs), ``ok``, ``defused`` and ``value``: every SimPy event, and :class:`Timer`.
 
-    Each callback keeps the queue key a Timer of its own would have: its times accumulate as
-    ``t + period_s`` and it draws an insertion number from the environment when it is added and
-    each time it runs (as rescheduling a Timer does), so even events due at the very same time
-    run in SimPy's order.
-
-    Examples
-    --------
-    >>> import simpy
-    >>> env = simpy.Environment()
-    >>> log = []
-    >>> loops = LoopSchedule(env)
-    >>> for name, first, period in (("a", 0.5, 1.0), ("b", 0.25, 0.75)):
-    ...     loops.add(first, period, lambda name=name: log.append((name, env.now)) or env.now < 2)
-    >>> loops.start()
-    >>> env.run(until=4)
-    >>> log
-    [('b', 0.25), ('a', 0.5), ('b', 1.0), ('a', 1.5), ('b', 1.75), ('a', 2.5), ('b', 2.5)]
+    Parameters
+    ----------
+    initial_time : float
+        The clock at the start, s.
     """
 
-    __slots__ = ("_callbacks", "_env", "_heap", "_periods", "_started", "_timer")
+    def __init__(self, initial_time: float = 0) -> None:
+        super().__init__(initial_time)
+        self._kt = initial_time
+        self._kqueue: list[tuple[float, int, int, Any]] = []
+        self._kids = count()
+        self._kloops: list[tuple[float, int, int, int]] = []
+        self._kcalls: list[Callable[[], bool]] = []
+        self._kperiods: list[float] = []
 
-    def __init__(self, env: simpy.Environment) -> None:
-        self._env = env
-        self._heap: list[tuple[float, int, int, int]] = []
-        self._callbacks: list[Callable[[], bool]] = []
-        self._periods: list[float] = []
-        self._started = False
-        self._timer = Timer(env, self._run, None)
+    @property
+    def now(self) -> float:
+        """The current simulation time, s."""
+        return self._kt
 
-    def add(self, first_s: float, period_s: float, callback: Callable[[], bool]) -> None:
-        """Run ``callback() -> bool`` first in ``first_s`` seconds, then every ``period_s``
-        until it returns ``False`` (a robot that stopped).
+    def schedule(self, event: Any, priority: int = NORMAL, delay: float = 0) -> None:
+        """Queue ``event`` ``delay`` seconds from now.
+
+        Raises
+        ------
+        ValueError
+            If ``delay`` is negative or not a number (the clock would run backwards).
+        """
+        if not delay >= 0:
+            raise ValueError(
+                f"an event cannot be scheduled in the past: delay {delay} s at {self._kt} s"
+            )
+        heappush(self._kqueue, (self._kt + delay, priority, next(self._kids), event))
+
+    def schedule_at(self, event: Any, at_s: float, priority: int = NORMAL) -> None:
+        """Queue ``event`` at simulated time ``at_s`` (exactly that float).
+
+        Raises
+        ------
+        ValueError
+            If ``at_s`` is before now.
+        """
+        if not at_s >= self._kt:
+            raise ValueError(
+                f"an event cannot be scheduled in the past: at {at_s} s, now {self._kt} s"
+            )
+        heappush(self._kqueue, (at_s, priority, next(self._kids), event))
+
+    def every(self, first_s: float, period_s: float, callback: Callable[[], bool]) -> None:
+        """Call ``callback() -> bool`` first ``first_s`` seconds from now and then every
+        ``period_s`` until it returns ``False`` (a robot that stopped) or raises (it is then
+        not called again, and the others go on if the caller runs on).
 
         Raises
         ------
         ValueError
             If ``first_s`` is negative or ``period_s`` is not positive.
-        RuntimeError
-            If the schedule has started.
         """
-        if self._started:
-            raise RuntimeError("loops can only be added to a LoopSchedule before it starts")
-        if first_s < 0 or not period_s > 0:
+        if not (first_s >= 0 and period_s > 0):
             raise ValueError(
-                f"a loop needs first_s >= 0 and period_s > 0, got {first_s} s and {period_s} s"
+                f"a recurring call needs first_s >= 0 and period_s > 0, got {first_s} s and "
+                f"{period_s} s"
             )
-        env = self._env
-        k = len(self._callbacks)
-        self._heap.append((env._now + first_s, NORMAL, next(env._eid), k))
-        self._callbacks.append(callback)
-        self._periods.append(period_s)
+        k = len(self._kcalls)
+        self._kcalls.append(callback)
+        self._kperiods.append(period_s)
+        heappush(self._kloops, (self._kt + first_s, NORMAL, next(self._kids), k))
 
-    def start(self) -> None:
-        """Queue the schedule (after the last :meth:`add`).
+    def peek(self) -> float:
+        """Time of the next event or recurring call (``inf`` if there is none)."""
+        queue, loops = self._kqueue, self._kloops
+        if loops and (not queue or loops[0] < queue[0]):
+            return loops[0][0]
+        return queue[0][0] if queue else math.inf
+
+    def step(self) -> None:
+        """Process the next event or recurring call.
 
         Raises
         ------
-        RuntimeError
-            If it has started already.
+        simpy.core.EmptySchedule
+            If nothing is queued.
         """
-        if self._started:
-            raise RuntimeError("a LoopSchedule starts only once")
-        self._started = True
-        heapify(self._heap)
-        if self._heap:
-            self._queue()
+        queue, loops = self._kqueue, self._kloops
+        if loops and (not queue or loops[0] < queue[0]):
+            self._recur()
+            return
+        try:
+            self._kt, _, _, event = heappop(queue)
+        except IndexError:
+            raise EmptySchedule from None
+        callbacks, event.callbacks = event.callbacks, None
+        try:
+            for callback in callbacks:
+                callback(event)
+        except StopSimulation:
+            event.callbacks = callbacks[callbacks.index(callback) + 1 :]
+            self.schedule(event, URGENT - 1)
+            raise
+        if not event.ok and not event.defused:
+            _raise_failed(event)
 
-    def _queue(self) -> None:
-        timer = self._timer
-        timer.callbacks = timer._callbacks
-        t, priority, eid, _ = self._heap[0]
-        heappush(self._env._queue, (t, priority, eid, timer))
+    def _recur(self) -> None:
+        """Run the next recurring call and queue its next one."""
+        loops = self._kloops
+        t, _, _, k = loops[0]
+        self._kt = t
+        try:
+            again = self._kcalls[k]()
+        except BaseException:
+            heappop(loops)
+            raise
+        if again:
+            heapreplace(loops, (t + self._kperiods[k], NORMAL, next(self._kids), k))
+        else:
+            heappop(loops)
 
-    def _run(self, _timer: Timer) -> None:
-        env, heap, callbacks, periods = self._env, self._heap, self._callbacks, self._periods
-        queue, eid = env._queue, env._eid
-        while True:
-            t, _, _, k = heap[0]
-            env._now = t
-            try:
-                again = callbacks[k]()
-            except BaseException:
-                # As with a Timer of its own, the loop that raised is not run again, and the
-                # others go on if whoever runs the simulation carries on.
-                heappop(heap)
-                if heap:
-                    self._queue()
-                raise
-            if again:
-                heapreplace(heap, (t + periods[k], NORMAL, next(eid), k))
-            else:
-                heappop(heap)
-                if not heap:
-                    return
-            # Due before everything queued: run it now; otherwise queue the schedule behind it.
-            # Insertion numbers are unique, so the comparison never reaches the last items.
-            if queue and queue[0] < heap[0]:
-                break
-        self._queue()
+    def run(self, until: float | Event | None = None) -> Any:
+        """Run until simulated time ``until`` (events due then are left for the next run, as
+        SimPy's ``run`` leaves them), until the event ``until`` has happened, or, with
+        ``None``, until nothing is queued.
+
+        Raises
+        ------
+        ValueError
+            If ``until`` is a time not after now.
+        """
+        if until is None or isinstance(until, Event):
+            return super().run(until)
+        at = until if isinstance(until, int) else float(until)
+        if at <= self._kt:
+            raise ValueError(f"until ({at}) must be greater than the current simulation time")
+        # The step loop of step() and _recur() inline: one method call fewer per event.
+        queue, loops, calls, periods, ids = (
+            self._kqueue,
+            self._kloops,
+            self._kcalls,
+            self._kperiods,
+            self._kids,
+        )
+        try:
+            while True:
+                if loops and (not queue or loops[0] < queue[0]):
+                    t, _, _, k = loops[0]
+                    if t >= at:
+                        break
+                    self._kt = t
+                    try:
+                        again = calls[k]()
+                    except BaseException:
+                        heappop(loops)
+                        raise
+                    if again:
+                        heapreplace(loops, (t + periods[k], NORMAL, next(ids), k))
+                    else:
+                        heappop(loops)
+                elif queue and queue[0][0] < at:
+                    self._kt, _, _, event = heappop(queue)
+                    callbacks, event.callbacks = event.callbacks, None
+                    for callback in callbacks:
+                        callback(event)
+                    if not event.ok and not event.defused:
+                        _raise_failed(event)
+                else:
+                    break
+        except StopSimulation as stop:
+            return stop.args[0]
+        self._kt = at
+        return None
+
+
+def _raise_failed(event: Any) -> None:
+    """Raise the exception of a failed event nobody defused, as SimPy's step does."""
+    error = event.value
+    exc = type(error)(*error.args)
+    exc.__cause__ = error
+    raise exc

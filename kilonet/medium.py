@@ -24,7 +24,8 @@ The medium itself is the event flow that joins them, with kilolib's transmit sem
 * **CRC.** A message whose ``crc`` is wrong goes on the air (it occupies the channel and
   collides) but every receiver drops it, counted as ``lost_crc``.
 * **Receive modes.** ``callback``: ``message_rx`` is called on arrival. ``polled``: the message
-  joins a buffer of ``robot.rx_buffer`` messages that drops the oldest on overflow.
+  joins a buffer of ``robot.rx_buffer`` messages that drops the oldest on overflow (a program
+  with a ``message_rx`` gets what its ``loop()`` leaves there through it after each call).
 
 Why it is fast: two SimPy events per transmission (the offer and the end of airtime, both
 callbacks on pre-bound functions, no processes); receiver and handler lists precomputed per
@@ -43,7 +44,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from kilonet.clock import Timer, push
+from kilonet.clock import Timer
 from kilonet.counters import LOSS_CAUSES, MediumCounters
 from kilonet.mac import Channel
 from kilonet.message import LIMITS, Message, PayloadLimit
@@ -95,13 +96,11 @@ class _Transmission:
     ``estimates`` holds the distance estimate (mm) per receiver, ``losses`` a loss code per
     receiver or ``None`` when nothing is lost; ``epoch`` tells whether receiver lists changed
     while the message was on the air. The object is also its own end-of-airtime event on the
-    SimPy queue (``callbacks``, ``_ok``, ``_value``: see :mod:`kilonet.clock`), which saves an
-    allocation per message.
+    kernel's queue (``callbacks``, ``ok``, ``defused``, ``value``: see :mod:`kilonet.clock`),
+    which saves an allocation per message.
     """
 
     __slots__ = (
-        "_ok",
-        "_value",
         "callbacks",
         "corrupted",
         "epoch",
@@ -133,8 +132,10 @@ class _Transmission:
         self.epoch = epoch
         self.corrupted: set[int] | None = None
         self.callbacks = callbacks
-        self._ok = True
-        self._value = None  # step() reads it only for failed events; no self-reference cycle
+
+    ok = True  # the kernel queue's event protocol: a transmission never fails
+    defused = False
+    value = None
 
 
 class InfraredMedium:
@@ -324,7 +325,20 @@ class InfraredMedium:
 
     def set_tx_period(self, robot: int, period_s: float) -> None:
         """Set ``robot``'s transmit period to ``period_s`` seconds of its own clock (a program
-        writing kilolib's ``kilo_tx_period``); it applies from its next opportunity."""
+        writing kilolib's ``kilo_tx_period``); it applies from its next opportunity.
+
+        Raises
+        ------
+        ValueError
+            If ``period_s`` is not above ``robot.tx_jitter_s`` (an offer would fall before the
+            one it follows).
+        """
+        jitter_s = self.sim.params.robot.tx_jitter_s
+        if not period_s > jitter_s:
+            raise ValueError(
+                f"robot {robot}: a transmit period of {period_s} s must exceed "
+                f"robot.tx_jitter_s = {jitter_s} s"
+            )
         self._period[robot] = period_s / self._factor[robot]
 
     def set_handlers(self, handlers: list[Callable[[Message, int], None]]) -> None:
@@ -388,10 +402,10 @@ class InfraredMedium:
 
     # -- the hot path ------------------------------------------------------------------------
     def _offer(self, timer: Timer) -> None:
-        s = timer._value
+        s = timer.value
         if not self._running[s]:
             return
-        now = self.env._now
+        now = self.env.now
         if self._csma and self._busy_until[s] > now:
             self.counts.backoffs[s] += 1
             delay = self._uniform.next() * self._backoff[s]
@@ -443,7 +457,7 @@ class InfraredMedium:
         counters = self.counts
         counters.sent[s] += 1
         counters.bytes_sent[s] += self._message_bytes[s]
-        push(self.env, end, tx)
+        self.env.schedule_at(tx, end)
         success = self._tx_success[s]
         if success is not None:
             success()
@@ -456,7 +470,7 @@ class InfraredMedium:
             self.counts.clean_delivery(tx.sender)
             if self._trace_messages:
                 n = len(tx.receivers)
-                self.sim.trace.message(self.env._now, tx.sender, n, n)
+                self.sim.trace.message(self.env.now, tx.sender, n, n)
             return
         corrupted = tx.corrupted or ()
         counters = self.counts
@@ -481,7 +495,7 @@ class InfraredMedium:
                 delivered += 1
                 handler(message, estimate)
         if self._trace_messages:
-            self.sim.trace.message(self.env._now, tx.sender, len(tx.receivers), delivered)
+            self.sim.trace.message(self.env.now, tx.sender, len(tx.receivers), delivered)
 
     def arrive(
         self,
@@ -544,7 +558,7 @@ class InfraredMedium:
             code = RANDOM
         else:
             code = 0 if outcome.losses is None else int(outcome.losses[0, 0])
-        now = self.env._now
+        now = self.env.now
         tx = _Transmission(
             -1,
             message,
@@ -556,7 +570,7 @@ class InfraredMedium:
             self._end_callbacks,
         )
         self.channel.occupy(tx, self._outside, tx.receivers, now, now + self.airtime_s)
-        push(self.env, now + self.airtime_s, tx)
+        self.env.schedule_at(tx, now + self.airtime_s)
         return _CODE_CAUSE[code] if code else None
 
     def forget_receiver(self, robot: int) -> None:
@@ -571,7 +585,7 @@ class InfraredMedium:
 
     def receiving(self, robot: int) -> bool:
         """Whether a reception is in progress at ``robot`` now (kilolib's ``rx_busy``)."""
-        return self._busy_until[robot] > self.env._now
+        return self._busy_until[robot] > self.env.now
 
 
 def _drop(message: Message, distance_mm: int) -> None:

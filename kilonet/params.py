@@ -275,6 +275,12 @@ class Params:
             raise ParamError(
                 f"battery.cutoff_v ({b.cutoff_v}) must be below battery.degrade_v ({b.degrade_v})"
             )
+        r = self.robot
+        if not r.tx_jitter_s < r.tx_period_s:
+            raise ParamError(
+                f"robot.tx_jitter_s ({r.tx_jitter_s}) must be below robot.tx_period_s "
+                f"({r.tx_period_s}): an offer would fall before the one it follows"
+            )
         if self.ranging.min_mm > self.ranging.max_mm:
             raise ParamError("ranging.min_mm must not exceed ranging.max_mm")
         m = self.motion
