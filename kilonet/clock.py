@@ -21,11 +21,11 @@ things it adds, all for the hot path:
   rounding), and the queue takes any object with the event protocol its step loop reads
   (``callbacks``, ``ok``, ``defused``, ``value``), so a :class:`Timer` is a reusable queue entry
   that allocates nothing per wake-up;
-* recurring callbacks (every robot's plain ``loop()``, each on its own clock) live in a second
-  heap that the step loop merges with the queue, so a loop call costs no event at all, yet runs
-  exactly when and in the order one Timer each would: its key is the one such a Timer would
-  have (time accumulated as ``t + period_s``, NORMAL priority, an insertion number drawn when
-  added and each time it runs).
+* recurring calls (every robot's plain ``loop()``, each on its own clock) cost no event: the
+  step loop takes them from a window, every pending run within the shortest period sorted by
+  NumPy at once, merged with the queue by key, so they run exactly when and in the order one
+  Timer each would (the key such a Timer would have: time accumulated as ``t + period_s``,
+  NORMAL priority, an insertion number drawn when added and each time it runs).
 
 Examples
 --------
@@ -49,7 +49,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from heapq import heappop, heappush, heapreplace
+from heapq import heappop, heappush
 from itertools import count
 from typing import Any
 
@@ -176,9 +176,19 @@ class KernelEnvironment(simpy.Environment):
         self._kt = initial_time
         self._kqueue: list[tuple[float, int, int, Any]] = []
         self._kids = count()
-        self._kloops: list[tuple[float, int, int, int]] = []
-        self._kcalls: list[Callable[[], bool]] = []
+        # Recurring calls: the time and insertion number of each one's pending run (inf once
+        # cancelled or raised), and a window of the pending runs before `_kwin_end`, in the
+        # order of their keys, consumed from `_kpos` on.
+        self._kcalls: list[Callable[[], Any]] = []
         self._kperiods: list[float] = []
+        self._knext: list[float] = []
+        self._keids: list[int] = []
+        self._kmin_period = math.inf
+        self._kwin_t: list[float] = []
+        self._kwin_e: list[int] = []
+        self._kwin_k: list[int] = []
+        self._kpos = 0
+        self._kidle = True  # no recurring call pending: no window to build
 
     @property
     def now(self) -> float:
@@ -213,10 +223,10 @@ class KernelEnvironment(simpy.Environment):
             )
         heappush(self._kqueue, (at_s, priority, next(self._kids), event))
 
-    def every(self, first_s: float, period_s: float, callback: Callable[[], bool]) -> None:
-        """Call ``callback() -> bool`` first ``first_s`` seconds from now and then every
-        ``period_s`` until it returns ``False`` (a robot that stopped) or raises (it is then
-        not called again, and the others go on if the caller runs on).
+    def every(self, first_s: float, period_s: float, callback: Callable[[], Any]) -> int:
+        """Call ``callback()`` first ``first_s`` seconds from now and then every ``period_s``,
+        until :meth:`cancel` (a robot that stopped) or until it raises (it is then not called
+        again, and the others go on if the caller runs on); the handle for :meth:`cancel`.
 
         Raises
         ------
@@ -231,13 +241,69 @@ class KernelEnvironment(simpy.Environment):
         k = len(self._kcalls)
         self._kcalls.append(callback)
         self._kperiods.append(period_s)
-        heappush(self._kloops, (self._kt + first_s, NORMAL, next(self._kids), k))
+        self._knext.append(self._kt + first_s)
+        self._keids.append(next(self._kids))
+        self._kmin_period = min(self._kmin_period, period_s)
+        self._kpos = len(self._kwin_k)  # the window is rebuilt: the new call may fall in it
+        self._kidle = False
+        return k
+
+    def cancel(self, handle: int) -> None:
+        """Call the recurring call ``handle`` never again (from now on, even within a call)."""
+        self._knext[handle] = math.inf
+
+    def _window(self) -> None:
+        """The next window of recurring runs: every pending run within the shortest period
+        of the earliest, ordered by (time, insertion number) as the queue would order them.
+        None of them comes round again within the window, so it stays valid while it is
+        consumed (unless :meth:`every` adds a call, which rebuilds it)."""
+        nexts = np.array(self._knext)
+        self._kpos = 0
+        start = nexts.min() if len(nexts) else math.inf
+        if start == math.inf:
+            self._kwin_t, self._kwin_e, self._kwin_k = [], [], []
+            self._kidle = True
+            return
+        chosen = np.flatnonzero(nexts < start + self._kmin_period)
+        times, eids = nexts[chosen], np.array(self._keids)[chosen]
+        order = np.lexsort((eids, times))
+        self._kwin_t = times[order].tolist()
+        self._kwin_e = eids[order].tolist()
+        self._kwin_k = chosen[order].tolist()
+
+    def _next_recurring(self) -> tuple[float, int, int] | None:
+        """The next live recurring run as (time, insertion number, call), or None."""
+        while True:
+            if self._kpos == len(self._kwin_k):
+                if self._kidle:
+                    return None
+                self._window()
+                continue
+            pos = self._kpos
+            t, k = self._kwin_t[pos], self._kwin_k[pos]
+            if self._knext[k] == t:
+                return t, self._kwin_e[pos], k
+            self._kpos = pos + 1  # cancelled
+
+    def _recur(self, t: float, k: int) -> None:
+        """Run recurring call ``k`` due at ``t`` (the window's next) and note its next run."""
+        self._kpos += 1
+        self._kt = t
+        nexts = self._knext
+        try:
+            self._kcalls[k]()
+        except BaseException:
+            nexts[k] = math.inf
+            raise
+        if nexts[k] == t:  # not cancelled meanwhile
+            nexts[k] = t + self._kperiods[k]
+            self._keids[k] = next(self._kids)
 
     def peek(self) -> float:
         """Time of the next event or recurring call (``inf`` if there is none)."""
-        queue, loops = self._kqueue, self._kloops
-        if loops and (not queue or loops[0] < queue[0]):
-            return loops[0][0]
+        recurring, queue = self._next_recurring(), self._kqueue
+        if recurring is not None and (not queue or recurring < queue[0][:3]):
+            return recurring[0]
         return queue[0][0] if queue else math.inf
 
     def step(self) -> None:
@@ -248,9 +314,9 @@ class KernelEnvironment(simpy.Environment):
         simpy.core.EmptySchedule
             If nothing is queued.
         """
-        queue, loops = self._kqueue, self._kloops
-        if loops and (not queue or loops[0] < queue[0]):
-            self._recur()
+        recurring, queue = self._next_recurring(), self._kqueue
+        if recurring is not None and (not queue or (recurring[0], NORMAL, recurring[1]) < queue[0]):
+            self._recur(recurring[0], recurring[2])
             return
         try:
             self._kt, _, _, event = heappop(queue)
@@ -267,21 +333,6 @@ class KernelEnvironment(simpy.Environment):
         if not event.ok and not event.defused:
             _raise_failed(event)
 
-    def _recur(self) -> None:
-        """Run the next recurring call and queue its next one."""
-        loops = self._kloops
-        t, _, _, k = loops[0]
-        self._kt = t
-        try:
-            again = self._kcalls[k]()
-        except BaseException:
-            heappop(loops)
-            raise
-        if again:
-            heapreplace(loops, (t + self._kperiods[k], NORMAL, next(self._kids), k))
-        else:
-            heappop(loops)
-
     def run(self, until: float | Event | None = None) -> Any:
         """Run until simulated time ``until`` (events due then are left for the next run, as
         SimPy's ``run`` leaves them), until the event ``until`` has happened, or, with
@@ -297,43 +348,81 @@ class KernelEnvironment(simpy.Environment):
         at = until if isinstance(until, int) else float(until)
         if at <= self._kt:
             raise ValueError(f"until ({at}) must be greater than the current simulation time")
-        # The step loop of step() and _recur() inline: one method call fewer per event.
-        queue, loops, calls, periods, ids = (
+        try:
+            self._run_to(at)
+        except StopSimulation as stop:
+            return stop.args[0]
+        self._kt = at
+        return None
+
+    def _run_to(self, at: float) -> None:
+        """The step loop of :meth:`step` inline, up to (not including) time ``at``: the window
+        of recurring calls and the queue merged by key."""
+        queue, nexts, eids, calls, periods, ids = (
             self._kqueue,
-            self._kloops,
+            self._knext,
+            self._keids,
             self._kcalls,
             self._kperiods,
             self._kids,
         )
+        win_t, win_e, win_k, pos = self._kwin_t, self._kwin_e, self._kwin_k, self._kpos
+        n_win = len(win_k)
         try:
             while True:
-                if loops and (not queue or loops[0] < queue[0]):
-                    t, _, _, k = loops[0]
-                    if t >= at:
-                        break
-                    self._kt = t
-                    try:
-                        again = calls[k]()
-                    except BaseException:
-                        heappop(loops)
-                        raise
-                    if again:
-                        heapreplace(loops, (t + periods[k], NORMAL, next(ids), k))
+                if pos == n_win and not self._kidle:
+                    self._window()
+                    win_t, win_e, win_k, pos = self._kwin_t, self._kwin_e, self._kwin_k, 0
+                    n_win = len(win_k)
+                    continue
+                if pos < n_win:
+                    t = win_t[pos]
+                    if queue:
+                        head = queue[0]
+                        event_first = head[0] < t or (
+                            head[0] == t and head < (t, NORMAL, win_e[pos])
+                        )
                     else:
-                        heappop(loops)
-                elif queue and queue[0][0] < at:
+                        event_first = False
+                elif queue:
+                    event_first = True
+                else:
+                    return
+                if event_first:
+                    if queue[0][0] >= at:
+                        return
+                    self._kpos = pos
                     self._kt, _, _, event = heappop(queue)
                     callbacks, event.callbacks = event.callbacks, None
                     for callback in callbacks:
                         callback(event)
                     if not event.ok and not event.defused:
                         _raise_failed(event)
-                else:
-                    break
-        except StopSimulation as stop:
-            return stop.args[0]
-        self._kt = at
-        return None
+                    if self._kpos != pos:  # every() was called: rebuild the window
+                        pos = n_win = 0
+                        win_t = win_e = win_k = self._kwin_t = self._kwin_e = self._kwin_k = []
+                    continue
+                if t >= at:
+                    return
+                k = win_k[pos]
+                pos += 1
+                if nexts[k] != t:
+                    continue  # cancelled
+                self._kpos = pos
+                self._kt = t
+                try:
+                    calls[k]()
+                except BaseException:
+                    nexts[k] = math.inf
+                    raise
+                if nexts[k] == t:  # not cancelled meanwhile
+                    nexts[k] = t + periods[k]
+                    eids[k] = next(ids)
+                if self._kpos != pos:  # every() was called: rebuild the window
+                    pos = n_win = 0
+                    win_t = win_e = win_k = self._kwin_t = self._kwin_e = self._kwin_k = []
+        finally:
+            self._kpos = pos
 
 
 def _raise_failed(event: Any) -> None:

@@ -281,10 +281,20 @@ class Kilobot:
         ValueError
             If a channel is not an integer in 0–3.
         """
-        color = (r, g, b)
-        if any(not isinstance(c, int | np.integer) or not 0 <= c <= 3 for c in color):
-            raise ValueError(f"set_color channels must be integers 0-3, got {color}")
-        color = (int(r), int(g), int(b))
+        if (
+            r.__class__ is int
+            and g.__class__ is int
+            and b.__class__ is int
+            and 0 <= r <= 3
+            and 0 <= g <= 3
+            and 0 <= b <= 3
+        ):
+            color = (r, g, b)  # the common case, checked without a call (loops set it often)
+        else:
+            color = (r, g, b)
+            if any(not isinstance(c, int | np.integer) or not 0 <= c <= 3 for c in color):
+                raise ValueError(f"set_color channels must be integers 0-3, got {color}")
+            color = (int(r), int(g), int(b))
         if color != self._kcolor:
             self._kcolor = color
             self._ksim.trace.led(self._kenv.now, self._kindex, color)

@@ -184,6 +184,7 @@ class Simulation:
         self.sensors = Sensors(self)
         self.faults = FaultInjector(self)
         self.stop_causes: dict[int, str] = {}
+        self._loops: dict[int, int] = {}  # robot -> its loop's handle in the environment
         self.wall_time_s = 0.0
         self._started = False
         self._estimating: list[int] = []  # robots whose position_estimate() is sampled
@@ -223,7 +224,8 @@ class Simulation:
             # An empty loop() has no effect on a robot; skipping it keeps idle programs cheap.
             if has_loop:
                 period = loop_ticks / self.clocks.rate_hz(i)
-                self.env.every(self.clocks.first_mid_tick_s(i), period, self._loop_call(i, drains))
+                first = self.clocks.first_mid_tick_s(i)
+                self._loops[i] = self.env.every(first, period, self._loop_call(i, drains))
         self._sample_estimates()
 
     def _check_kernel_names(self, i: int) -> None:
@@ -280,39 +282,20 @@ class Simulation:
                 held[i] = estimate
                 self.trace.estimate(now, i, *estimate)
 
-    def _loop_call(self, i: int, drains: bool) -> Callable[[], bool]:
-        """Robot ``i``'s turn in the loop schedule: its ``loop()`` while it runs (and, with
-        ``drains``, its polled buffer into ``message_rx`` after it)."""
+    def _loop_call(self, i: int, drains: bool) -> Callable[[], None]:
+        """Robot ``i``'s turn in the loop schedule: its ``loop()`` (and, with ``drains``, its
+        polled buffer into ``message_rx`` after it); :meth:`stop_robot` cancels it."""
         robot = self.robots[i]
-        loop = robot.loop
-        running = self.world.running
-        if drains:
-            drain = robot.drain_messages
-            if type(robot).loop is Kilobot.loop:
+        if not drains:
+            return robot.loop
+        loop, drain, running = robot.loop, robot.drain_messages, self.world.running
+        if type(robot).loop is Kilobot.loop:
+            return drain
 
-                def call() -> bool:
-                    if running[i]:
-                        drain()
-                        return True
-                    return False
-
-                return call
-
-            def call() -> bool:
-                if running[i]:
-                    loop()
-                    if running[i]:
-                        drain()
-                    return True
-                return False
-
-            return call
-
-        def call() -> bool:
+        def call() -> None:
+            loop()
             if running[i]:
-                loop()
-                return True
-            return False
+                drain()
 
         return call
 
@@ -471,6 +454,8 @@ class Simulation:
             return
         self.motion.stop(robot)
         self.world.running[robot] = False
+        if robot in self._loops:
+            self.env.cancel(self._loops[robot])
         if remove:
             self.world.present[robot] = False
         self.stop_causes.setdefault(robot, cause)

@@ -67,7 +67,8 @@ def _journal(periods_s, first_s, event_times, chunk_s, *, round_of_loops, stops=
             event(f"event {k}.{j}").schedule(t)
         call = loop_call(k)
         if round_of_loops:
-            env.every(first, periods_s[k], call)
+            handle = env.every(first, periods_s[k], lambda call=call, k=k: call() or env.cancel(k))
+            assert handle == k
         else:
             Timer(
                 env, lambda timer, call=call, p=periods_s[k]: call() and timer.schedule(p), k
@@ -121,9 +122,10 @@ def test_a_schedule_whose_loops_all_stopped_leaves_the_queue_empty():
 
     def call():
         calls.append(round(env.now, 9))
-        return env.now < 1.0
+        if env.now >= 1.0:
+            env.cancel(handle)
 
-    env.every(0.1, 0.25, call)
+    handle = env.every(0.1, 0.25, call)
     env.run()  # without `until`: returns only once nothing is queued
     assert calls == [0.1, 0.35, 0.6, 0.85, 1.1]
     assert env.peek() == float("inf")
@@ -231,3 +233,30 @@ def test_the_first_loop_falls_mid_tick_of_tick_zero_or_one(phase, factor):
     t = clocks.first_mid_tick_s(0)
     assert 0 <= t < 1 / clocks.rate_hz(0)
     assert (t * clocks.rate_hz(0) + phase) % 1 == pytest.approx(0.5, abs=1e-9)
+
+
+@given(_PERIODS_S, _FIRST_S, _CHUNK_S, st.sampled_from([0.0, 0.3, 1.0, 1.05]))
+def test_recurring_calls_added_while_running_run_as_one_timer_each_would(
+    periods_s, first_s, chunk_s, added_at_s
+):
+    def journal(recurring: bool) -> list:
+        env = KernelEnvironment()
+        log = []
+
+        def start(k, first):
+            def call():
+                log.append((k, env.now))
+
+            if recurring:
+                env.every(first, periods_s[k], call)
+            else:
+                Timer(env, lambda t, p=periods_s[k]: call() or t.schedule(p), k).schedule(first)
+
+        start(0, first_s[0])
+        adder = Timer(env, lambda _t: [start(k, f) for k, f in enumerate(first_s)], None)
+        adder.schedule(added_at_s)
+        while env.now < 3.0:
+            env.run(until=min(3.0, env.now + chunk_s))
+        return log
+
+    assert journal(True) == journal(False)
