@@ -176,18 +176,22 @@ class KernelEnvironment(simpy.Environment):
         self._kt = initial_time
         self._kqueue: list[tuple[float, int, int, Any]] = []
         self._kids = count()
-        # Recurring calls: the time and insertion number of each one's pending run (inf once
-        # cancelled or raised), and a window of the pending runs before `_kwin_end`, in the
-        # order of their keys, consumed from `_kpos` on.
+        # Recurring calls. A window holds every pending run within the shortest period of the
+        # earliest, in key order, consumed from `_kpos` on; each runs once in it, so the next
+        # runs of those consumed are filled in with one NumPy addition when the window ends.
         self._kcalls: list[Callable[[], Any]] = []
-        self._kperiods: list[float] = []
-        self._knext: list[float] = []
-        self._keids: list[int] = []
+        self._kperiods = np.empty(0)
+        self._knext = np.empty(0)  # each call's next run, as of the window's start (inf: none)
+        self._keids: list[int] = []  # insertion number of each call's pending run
+        self._kalive: list[bool] = []
+        self._kcancelled: list[int] = []  # cancelled or raised since the window was built
         self._kmin_period = math.inf
         self._kwin_t: list[float] = []
-        self._kwin_e: list[int] = []
         self._kwin_k: list[int] = []
+        self._kwin_t_arr = np.empty(0)
+        self._kwin_k_arr = np.empty(0, dtype=np.intp)
         self._kpos = 0
+        self._kdirty = False  # every() added a call: the window must be rebuilt
         self._kidle = True  # no recurring call pending: no window to build
 
     @property
@@ -238,65 +242,82 @@ class KernelEnvironment(simpy.Environment):
                 f"a recurring call needs first_s >= 0 and period_s > 0, got {first_s} s and "
                 f"{period_s} s"
             )
-        k = len(self._kcalls)
+        k = len(self._kcalls)  # appended: the window's indices stay valid until it is rebuilt
         self._kcalls.append(callback)
-        self._kperiods.append(period_s)
-        self._knext.append(self._kt + first_s)
+        self._kperiods = np.append(self._kperiods, period_s)
+        self._knext = np.append(self._knext, self._kt + first_s)
         self._keids.append(next(self._kids))
+        self._kalive.append(True)
         self._kmin_period = min(self._kmin_period, period_s)
-        self._kpos = len(self._kwin_k)  # the window is rebuilt: the new call may fall in it
+        self._kdirty = True
         self._kidle = False
         return k
 
     def cancel(self, handle: int) -> None:
         """Call the recurring call ``handle`` never again (from now on, even within a call)."""
-        self._knext[handle] = math.inf
+        if self._kalive[handle]:
+            self._kalive[handle] = False
+            self._kcancelled.append(handle)
+
+    def _close_window(self) -> None:
+        """Note the next runs of the calls the window has run, and drop the rest of it (their
+        pending runs stay as they are)."""
+        pos = self._kpos
+        if pos:
+            ran = self._kwin_k_arr[:pos]
+            self._knext[ran] = self._kwin_t_arr[:pos] + self._kperiods[ran]
+        if self._kcancelled:
+            self._knext[self._kcancelled] = math.inf
+            self._kcancelled = []
+        self._kwin_t, self._kwin_k, self._kpos = [], [], 0
+        self._kwin_t_arr = self._kwin_t_arr[:0]
+        self._kwin_k_arr = self._kwin_k_arr[:0]
 
     def _window(self) -> None:
-        """The next window of recurring runs: every pending run within the shortest period
+        """Close the window and build the next: every pending run within the shortest period
         of the earliest, ordered by (time, insertion number) as the queue would order them.
-        None of them comes round again within the window, so it stays valid while it is
-        consumed (unless :meth:`every` adds a call, which rebuilds it)."""
-        nexts = np.array(self._knext)
-        self._kpos = 0
+        None of them comes round again within it, so it stays valid while it is consumed."""
+        self._close_window()
+        self._kdirty = False
+        nexts = self._knext
         start = nexts.min() if len(nexts) else math.inf
         if start == math.inf:
-            self._kwin_t, self._kwin_e, self._kwin_k = [], [], []
             self._kidle = True
             return
         chosen = np.flatnonzero(nexts < start + self._kmin_period)
-        times, eids = nexts[chosen], np.array(self._keids)[chosen]
-        order = np.lexsort((eids, times))
-        self._kwin_t = times[order].tolist()
-        self._kwin_e = eids[order].tolist()
-        self._kwin_k = chosen[order].tolist()
+        times = nexts[chosen]
+        order = np.argsort(times, kind="stable")
+        ordered = times[order]
+        if len(ordered) > 1 and (ordered[1:] == ordered[:-1]).any():  # ties: by insertion
+            order = np.lexsort((np.array(self._keids)[chosen], times))
+            ordered = times[order]
+        self._kwin_t_arr, self._kwin_k_arr = ordered, chosen[order]
+        self._kwin_t, self._kwin_k = ordered.tolist(), self._kwin_k_arr.tolist()
 
     def _next_recurring(self) -> tuple[float, int, int] | None:
         """The next live recurring run as (time, insertion number, call), or None."""
         while True:
-            if self._kpos == len(self._kwin_k):
-                if self._kidle:
+            if self._kdirty or self._kpos == len(self._kwin_k):
+                if self._kidle and not self._kdirty:
                     return None
                 self._window()
                 continue
             pos = self._kpos
-            t, k = self._kwin_t[pos], self._kwin_k[pos]
-            if self._knext[k] == t:
-                return t, self._kwin_e[pos], k
+            k = self._kwin_k[pos]
+            if self._kalive[k]:
+                return self._kwin_t[pos], self._keids[k], k
             self._kpos = pos + 1  # cancelled
 
     def _recur(self, t: float, k: int) -> None:
-        """Run recurring call ``k`` due at ``t`` (the window's next) and note its next run."""
+        """Run recurring call ``k`` due at ``t`` (the window's next)."""
         self._kpos += 1
         self._kt = t
-        nexts = self._knext
         try:
             self._kcalls[k]()
         except BaseException:
-            nexts[k] = math.inf
+            self.cancel(k)
             raise
-        if nexts[k] == t:  # not cancelled meanwhile
-            nexts[k] = t + self._kperiods[k]
+        if self._kalive[k]:
             self._keids[k] = next(self._kids)
 
     def peek(self) -> float:
@@ -358,29 +379,32 @@ class KernelEnvironment(simpy.Environment):
     def _run_to(self, at: float) -> None:
         """The step loop of :meth:`step` inline, up to (not including) time ``at``: the window
         of recurring calls and the queue merged by key."""
-        queue, nexts, eids, calls, periods, ids = (
+        queue, eids, calls, alive, ids = (
             self._kqueue,
-            self._knext,
             self._keids,
             self._kcalls,
-            self._kperiods,
+            self._kalive,
             self._kids,
         )
-        win_t, win_e, win_k, pos = self._kwin_t, self._kwin_e, self._kwin_k, self._kpos
+        win_t, win_k, pos = self._kwin_t, self._kwin_k, self._kpos
         n_win = len(win_k)
         try:
             while True:
-                if pos == n_win and not self._kidle:
-                    self._window()
-                    win_t, win_e, win_k, pos = self._kwin_t, self._kwin_e, self._kwin_k, 0
-                    n_win = len(win_k)
-                    continue
+                if pos == n_win or self._kdirty:
+                    if self._kidle and not self._kdirty:
+                        win_t, win_k, pos, n_win = (), (), 0, 0
+                    else:
+                        self._kpos = pos
+                        self._window()
+                        win_t, win_k, pos = self._kwin_t, self._kwin_k, 0
+                        n_win = len(win_k)
+                        continue
                 if pos < n_win:
                     t = win_t[pos]
                     if queue:
                         head = queue[0]
                         event_first = head[0] < t or (
-                            head[0] == t and head < (t, NORMAL, win_e[pos])
+                            head[0] == t and head < (t, NORMAL, eids[win_k[pos]])
                         )
                     else:
                         event_first = False
@@ -391,38 +415,30 @@ class KernelEnvironment(simpy.Environment):
                 if event_first:
                     if queue[0][0] >= at:
                         return
-                    self._kpos = pos
                     self._kt, _, _, event = heappop(queue)
                     callbacks, event.callbacks = event.callbacks, None
                     for callback in callbacks:
                         callback(event)
                     if not event.ok and not event.defused:
                         _raise_failed(event)
-                    if self._kpos != pos:  # every() was called: rebuild the window
-                        pos = n_win = 0
-                        win_t = win_e = win_k = self._kwin_t = self._kwin_e = self._kwin_k = []
                     continue
                 if t >= at:
                     return
                 k = win_k[pos]
                 pos += 1
-                if nexts[k] != t:
+                if not alive[k]:
                     continue  # cancelled
-                self._kpos = pos
                 self._kt = t
                 try:
                     calls[k]()
                 except BaseException:
-                    nexts[k] = math.inf
+                    self.cancel(k)
                     raise
-                if nexts[k] == t:  # not cancelled meanwhile
-                    nexts[k] = t + periods[k]
+                if alive[k]:
                     eids[k] = next(ids)
-                if self._kpos != pos:  # every() was called: rebuild the window
-                    pos = n_win = 0
-                    win_t = win_e = win_k = self._kwin_t = self._kwin_e = self._kwin_k = []
         finally:
-            self._kpos = pos
+            if self._kwin_k is win_k:
+                self._kpos = pos
 
 
 def _raise_failed(event: Any) -> None:
