@@ -463,15 +463,62 @@ class InfraredMedium:
             success()
 
     def _end_of_airtime(self, tx: _Transmission) -> None:
-        # Called by Environment.step with the event, which is the transmission itself.
+        # Called by the step loop with the event, which is the transmission itself.
         message = tx.message
-        if tx.losses is None and tx.corrupted is None and tx.epoch == self._epoch:
+        corrupted, losses = tx.corrupted, tx.losses
+        if tx.epoch != self._epoch or tx.sender < 0:
+            self._deliver_carefully(tx)
+            return
+        counters = self.counts
+        if losses is None and corrupted is None:
             self._sink.extend(map(operator.call, tx.handlers, repeat(message), tx.estimates))
-            self.counts.clean_delivery(tx.sender)
+            counters.clean_delivery(tx.sender)
             if self._trace_messages:
                 n = len(tx.receivers)
                 self.sim.trace.message(self.env.now, tx.sender, n, n)
             return
+        # Some receptions fail: deliver the others in one comprehension, count the
+        # transmission as clean and take the failed receptions back out of `received`.
+        receivers = tx.receivers
+        if losses is None:
+            [
+                h(message, e)
+                for r, h, e in zip(receivers, tx.handlers, tx.estimates, strict=True)
+                if r not in corrupted
+            ]
+            failed = [(r, 0) for r in corrupted]
+        else:
+            corrupted = corrupted or ()
+            [
+                h(message, e)
+                for r, h, e, loss in zip(receivers, tx.handlers, tx.estimates, losses, strict=True)
+                if not loss and r not in corrupted
+            ]
+            failed = [
+                (r, loss)
+                for r, loss in zip(receivers, losses, strict=True)
+                if loss or r in corrupted
+            ]
+        counters.clean_delivery(tx.sender)
+        received, lost_collision, lost_by_code = (
+            counters.received,
+            counters.lost("collision"),
+            self._lost_by_code,
+        )
+        for r, loss in failed:
+            received[r] -= 1
+            if r in corrupted:
+                lost_collision[r] += 1
+            else:
+                lost_by_code[loss][r] += 1
+        if self._trace_messages:
+            n = len(receivers)
+            self.sim.trace.message(self.env.now, tx.sender, n, n - len(failed))
+
+    def _deliver_carefully(self, tx: _Transmission) -> None:
+        """End of airtime of a message whose receiver lists changed while it was on the air,
+        or that came from outside the swarm (:meth:`arrive`): receiver by receiver."""
+        message = tx.message
         corrupted = tx.corrupted or ()
         counters = self.counts
         received = counters.received
