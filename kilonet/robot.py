@@ -177,7 +177,7 @@ class Kilobot:
     @property
     def kilo_ticks(self) -> int:
         """Ticks of this robot's clock since the start."""
-        return int(self._kenv.now * self._krate + self._ktheta)
+        return int(self._kenv._kt * self._krate + self._ktheta)  # the kernel clock, no call
 
     @property
     def ticks_per_s(self) -> float:
