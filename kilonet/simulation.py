@@ -181,7 +181,14 @@ class Simulation:
             self.robots.append(robot)
         self.medium = InfraredMedium(self, links=links, reception=reception)
         self.battery = Battery(self)
-        self.sensors = Sensors(self)
+        rp = self.params.robot
+        self.sensors = Sensors(
+            self.params.light,
+            rp.temperature_c,
+            self.world,
+            self.battery.voltage,
+            self.stream("sensors"),
+        )
         self.faults = FaultInjector(self)
         self.stop_causes: dict[int, str] = {}
         self._loops: dict[int, int] = {}  # robot -> its loop's handle in the environment
