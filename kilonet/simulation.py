@@ -189,7 +189,15 @@ class Simulation:
             self.battery.voltage,
             self.stream("sensors"),
         )
-        self.faults = FaultInjector(self)
+        self.faults = FaultInjector(
+            self.params.faults,
+            self.env,
+            self.stream("faults"),
+            n,
+            stop=self.stop_robot,
+            medium=self.medium,
+            deliver=self.deliver,
+        )
         self.stop_causes: dict[int, str] = {}
         self._loops: dict[int, int] = {}  # robot -> its loop's handle in the environment
         self.wall_time_s = 0.0
