@@ -424,18 +424,32 @@ class KernelEnvironment(simpy.Environment):
                     continue
                 if t >= at:
                     return
-                k = win_k[pos]
-                pos += 1
-                if not alive[k]:
-                    continue  # cancelled
-                self._kt = t
+                # Recurring calls strictly before the queue's next event and `at` run back to
+                # back here; a tie or anything else goes round the outer loop.
+                # The first of them won against the queue's head by key, ties included.
+                limit = queue[0][0] if queue and queue[0][0] < at else at
+                k = -1
                 try:
-                    calls[k]()
+                    while True:
+                        k = win_k[pos]
+                        pos += 1
+                        if alive[k]:
+                            self._kt = t
+                            calls[k]()
+                            if alive[k]:
+                                eids[k] = next(ids)
+                            if self._kdirty:
+                                break
+                            if queue and queue[0][0] < limit:
+                                limit = queue[0][0]
+                        if pos == n_win:
+                            break
+                        t = win_t[pos]
+                        if t >= limit:
+                            break
                 except BaseException:
                     self.cancel(k)
                     raise
-                if alive[k]:
-                    eids[k] = next(ids)
         finally:
             if self._kwin_k is win_k:
                 self._kpos = pos
