@@ -166,7 +166,9 @@ class Simulation:
         rp = self.params.robot
         self.clocks = RobotClocks.draw(n, rp.ticks_per_s, rp.clock_sd, self.stream("clock"))
         self.calibration_tables = calibration_tables(n, self.stream("calibration"))
-        self.motion = Motion(self)
+        self.motion = Motion(
+            self.params.motion, self.env, self.world, self.trace, self.stream("motion")
+        )
         self.robots: list[Kilobot] = []
         build = program if not _is_program_class(program) else (lambda _i: program())
         checked: set[type] = set()
@@ -181,6 +183,7 @@ class Simulation:
             self.robots.append(robot)
         self.medium = InfraredMedium(self, links=links, reception=reception)
         self.battery = Battery(self)
+        self.motion.connect(self.battery, self.medium.rebuild_topology)
         rp = self.params.robot
         self.sensors = Sensors(
             self.params.light,
