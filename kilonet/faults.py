@@ -62,13 +62,8 @@ class FaultInjector:
         medium: InfraredMedium,
         deliver: Callable[[int, Message, int], None],
     ) -> None:
-        self.params = params
-        self.env = env
-        self.rng = rng
-        self.n_robots = n_robots
-        self._stop = stop
-        self._medium = medium
-        self._deliver = deliver
+        self.params, self.env, self.rng, self.n_robots = params, env, rng, n_robots
+        self._stop, self._medium, self._deliver = stop, medium, deliver
         self.faulty_receivers: set[int] = set()
 
     def start(self) -> None:
