@@ -192,6 +192,14 @@ def _localization(context: Context) -> None:
     _blocks(context, pages_wanted={_LOCALIZE})
 
 
+def _validation(context: Context) -> None:
+    from experiments.validation import write_page
+
+    write_page(
+        ROOT / "docs" / "validation.md", stamp=stamp("python -m experiments.publish validation")
+    )
+
+
 def _default_gif(context: Context) -> None:
     import scenarios
     from kilonet.animation import animate_run
@@ -413,6 +421,13 @@ def _localize_compared(joined, localize):
     return pd.concat(parts, ignore_index=True)
 
 
+def _labs():
+    """:mod:`experiments.labs_measured`, imported when a labs block is made (it loads the labs)."""
+    from experiments import labs_measured
+
+    return labs_measured
+
+
 #: Generated blocks by name.
 BLOCKS: dict[str, Block] = {
     "clock-drift": Block("docs/model.md", _clock_drift_block),
@@ -436,6 +451,9 @@ BLOCKS: dict[str, Block] = {
     "follower-success": Block(
         "docs/follower.md", lambda _context: follower_measured.success_block()
     ),
+    # examples/labs/README.md: experiments/labs_measured.py
+    "labs-seed-1": Block("examples/labs/README.md", lambda _context: _labs().seed_one_block()),
+    "labs-seeds": Block("examples/labs/README.md", lambda _context: _labs().seeds_block()),
 }
 
 
@@ -520,6 +538,13 @@ PUBLICATIONS: dict[str, Publication] = {
         "the benchmarks' figures in docs/performance.md (run it on a quiet machine)",
         (_PERFORMANCE,),
         lambda context: _blocks(context, pages_wanted={_PERFORMANCE}),
+    ),
+    "validation": Publication(
+        "validation",
+        "kilonet beside real Kilobots: the ARGoS communication data, ICRA 2012's ranging "
+        "and battery (experiments/validation.py)",
+        ("docs/validation.md", "docs/validation_files/"),
+        _validation,
     ),
     "default-gif": Publication(
         "default-gif",

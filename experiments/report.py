@@ -40,6 +40,7 @@ __all__ = [
     "ReportError",
     "aggregate",
     "failures",
+    "is_fraction",
     "load",
     "metrics_of",
     "plot",
@@ -124,7 +125,8 @@ def aggregate(
     -------
     DataFrame
         One row per cell and metric: the ``by`` columns, ``metric``, ``runs`` (values that
-        entered), ``mean``, ``std``, ``ci_low``, ``ci_high`` (NaN for a single run).
+        entered), ``mean``, ``std``, ``ci_low``, ``ci_high`` (NaN for a single run; for a
+        fraction, :func:`is_fraction`, cut to [0, 1]).
 
     Examples
     --------
@@ -143,10 +145,29 @@ def aggregate(
         key = key if isinstance(key, tuple) else (key,)
         for metric in metrics:
             values = pd.to_numeric(group[metric], errors="coerce").dropna().to_numpy(float)
-            rows.append(
-                dict(zip(by, key, strict=True)) | {"metric": metric, **_stats(values, confidence)}
-            )
+            row = _stats(values, confidence)
+            if is_fraction(metric):
+                row["ci_low"], row["ci_high"] = _clipped(row["ci_low"], row["ci_high"])
+            rows.append(dict(zip(by, key, strict=True)) | {"metric": metric, **row})
     return pd.DataFrame(rows, columns=columns)
+
+
+def is_fraction(metric: str) -> bool:
+    """Whether ``metric`` is a share in [0, 1] by its name (``..._fraction``, ``..._share``,
+    ``one_frame``-style 0/1 outcomes are not named so and are left alone).
+
+    >>> is_fraction("gradient_correct_fraction"), is_fraction("rmse_mm")
+    (True, False)
+    """
+    return metric.endswith(("fraction", "_share"))
+
+
+def _clipped(low: float, high: float) -> tuple[float, float]:
+    """A fraction's interval cut to [0, 1]: a Student-t interval of values near 0 or 1 reaches
+    past them, where no run can be."""
+    if math.isnan(low):
+        return low, high
+    return max(low, 0.0), min(high, 1.0)
 
 
 def _stats(values: np.ndarray, confidence: float) -> dict[str, float]:
@@ -228,7 +249,7 @@ def plot(
 
 
 def _short(value: Any) -> str:
-    return f"{value:.4g}" if isinstance(value, float) else str(value)
+    return _number(value) if isinstance(value, float) else str(value)
 
 
 # ------------------------------------------------------------------------------ report files
@@ -411,7 +432,19 @@ def _markdown_table(frame: pd.DataFrame) -> list[str]:
 
 
 def _number(value: float) -> str:
-    return f"{value:.4g}"
+    """A table's number: four significant digits, whole numbers from 10,000 up with thousands
+    separators instead of an exponent, an exponent only below 0.001.
+
+    >>> [_number(v) for v in (76510.4, 9999.7, 123.456, 0.5, 0.0, 0.000012, -25000.0)]
+    ['76,510', '10,000', '123.5', '0.5', '0', '1.2e-05', '-25,000']
+    """
+    if not math.isfinite(value):
+        return "–" if math.isnan(value) else str(value)
+    if abs(value) >= 9999.5:
+        return f"{value:,.0f}"
+    if value == 0 or abs(value) >= 1e-3:
+        return f"{value:.4g}"
+    return f"{value:.2g}"
 
 
 def _seed_text(seeds: Sequence[int]) -> str:

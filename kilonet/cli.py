@@ -72,8 +72,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UserError as exc:
         print(f"kilonet: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("kilonet: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        where = f" {exc}" if str(exc) else ""  # the robot and callback it stopped, if known
+        print(f"kilonet: interrupted{where}", file=sys.stderr)
         return 130
     except BrokenPipeError:
         # Whoever read the output stopped (``kilonet params | head``): end quietly, as Unix

@@ -21,9 +21,19 @@ from __future__ import annotations
 __all__ = ["COUNTERS", "LOSS_CAUSES", "MediumCounters"]
 
 #: Causes a reception can be lost to, as counted per receiving robot (``lost_<cause>``):
-#: independent loss, bodies on the line of sight, overlapping receptions, a full polled buffer,
-#: a low battery, a faulty receiver, a message whose CRC the sender got wrong.
-LOSS_CAUSES = ("random", "occlusion", "collision", "overflow", "battery", "fault", "crc")
+#: independent loss, a signal too weak near the link's edge, bodies on the line of sight,
+#: overlapping receptions, a full polled buffer, a low battery, a faulty receiver, a message
+#: whose CRC the sender got wrong.
+LOSS_CAUSES = (
+    "random",
+    "signal",
+    "occlusion",
+    "collision",
+    "overflow",
+    "battery",
+    "fault",
+    "crc",
+)
 
 #: Every counter, in table order: as a sender (``sent``, ``backoffs``: transmit opportunities
 #: deferred because the robot sensed a carrier, ``bytes_sent``), then as a receiver.

@@ -4,8 +4,11 @@ Per robot the channel state is until when it is busy (the latest reception to be
 its own transmission: all messages share one airtime, so the latest to begin ends last) and that
 latest reception, to mark it when another overlaps it.
 
-* **Carrier sense.** A robot senses a carrier while some reception is in progress *at it*; it
-  cannot hear senders out of its own range, so hidden terminals exist.
+* **Carrier sense.** A robot senses a carrier while some reception is in progress *at it*,
+  from ``sense_delay_s`` after the first of a run of overlapping receptions began there (a
+  receiver needs a few bit times to tell a message from noise, so two senders that start
+  within that delay of each other collide); it cannot hear senders out of its own range, so
+  hidden terminals exist.
 * **Collisions.** Two receptions that overlap in time at a receiver corrupt each other *there*
   (both fail the CRC); the same message may arrive cleanly elsewhere.
 * **Half duplex.** A robot that starts transmitting while receiving ruins that reception, and
@@ -34,25 +37,29 @@ __all__ = ["Channel"]
 class Channel:
     """The carrier-sense and collision state of every robot of one medium."""
 
-    __slots__ = ("busy_until", "last_rx")
+    __slots__ = ("busy_until", "last_rx", "sense_delay_s", "sensed_from")
 
-    def __init__(self, n_robots: int) -> None:
+    def __init__(self, n_robots: int, sense_delay_s: float = 0.0) -> None:
         #: Per robot: until when (s) its channel is busy.
         self.busy_until: list[float] = [-math.inf] * n_robots
+        #: Per robot: from when (s) it senses the carrier of its current busy period.
+        self.sensed_from: list[float] = [-math.inf] * n_robots
         #: Per robot: the latest transmission to begin arriving there.
         self.last_rx: list[Any] = [None] * n_robots
+        self.sense_delay_s = sense_delay_s
 
     def busy(self, robot: int, now_s: float) -> bool:
         """Whether ``robot`` senses a carrier at ``now_s``."""
-        return self.busy_until[robot] > now_s
+        return self.busy_until[robot] > now_s >= self.sensed_from[robot]
 
     def occupy(self, tx: Any, sender: int, receivers: list[int], now: float, end: float) -> None:
         """Put ``tx`` on the air from ``sender`` to ``receivers`` until ``end``; mark every
         reception it overlaps, and its own receptions that overlap others, as corrupted."""
-        busy, last = self.busy_until, self.last_rx
+        busy, last, sensed = self.busy_until, self.last_rx, self.sensed_from
         if busy[sender] > now:  # half duplex: the sender's own reception in progress is ruined
             _corrupt(last[sender], sender)
         clashes = None
+        sensed_at = now + self.sense_delay_s
         for r in receivers:
             if busy[r] > now:
                 # Overlap at r: both receptions fail there. Earlier overlapping receptions at r
@@ -62,12 +69,16 @@ class Channel:
                     clashes = {r}
                 else:
                     clashes.add(r)
+            else:
+                sensed[r] = sensed_at
             busy[r] = end
             last[r] = tx
         tx.corrupted = clashes
         # Half duplex the other way round: while the sender transmits, whatever starts arriving
         # at it overlaps its channel and is lost there.
         if end > busy[sender]:
+            if busy[sender] <= now:
+                sensed[sender] = now  # its own transmission: no delay
             busy[sender] = end
 
 

@@ -48,7 +48,15 @@ from kilonet.clock import Timer
 from kilonet.counters import LOSS_CAUSES, MediumCounters
 from kilonet.mac import Channel
 from kilonet.message import LIMITS, Message, PayloadLimit
-from kilonet.reception import CAUSES, RANDOM, GaussianRanging, LossShares, ReceptionModel
+from kilonet.radio import MIN_RECEPTION, reception_probability
+from kilonet.reception import (
+    CAUSES,
+    RANDOM,
+    LossShares,
+    ModelContext,
+    ReceptionModel,
+    reception_model,
+)
 from kilonet.robot import Kilobot
 from kilonet.visibility import LinkModel
 
@@ -165,21 +173,33 @@ class InfraredMedium:
         self.params = p
         n = sim.n_robots
         self.n = n
-        self.link_model = links or LinkModel.from_params(p, sim.world.radius_mm)
+        self.radio = sim.transceivers
+        self._edge_mm = self.radio.reach.edge_mm
+        self.link_model = links or LinkModel.from_params(
+            p, sim.world.radius_mm, range_mm=self.radio.max_distance_mm
+        )
         self._medium_rng = sim.stream("medium")
-        self.reception = reception or GaussianRanging(
-            sim.params, n, sim.stream("ranging"), self._medium_rng
+        self.reception = reception or reception_model(
+            ModelContext(
+                sim.params,
+                n,
+                sim.stream("ranging"),
+                self._medium_rng,
+                sim.calibration_tables,
+                self.radio,
+            )
         )
         # One channel slot per robot and one more, the last, for senders outside the swarm
         # (a test's scripted messages, see arrive()): it is a sender's slot only, never
         # a receiver's.
-        self.channel = Channel(n + 1)
+        self.channel = Channel(n + 1, p.sense_delay_s)
         self._outside = n
         self._busy_until = self.channel.busy_until
+        self._sensed_from = self.channel.sensed_from
         self.counts = MediumCounters(n)
         self._lost_by_code = {code: self.counts.lost(c) for code, c in _CODE_CAUSE.items()}
         self.limit: PayloadLimit = LIMITS[p.message_format]
-        self.airtime_s = p.airtime_s or self.limit.air_bytes * 8 / p.bitrate_bps
+        self.airtime_s = p.airtime_s or self.limit.air_bytes * 8 / p.bitrate_bps + p.preamble_s
 
         # Timing per robot in true seconds: each robot's clock runs at its own rate.
         rp = sim.params.robot
@@ -224,11 +244,13 @@ class InfraredMedium:
         # derived lists the hot path reads.
         self._link_r: list[np.ndarray] = []
         self._link_d: list[np.ndarray] = []
+        self._link_reach: list[np.ndarray] = []
         self._link_loss: list[np.ndarray] = []
         self._rx_r: list[list[int]] = [[] for _ in range(n)]
         self._rx_idx: list[np.ndarray] = [np.empty(0, dtype=np.intp)] * n
         self._rx_d: list[np.ndarray] = [np.empty(0)] * n
         self._rx_loss: list[np.ndarray] = [np.empty(0)] * n
+        self._rx_signal: list[np.ndarray] = [np.empty(0)] * n
         self._rx_h: list[list[Callable[[Message, int], None]]] = [[] for _ in range(n)]
         # Outcomes drawn ahead per sender: row k of the block is its k-th next transmission.
         self._estimates: list[bytes] = [b""] * n  # distance estimate per receiver, mm
@@ -248,13 +270,18 @@ class InfraredMedium:
         receiver = np.concatenate([links.j, links.i])
         dist = np.concatenate([links.distance_mm, links.distance_mm])
         loss = np.concatenate([links.loss, links.loss])
+        bodies = np.concatenate([links.bodies, links.bodies])
         keep = world.running[receiver]
         sender, receiver, dist, loss = sender[keep], receiver[keep], dist[keep], loss[keep]
         order = np.lexsort((receiver, sender))
         sender, receiver, dist, loss = sender[order], receiver[order], dist[order], loss[order]
+        reach = self.radio.link_reach_mm(sender, receiver)
+        if self.link_model.occlusion == "graded":  # each body crossed shortens the reach
+            reach = reach * self.link_model.range_factor ** bodies[keep][order]
         cuts = np.searchsorted(sender, np.arange(self.n + 1))[1:-1]
         self._link_r = np.split(receiver, cuts)
         self._link_d = np.split(dist, cuts)
+        self._link_reach = np.split(reach, cuts)
         self._link_loss = np.split(loss, cuts)
         for s in range(self.n):
             self._derive(s)
@@ -264,13 +291,14 @@ class InfraredMedium:
         self.counts.fold(s, self._rx_r[s])
         self._epoch += 1
         r, d, loss = self._link_r[s], self._link_d[s], self._link_loss[s]
-        factor = self._range_factor[s]
-        if factor < 1.0:
-            near = d <= self.params.range_mm * factor
-            r, d, loss = r[near], d[near], loss[near]
+        p = reception_probability(d, self._link_reach[s] * self._range_factor[s], self._edge_mm)
+        heard = p >= MIN_RECEPTION
+        if not heard.all():
+            r, d, loss, p = r[heard], d[heard], loss[heard], p[heard]
         self._rx_idx[s] = r
         self._rx_d[s] = d
         self._rx_loss[s] = loss
+        self._rx_signal[s] = 1.0 - p
         ids = self._ids
         self._rx_r[s] = [ids[k] for k in r.tolist()]
         self._rx_h[s] = [self._handlers[k] for k in self._rx_r[s]]
@@ -381,6 +409,7 @@ class InfraredMedium:
             self._rx_loss[s],
             self._loss_battery[receivers],
             self._loss_fault[receivers],
+            self._rx_signal[s],
         )
         outcomes = self.reception.draw(s, receivers, self._rx_d[s], shares, n_rows)
         self._estimates[s] = outcomes.estimates.tobytes()
@@ -406,7 +435,7 @@ class InfraredMedium:
         if not self._running[s]:
             return
         now = self.env.now
-        if self._csma and self._busy_until[s] > now:
+        if self._csma and self._busy_until[s] > now >= self._sensed_from[s]:
             self.counts.backoffs[s] += 1
             delay = self._uniform.next() * self._backoff[s]
         else:
@@ -419,7 +448,7 @@ class InfraredMedium:
                 )
             else:
                 if message is not self._last_checked[s]:
-                    self.limit.check(message)
+                    self.limit.check(message, s)
                     self._last_checked[s] = message
                     self._message_bytes[s] = message.size_bytes
                     self._crc_ok[s] = message.crc_ok
@@ -596,7 +625,11 @@ class InfraredMedium:
             return "stopped"
         at = np.array([receiver])
         shares = LossShares(
-            self.params.loss_prob, np.zeros(1), self._loss_battery[at], self._loss_fault[at]
+            self.params.loss_prob,
+            np.zeros(1),
+            self._loss_battery[at],
+            self._loss_fault[at],
+            np.zeros(1),
         )
         outcome = self.reception.draw(-1, at, np.array([float(distance_mm)]), shares, 1)
         if not message.crc_ok:
@@ -632,7 +665,7 @@ class InfraredMedium:
 
     def receiving(self, robot: int) -> bool:
         """Whether a reception is in progress at ``robot`` now (kilolib's ``rx_busy``)."""
-        return self._busy_until[robot] > self.env.now
+        return self.channel.busy(robot, self.env.now)
 
 
 def _drop(message: Message, distance_mm: int) -> None:

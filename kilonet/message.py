@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = [
+    "FIELD_CODES",
     "KILOLIB",
     "LIMITS",
     "NORMAL",
@@ -91,6 +92,20 @@ class Message:
         return (Message, (self.data, self.type, self.crc))
 
 
+def _immutable(self: Message, name: str, value: Any) -> None:
+    raise AttributeError(
+        f"a Message cannot change (one message object reaches every receiver, and the radio "
+        f"has sent it already): instead of msg.{name} = ..., build a new one, "
+        f"msg = dataclasses.replace(msg, {name}=...) or Message(data, type, crc)"
+    )
+
+
+# A frozen dataclass's own error says only "cannot assign to field"; a kilolib programmer
+# writes msg.crc = message_crc(&msg), so say what to write instead. (Set after the decorator,
+# which refuses a __setattr__ in the class body; __init__ and replace() bypass it.)
+Message.__setattr__ = _immutable  # type: ignore[method-assign]
+
+
 def _crc_ccitt_update(crc: int, byte: int) -> int:
     """avr-libc's ``_crc_ccitt_update`` (reflected CRC-CCITT, polynomial 0x8408)."""
     byte ^= crc & 0xFF
@@ -137,13 +152,22 @@ class PayloadLimit:
     has_type: bool
     air_bytes: int
 
-    def check(self, message: Message) -> None:
-        """Raise :class:`PayloadError` if ``message`` does not fit this limit."""
+    def check(self, message: Message, sender: int | None = None) -> None:
+        """Raise :class:`PayloadError` if ``message`` is not a :class:`Message` that fits
+        this limit; the error names robot ``sender``'s ``message_tx()`` when it is given."""
+        if not isinstance(message, Message):
+            who = "message_tx()" if sender is None else f"robot {sender}'s message_tx()"
+            shown = repr(message)
+            shown = shown if len(shown) <= 40 else shown[:37] + "..."
+            raise PayloadError(
+                f"{who} returned {type(message).__name__} {shown}, not a Message or None; "
+                "return Message(data_bytes, type) or a Layout's pack(...)"
+            )
         data = message.data
         if not isinstance(data, bytes | bytearray):
             raise PayloadError(f"message data must be bytes, got {type(data).__name__}")
-        if not 0 <= message.type <= 255:
-            raise PayloadError(f"message type {message.type} is not a byte (0-255)")
+        if not isinstance(message.type, int) or not 0 <= message.type <= 255:
+            raise PayloadError(f"message type {message.type!r} is not a byte (0-255)")
         if not self.has_type and message.type != 0:
             raise PayloadError(
                 f"the {self.name} message format has no type byte; got type={message.type}"
@@ -162,6 +186,10 @@ class PayloadLimit:
                 f"the {self.name} limit of {self.data_bits} bits; pack fields more tightly"
             )
 
+
+#: The struct codes a :class:`Layout` field may use: integers of 1, 2 and 4 bytes and a bool
+#: (floats and strings do not belong in a 9-byte payload; scale a number to an integer).
+FIELD_CODES = ("B", "b", "H", "h", "I", "i", "?")
 
 #: kilolib's ``message_type_t`` for a program's own messages (``message.h``).
 NORMAL = 0
@@ -196,7 +224,8 @@ class Layout:
     Raises
     ------
     PayloadError
-        If the fields take more than ``max_bytes``.
+        If the fields take more than ``max_bytes``, or a code is not one of
+        :data:`FIELD_CODES`.
     """
 
     def __init__(
@@ -211,6 +240,13 @@ class Layout:
         self.type = type
         self._names = [f[0] for f in fields]
         self._codes = [f[1] for f in fields]
+        for field_name, code in zip(self._names, self._codes, strict=True):
+            if code not in FIELD_CODES:
+                raise PayloadError(
+                    f"layout {name!r}: field {field_name} has struct code {code!r}; a field is "
+                    f"one of {', '.join(FIELD_CODES)} (a number with a fraction is a scaled "
+                    f"integer: ({field_name!r}, 'h', 0.1) stores tenths)"
+                )
         self._scales = [f[2] if len(f) > 2 else None for f in fields]
         self._named_scales = list(zip(self._names, self._scales, strict=True))
         self._struct = struct.Struct("<" + "".join(self._codes))

@@ -60,7 +60,29 @@ def param(default: Any, *, lo: float | None = None, hi: float | None = None, doc
 class MediumParams:
     """The infrared channel."""
 
-    range_mm: float = param(85.0, lo=33.0, hi=1000.0, doc="reception range, centre to centre")
+    reach: Literal["argos", "argos-long", "disc"] = param(
+        "argos",
+        doc="how far links reach: per-robot reach with a soft edge fitted to real Kilobots "
+        "(argos: the ARGoS data's majority series; argos-long: its long-reach series), or "
+        "one hard radius range_mm (disc: the thesis's and Kilombo's model)",
+    )
+    range_mm: float = param(85.0, lo=33.0, hi=1000.0, doc="disc: reception range, centre to centre")
+    reach_median_mm: float | None = param(
+        None, lo=33.0, hi=1000.0, doc="argos*: median link reach, mm; none: the preset's"
+    )
+    rx_sensitivity_sd: float | None = param(
+        None, lo=0.0, hi=1.0, doc="argos*: log spread of receiver sensitivity; none: preset's"
+    )
+    edge_mm: float | None = param(
+        None, lo=0.0, hi=100.0, doc="argos*: width of a link's soft edge, mm; none: preset's"
+    )
+    tx_strength_sd: float = param(
+        0.08,
+        lo=0.0,
+        hi=1.0,
+        doc="log spread of emitter strength: each sender's reach, and the bias it gives "
+        "the receivers' distance estimates",
+    )
     occlusion: Literal["none", "graded", "block"] = param(
         "none",
         doc="bodies between sender and receiver: no effect (real-robot data), each weakens "
@@ -76,13 +98,34 @@ class MediumParams:
     message_format: Literal["kilolib", "thesis"] = param(
         "kilolib", doc="payload limit: kilolib v2 9 bytes, or the thesis's 23 bits"
     )
-    bitrate_bps: float = param(30_000.0, lo=100.0, hi=1e7, doc="on-air bit rate")
+    bitrate_bps: float = param(
+        29_740.0, lo=100.0, hi=1e7, doc="on-air bit rate (kilolib: 8 MHz / 269 cycles a bit)"
+    )
+    preamble_s: float = param(
+        0.0012,
+        lo=0.0,
+        hi=1.0,
+        doc="per message on air beyond its bytes: preamble and contention check (message_send.S)",
+    )
     airtime_s: float = param(
-        0.0, lo=0.0, hi=1.0, doc="airtime of one message; 0 derives it from bitrate and format"
+        0.0,
+        lo=0.0,
+        hi=1.0,
+        doc="airtime of one message; 0 derives it from format, bitrate and preamble",
     )
     csma: bool = param(True, doc="sense the carrier and back off while the channel is busy")
+    sense_delay_s: float = param(
+        0.0002,
+        lo=0.0,
+        hi=0.1,
+        doc="a reception is sensed as a carrier this long after it begins (about 6 bit "
+        "times; fitted to the ARGoS data's short links): senders starting closer collide",
+    )
     backoff_max_s: float = param(
-        0.032, lo=0.0, hi=10.0, doc="random back-off is U(0, this), own clock (kilolib: a tick)"
+        0.03264,
+        lo=0.0,
+        hi=10.0,
+        doc="random back-off is U(0, this), own clock (kilolib: rand() & 0xFF counts at 7812.5/s)",
     )
 
 
@@ -90,8 +133,25 @@ class MediumParams:
 class RangingParams:
     """Distance estimates that come with every reception."""
 
-    sigma_mm: float = param(1.0, lo=0.0, hi=100.0, doc="Gaussian noise per reception")
-    bias_sigma_mm: float = param(0.0, lo=0.0, hi=100.0, doc="per-robot bias ~ N(0, this)")
+    model: str = param(
+        "tables",
+        doc="tables: kilolib's estimate_distance on the receiver's calibration tables from the "
+        "received intensity (the sender's strength biases it; saturates beyond the tables); "
+        "gaussian: round(true + receiver bias + N(0, sigma_mm)), independent per reception; "
+        "or package.module:Class, your own (kilonet.reception)",
+    )
+    calibration_file: str = param(
+        "",
+        doc="tables: CSV of each robot's kilo_irhigh/kilo_irlow (columns irhigh_0..13, "
+        "irlow_0..13, a row per robot); empty: tables drawn from the intensity model",
+    )
+    intensity_noise: float = param(
+        0.015, lo=0.0, hi=1.0, doc="tables: relative noise of each reception's intensity (sd)"
+    )
+    sigma_mm: float = param(1.0, lo=0.0, hi=100.0, doc="gaussian: noise per reception (sd)")
+    bias_sigma_mm: float = param(
+        0.0, lo=0.0, hi=100.0, doc="gaussian: per-receiver bias ~ N(0, this)"
+    )
     min_mm: int = param(0, lo=0, hi=255, doc="estimates are clipped to [min_mm, max_mm]")
     max_mm: int = param(255, lo=1, hi=255, doc="uint8 ceiling of kilolib's estimate")
 
@@ -101,7 +161,10 @@ class RobotParams:
     """The robot runtime (kilolib v2 unless a scenario chooses the thesis's library)."""
 
     tx_period_s: float = param(
-        0.5, lo=0.001, hi=60.0, doc="one message offer per period, own clock (thesis: 0.2)"
+        0.524288,
+        lo=0.001,
+        hi=60.0,
+        doc="one message offer per period, own clock (kilolib: 16 ticks; thesis: 0.2)",
     )
     tx_jitter_s: float = param(
         0.0, lo=0.0, hi=60.0, doc="offer period is period ± U(jitter), own clock"
@@ -113,7 +176,10 @@ class RobotParams:
     )
     loop_ticks: int = param(1, lo=1, hi=10_000, doc="loop() runs once every this many ticks")
     ticks_per_s: float = param(
-        31.0, lo=1.0, hi=1000.0, doc="nominal kilo_ticks rate (kilolib's TICKS_PER_SEC)"
+        30.517578125,
+        lo=1.0,
+        hi=1000.0,
+        doc="nominal kilo_ticks rate: 8 MHz / 1024 / 256 (kilolib's TICKS_PER_SEC says 31)",
     )
     clock_sd: float = param(
         0.01, lo=0.0, hi=0.2, doc="per-robot tick-rate error ~ N(0, this); 0: perfect clocks"
@@ -140,8 +206,12 @@ class BatteryParams:
     initial_v: float = param(4.2, lo=0.0, hi=5.0, doc="voltage at start")
     degrade_v: float = param(3.6, lo=0.0, hi=5.0, doc="below this the robot degrades")
     cutoff_v: float = param(3.2, lo=0.0, hi=5.0, doc="at this the robot stops")
-    idle_drain_v_per_h: float = param(0.1, lo=0.0, hi=100.0, doc="drain with motors off")
-    motor_drain_v_per_h: float = param(0.35, lo=0.0, hi=100.0, doc="extra drain per motor on")
+    idle_drain_v_per_h: float = param(
+        1.0 / 24.0, lo=0.0, hi=100.0, doc="drain with motors off (24 h to cut-off)"
+    )
+    motor_drain_v_per_h: float = param(
+        0.1458, lo=0.0, hi=100.0, doc="extra drain per motor on (both on: 3 h to cut-off)"
+    )
     loss_at_cutoff: float = param(0.5, lo=0.0, hi=1.0, doc="extra reception loss at cut-off")
     range_factor_at_cutoff: float = param(0.6, lo=0.0, hi=1.0, doc="range multiplier at cut-off")
     motor_factor_at_cutoff: float = param(0.5, lo=0.0, hi=1.0, doc="speed multiplier at cut-off")
@@ -281,6 +351,12 @@ class Params:
                 f"robot.tx_jitter_s ({r.tx_jitter_s}) must be below robot.tx_period_s "
                 f"({r.tx_period_s}): an offer would fall before the one it follows"
             )
+        model = self.ranging.model
+        if model not in ("tables", "gaussian") and not _is_import_path(model):
+            raise ParamError(
+                f"ranging.model = {model!r} is neither tables, gaussian nor a "
+                "package.module:Class import path"
+            )
         if self.ranging.min_mm > self.ranging.max_mm:
             raise ParamError("ranging.min_mm must not exceed ranging.max_mm")
         m = self.motion
@@ -379,6 +455,42 @@ class Params:
             else:
                 flat[key] = value
         return scenario, flat
+
+
+def _is_import_path(text: str) -> bool:
+    """Whether ``text`` has the form ``package.module:name``."""
+    module, sep, name = text.partition(":")
+    return bool(sep) and all(p.isidentifier() for p in module.split(".")) and name.isidentifier()
+
+
+def load_object(path: str, key: str) -> Any:
+    """The object an import path ``package.module:name`` names, for parameter ``key``.
+
+    Raises
+    ------
+    ParamError
+        If the module cannot be imported or has no such name (one line naming ``key``).
+
+    Examples
+    --------
+    >>> load_object("math:pi", "x") > 3
+    True
+    >>> load_object("math:nope", "ranging.model")
+    Traceback (most recent call last):
+    ...
+    kilonet.params.ParamError: ranging.model = 'math:nope': module math has no 'nope'
+    """
+    import importlib
+
+    module_name, _, name = path.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ParamError(f"{key} = {path!r}: cannot import {module_name} ({exc})") from None
+    try:
+        return getattr(module, name)
+    except AttributeError:
+        raise ParamError(f"{key} = {path!r}: module {module_name} has no {name!r}") from None
 
 
 def _scenario_name(section: Any) -> str:

@@ -9,9 +9,14 @@ reading below 900, the low-gain one above 700, blends the two in between, and ad
 body diameter. :func:`estimate_distance` is that algorithm, transcribed from ``kilolib.c``.
 
 The tables come from a model of the received intensity, not from measured robots (none are
-published): relative intensity ``1 / (1 + gap / 25 mm)**2``, high gain ``40 + 1400 i`` (saturating
-at 1023), low gain ``40 + 450 i``, each robot's intensity scaled by ``1 + N(0, 0.05)``
-(:func:`calibration_tables`).
+published): relative intensity ``1 / (1 + gap / 25 mm)**2`` (:func:`intensity`), high gain
+``40 + 1400 i`` (saturating at 1023), low gain ``40 + 450 i`` (:func:`readings`), each robot's
+receiver gain ``1 + N(0, 0.05)`` (:func:`calibration_tables`). A robot is calibrated against a
+reference emitter, so its tables hold its own gain but not the strength of the robots it will
+hear: a message from a stronger emitter reads as nearer. Beyond the tables (65 mm between the
+bodies) kilolib extrapolates the last segment of the high-gain table, and the readings approach
+their floor, so estimates saturate: :func:`estimate_distance_array` is the same algorithm on
+arrays, which the medium's default reception model uses (:mod:`kilonet.reception`).
 
 kilonet's medium delivers the estimate itself (``robot.rx_distance = "estimate"``, the default;
 see :mod:`kilonet.reception`). With ``"raw"``, ``message_rx`` receives a
@@ -22,6 +27,7 @@ line by line (``dist = self.estimate_distance(d)``) sees the same numbers either
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,7 +37,11 @@ __all__ = [
     "DistanceMeasurement",
     "calibration_tables",
     "estimate_distance",
+    "estimate_distance_array",
+    "intensity",
     "measurement_for",
+    "read_calibration",
+    "readings",
 ]
 
 _GAPS_MM = np.arange(14) * 5.0  # the tables' distances between the bodies
@@ -47,10 +57,38 @@ class DistanceMeasurement:
 
 @dataclass(frozen=True)
 class CalibrationTables:
-    """A robot's ``kilo_irhigh[14]`` and ``kilo_irlow[14]`` (readings, decreasing with distance)."""
+    """A robot's ``kilo_irhigh[14]`` and ``kilo_irlow[14]`` (readings, decreasing with distance),
+    and the receiver gain they were measured with (relative; 1 for a median robot)."""
 
     irhigh: tuple[int, ...]
     irlow: tuple[int, ...]
+    gain: float = 1.0
+
+
+def intensity(gap_mm: np.ndarray | float) -> np.ndarray:
+    """Relative intensity a median receiver gets from a median emitter ``gap_mm`` between the
+    bodies (1 at contact).
+
+    Examples
+    --------
+    >>> intensity(np.array([0.0, 25.0, 75.0])).tolist()
+    [1.0, 0.25, 0.0625]
+    """
+    return 1.0 / (1.0 + np.asarray(gap_mm, dtype=float) / 25.0) ** 2
+
+
+def readings(relative_intensity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 10-bit high- and low-gain ADC readings (floats, before rounding) of a relative
+    intensity: ``40 + 1400 i`` saturating at 1023, and ``40 + 450 i``.
+
+    Examples
+    --------
+    >>> high, low = readings(np.array([1.0, 0.1]))
+    >>> high.tolist(), low.tolist()
+    ([1023.0, 180.0], [490.0, 85.0])
+    """
+    i = np.asarray(relative_intensity, dtype=float)
+    return np.minimum(1023.0, 40.0 + 1400.0 * i), np.minimum(1023.0, 40.0 + 450.0 * i)
 
 
 def calibration_tables(n: int, rng: np.random.Generator, spread: float = 0.05) -> list:
@@ -63,13 +101,68 @@ def calibration_tables(n: int, rng: np.random.Generator, spread: float = 0.05) -
     ((1023, 1012, 754, 587), (490, 352, 270, 216))
     """
     scale = 1.0 + spread * rng.standard_normal(n)
-    intensity = 1.0 / (1.0 + _GAPS_MM / 25.0) ** 2
     tables = []
     for s in scale:
-        high = np.minimum(1023, np.rint(40 + 1400 * s * intensity)).astype(int)
-        low = np.rint(40 + 450 * s * intensity).astype(int)
-        tables.append(CalibrationTables(tuple(high.tolist()), tuple(low.tolist())))
+        high, low = readings(s * intensity(_GAPS_MM))
+        tables.append(
+            CalibrationTables(
+                tuple(np.rint(high).astype(int).tolist()),
+                tuple(np.rint(low).astype(int).tolist()),
+                float(s),
+            )
+        )
     return tables
+
+
+def read_calibration(path: str, n: int) -> list[CalibrationTables]:
+    """The calibration tables of ``n`` robots from a CSV file: one row per robot, in robot
+    order, with columns ``irhigh_0`` ... ``irhigh_13`` and ``irlow_0`` ... ``irlow_13`` (the
+    values ``kilo_irhigh`` and ``kilo_irlow`` hold in each robot's EEPROM: ADC readings at 0,
+    5, ..., 65 mm between the bodies). Each robot's receiver gain is fitted to its high-gain
+    table against :func:`intensity`.
+
+    Raises
+    ------
+    kilonet.params.ParamError
+        One line naming the file and line: a missing or unreadable file, a missing column, a
+        value that is not an integer 0-1023, a table that rises with distance, or fewer rows
+        than robots.
+    """
+    import csv
+
+    from kilonet.errors import read_text
+    from kilonet.params import ParamError
+
+    where = f"ranging.calibration_file {path}"
+    text = read_text(path, ParamError, "calibration file", newline="")
+    reader = csv.DictReader(text.splitlines())
+    columns = [f"irhigh_{k}" for k in range(14)] + [f"irlow_{k}" for k in range(14)]
+    missing = [c for c in columns if c not in (reader.fieldnames or [])]
+    if missing:
+        raise ParamError(f"{where}: no column {missing[0]} (needs irhigh_0..13, irlow_0..13)")
+    tables = []
+    ideal = intensity(_GAPS_MM)
+    for line, row in enumerate(reader, start=2):
+        values = []
+        for c in columns:
+            raw = (row.get(c) or "").strip()
+            if not (raw.isascii() and raw.isdigit() and 0 <= int(raw) <= 1023):
+                raise ParamError(f"{where}:{line}: {c} = {raw!r} is not an integer 0-1023")
+            values.append(int(raw))
+        high, low = tuple(values[:14]), tuple(values[14:])
+        for name, table in (("irhigh", high), ("irlow", low)):
+            if any(b > a for a, b in itertools.pairwise(table)):
+                raise ParamError(f"{where}:{line}: {name} rises with distance: {list(table)}")
+        unsaturated = np.asarray(high) < 1023
+        if not unsaturated.any():
+            raise ParamError(f"{where}:{line}: irhigh is saturated (1023) at every distance")
+        gain = float(
+            np.median((np.asarray(high)[unsaturated] - 40.0) / (1400 * ideal[unsaturated]))
+        )
+        tables.append(CalibrationTables(high, low, gain))
+    if len(tables) < n:
+        raise ParamError(f"{where}: {len(tables)} robots' tables for a swarm of {n}")
+    return tables[:n]
 
 
 def _table_mm(reading: int, table: tuple[int, ...], beyond: int | None) -> int:
@@ -115,6 +208,52 @@ def estimate_distance(d: DistanceMeasurement | int, tables: CalibrationTables) -
             return int(33 + blended) & 0xFF
         return (33 + dist_low) & 0xFF
     return (33 + dist_high) & 0xFF
+
+
+def _table_mm_array(reading: np.ndarray, table: np.ndarray, beyond: int | None) -> np.ndarray:
+    """:func:`_table_mm` on arrays: ``reading`` (..., R) on tables (R, 14), one per column."""
+    table = table.astype(np.int64)
+    above = reading[..., None] > table[:, 1:]  # (..., R, 13)
+    found = above.any(axis=-1)
+    index = np.where(found, above.argmax(axis=-1) + 1, 13)
+    cols = np.broadcast_to(np.arange(table.shape[0]), index.shape)
+    t_hi, t_lo = table[cols, index], table[cols, index - 1]
+    slope = (t_hi - t_lo) / 0.5
+    b = t_hi - slope * (index * 0.5)
+    scaled = np.trunc((reading - b) * 10)
+    mm = np.trunc(scaled / np.trunc(slope)).astype(np.int64)
+    if beyond is not None:
+        mm = np.where(found, mm, beyond)
+    return np.where(reading > table[:, 0], 0, mm)
+
+
+def estimate_distance_array(
+    high: np.ndarray, low: np.ndarray, irhigh: np.ndarray, irlow: np.ndarray
+) -> np.ndarray:
+    """:func:`estimate_distance` on arrays of readings, column ``k`` on the tables of row ``k``
+    of ``irhigh`` and ``irlow`` ((R, 14) arrays): estimates in mm (int, 0-255).
+
+    Examples
+    --------
+    >>> t = calibration_tables(2, np.random.default_rng(1))
+    >>> irh = np.array([x.irhigh for x in t]); irl = np.array([x.irlow for x in t])
+    >>> high = np.array([[400, 800], [100, 950]]); low = np.array([[300, 300], [60, 500]])
+    >>> estimate_distance_array(high, low, irh, irl).tolist() == [
+    ...     [estimate_distance(DistanceMeasurement(int(lo), int(hi)), t[k])
+    ...      for k, (hi, lo) in enumerate(zip(hr, lr))] for hr, lr in zip(high, low)]
+    True
+    """
+    high = np.asarray(high, dtype=np.int64)
+    low = np.asarray(low, dtype=np.int64)
+    dist_high = np.where(high < 900, _table_mm_array(high, irhigh, None), 255)
+    dist_low = np.where(high > 700, _table_mm_array(low, irlow, 90), 255)
+    blended = np.trunc(33 + (dist_high * (900.0 - high) + dist_low * (high - 700.0)) / 200.0)
+    out = np.where(
+        dist_low != 255,
+        np.where(dist_high != 255, blended.astype(np.int64), 33 + dist_low),
+        33 + dist_high,
+    )
+    return out & 0xFF
 
 
 def _reading(table: tuple[int, ...], gap_mm: float) -> float:

@@ -12,12 +12,26 @@ calibration and battery level): the medium throws the rows away whenever that li
 receiver's loss share changes. A model whose outcomes depend on time itself would have to draw
 one row per transmission (``rows`` = 1 makes that possible, at the cost of speed).
 
-:class:`GaussianRanging` is the default: ``round(true distance + receiver bias + N(0, sigma))``
-clipped to kilolib's uint8 ``[min_mm, max_mm]``, each receiver with a bias ``N(0,
-bias_sigma_mm)`` drawn once, and independent losses with the per-link and per-receiver shares
-the medium passes in. Subclass it and override :meth:`GaussianRanging.loss_probability` for a
-distance-dependent loss, or :meth:`GaussianRanging.estimates` for another ranging model, and
-pass an instance to :class:`kilonet.simulation.Simulation` (``reception=``).
+Two models come with kilonet (``ranging.model``):
+
+* :class:`TableRanging` (``tables``, the default): each reception's intensity is the sender's
+  emitter strength (:mod:`kilonet.radio`) times the receiver's gain times the intensity at the
+  true distance, with relative noise ``ranging.intensity_noise``; the receiver turns its ADC
+  readings into millimetres with kilolib's ``estimate_distance`` on its own calibration tables
+  (:mod:`kilonet.ranging`). So every link has its own systematic error (a strong emitter looks
+  near), repeated readings scatter under a millimetre, and estimates saturate beyond the tables
+  as on the robot.
+* :class:`GaussianRanging` (``gaussian``): ``round(true distance + receiver bias + N(0,
+  sigma))``, each receiver with a bias ``N(0, bias_sigma_mm)`` drawn once: independent errors
+  that averaging removes.
+
+Both clip to kilolib's uint8 ``[min_mm, max_mm]`` and lose receptions independently with the
+per-link and per-receiver shares the medium passes in. Subclass one and override
+:meth:`GaussianRanging.loss_probability` for another loss, or :meth:`GaussianRanging.estimates`
+for another ranging model. Name it in ``ranging.model`` as ``"package.module:Class"`` (the
+class's :meth:`~GaussianRanging.from_context` builds it from the run's parameters, size and
+random streams, so it works from ``kilonet run``, TOML files and sweeps, seeded like the rest),
+or pass an instance to :class:`kilonet.simulation.Simulation` (``reception=``).
 """
 
 from __future__ import annotations
@@ -30,13 +44,25 @@ import numpy as np
 
 if TYPE_CHECKING:
     from kilonet.params import Params
+    from kilonet.radio import Transceivers
+    from kilonet.ranging import CalibrationTables
 
-__all__ = ["CAUSES", "GaussianRanging", "LossShares", "Outcomes", "ReceptionModel"]
+__all__ = [
+    "CAUSES",
+    "GaussianRanging",
+    "LossShares",
+    "ModelContext",
+    "Outcomes",
+    "ReceptionModel",
+    "TableRanging",
+    "reception_model",
+]
 
 #: Loss codes of an outcome row, by cause (0: delivered). The medium counts each cause per
-#: receiving robot as ``lost_<cause>``.
-CAUSES = {1: "random", 2: "occlusion", 3: "battery", 4: "fault"}
-RANDOM, OCCLUSION, BATTERY, FAULT = 1, 2, 3, 4
+#: receiving robot as ``lost_<cause>``; ``signal`` is a reception too weak to decode, near the
+#: edge of its link's reach (:mod:`kilonet.radio`).
+CAUSES = {1: "random", 2: "occlusion", 3: "battery", 4: "fault", 5: "signal"}
+RANDOM, OCCLUSION, BATTERY, FAULT, SIGNAL = 1, 2, 3, 4, 5
 
 
 @dataclass(frozen=True)
@@ -51,12 +77,16 @@ class LossShares:
         Loss from bodies on each link's line of sight (:class:`kilonet.visibility.LinkModel`).
     battery, fault : (R,) arrays
         The receivers' own shares: a low battery, a faulty receiver.
+    signal : (R,) array
+        Receptions too weak to decode: ``1 -`` the link's reception probability at its
+        distance (:func:`kilonet.radio.reception_probability`).
     """
 
     random: float
     occlusion: np.ndarray
     battery: np.ndarray
     fault: np.ndarray
+    signal: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -73,6 +103,33 @@ class Outcomes:
 
     estimates: np.ndarray
     losses: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class ModelContext:
+    """What a reception model may be built from: the run's parameters and size, its own random
+    streams, and the robots' hardware.
+
+    Attributes
+    ----------
+    params : Params
+        The run's parameters.
+    n_robots : int
+        Swarm size.
+    ranging_rng, loss_rng : numpy.random.Generator
+        The run's ``ranging`` and ``medium`` streams.
+    tables : list of CalibrationTables
+        Each robot's calibration tables (``kilo_irhigh``, ``kilo_irlow``) and receiver gain.
+    transceivers : Transceivers
+        Each robot's emitter strength and receiver sensitivity.
+    """
+
+    params: Params
+    n_robots: int
+    ranging_rng: np.random.Generator
+    loss_rng: np.random.Generator
+    tables: list[CalibrationTables]
+    transceivers: Transceivers
 
 
 class ReceptionModel(ABC):
@@ -119,8 +176,37 @@ class GaussianRanging(ReceptionModel):
         #: Each robot's ranging bias as a receiver, mm.
         self.bias_mm = ranging_rng.normal(0.0, sigma, n_robots) if sigma else np.zeros(n_robots)
 
-    def estimates(self, receivers: np.ndarray, distance_mm: np.ndarray, rows: int) -> np.ndarray:
-        """Estimates (whole mm, uint8) of ``rows`` receptions per receiver."""
+    @classmethod
+    def from_context(cls, context: ModelContext) -> GaussianRanging:
+        """The model for a run (how ``ranging.model`` builds it)."""
+        return cls(context.params, context.n_robots, context.ranging_rng, context.loss_rng)
+
+    def effective_sigma_mm(
+        self, distance_mm: np.ndarray, samples: np.ndarray | float = 1.0
+    ) -> np.ndarray:
+        """The error of a link's distance estimate averaged over ``samples`` receptions, as a
+        standard deviation over links at ``distance_mm`` (mm): what averaging cannot remove
+        (here the receiver's bias) plus the per-reception noise and rounding divided by the
+        samples. The scenarios' Cramér–Rao bounds use it.
+
+        Examples
+        --------
+        >>> from kilonet.params import Params
+        >>> rng = np.random.default_rng(0)
+        >>> p = Params().with_overrides({"ranging.sigma_mm": 1.0, "ranging.bias_sigma_mm": 2.0})
+        >>> GaussianRanging(p, 2, rng, rng).effective_sigma_mm(np.array([50.0]), 4).round(3)
+        array([2.067])
+        """
+        d = np.atleast_1d(np.asarray(distance_mm, dtype=float))
+        per_reading = self.ranging.sigma_mm**2 + 1 / 12
+        variance = self.ranging.bias_sigma_mm**2 + per_reading / np.asarray(samples, dtype=float)
+        return np.sqrt(np.broadcast_to(variance, d.shape))
+
+    def estimates(
+        self, sender: int, receivers: np.ndarray, distance_mm: np.ndarray, rows: int
+    ) -> np.ndarray:
+        """Estimates (whole mm, uint8) of ``rows`` receptions per receiver of ``sender``
+        (-1: a sender outside the swarm)."""
         rg = self.ranging
         est = self._ranging_rng.standard_normal((rows, len(receivers)))
         est *= rg.sigma_mm
@@ -133,7 +219,9 @@ class GaussianRanging(ReceptionModel):
         uniform draw below row ``c`` loses the reception to the first cause whose threshold it
         is under. Override to make the random share depend on distance."""
         random = np.full(len(distance_mm), shares.random)
-        return np.cumsum([random, shares.occlusion, shares.battery, shares.fault], axis=0)
+        return np.cumsum(
+            [random, shares.occlusion, shares.battery, shares.fault, shares.signal], axis=0
+        )
 
     def draw(
         self,
@@ -143,7 +231,7 @@ class GaussianRanging(ReceptionModel):
         shares: LossShares,
         rows: int,
     ) -> Outcomes:
-        estimates = self.estimates(receivers, distance_mm, rows)
+        estimates = self.estimates(sender, receivers, distance_mm, rows)
         thresholds = self.loss_probability(shares, distance_mm)
         if not thresholds.any():
             return Outcomes(estimates, None)
@@ -152,3 +240,138 @@ class GaussianRanging(ReceptionModel):
         for code in range(len(thresholds), 0, -1):  # the first cause a draw falls under wins
             codes[u < thresholds[code - 1]] = code
         return Outcomes(estimates, codes)
+
+
+class TableRanging(GaussianRanging):
+    """kilolib's distance estimate from each reception's intensity, on the receiver's tables.
+
+    Parameters
+    ----------
+    params, n_robots, ranging_rng, loss_rng
+        As :class:`GaussianRanging` (whose losses it shares).
+    tables : list of CalibrationTables
+        Each robot's calibration tables and receiver gain.
+    strength : (N,) array
+        Each robot's emitter strength, relative (:class:`kilonet.radio.Transceivers`); a sender
+        outside the swarm emits at 1.
+    """
+
+    def __init__(
+        self,
+        params: Params,
+        n_robots: int,
+        ranging_rng: np.random.Generator,
+        loss_rng: np.random.Generator,
+        *,
+        tables: list[CalibrationTables],
+        strength: np.ndarray,
+    ) -> None:
+        super().__init__(params, n_robots, ranging_rng, loss_rng)
+        self._irhigh = np.array([t.irhigh for t in tables], dtype=np.int64)
+        self._irlow = np.array([t.irlow for t in tables], dtype=np.int64)
+        self._gain = np.array([t.gain for t in tables])
+        self._strength = np.asarray(strength, dtype=float)
+        self._strength_sd = params.medium.tx_strength_sd
+
+    @classmethod
+    def from_context(cls, context: ModelContext) -> TableRanging:
+        return cls(
+            context.params,
+            context.n_robots,
+            context.ranging_rng,
+            context.loss_rng,
+            tables=context.tables,
+            strength=context.transceivers.strength,
+        )
+
+    def estimates(
+        self, sender: int, receivers: np.ndarray, distance_mm: np.ndarray, rows: int
+    ) -> np.ndarray:
+        from kilonet.ranging import estimate_distance_array, intensity, readings
+
+        rg = self.ranging
+        strength = 1.0 if sender < 0 else self._strength[sender]
+        mean = strength * self._gain[receivers] * intensity(np.maximum(distance_mm - 33.0, 0.0))
+        noise = self._ranging_rng.standard_normal((rows, len(receivers)))
+        noise *= rg.intensity_noise
+        noise += 1.0
+        high, low = readings(np.maximum(noise * mean, 0.0))
+        est = estimate_distance_array(
+            np.rint(high), np.rint(low), self._irhigh[receivers], self._irlow[receivers]
+        )
+        return np.clip(est, rg.min_mm, rg.max_mm).astype(np.uint8)
+
+    def systematic_mm(self, sender: int, receiver: int, distance_mm: float) -> float:
+        """The estimate the link from ``sender`` to ``receiver`` gives at ``distance_mm``
+        without noise, mm: its systematic error is this minus the true distance."""
+        at = np.array([receiver])
+        est = self._noiseless(self._strength[[sender]], at, np.array([float(distance_mm)]))
+        return float(est[0])
+
+    def _noiseless(
+        self, strength: np.ndarray, receivers: np.ndarray, distance_mm: np.ndarray
+    ) -> np.ndarray:
+        """Estimates without intensity noise of links of emitter ``strength[k]`` to receiver
+        ``receivers[k]`` at ``distance_mm[k]``, mm (clipped like every estimate)."""
+        from kilonet.ranging import estimate_distance_array, intensity, readings
+
+        gap = np.maximum(distance_mm - 33.0, 0.0)
+        high, low = readings(strength * self._gain[receivers] * intensity(gap))
+        est = estimate_distance_array(
+            np.rint(high), np.rint(low), self._irhigh[receivers], self._irlow[receivers]
+        )
+        return np.clip(est, self.ranging.min_mm, self.ranging.max_mm).astype(float)
+
+    def effective_sigma_mm(
+        self, distance_mm: np.ndarray, samples: np.ndarray | float = 1.0
+    ) -> np.ndarray:
+        """As :meth:`GaussianRanging.effective_sigma_mm`. The systematic part is the rms error
+        of noiseless estimates over emitters of the model's strength spread and this swarm's
+        receivers (a fixed sample of 256 links per distance, drawn apart from the run's
+        streams); the noise part is ``(25 mm + gap) / 2 * intensity_noise`` (the inverse
+        square law's sensitivity, inside the tables) and rounding, divided by the samples."""
+        d = np.atleast_1d(np.asarray(distance_mm, dtype=float))
+        rng = np.random.default_rng(0)
+        strength = np.exp(self._strength_sd * rng.standard_normal(256))
+        receivers = rng.integers(len(self._gain), size=256)
+        grid, where = np.unique(np.round(d), return_inverse=True)
+        rms = np.array(
+            [
+                np.sqrt(np.mean((self._noiseless(strength, receivers, np.full(256, g)) - g) ** 2))
+                for g in grid
+            ]
+        )
+        noise = (25.0 + np.maximum(d - 33.0, 0.0)) / 2 * self.ranging.intensity_noise
+        return np.sqrt(rms[where] ** 2 + (noise**2 + 1 / 12) / np.asarray(samples))
+
+
+#: The reception models ``ranging.model`` names.
+BUILTIN_MODELS: dict[str, type[GaussianRanging]] = {
+    "tables": TableRanging,
+    "gaussian": GaussianRanging,
+}
+
+
+def reception_model(context: ModelContext) -> ReceptionModel:
+    """The reception model ``ranging.model`` names, built for a run: a built-in name, or
+    ``"package.module:Name"`` for a class (or function) taking a :class:`ModelContext`
+    through ``from_context`` (or as its one argument).
+
+    Raises
+    ------
+    kilonet.params.ParamError
+        If the name cannot be imported or does not give a :class:`ReceptionModel`.
+    """
+    name = context.params.ranging.model
+    if name in BUILTIN_MODELS:
+        return BUILTIN_MODELS[name].from_context(context)
+    from kilonet.params import ParamError, load_object
+
+    factory = load_object(name, "ranging.model")
+    build = getattr(factory, "from_context", factory)
+    model = build(context)
+    if not isinstance(model, ReceptionModel):
+        raise ParamError(
+            f"ranging.model = {name!r} gave {type(model).__name__}, not a ReceptionModel"
+        )
+    return model

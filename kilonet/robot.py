@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from kilonet.message import Message
+from kilonet.message import Message, message_crc
 from kilonet.ranging import CalibrationTables, DistanceMeasurement, estimate_distance
 
 if TYPE_CHECKING:
@@ -47,7 +47,10 @@ if TYPE_CHECKING:
     from kilonet.simulation import Simulation
 
 __all__ = [
+    "ADC_CONVERSION_S",
     "RESERVED_PREFIX",
+    "RGB",
+    "TICKS_PER_SEC",
     "TIMER_COUNTS_PER_S",
     "Kilobot",
     "RobotStopped",
@@ -56,6 +59,33 @@ __all__ = [
 
 #: kilolib's ``kilo_tx_period`` unit: timer-0 counts, 8 MHz / 1024 = 7812.5 per second.
 TIMER_COUNTS_PER_S = 7812.5
+#: kilolib's ``TICKS_PER_SEC`` macro (``kilolib.h``); :attr:`Kilobot.TICKS_PER_SEC` follows
+#: ``robot.ticks_per_s`` when a run changes it.
+TICKS_PER_SEC = 31
+#: One ADC conversion of ``get_ambientlight``/``get_voltage``/``get_temperature``: 13 ADC
+#: clock cycles at 8 MHz / 64 (kilolib's prescaler), in seconds of the robot's clock.
+ADC_CONVERSION_S = 13 * 64 / 8e6
+
+
+def RGB(r: int, g: int, b: int) -> int:
+    """kilolib's ``RGB(r, g, b)`` macro: the three 2-bit channels packed in one byte
+    (``r | g << 2 | b << 4``), which :meth:`Kilobot.set_color` accepts as its one argument.
+
+    Raises
+    ------
+    ValueError
+        If a channel is not an integer 0-3 (the C macro would silently mask it).
+
+    Examples
+    --------
+    >>> RGB(3, 0, 0), RGB(0, 3, 0), RGB(1, 2, 3)
+    (3, 12, 57)
+    """
+    color = (r, g, b)
+    if any(not isinstance(c, int | np.integer) or not 0 <= c <= 3 for c in color):
+        raise ValueError(f"RGB channels must be integers 0-3, got {color}")
+    return int(r) | int(g) << 2 | int(b) << 4
+
 
 #: Attribute names the kernel keeps in every robot start with this; a program must not use it.
 RESERVED_PREFIX = "_k"
@@ -95,6 +125,7 @@ class Kilobot:
     __slots__ = (
         "__dict__",
         "__weakref__",
+        "_kadc",
         "_kcolor",
         "_kdelay",
         "_kenv",
@@ -106,6 +137,7 @@ class Kilobot:
         "_ksoft",
         "_ktables",
         "_ktheta",
+        "_ktx_period",
         "_kuid",
         "kilo_straight_left",
         "kilo_straight_right",
@@ -167,7 +199,9 @@ class Kilobot:
         self._kuid = sim.uids[index] if sim.uids is not None else None
         self._ksoft = [0xAA, 0]  # rand_soft's seed and accumulator, as kilolib starts them
         self._kdelay = None  # the delay a generator program has not yielded yet
+        self._kadc = None  # (callback time, end) of the last ADC reading
         self._kprocess = False  # runs as a SimPy process (a generator setup or loop)
+        self._ktx_period: int | None = None  # kilo_tx_period as the program last set it
         self._ktables: CalibrationTables = sim.calibration_tables[index]
         cal = sim.motion.calibrations[index]
         self.kilo_turn_left, self.kilo_turn_right = cal.turn_left, cal.turn_right
@@ -184,6 +218,12 @@ class Kilobot:
         """kilolib's ``TICKS_PER_SEC`` (31): the nominal rate; this robot's true rate differs
         by its clock error."""
         return self._ksim.params.robot.ticks_per_s
+
+    @property
+    def TICKS_PER_SEC(self) -> int:
+        """kilolib's ``TICKS_PER_SEC`` as an integer: 31, or ``robot.ticks_per_s`` rounded
+        when a run sets another nominal rate (Kilombo's 32)."""
+        return round(self._ksim.params.robot.ticks_per_s)
 
     def delay(self, ms: float) -> Timeout:
         """kilolib's ``delay(ms)``: in a generator ``setup`` or ``loop``, ``yield
@@ -212,14 +252,24 @@ class Kilobot:
 
     @property
     def kilo_tx_period(self) -> int:
-        """The transmit period in kilolib's timer counts (3906 for 0.5 s of this robot's clock)."""
-        return round(self._ksim.medium.tx_period_own_s(self._kindex) * TIMER_COUNTS_PER_S)
+        """kilolib's transmit period in timer counts (default 3906). kilolib's timer adds 255
+        counts a tick and offers a message at the first tick past this many, so the period is
+        ``kilo_tx_period // 255 + 1`` ticks (3906: 16 ticks, 0.524 s of this robot's clock)."""
+        if self._ktx_period is not None:
+            return self._ktx_period
+        own_s = self._ksim.medium.tx_period_own_s(self._kindex)
+        ticks = own_s * TIMER_COUNTS_PER_S / 256
+        if abs(ticks - 16) < 1e-9:
+            return 3906
+        return round(own_s * TIMER_COUNTS_PER_S)
 
     @kilo_tx_period.setter
     def kilo_tx_period(self, counts: int) -> None:
         if not 0 < counts <= 0xFFFF:
             raise ValueError(f"kilo_tx_period is a uint16 of timer counts > 0, got {counts}")
-        self._ksim.medium.set_tx_period(self._kindex, counts / TIMER_COUNTS_PER_S)
+        self._ktx_period = int(counts)
+        ticks = counts // 255 + 1
+        self._ksim.medium.set_tx_period(self._kindex, ticks * 256 / TIMER_COUNTS_PER_S)
 
     # -- identity and randomness -------------------------------------------------------------
     @property
@@ -273,13 +323,14 @@ class Kilobot:
         return int(self.rand.integers(256))
 
     # -- the LED and the motors --------------------------------------------------------------
-    def set_color(self, r: int, g: int, b: int) -> None:
-        """Set the RGB LED; each channel 0–3 as kilolib's ``RGB(r, g, b)``.
+    def set_color(self, r: int, g: int | None = None, b: int | None = None) -> None:
+        """Set the RGB LED: ``set_color(r, g, b)``, each channel 0–3, or kilolib's
+        ``set_color(RGB(r, g, b))`` with one packed byte (see :func:`RGB`).
 
         Raises
         ------
         ValueError
-            If a channel is not an integer in 0–3.
+            If a channel is not an integer in 0–3, or a packed colour not one of 0–63.
         """
         if (
             r.__class__ is int
@@ -291,6 +342,10 @@ class Kilobot:
         ):
             color = (r, g, b)  # the common case, checked without a call (loops set it often)
         else:
+            if g is None and b is None:
+                if not isinstance(r, int | np.integer) or not 0 <= r <= 63:
+                    raise ValueError(f"set_color(RGB(r, g, b)) takes a byte 0-63, got {r!r}")
+                r, g, b = r & 3, (r >> 2) & 3, (r >> 4) & 3
             color = (r, g, b)
             if any(not isinstance(c, int | np.integer) or not 0 <= c <= 3 for c in color):
                 raise ValueError(f"set_color channels must be integers 0-3, got {color}")
@@ -328,7 +383,13 @@ class Kilobot:
         burst moves the robot by nothing instead of about 0.3 mm.)"""
         self._ksim.motion.set_motors(self._kindex, 255, 255)
 
-    # -- receptions --------------------------------------------------------------------------
+    # -- messages and receptions -------------------------------------------------------------
+    @staticmethod
+    def message_crc(message: Message) -> int:
+        """kilolib's ``message_crc(&msg)``: the CRC a receiver expects (see
+        :func:`kilonet.message.message_crc`); ``replace(msg, crc=self.message_crc(msg))``."""
+        return message_crc(message)
+
     def get_message(self) -> tuple[Message, int] | None:
         """Polled mode: the oldest buffered ``(message, distance)``, or ``None``."""
         return self._krx.popleft() if self._krx else None
@@ -357,7 +418,7 @@ class Kilobot:
         """kilolib's ``get_ambientlight()``: a 10-bit reading of the light where the robot
         stands, or -1 while a message is arriving (the ADC is busy measuring it)."""
         sim = self._ksim
-        if sim.medium.receiving(self._kindex):
+        if self._kadc_busy():
             return -1
         return sim.sensors.ambient_light(self._kindex)
 
@@ -365,7 +426,7 @@ class Kilobot:
         """kilolib's ``get_voltage()``: a 10-bit reading of the battery (about ``169 * V +
         6``: 547 at 3.2 V, 716 at 4.2 V), or -1 while a message is arriving."""
         sim = self._ksim
-        if sim.medium.receiving(self._kindex):
+        if self._kadc_busy():
             return -1
         return sim.sensors.voltage_reading(self._kindex)
 
@@ -374,9 +435,21 @@ class Kilobot:
         sensor against its 1.1 V reference (about 292 at 25 °C), or -1 while a message is
         arriving."""
         sim = self._ksim
-        if sim.medium.receiving(self._kindex):
+        if self._kadc_busy():
             return -1
         return sim.sensors.temperature_reading(self._kindex)
+
+    def _kadc_busy(self) -> bool:
+        """Whether this ADC reading finds a message arriving. Each reading takes
+        :data:`ADC_CONVERSION_S` of the robot's time, and readings in one callback follow each
+        other, so a callback that spins on ``while get_ambientlight() == -1`` (kilolib's
+        idiom) reads a real value once the message has ended, as on the robot, although the
+        simulation's clock stands still until the callback returns."""
+        now = self._kenv.now
+        last = self._kadc
+        at = last[1] + ADC_CONVERSION_S if last is not None and last[0] == now else now
+        self._kadc = (now, at)
+        return self._ksim.medium.channel.busy(self._kindex, at)  # a carrier at `at`
 
     # -- the run's record --------------------------------------------------------------------
     def log(self, event: str, **fields: Any) -> None:

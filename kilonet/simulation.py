@@ -34,7 +34,8 @@ from kilonet.message import Message
 from kilonet.motion import Motion
 from kilonet.params import Params
 from kilonet.placement import ROBOT_DIAMETER_MM, validate_positions
-from kilonet.ranging import calibration_tables, measurement_for
+from kilonet.radio import Transceivers, reach_of
+from kilonet.ranging import calibration_tables, measurement_for, read_calibration
 from kilonet.robot import Kilobot, check_kernel_names, check_program_class
 from kilonet.sensors import Sensors
 from kilonet.trace import Trace
@@ -62,6 +63,7 @@ STREAMS = (
     "clock",
     "sensors",
     "calibration",
+    "radio",
 )
 
 
@@ -166,6 +168,12 @@ class Simulation:
         rp = self.params.robot
         self.clocks = RobotClocks.draw(n, rp.ticks_per_s, rp.clock_sd, self.stream("clock"))
         self.calibration_tables = calibration_tables(n, self.stream("calibration"))
+        if self.params.ranging.calibration_file:
+            self.calibration_tables = read_calibration(self.params.ranging.calibration_file, n)
+        mp = self.params.medium
+        self.transceivers = Transceivers.draw(
+            n, reach_of(mp), mp.tx_strength_sd, self.stream("radio")
+        )
         self.motion = Motion(
             self.params.motion, self.env, self.world, self.trace, self.stream("motion")
         )

@@ -176,10 +176,14 @@ class LinkModel:
     radius_mm: float = 16.5
 
     @classmethod
-    def from_params(cls, medium: MediumParams, radius_mm: float = 16.5) -> LinkModel:
-        """The link model a run's ``medium`` parameters describe."""
+    def from_params(
+        cls, medium: MediumParams, radius_mm: float = 16.5, *, range_mm: float | None = None
+    ) -> LinkModel:
+        """The link model a run's ``medium`` parameters describe; ``range_mm`` (default
+        ``medium.range_mm``) is the farthest a link may reach (the medium passes its
+        transceivers' :attr:`~kilonet.radio.Transceivers.max_distance_mm`)."""
         return cls(
-            medium.range_mm,
+            medium.range_mm if range_mm is None else range_mm,
             medium.occlusion,
             medium.occlusion_range_factor,
             medium.occlusion_loss,

@@ -20,7 +20,7 @@ import numpy as np
 
 from kilonet.errors import UserError
 from kilonet.params import ParamError, Params
-from kilonet.placement import generate, load_csv, read_placement
+from kilonet.placement import PlacementError, generate, load_csv, read_placement
 from kilonet.robot import Kilobot
 from scenarios.output_dir import OutputDir
 from scenarios.progress import RunProgress
@@ -213,12 +213,23 @@ def placement_uids(placement: str | Path | np.ndarray | None) -> tuple[int, ...]
     Raises
     ------
     kilonet.placement.PlacementError
-        If the file is not a valid placement.
+        If the file is not a valid placement, or gives one uid to two robots.
     """
     if isinstance(placement, str) and placement in NAMED_PLACEMENTS:
         return None
     if isinstance(placement, str | Path):
-        return read_placement(placement).uids
+        uids = read_placement(placement).uids
+        if uids is not None:
+            first: dict[int, int] = {}
+            for row, uid in enumerate(uids):
+                if uid in first:
+                    raise PlacementError(
+                        f"{placement}: uid {uid} is given to data rows {first[uid] + 1} and "
+                        f"{row + 1}; each robot's kilo_uid must be its own (leave the uid "
+                        "column out for uids 0, 1, 2, ... in row order)"
+                    )
+                first[uid] = row
+        return uids
     return None
 
 
@@ -232,7 +243,7 @@ def run(
     *,
     seed: int | None = None,
     placement: str | Path | np.ndarray | None = None,
-    progress: bool = False,
+    progress: bool | str = False,
 ) -> RunResult:
     """Run ``scenario`` once and return its result.
 
@@ -246,9 +257,10 @@ def run(
         Master seed (overrides ``seed`` in ``overrides``).
     placement : name, path or (N, 2) array, optional
         Start positions in mm instead of the scenario's generator.
-    progress : bool
+    progress : bool or str
         Show on stderr what the set-up is doing, then the run's progress in simulated seconds
-        (:class:`scenarios.progress.RunProgress`).
+        (:class:`scenarios.progress.RunProgress`): a mode of
+        :data:`scenarios.progress.MODES`, ``True`` for the bar, ``False`` for nothing.
     """
     from kilonet.simulation import Simulation
 
@@ -333,9 +345,13 @@ def write_run_files(result: RunResult, directory: str | Path, *, fmt: str = "csv
     out = Path(directory)
     sim = result.sim
     robots = sim.robots_frame()
+    robots.insert(1, "uid", _final_uids(sim))
     if result.scenario.robot_columns is not None:
         robots = robots.merge(result.scenario.robot_columns(sim), on="robot", how="left")
-    tables = {"robots": robots, **sim.trace.frames(), "led_key": sim.led_key_frame()}
+    traces = sim.trace.frames()
+    if not result.params.trace.messages:
+        del traces["messages"]  # recorded only with trace.messages: an empty table misleads
+    tables = {"robots": robots, **traces, "led_key": sim.led_key_frame()}
     for name, frame in tables.items():
         if fmt == "csv":
             frame.to_csv(out / f"{name}.csv", index=False)
@@ -347,6 +363,18 @@ def write_run_files(result: RunResult, directory: str | Path, *, fmt: str = "csv
     if result.scenario.outputs is not None:
         result.scenario.outputs(result, out)
     return sorted(out.iterdir())
+
+
+def _final_uids(sim: Simulation) -> list[int | None]:
+    """Each robot's ``kilo_uid`` at the end of the run (the placement's, its index, or what
+    the program set), ``None`` where it has none (``robot.hardware_uids = false``)."""
+    out: list[int | None] = []
+    for robot in sim.robots:
+        try:
+            out.append(robot.kilo_uid)
+        except AttributeError:
+            out.append(None)
+    return out
 
 
 def write_outputs(

@@ -25,7 +25,8 @@ import json
 import re
 import sys
 import typing
-from contextlib import nullcontext
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -33,7 +34,9 @@ from typing import Any
 import scenarios
 from kilonet.cli import UsageError
 from kilonet.params import ParamError, Params, describe
-from scenarios.base import Scenario, ScenarioError, ScenarioOption, build_params, json_safe
+from scenarios.base import Scenario, ScenarioOption, build_params, json_safe
+from scenarios.program import BUSY_CALL_S
+from scenarios.progress import MODES
 
 __all__ = ["register_params", "register_run", "register_scenarios", "run_file_overrides"]
 
@@ -108,7 +111,32 @@ def register_run(subparsers: Any) -> None:
     run.add_argument(
         "--format", default="csv", choices=["csv", "parquet"], help="table format (default: csv)"
     )
-    run.add_argument("--json", action="store_true", help="print only the summary JSON on stdout")
+    run.add_argument(
+        "--json",
+        action="store_true",
+        help="print only the summary JSON on stdout (a program's print() goes to stderr)",
+    )
+    run.add_argument(
+        "--progress",
+        choices=MODES,
+        default="auto",
+        help="progress on stderr: a bar redrawn in place, whole lines (for a log), or none; "
+        "auto: the bar on a terminal, none otherwise (default: auto)",
+    )
+    run.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress and no notes on stderr: only errors (and the summary on stdout)",
+    )
+    run.add_argument(
+        "--watchdog",
+        type=float,
+        default=BUSY_CALL_S,
+        metavar="SECONDS",
+        help="stop the run when one call into a robot program runs this long (wall time) "
+        f"while simulated time stands still; 0: never (default: {BUSY_CALL_S:g})",
+    )
     run.add_argument(
         "--animate", action="store_true", help="also write DIR/animation.gif (needs --out)"
     )
@@ -251,7 +279,22 @@ def _resolve(args: argparse.Namespace) -> tuple[Scenario, dict[str, Any], Path |
                     f"{target}: names scenario {named!r}, but --program runs your own program; "
                     "remove the scenario key or --program"
                 )
-        return program_scenario(args.program), overrides, Path(target) if target else None
+        settings = {
+            k[len("program.") :]: v for k, v in overrides.items() if k.startswith("program.")
+        }
+        overrides = {k: v for k, v in overrides.items() if not k.startswith("program.")}
+        given = _parse_set(args.set)
+        settings |= {k[len("program.") :]: v for k, v in given.items() if k.startswith("program.")}
+        text = Path(target).read_text() if target is not None else ""
+
+        def where(name: str) -> str:
+            if f"program.{name}" in given:
+                return f"--set program.{name}"
+            line = toml_line(text, f"program.{name}")
+            return f"{target}:{line}" if line else str(target)
+
+        scenario = program_scenario(args.program, settings, where)
+        return scenario, overrides, Path(target) if target else None
     if target is None:
         return scenarios.get(scenarios.DEFAULT), {}, None
     if target.endswith(".toml"):
@@ -278,14 +321,46 @@ def _check_placement(args: argparse.Namespace) -> None:
             )
 
 
+@contextmanager
+def _ended_by_signals() -> Iterator[None]:
+    """SIGTERM and SIGHUP end the run as Ctrl-C does: the exception unwinds the run, so the
+    staging directory of ``--out`` is removed, and kilonet exits with 128 + the signal."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def end(signum: int, _frame: Any) -> None:
+        print(f"kilonet: stopped by {signal.Signals(signum).name}", file=sys.stderr)
+        raise SystemExit(128 + signum)
+
+    wanted = [getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)]
+    previous = {sig: signal.signal(sig, end) for sig in wanted}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
+    with _ended_by_signals():
+        return _run_command(args)
+
+
+def _run_command(args: argparse.Namespace) -> int:
     from scenarios.base import write_run_files
     from scenarios.output_dir import OutputDir
 
     scenario, file_overrides, run_file = _resolve(args)
     if run_file is not None:
         run_file_overrides(scenario, run_file, file_overrides)
-    overrides = {**file_overrides, **_parse_set(args.set), **_scenario_options(args, scenario)}
+    given = _parse_set(args.set)
+    if args.program is not None:  # program.* keys are the program's own settings (_resolve)
+        given = {k: v for k, v in given.items() if not k.startswith("program.")}
+    overrides = {**file_overrides, **given, **_scenario_options(args, scenario)}
     if args.robots is not None:
         if args.robots < 1:
             raise UsageError(f"--robots {args.robots}: give the number of robots (at least 2)")
@@ -300,13 +375,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
     params = build_params(scenario, overrides, seed=args.seed)  # every value, before the run
     if args.program is not None and args.placement is None and not params.placement.robots:
         raise UsageError("--program needs --placement F.csv or --robots N (a hex lattice)")
-    with OutputDir(args.out, replace=args.replace) if args.out else nullcontext() as out:
+    reserved = OutputDir(args.out, replace=args.replace) if args.out is not None else None
+    with reserved or nullcontext() as out:
         result = _guarded(args)(
             scenario,
             overrides,
             seed=args.seed,
             placement=args.placement,
-            progress=not args.json,
+            progress="none" if args.json or args.quiet else args.progress,
         )
         if args.out is not None:
             try:
@@ -321,10 +397,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 except AnimationError as exc:
                     raise UsageError(str(exc)) from None
             out.publish()
-            if not args.json:
+            if not (args.json or args.quiet):
                 extra = " and animation.gif" if args.animate else ""
                 print(f"wrote {len(written)} files{extra} to {args.out}", file=sys.stderr)
-    if args.out is None:
+    if args.out is None and not args.quiet:
         print("kilonet: no --out DIR given, so nothing was written", file=sys.stderr)
     if args.json:
         print(json.dumps(json_safe(result.summary), indent=2))
@@ -334,16 +410,41 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _guarded(args: argparse.Namespace):
-    """``scenarios.base.run``, reporting a user program's exceptions as one-line errors."""
-    from scenarios.base import run
+    """``scenarios.base.run`` under the busy-call watchdog (``--watchdog``), with ``print()``
+    of a program sent to stderr under ``--json``, a Ctrl-C naming the robot and callback it
+    stopped, and a user program's exceptions reported as one-line errors."""
+    from contextlib import ExitStack, redirect_stdout
 
-    if args.program is None:
-        return run
-    from scenarios.program import parse_spec, reported_as_user_errors
+    from scenarios.base import run
+    from scenarios.program import (
+        busy_watchdog,
+        describe_call,
+        parse_spec,
+        reported_as_user_errors,
+        robot_frame,
+    )
 
     def guarded(*a: Any, **k: Any):
-        with reported_as_user_errors(parse_spec(args.program)[0]):
-            return run(*a, **k)
+        with ExitStack() as stack:
+            if args.program is not None:
+                stack.enter_context(reported_as_user_errors(parse_spec(args.program)[0]))
+            if args.json:
+                stack.enter_context(redirect_stdout(sys.stderr))  # stdout is the JSON's
+            stack.enter_context(busy_watchdog(args.watchdog))
+            try:
+                return run(*a, **k)
+            except KeyboardInterrupt as exc:
+                tb = exc.__traceback__
+                while tb is not None and tb.tb_next is not None:
+                    tb = tb.tb_next
+                found = robot_frame(tb.tb_frame if tb is not None else None)
+                if found is None:
+                    raise
+                robot, call = found
+                raise KeyboardInterrupt(
+                    f"in {describe_call(robot, call, tb.tb_frame)} at "
+                    f"{robot._kenv.now:.3f} simulated s"
+                ) from None
 
     return guarded
 
@@ -389,7 +490,7 @@ def _cmd_scenarios(_args: argparse.Namespace) -> int:
 
 
 def register_params(subparsers: Any) -> None:
-    """Add ``kilonet params [SCENARIO]``."""
+    """Add ``kilonet params [SCENARIO|program|SECTION]``."""
     params = subparsers.add_parser(
         "params",
         help="list every parameter with its default, type and allowed values",
@@ -400,25 +501,29 @@ def register_params(subparsers: Any) -> None:
     params.add_argument(
         "scenario",
         nargs="?",
-        help=f"one of {', '.join(scenarios.names())} (default: {scenarios.DEFAULT})",
+        help=f"one of {', '.join(scenarios.names())} (default: {scenarios.DEFAULT}); "
+        "'program' for kilonet run --program; or a section (medium, ranging, ...): its keys "
+        f"as {scenarios.DEFAULT} sets them",
     )
     params.set_defaults(func=_cmd_params)
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
     name = args.scenario or scenarios.DEFAULT
-    if name not in scenarios.names():
-        default = scenarios.get(scenarios.DEFAULT)
-        keys = [key for key, *_ in describe(build_params(default)) if key.startswith(f"{name}.")]
-        if keys:
-            raise ScenarioError(
-                f"{name!r} is a section of parameters, not a scenario: every scenario has it "
-                f"({', '.join(keys[:3])}, ...); list them with kilonet params SCENARIO, "
-                f"e.g. kilonet params {scenarios.DEFAULT}"
-            )
-    scenario = scenarios.get(name)
+    section = None
+    if name == "program":  # kilonet run --program: the kernel's defaults, no scenario's
+        params = Params()
+    elif name in scenarios.names():
+        params = build_params(scenarios.get(name))
+    else:
+        params = build_params(scenarios.get(scenarios.DEFAULT))
+        if not any(key.startswith(f"{name}.") for key, *_ in describe(params)):
+            scenarios.get(name)  # the unknown-scenario error, listing the scenarios
+        section = name  # a section of parameters: its keys, as the default scenario sets them
     rows = [
-        (key, str(value), kind, doc) for key, value, kind, doc in describe(build_params(scenario))
+        (key, str(value), kind, doc)
+        for key, value, kind, doc in describe(params)
+        if section is None or key.startswith(f"{section}.")
     ]
     widths = [max(len(r[k]) for r in rows) for k in range(3)]
     head = ("key", "default", "type and allowed values")

@@ -57,7 +57,14 @@ if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios 
     from protocols.frame_keys import FrameKey
     from protocols.gcs import GcsRobot, RobotOutcome
 
-__all__ = ["SCENARIO", "RunOutcomes", "estimates_frame", "local_frames_frame", "run_outcomes"]
+__all__ = [
+    "SCENARIO",
+    "RunOutcomes",
+    "estimates_frame",
+    "local_frames_frame",
+    "own_components",
+    "run_outcomes",
+]
 
 
 def _program(params: Any, positions: np.ndarray):
@@ -258,6 +265,23 @@ def _per_frame(
     return [(g[xy].to_numpy(), truth[g.robot.to_numpy()]) for _, g in table.groupby(by)]
 
 
+def own_components(components: list[list[int]], located: dict[int, list[int]]) -> list[list[int]]:
+    """The components of the frame graph that are a global frame of their own: some robot is
+    located in frames of that component only. A seed in no merging group whose robots are all
+    located in other frames too splits nothing (it is the thesis's case 2, not case 3).
+
+    Examples
+    --------
+    >>> own_components([[1, 2], [3], [4]], {10: [1, 3], 11: [2], 12: [4]})
+    [[1, 2], [4]]
+    """
+    return [
+        c
+        for c in components
+        if any(frames and set(frames) <= set(c) for frames in located.values())
+    ]
+
+
 def _failures(sim: Simulation, outcomes: RunOutcomes) -> dict[str, Any]:
     """The thesis's failure cases as this run produced them (robot indices), with the
     communication graph's rigidity facts that explain them."""
@@ -271,10 +295,11 @@ def _failures(sim: Simulation, outcomes: RunOutcomes) -> dict[str, Any]:
     ]
     cases = failure_cases(range(sim.n_robots), located, sorted(seeds.values()), groups)
     facts = rigidity_facts(sim.medium.graph())
+    own = own_components(cases["frames"], located)
     return {
         "unlocalizable": cases["unlocalizable"],
         "isolated_seeds": cases["isolated_seeds"],
-        "split_frames": len(cases["frames"]) if cases["split"] else 0,
+        "split_frames": len(own) if len(own) > 1 else 0,
         "frame_components": cases["frames"],
         "articulation_points": facts["articulation_points"],
         "robots_with_fewer_than_3_neighbours": facts["low_degree"],
@@ -526,6 +551,6 @@ SCENARIO = Scenario(
     robot_columns=estimates_frame,
     options=(ScenarioOption("--until", "gcs.until", "stop after this phase"),),
     expected_end_s=_expected_end_s,
-    ends_when="every seed is done merging (with gcs.refine: every robot done refining)",
+    ends_when="merging (or with gcs.refine, refining) is done",
     progress_note=_phase_note,
 )

@@ -50,7 +50,8 @@ class OutputDir:
     Raises
     ------
     OutputDirError
-        If ``path`` exists and is not a directory, exists and is not empty (without
+        If ``path`` is empty, is the current directory or one that holds it, exists and is
+        not a directory, exists and is not empty (without
         ``replace``), lies under something that is not a directory, or its parent cannot be
         created or written to.
 
@@ -75,6 +76,13 @@ class OutputDir:
         self._created: list[Path] = []
         self._published = False
         target = self.path
+        if not str(path).strip():
+            raise OutputDirError("--out needs a directory name, got an empty one")
+        if target.is_dir() and Path.cwd().resolve().is_relative_to(target.resolve()):
+            raise OutputDirError(
+                f"{target} is the current directory or holds it, which a run cannot replace; "
+                "choose a new directory for --out (e.g. --out runs/one)"
+            )
         if target.is_symlink() or target.exists():
             if not target.is_dir():
                 raise OutputDirError(f"{target} exists and is not a directory")

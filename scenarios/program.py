@@ -7,6 +7,10 @@ or ``--robots`` (a jittered hex lattice), and the run writes what every scenario
 (``robots.csv``, ``led.csv``, ``events.csv``, ``poses.csv``, ``summary.json``,
 ``params.json``) plus ``program.png``: start and final positions, LEDs and paths.
 
+A run file's ``[program]`` section, and ``--set program.NAME=VALUE``, set class attributes
+the program declares (``gain = 0.5`` in its class body) on every robot before ``setup()``
+(:func:`program_settings`): a program's own parameters, checked like kilonet's.
+
 A program that cannot run is refused in one line naming the file and line
 (:class:`ProgramError`): a missing file, a syntax error, an exception while the file loads,
 no Kilobot subclass (or a name that is not one, or one whose constructor needs arguments), and
@@ -21,12 +25,14 @@ import importlib.util
 import inspect
 import sys
 import traceback
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 from kilonet.errors import read_text
+from kilonet.message import PayloadError
 from kilonet.robot import Kilobot
 from scenarios.base import RunResult, Scenario, ScenarioError
 
@@ -34,16 +40,31 @@ if TYPE_CHECKING:
     from kilonet.simulation import Simulation
 
 __all__ = [
+    "BUSY_CALL_S",
+    "BusyCallError",
     "ProgramError",
+    "busy_watchdog",
+    "describe_call",
     "load_program",
     "parse_spec",
     "program_scenario",
+    "program_settings",
     "reported_as_user_errors",
+    "robot_frame",
 ]
 
 
 class ProgramError(ScenarioError):
     """A user's program file cannot be run; the message names the file and line."""
+
+
+class BusyCallError(ProgramError):
+    """One call into a robot program ran too long while simulated time stood still."""
+
+
+#: Wall-clock seconds one call into a program may run, with simulated time standing still,
+#: before :func:`busy_watchdog` stops the run (``kilonet run --watchdog``).
+BUSY_CALL_S = 30.0
 
 
 def parse_spec(spec: str) -> tuple[Path, str | None]:
@@ -82,6 +103,11 @@ def load_program(spec: str) -> tuple[Path, type[Kilobot]]:
     """
     path, name = parse_spec(spec)
     source = read_text(path, ProgramError, "program file")
+    if path.suffix != ".py":
+        raise ProgramError(
+            f"{path}: a program is a Python file (--program FILE.py[:CLASS]); a run file "
+            f"(.toml) goes first: kilonet run RUN.toml --program FILE.py"
+        )
     try:
         compile(source, str(path), "exec")
     except SyntaxError as exc:
@@ -146,6 +172,13 @@ def reported_as_user_errors(path: str | Path, during: str = "") -> Iterator[None
         yield
     except ScenarioError:
         raise
+    except PayloadError as exc:
+        frames = [f for f in traceback.extract_tb(exc.__traceback__) if f.filename]
+        mine = [f for f in frames if Path(f.filename).resolve() == target]
+        if mine:
+            last = mine[-1]
+            raise ProgramError(f"{path}:{last.lineno}: in {last.name}: {exc}") from None
+        raise ProgramError(f"{path}: {exc}") from None  # what message_tx returned
     except Exception as exc:
         frames = [
             f
@@ -161,19 +194,176 @@ def reported_as_user_errors(path: str | Path, during: str = "") -> Iterator[None
         ) from None
 
 
-def program_scenario(spec: str) -> Scenario:
-    """A scenario that runs the program ``spec`` (``FILE.py[:ClassName]``) on every robot.
+def robot_frame(frame: FrameType | None) -> tuple[Kilobot, FrameType] | None:
+    """The outermost frame of ``frame``'s stack that runs a method of a robot program (its
+    ``self`` is a :class:`Kilobot`): the callback the simulation called, and its robot."""
+    found = None
+    while frame is not None:
+        robot = frame.f_locals.get("self")
+        if isinstance(robot, Kilobot) and hasattr(robot, "_index"):
+            found = (robot, frame)
+        frame = frame.f_back
+    return found
+
+
+def describe_call(robot: Kilobot, frame: FrameType, innermost: FrameType | None = None) -> str:
+    """``robot 4's loop (my_bot.py:12)``: the robot, the callback, where it runs now."""
+    at = innermost or frame
+    return (
+        f"robot {robot._kindex}'s {frame.f_code.co_name} "
+        f"({Path(at.f_code.co_filename).name}:{at.f_lineno})"
+    )
+
+
+@contextmanager
+def busy_watchdog(seconds: float = BUSY_CALL_S) -> Iterator[None]:
+    """Stop a run whose program is stuck in one call (``while True: pass`` in ``loop``).
+
+    Every ``seconds`` of wall time a timer signal (``SIGALRM``) looks at what runs: if the same
+    call into the same robot's program was running at the previous look, and simulated time
+    has not moved, the call has run at least ``seconds`` without returning, and
+    :class:`BusyCallError` is raised inside it, naming the robot, the callback and the line.
+    Nothing runs between looks, so a run pays nothing for it. Off (a no-op) when ``seconds``
+    is 0, outside the main thread, or where the system has no ``SIGALRM``.
+
+    Raises
+    ------
+    BusyCallError
+        From inside the stuck call.
+    """
+    import signal
+    import threading
+
+    if (
+        seconds <= 0
+        or not hasattr(signal, "SIGALRM")
+        or threading.current_thread() is not (threading.main_thread())
+    ):
+        yield
+        return
+    last: list[Any] = [None]
+
+    def look(_signum: int, frame: FrameType | None) -> None:
+        found = robot_frame(frame)
+        if found is None:
+            last[0] = None
+            return
+        robot, call = found
+        now = robot._kenv.now
+        if last[0] is not None and last[0][0] is call and last[0][1] == now:
+            last[0] = None
+            raise BusyCallError(
+                f"{describe_call(robot, call, frame)} has run {seconds:g} s of wall time "
+                f"without returning, at {now:.3f} simulated s: simulated time passes only "
+                "between calls, so a loop that waits for something (a sensor, a message, "
+                "kilo_ticks) never sees it change; return from the callback and check again "
+                "at its next call, or write it as a generator and `yield self.delay(ms)`"
+            )
+        last[0] = (call, now)
+
+    previous = signal.signal(signal.SIGALRM, look)
+    signal.setitimer(signal.ITIMER_REAL, seconds, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+#: Types a ``[program]`` setting may have: those of the class attribute it replaces.
+_SETTING_TYPES = (bool, int, float, str)
+
+
+def program_settings(
+    cls: type[Kilobot], settings: dict[str, Any], where: Callable[[str], str] = str
+) -> dict[str, Any]:
+    """The values a run file's ``[program]`` section (or ``--set program.NAME=VALUE``) gives
+    the program's class attributes, checked and converted: each name must be a class
+    attribute the program declares (``speed = 3`` in its class body) holding a bool, int,
+    float or str, and each value must be of that type (an int for a float; text from
+    ``--set`` is converted).
+
+    ``where(name)`` says where a setting came from, for the error (``run.toml:7``).
 
     Raises
     ------
     ProgramError
-        If the program cannot be loaded (:func:`load_program`).
+        For a name the class does not declare, or a value of another type.
+
+    Examples
+    --------
+    >>> class Bot(Kilobot):
+    ...     speed = 2.5
+    ...     verbose = False
+    >>> program_settings(Bot, {"speed": 3, "verbose": "true"})
+    {'speed': 3.0, 'verbose': True}
+    """
+    out: dict[str, Any] = {}
+    for name, value in settings.items():
+        default = None
+        for klass in cls.__mro__:
+            if klass is Kilobot:
+                break
+            if name in vars(klass):
+                default = vars(klass)[name]
+                break
+        if name.startswith("_") or not isinstance(default, _SETTING_TYPES):
+            raise ProgramError(
+                f"{where(name)}: program.{name}: {cls.__name__} has no class attribute {name!r} "
+                f"holding a number, bool or text; a [program] key sets one the class declares "
+                f"({name} = ... in the class body)"
+            )
+        out[name] = _converted(value, type(default), f"{where(name)}: program.{name}")
+    return out
+
+
+def _converted(value: Any, kind: type, where: str) -> Any:
+    if isinstance(value, str) and kind is not str:
+        text = value.strip().lower()
+        if kind is bool and text in ("true", "false"):
+            return text == "true"
+        try:
+            return kind(text) if kind is not bool else _refuse(value, kind, where)
+        except ValueError:
+            _refuse(value, kind, where)
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if type(value) is not kind:
+        _refuse(value, kind, where)
+    return value
+
+
+def _refuse(value: Any, kind: type, where: str) -> Any:
+    article = "an" if kind is int else "a"
+    raise ProgramError(
+        f"{where} = {value!r} is not {article} {kind.__name__}, as the class's default is"
+    )
+
+
+def program_scenario(
+    spec: str, settings: dict[str, Any] | None = None, where: Callable[[str], str] = str
+) -> Scenario:
+    """A scenario that runs the program ``spec`` (``FILE.py[:ClassName]``) on every robot,
+    with ``settings`` (checked by :func:`program_settings`) set on each robot's program before
+    its ``setup()`` (``where(name)``: where a setting came from, for an error).
+
+    Raises
+    ------
+    ProgramError
+        If the program cannot be loaded (:func:`load_program`) or a setting is refused.
     """
     path, cls = load_program(spec)
     label = f"{path.name}:{cls.__name__}"
+    values = program_settings(cls, dict(settings or {}), where)
+
+    def build(_i: int) -> Kilobot:
+        robot = cls()
+        for name, value in values.items():
+            setattr(robot, name, value)
+        return robot
 
     def program(params: Any, positions: Any):
-        return lambda _i: cls()
+        return build
 
     def metrics(_sim: Simulation) -> dict[str, Any]:
         return {"program": label}

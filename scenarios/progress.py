@@ -6,20 +6,57 @@ them, starting), so a large swarm's long set-up is not silent. Then:
 * when the run's end is known before it starts (a fixed duration, or phase windows that end
   it), a bar to that end: ``gradient  42% |####      | 13/30 sim s [00:01<00:02]``;
 * when only a stop condition will end it, no bar and no made-up percentage: the simulated
-  seconds so far, the rate, what the run waits for and the cap ``duration_s``:
-  ``follower  154 sim s [00:03, 45.2 sim s/s] until the follower arrives or gives up
-  (at most 600 s)``.
+  seconds so far, the rate, the scenario's note, what the run waits for and the cap
+  ``duration_s``: ``follower  154 sim s [00:03, 45.2 sim s/s] until the follower arrives or
+  gives up (at most 600 s)``.
 
-A note from the scenario (the current phase) follows either form.
+A note from the scenario (the current phase) comes right after the figures, so it shows in
+80 columns.
+
+Three modes (:data:`MODES`): ``bar`` redraws one line in place (``tqdm``, for a terminal);
+``lines`` writes whole lines, one per stage, per tenth of the run (or per change of the note,
+or per 30 s of wall time without one), and one at the end, for a log file or a pipe; ``none``
+writes nothing. ``auto`` is ``bar`` when stderr is a terminal, else ``none``: carriage returns
+in a log are noise, and an error stays the only line a failed run leaves.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from types import TracebackType
 from typing import Any
 
-__all__ = ["RunProgress"]
+__all__ = ["MODES", "RunProgress", "resolve_mode"]
+
+#: The progress modes, as ``kilonet run --progress`` takes them.
+MODES = ("auto", "bar", "lines", "none")
+
+
+def resolve_mode(mode: str | bool, stream: Any = None) -> str:
+    """The mode to show: ``bar``, ``lines`` or ``none``. ``True`` is ``bar``, ``False``
+    ``none``; ``auto`` is ``bar`` if ``stream`` (default stderr) is a terminal, else ``none``.
+
+    Raises
+    ------
+    ValueError
+        For a mode not in :data:`MODES`.
+
+    Examples
+    --------
+    >>> import io
+    >>> resolve_mode("auto", io.StringIO()), resolve_mode(True), resolve_mode("lines")
+    ('none', 'bar', 'lines')
+    """
+    if mode is True or mode is False:
+        return "bar" if mode else "none"
+    if mode not in MODES:
+        raise ValueError(f"progress mode {mode!r} is not one of {', '.join(MODES)}")
+    if mode == "auto":
+        stream = sys.stderr if stream is None else stream
+        isatty = getattr(stream, "isatty", None)
+        return "bar" if isatty is not None and isatty() else "none"
+    return mode
 
 
 class RunProgress:
@@ -35,8 +72,8 @@ class RunProgress:
         The run's ``duration_s``: it ends there at the latest.
     ends_when : str
         What the stop condition waits for, in words (indeterminate display).
-    enabled : bool
-        Show anything at all.
+    enabled : bool or str
+        A mode of :data:`MODES` (``True``: ``bar``; ``False``: ``none``).
     """
 
     def __init__(
@@ -46,12 +83,16 @@ class RunProgress:
         expected_end_s: float | None,
         cap_s: float,
         ends_when: str = "",
-        enabled: bool = True,
+        enabled: bool | str = True,
     ) -> None:
         self.name = name
         self.expected_end_s = expected_end_s
         self._bar: Any = None
-        if not enabled:
+        self._lines: _Lines | None = None
+        mode = resolve_mode(enabled)
+        if mode == "lines":
+            self._lines = _Lines(name, expected_end_s, cap_s, ends_when)
+        if mode != "bar":
             return
         from tqdm import tqdm
 
@@ -66,14 +107,15 @@ class RunProgress:
             total = None
             until = f" until {ends_when}" if ends_when else ""
             layout = (
-                "{desc}  {n:.0f} sim s [{elapsed}, {rate_fmt}]"
+                "{desc}  {n:.0f} sim s [{elapsed}, {rate_fmt}]{postfix}"
                 + f"{until} (at most {cap_s:g} s)".replace("{", "{{").replace("}", "}}")
-                + "{postfix}"
             )
         self._bar = tqdm(total=total, unit="sim s", file=sys.stderr, bar_format=layout, desc=name)
 
     def stage(self, what: str) -> None:
         """Show the set-up stage (``"placing robots"``) until the next update."""
+        if self._lines is not None:
+            self._lines.stage(what)
         if self._bar is not None:
             self._bar.set_description_str(
                 self.name if what == "running" else f"{self.name}: {what}"
@@ -81,6 +123,8 @@ class RunProgress:
 
     def update(self, now_s: float, note: str = "") -> None:
         """The run has reached simulated time ``now_s``; ``note`` says where it is."""
+        if self._lines is not None:
+            self._lines.update(now_s, note)
         bar = self._bar
         if bar is None:
             return
@@ -91,6 +135,9 @@ class RunProgress:
 
     def close(self) -> None:
         """End the display (the cursor moves to a new line)."""
+        if self._lines is not None:
+            self._lines.close()
+            self._lines = None
         if self._bar is not None:
             self._bar.close()
 
@@ -105,4 +152,60 @@ class RunProgress:
     ) -> None:
         if exc_type is not None and self._bar is not None:
             self._bar.leave = False  # erase the bar: the error message is what remains
+        if exc_type is not None:
+            self._lines = None  # no "done" line for a run that failed
         self.close()
+
+
+class _Lines:
+    """The ``lines`` mode: whole lines on stderr, each one flushed."""
+
+    #: Wall seconds after which a line is written even if nothing else calls for one.
+    QUIET_S = 30.0
+
+    def __init__(
+        self, name: str, expected_end_s: float | None, cap_s: float, ends_when: str
+    ) -> None:
+        self.name = name
+        self.end_s = expected_end_s
+        self.cap_s = cap_s
+        self.ends_when = ends_when
+        self.start = self.last_line = time.monotonic()
+        self.next_tenth = 1
+        self.note = ""
+        self.now_s = 0.0
+
+    def write(self, text: str) -> None:
+        print(f"{self.name}: {text}", file=sys.stderr, flush=True)
+        self.last_line = time.monotonic()
+
+    def stage(self, what: str) -> None:
+        if what == "running":
+            if self.end_s is not None:
+                self.write(f"running to {self.end_s:g} sim s")
+            else:
+                until = f" until {self.ends_when}," if self.ends_when else ""
+                self.write(f"running{until} at most {self.cap_s:g} sim s")
+        else:
+            self.write(what)
+
+    def update(self, now_s: float, note: str) -> None:
+        self.now_s = now_s
+        reason = note != self.note
+        if self.end_s:
+            while now_s >= self.next_tenth * self.end_s / 10 and self.next_tenth <= 10:
+                self.next_tenth += 1
+                reason = True
+        if reason or time.monotonic() - self.last_line >= self.QUIET_S:
+            self.note = note
+            self.write(self._figures())
+
+    def _figures(self) -> str:
+        elapsed = time.monotonic() - self.start
+        share = f"{min(100.0, 100 * self.now_s / self.end_s):3.0f}% " if self.end_s else ""
+        note = f", {self.note}" if self.note else ""
+        return f"{share}{self.now_s:g} sim s, {elapsed:.1f} s elapsed{note}"
+
+    def close(self) -> None:
+        elapsed = time.monotonic() - self.start
+        self.write(f"done at {self.now_s:g} sim s in {elapsed:.1f} s")

@@ -3,12 +3,13 @@
 A localization run (``gcs``, ``localize``) reports, next to its own RMSE:
 
 * ``crlb_rmse_mm``: the anchor-free Cramér–Rao bound of the communication graph with one
-  measurement of ``ranging.sigma_mm`` per pair (:func:`kilonet.geometry.crlb_rmse_mm`), and
-  ``rmse_over_crlb``;
-* ``crlb_received_rmse_mm``: the bound for the receptions the robots actually averaged (each
-  ordered pair weighted by its number of samples: the robots average many receptions per pair,
-  so they and the centralized solver can beat the first bound; rounding to whole millimetres
-  adds 1/12 mm² of variance that it leaves out), and ``rmse_over_crlb_received``;
+  reception per pair (:func:`kilonet.geometry.crlb_rmse_mm`), each link's error the reception
+  model's effective error at its length (``effective_sigma_mm`` of
+  :mod:`kilonet.reception`'s models: the systematic part that averaging cannot remove, plus
+  one reading's noise and rounding), and ``rmse_over_crlb``;
+* ``crlb_received_rmse_mm``: the same bound for the receptions the robots actually averaged
+  (each ordered pair with its number of samples: averaging shrinks the noise, not the
+  systematic error), and ``rmse_over_crlb_received``;
 * ``central_rmse_mm``, ``central_localized_fraction``: the centralized solver
   (:func:`kilonet.central.central_reference`) on the run's own measured distances, and
   ``largest_frame_over_central``, the largest frame's size over the number of robots the solver
@@ -116,15 +117,21 @@ def reference_metrics(
     from kilonet.geometry import crlb_rmse_mm
 
     truth = sim.world.positions_mm
-    sigma = sim.params.ranging.sigma_mm
     i, j = links
     out: dict[str, Any] = {"crlb_rmse_mm": None, "hop_diameter": hop_diameter(sim.n_robots, i, j)}
     pairs, means, samples = measured_distances(sim, tables)
-    if len(i) and sigma > 0:
-        out["crlb_rmse_mm"] = crlb_rmse_mm(truth, np.column_stack([i, j]), sigma)
+    model = sim.medium.reception
+    if len(i) and hasattr(model, "effective_sigma_mm"):
+
+        def bound(edges: np.ndarray, n: np.ndarray | float) -> float:
+            length = np.hypot(*(truth[edges[:, 0]] - truth[edges[:, 1]]).T)
+            sigma = model.effective_sigma_mm(length, n)
+            return crlb_rmse_mm(truth, edges, 1.0, weights=1.0 / sigma**2)
+
+        out["crlb_rmse_mm"] = bound(np.column_stack([i, j]), 1.0)
         out["rmse_over_crlb"] = rmse_mm / out["crlb_rmse_mm"]
         if len(pairs):
-            received = crlb_rmse_mm(truth, pairs, sigma, weights=samples)
+            received = bound(pairs, samples)
             out["crlb_received_rmse_mm"] = received
             out["rmse_over_crlb_received"] = rmse_mm / received
     if len(pairs):

@@ -49,8 +49,10 @@ __all__ = [
 ]
 
 #: The parameters the constructions assume: messages are "received within a radius of at least
-#: 7 cm, provided that there are no objects between sender and receiver" (the thesis, §5).
-PREMISE = {"medium.occlusion": "block"}
+#: 7 cm, provided that there are no objects between sender and receiver" (the thesis, §5): one
+#: hard radius (``medium.range_mm``, 85 mm) and no link through a body, not the real robots'
+#: per-robot reach (:mod:`kilonet.radio`).
+PREMISE = {"medium.occlusion": "block", "medium.reach": "disc"}
 
 _OUTER_LEFT_MM = [(-55.0, 45.0), (-55.0, -45.0)]
 # Columns 39 mm apart of a lattice with 45 mm between neighbours (rows in a column 45 mm apart,

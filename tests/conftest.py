@@ -11,3 +11,8 @@ from hypothesis import settings
 settings.register_profile("default", derandomize=True)
 settings.register_profile("explore", derandomize=False, max_examples=500)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
+
+# pytester's in-process runs (test_testing_docs.py) forget every module first imported inside
+# them, and NumPy's compiled modules cannot be loaded twice: load SciPy's spatial module (and
+# the NumPy parts it pulls in) once, up front.
+import scipy.spatial  # noqa: E402, F401

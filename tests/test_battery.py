@@ -15,10 +15,12 @@ from kilonet.simulation import Simulation
 
 
 def battery_params(overrides: dict | None = None, *, seed: int = 1) -> Params:
-    """A battery without motor drain or motor-speed errors unless the test sets them."""
+    """A battery without motor drain or motor-speed errors unless the test sets them, on the
+    disc medium (one hard radius: the range a low battery shrinks is one number)."""
     return Params(seed=seed).with_overrides(
         {
             "battery.enabled": True,
+            "medium.reach": "disc",
             "battery.motor_drain_v_per_h": 0.0,
             "motion.speed_error": 0.0,
             "motion.turn_error": 0.0,

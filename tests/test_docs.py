@@ -1,4 +1,5 @@
-"""docs/outputs.md documents every key of every scenario's summary.json, and nothing else."""
+"""docs/outputs.md documents every key of every scenario's summary.json and every file a run
+writes, and nothing else."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from pathlib import Path
 import pytest
 
 import scenarios
+from scenarios.base import RunResult, write_run_files
 from scenarios.program import program_scenario
 
 OUTPUTS = Path(__file__).resolve().parents[1] / "docs" / "outputs.md"
@@ -38,7 +40,7 @@ def flat_keys(summary: dict, prefix: str = "") -> set[str]:
 
 
 @pytest.fixture(scope="module")
-def summaries(tmp_path_factory) -> dict[str, set[str]]:
+def results(tmp_path_factory) -> dict[str, RunResult]:
     program = tmp_path_factory.mktemp("program") / "idle.py"
     program.write_text("from kilonet.robot import Kilobot\n\n\nclass Idle(Kilobot):\n    pass\n")
     runs = {
@@ -46,10 +48,27 @@ def summaries(tmp_path_factory) -> dict[str, set[str]]:
         "gcs_refine": (scenarios.get("gcs"), {"placement.robots": 12, "gcs.refine": True}),
         "gradient": (scenarios.get("gradient"), {"duration_s": 5.0}),
         "follower": (scenarios.get("follower"), {}),
+        "localize": (scenarios.get("localize"), {"placement.robots": 20}),
         "maze": (scenarios.get("maze"), {"maze.size": "2x2"}),
         "program": (program_scenario(str(program)), {"placement.robots": 3, "duration_s": 1.0}),
     }
-    return {name: flat_keys(scenarios.run(s, o).summary) for name, (s, o) in runs.items()}
+    return {name: scenarios.run(s, o) for name, (s, o) in runs.items()}
+
+
+@pytest.fixture(scope="module")
+def summaries(results) -> dict[str, set[str]]:
+    return {name: flat_keys(result.summary) for name, result in results.items()}
+
+
+def test_every_file_a_run_writes_is_documented(results, tmp_path):
+    named = set(re.findall(r"`([\w.-]+\.(?:png|csv|txt|json))`", OUTPUTS.read_text()))
+    missing = {}
+    for name, result in results.items():
+        out = tmp_path / name
+        out.mkdir()
+        written = {p.name for p in write_run_files(result, out)}
+        missing[name] = sorted(written - named)
+    assert all(not files for files in missing.values()), f"unlisted in {OUTPUTS}: {missing}"
 
 
 def test_every_summary_key_is_documented(summaries):

@@ -11,23 +11,37 @@ from kilonet.params import MediumParams, ParamError, Params, describe
 
 def test_defaults_match_the_kilobot_model():
     p = Params()
-    assert p.medium.range_mm == 85.0
+    assert p.medium.reach == "argos"  # per-robot reach fitted to real robots (tests/validation)
+    assert p.medium.range_mm == 85.0  # the disc's radius: the thesis's "at least 7 cm"
     assert p.medium.occlusion == "none"  # real-robot data show no effect of a body between
     assert p.medium.csma is True
     assert p.medium.message_format == "kilolib"
-    assert p.medium.backoff_max_s == 0.032  # kilolib: a later timer interrupt, up to a tick
-    assert p.robot.tx_period_s == 0.5  # kilolib v2: kilo_tx_period = 3906 timer counts
+    assert p.medium.backoff_max_s == 255 / 7812.5  # kilolib: rand() & 0xFF timer counts
+    assert p.medium.bitrate_bps == 29_740.0  # 8 MHz / 269 cycles a bit
+    assert p.robot.tx_period_s == 16 * 256 / 7812.5  # kilolib: 16 ticks (kilo_tx_period 3906)
     assert p.robot.tx_jitter_s == 0.0
     assert p.robot.tx_retry == "tick"
     assert p.robot.rx_mode == "callback"
     assert p.robot.rx_buffer == 3
-    assert p.robot.ticks_per_s == 31.0  # kilolib's TICKS_PER_SEC
+    assert p.robot.ticks_per_s == 8e6 / 1024 / 256  # the hardware tick; TICKS_PER_SEC says 31
     assert p.robot.clock_sd == 0.01  # the ATmega328P's calibrated RC oscillator: about ±1 %
     assert p.robot.loop_ticks == 1
     assert (p.motion.pivot_radius_mm, p.motion.pivot_angle_deg) == (16.5, 125.5)  # Kilombo
     assert (p.motion.motor_offset, p.motion.motor_gain) == (60.0, 15.0)  # Kilombo's curve
+    assert p.ranging.model == "tables"  # kilolib's estimate on per-robot calibration tables
     assert p.ranging.sigma_mm == 1.0
     assert p.ranging.bias_sigma_mm == 0.0
+
+
+def test_a_reception_model_that_is_no_import_path_is_refused_naming_the_key():
+    with pytest.raises(ParamError, match=re.escape("ranging.model = 'fancy'")):
+        Params().with_overrides({"ranging.model": "fancy"})
+    with pytest.raises(ParamError, match="cannot import no_such_module"):
+        from kilonet import Kilobot, Simulation
+
+        Simulation(
+            [[0, 0]], Kilobot, Params().with_overrides({"ranging.model": "no_such_module:X"})
+        )
 
 
 def test_overrides_parse_strings_to_field_types():
@@ -212,7 +226,7 @@ def test_flat_dict_and_describe_cover_every_key():
     rows = describe(Params())
     assert [key for key, _, _, _ in rows] == list(flat)
     docs = {key: doc for key, _, _, doc in rows}
-    assert docs["medium.range_mm"] == "reception range, centre to centre"
+    assert docs["medium.range_mm"] == "disc: reception range, centre to centre"
     kinds = {key: kind for key, _, kind, _ in rows}
     assert kinds["medium.range_mm"] == "float, 33 to 1000"
     assert kinds["medium.csma"] == "bool"

@@ -64,3 +64,12 @@ def test_every_relative_link_of_a_page_points_to_a_shipped_file(page):
         if "://" in target:
             continue
         assert (page.parent / target).exists(), f"{page.name} links to a missing {target}"
+
+
+def test_every_input_file_a_quick_start_command_names_exists():
+    for argv in _commands():
+        inputs = [w for k, w in enumerate(argv) if k == 0 or argv[k - 1] != "--out"]
+        for word in inputs:
+            path = word.split(":")[0]
+            if path.endswith((".py", ".toml", ".csv")):
+                assert (ROOT / path).exists(), f"the README's `{shlex.join(argv)}` names {path}"

@@ -6,6 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from kilonet.counters import LOSS_CAUSES
 from kilonet.message import Layout, Message
 from kilonet.params import Params
 from kilonet.placement import PlacementError, hex_lattice
@@ -14,9 +15,16 @@ from kilonet.simulation import STREAMS, Simulation, stream_for
 
 
 def quiet_params(overrides: dict | None = None, *, seed: int = 1) -> Params:
-    """Parameters without a battery model, with perfect clocks, plus overrides."""
+    """Parameters without a battery model, with perfect clocks and the disc medium (one hard
+    radius, iid ranging noise), plus overrides."""
     return Params(seed=seed).with_overrides(
-        {"battery.enabled": False, "robot.clock_sd": 0.0, **(overrides or {})}
+        {
+            "battery.enabled": False,
+            "robot.clock_sd": 0.0,
+            "medium.reach": "disc",
+            "ranging.model": "gaussian",
+            **(overrides or {}),
+        }
     )
 
 
@@ -105,6 +113,7 @@ def test_streams_are_independent_and_match_stream_for():
         "clock",
         "sensors",
         "calibration",
+        "radio",
     }
     first = {name: float(stream_for(11, name).random()) for name in STREAMS}
     assert len(set(first.values())) == len(STREAMS)
@@ -166,11 +175,11 @@ def test_setup_once_then_loop_every_few_ticks_of_the_robots_own_clock(loop_ticks
     assert sim.clocks.rate_hz(0) != sim.clocks.rate_hz(1)
 
 
-def test_kilo_ticks_count_31_per_second_on_perfect_clocks():
+def test_kilo_ticks_count_the_hardware_timer_on_perfect_clocks():
     sim = Simulation([[0, 0], [50, 0]], Kilobot, quiet_params())
     sim.run(2.5)
-    assert sim.robots[0].kilo_ticks == 77
-    assert sim.robots[0].ticks_per_s == 31.0  # kilolib's TICKS_PER_SEC
+    assert sim.robots[0].ticks_per_s == 8e6 / 1024 / 256  # 30.52 Hz; TICKS_PER_SEC says 31
+    assert sim.robots[0].kilo_ticks == 76  # 2.5 s x 30.52
     sim = Simulation([[0, 0], [50, 0]], Kilobot, quiet_params({"robot.ticks_per_s": 32}))
     sim.run(2.0)
     assert sim.robots[1].kilo_ticks == 64
@@ -181,9 +190,10 @@ def test_each_robot_counts_ticks_at_its_own_rate():
     sim = Simulation(hex_lattice(50, spacing_mm=40.0), Kilobot, params)
     sim.run(100.0)
     ticks = np.array([r.kilo_ticks for r in sim.robots])
-    expected = np.floor(100.0 * 31 * sim.clocks.factor + sim.clocks.phase)
+    rate = sim.params.robot.ticks_per_s
+    expected = np.floor(100.0 * rate * sim.clocks.factor + sim.clocks.phase)
     np.testing.assert_array_equal(ticks, expected)
-    assert ticks.max() - ticks.min() > 60  # ±1 % of 3,100 ticks: tens of ticks apart
+    assert ticks.max() - ticks.min() > 60  # ±1 % of 3,052 ticks: tens of ticks apart
     assert sim.robots_frame()["clock_factor"].tolist() == sim.clocks.factor.tolist()
 
 
@@ -229,7 +239,8 @@ def test_led_changes_and_events_are_traced():
     assert rows[:2] == [[0.0, 0, 1, 2, 3], [0.0, 1, 1, 2, 3]]
     assert sorted(row[1:] for row in rows[2:]) == [[0, 0, 0, 0], [1, 0, 0, 0]]
     off = led[led["r"] == 0]["t_s"]
-    assert ((off >= 32 / 31) & (off < 33 / 31 + 1e-9)).all()  # the loop of tick 32
+    tick = 1 / sim.params.robot.ticks_per_s
+    assert ((off >= 32 * tick) & (off < 33 * tick + 1e-9)).all()  # the loop of tick 32
     events = sim.trace.events_frame()
     assert events.values.tolist() == [
         [0.0, 0, "painted", '{"shade": [1, 2, 3]}'],
@@ -283,7 +294,7 @@ def test_summary_totals_match_per_robot_counters_and_callbacks():
     assert s["bytes_sent"] == 5 * s["messages_sent"]
     assert s["receptions_delivered"] == sum(c["received"]) == sum(r.heard for r in sim.robots)
     assert [c["received"][i] for i in range(7)] == [r.heard for r in sim.robots]
-    for cause in ("random", "occlusion", "collision", "overflow", "battery", "fault", "crc"):
+    for cause in LOSS_CAUSES:
         assert s[f"lost_{cause}"] == sum(c[f"lost_{cause}"])
     assert s["lost_random"] > 0 and s["lost_collision"] > 0
     assert s["robots_stopped"] == 0
@@ -415,15 +426,16 @@ def test_loop_runs_exactly_once_per_tick_over_long_runs_with_drifting_clocks(pro
 def test_kilo_tx_period_below_the_jitter_is_refused():
     class Fast(Kilobot):
         def setup(self) -> None:
-            self.kilo_tx_period = 100  # 12.8 ms, below the 20 ms jitter
+            self.kilo_tx_period = 100  # one tick of kilolib's timer, 33 ms: below the jitter
 
-    params = quiet_params({"robot.tx_period_s": 0.2, "robot.tx_jitter_s": 0.02})
-    with pytest.raises(ValueError, match=r"must exceed robot.tx_jitter_s = 0.02 s"):
+    params = quiet_params({"robot.tx_period_s": 0.2, "robot.tx_jitter_s": 0.05})
+    with pytest.raises(ValueError, match=r"must exceed robot.tx_jitter_s = 0.05 s"):
         Simulation([[0, 0]], Fast, params).run(1.0)
 
 
-@pytest.mark.parametrize("jitter_s", [0.5, 0.7])
-def test_a_jitter_not_below_the_period_is_refused_naming_both_keys(jitter_s):
+@pytest.mark.parametrize("times_the_period", [1.0, 1.4])
+def test_a_jitter_not_below_the_period_is_refused_naming_both_keys(times_the_period):
+    jitter_s = Params().robot.tx_period_s * times_the_period
     with pytest.raises(ValueError, match=r"robot\.tx_jitter_s .* below robot\.tx_period_s"):
         Params().with_overrides({"robot.tx_jitter_s": jitter_s})
 

@@ -12,6 +12,7 @@ import importlib.util
 import re
 from pathlib import Path
 
+import numpy.fft  # noqa: F401 - loaded before pytester's in-process runs, which would load it twice
 import pytest
 
 from kilonet.testing import ScriptedWorld
@@ -33,7 +34,7 @@ def test_the_pages_examples_pass_and_its_failing_example_fails(pytester: pytest.
     result = pytester.runpytest("-p", "no:cacheprovider")
     failing = sum(1 for lang, fails, _ in blocks() if lang == "python" and fails)
     tests = module_source().count("\ndef test_")
-    assert failing == 1 and tests == 4
+    assert failing == 1 and tests == 6
     result.assert_outcomes(passed=tests - failing, failed=failing)
 
 
@@ -78,7 +79,37 @@ def test_a_failing_plain_assert_gets_the_worlds_timeline_in_its_report(pytester)
         [
             "*- kilonet scripted world 0 -*",
             "robot 0 (Quiet) at 1.000 s: kilo_ticks *, LED (0, 0, 0), motors (0, 0), running",
-            "*0.103 s  from 's' at 50  Ping(n=7)",
-            "*0.103 s  heard n=7",
+            "*0.104 s  from 's' at 50  Ping(n=7)",
+            "*0.104 s  heard n=7",
         ]
     )
+
+
+def test_the_defaults_table_is_what_the_code_does():
+    import ast
+    import importlib
+    import inspect
+
+    import kilonet.testing as kit
+    from kilonet.params import Params
+
+    text = PAGE.read_text()
+    table = text[text.index("## The kit's defaults") :]
+    cells = re.findall(r"^\| `([^`]+)` \|", table, re.M)
+    assert len(cells) >= 14
+    for cell in cells:
+        constant = re.fullmatch(r"([\w.]+)\.(\w+) = (.+)", cell)
+        if constant:
+            module = importlib.import_module(constant[1])
+            assert getattr(module, constant[2]) == ast.literal_eval(constant[3]), cell
+            continue
+        call = re.fullmatch(r"(\w+)(?:\.(\w+))?\((\w+)=(.+)\)", cell)
+        assert call, cell
+        owner = getattr(kit, call[1])
+        function = getattr(owner, call[2]) if call[2] else owner
+        default = inspect.signature(function).parameters[call[3]].default
+        assert default == ast.literal_eval(call[4]), cell
+    p = Params()
+    assert p.seed == 1 and p.duration_s == 60
+    assert "1 with the kernel's defaults" in table and "60 s runs" in table
+    assert "to `duration_s`, 60 s" in table

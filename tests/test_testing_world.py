@@ -13,7 +13,7 @@ from kilonet.robot import Kilobot
 from kilonet.testing import Replay, ScriptedWorld, ScriptError
 
 PING = Layout("ping", type=2, fields=[("n", "B")])
-AIRTIME_S = 12 * 8 / 30_000  # kilolib: 12 bytes at 30 kbit/s
+AIRTIME_S = 12 * 8 / 29_740 + 0.0012  # kilolib: 12 bytes at 29.7 kbit/s, plus the preamble
 
 
 class Listener(Kilobot):
@@ -89,7 +89,7 @@ def test_a_scripted_message_arrives_at_its_time_plus_airtime_at_its_distance():
 
 
 def test_scripted_distances_can_come_with_the_runs_ranging_noise():
-    world = ScriptedWorld(Listener(), params={"ranging.sigma_mm": 2.0})
+    world = ScriptedWorld(Listener(), params={"ranging.model": "gaussian", "ranging.sigma_mm": 2.0})
     world.hear_every(PING.pack(n=1), period_s=0.1, until_s=5.0, distance_mm=60, noise=True)
     world.advance(6.0)
     distances = [d for _, d in world.robot.got]
@@ -247,7 +247,7 @@ def test_replay_offers_the_latest_due_message_or_each_once():
 
 
 def test_replay_neighbours_follow_the_mediums_transmit_rules_and_noise():
-    world = ScriptedWorld(Listener(), params={"ranging.sigma_mm": 1.0})
+    world = ScriptedWorld(Listener(), params={"ranging.model": "gaussian", "ranging.sigma_mm": 1.0})
     near = world.add_neighbour(Replay.every(PING.pack(n=1), from_s=1.0), distance_mm=45)
     far = world.add_neighbour(Replay.every(PING.pack(n=2), until_s=3.0), at_mm=(0, -80))
     world.advance(6.0)
@@ -269,8 +269,8 @@ def test_neighbours_out_of_each_others_range_collide_at_the_robot():
     # Hidden terminals: the neighbours cannot sense each other's carrier.
     params = {"medium.airtime_s": 0.2, "robot.tx_period_s": 0.25}
     world = ScriptedWorld(Listener(), params=params)
-    world.add_neighbour(Replay.every(PING.pack(n=1)), at_mm=(-60, 0))
-    world.add_neighbour(Replay.every(PING.pack(n=2)), at_mm=(60, 0))
+    world.add_neighbour(Replay.every(PING.pack(n=1)), at_mm=(-100, 0))  # 200 mm apart
+    world.add_neighbour(Replay.every(PING.pack(n=2)), at_mm=(100, 0))
     world.advance(10.0)
     assert world.sim.robots_frame().lost_collision[0] > 0
 
@@ -307,7 +307,7 @@ def test_never_fails_at_the_first_time_it_held_with_the_state_that_led_there():
         world.never(lambda: world.robot.color != (0, 0, 0), for_s=2.0, what="LED stays off")
     text = str(failure.value)
     assert text.startswith(f"LED stays off held at {1.5 + AIRTIME_S:.3f} s")
-    assert "0.503 s into the 2 s from 1.000 s" in text
+    assert "0.504 s into the 2 s from 1.000 s" in text
     assert "ping distance_mm=40, n=3" in text and "answer=Ping(n=4)" in text
 
 
@@ -359,8 +359,8 @@ def test_unknown_robots_and_impossible_worlds_are_refused():
     world.add_neighbour(Listener(), distance_mm=40)
     with pytest.raises(ScriptError, match=r"robot 2 is not in this world: .* 1 neighbour \(1-1\)"):
         world.sent(robot=2)
-    with pytest.raises(ScriptError, match="distance_mm=100 is outside"):
-        world.hear(PING.pack(n=1), distance_mm=100)
+    with pytest.raises(ScriptError, match="distance_mm=300 is outside"):
+        world.hear(PING.pack(n=1), distance_mm=300)
     with pytest.raises(ScriptError, match=r"at_mm=.* or distance_mm="):
         world.add_neighbour(Listener())
     with pytest.raises(ScriptError, match="is not a Kilobot program"):

@@ -11,8 +11,9 @@ keeps them in place (see there).
 Changes of syntax: the C globals are attributes set in ``setup``; ``delay(10 * rand_hard())``
 is ``yield self.delay(10 * self.rand_hard())`` in a generator ``setup``; ``message.crc =
 message_crc(&message)`` builds a new :class:`~kilonet.message.Message` (messages are
-immutable); C's integer ``/`` and ``%`` (which truncate towards zero) are :func:`c_div` and
-:func:`c_mod`, because Python's ``//`` and ``%`` round towards minus infinity. Run::
+immutable); C's integer ``/`` and ``%`` (which truncate towards zero) are
+:func:`kilonet.cint.c_div` and :func:`kilonet.cint.c_mod`, because Python's ``//`` and ``%``
+round towards minus infinity. Run::
 
     python -m examples.labs.sync [--seed N] [--set KEY=VALUE ...]
 """
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from kilonet.cint import c_div, c_mod  # C's / and %, which truncate towards zero
 from kilonet.message import Message, message_crc
 from kilonet.robot import Kilobot
 
@@ -47,25 +49,6 @@ PERIOD = 50
 RESET_TIME_ADJUSTMENT_DIVIDER = 120
 # A cap on the absolute value of the reset time adjustment.
 RESET_TIME_ADJUSTMENT_MAX = 30
-
-
-def c_div(a: int, b: int) -> int:
-    """C's integer division: the quotient truncated towards zero.
-
-    >>> c_div(-7, 2), -7 // 2
-    (-3, -4)
-    """
-    q = abs(a) // abs(b)
-    return q if (a < 0) == (b < 0) else -q
-
-
-def c_mod(a: int, b: int) -> int:
-    """C's ``%``: the remainder of :func:`c_div`, with the sign of ``a``.
-
-    >>> c_mod(-20, 50), -20 % 50
-    (-20, 30)
-    """
-    return a - b * c_div(a, b)
 
 
 class Sync(Kilobot):

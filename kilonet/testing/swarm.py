@@ -13,7 +13,7 @@ from kilonet.placement import LAYOUTS, generate
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation, stream_for
 from kilonet.testing.errors import ScriptError
-from kilonet.testing.explain import short_repr
+from kilonet.testing.explain import condition_text, short_repr
 from kilonet.testing.record import program_state
 from kilonet.testing.world import build_params
 
@@ -101,22 +101,119 @@ class SwarmResult:
         AssertionError
             Naming the robots it fails for (up to ten), each with its position and state.
         """
+        __tracebackhide__ = True  # pytest shows the test's line, not the kit's
         failing = [i for i, r in enumerate(self.sim.robots) if not predicate(i, r)]
         if not failing:
             return
-        pos = self.sim.world.positions_mm
-        lines = [
-            f"{what or 'the predicate'} fails for {len(failing)} of {self.sim.n_robots} robots "
-            f"at {self.t_s:.3f} s:"
-        ]
-        for i in failing[:10]:
-            state = ", ".join(
-                f"{k}={short_repr(v, 40)}" for k, v in program_state(self.sim.robots[i]).items()
+        raise AssertionError(
+            f"{what or condition_text(predicate)} fails for {len(failing)} of "
+            f"{self.sim.n_robots} robots at {self.t_s:.3f} s:\n{self.explain(failing)}"
+        )
+
+    def explain(self, robots: Sequence[int] | None = None, *, last: int = 3) -> str:
+        """What robots did, as lines for a failure message: for each of ``robots`` (default
+        all; at most ten shown) its position, LED, messages sent and received, its program
+        state, and the last ``last`` events it logged."""
+        sim = self.sim
+        chosen = list(range(sim.n_robots) if robots is None else robots)
+        pos = sim.world.positions_mm
+        counters = sim.medium.counters
+        events = sim.trace.events_frame()
+        lines = []
+        for i in chosen[:10]:
+            program = sim.robots[i]
+            running = "running" if sim.world.running[i] else "stopped"
+            state = ", ".join(f"{k}={short_repr(v, 40)}" for k, v in program_state(program).items())
+            lines.append(f"  robot {i} at ({pos[i, 0]:.1f}, {pos[i, 1]:.1f}) mm: {state or '-'}")
+            lines.append(
+                f"    {type(program).__name__}, {running}, LED {program.color}, "
+                f"sent {counters['sent'][i]}, received {counters['received'][i]}"
             )
-            lines.append(f"  robot {i} at ({pos[i, 0]:.1f}, {pos[i, 1]:.1f}) mm: {state}")
-        if len(failing) > 10:
-            lines.append(f"  ... and {len(failing) - 10} more")
-        raise AssertionError("\n".join(lines))
+            mine = events[events.robot == i].tail(last) if len(events) else events
+            for row in mine.itertuples(index=False):
+                lines.append(f"    {row.t_s:8.3f} s  {row.event} {row.data}")
+        if len(chosen) > 10:
+            lines.append(f"  ... and {len(chosen) - 10} more")
+        return "\n".join(lines)
+
+    def _first_time(
+        self, condition: Callable[[list[Kilobot]], bool], until_s: float, check_s: float
+    ) -> float | None:
+        sim = self.sim
+        programs = sim.robots
+        if condition(programs):
+            return self.t_s
+        while sim.env.now < until_s:
+            sim.run(min(until_s, sim.env.now + check_s))
+            if condition(programs):
+                return self.t_s
+        return None
+
+    def eventually(
+        self,
+        condition: Callable[[list[Kilobot]], bool],
+        *,
+        within_s: float,
+        check_s: float = 0.1,
+        what: str | None = None,
+    ) -> float:
+        """Run the swarm on until ``condition(programs)`` holds, at most ``within_s`` more
+        simulated seconds, checking every ``check_s``; return the time it first held (the run
+        stops there).
+
+        Raises
+        ------
+        AssertionError
+            If it never held; the message shows every robot's state (:meth:`explain`).
+        ScriptError
+            If ``within_s`` is negative or ``check_s`` not positive.
+        """
+        __tracebackhide__ = True
+        _check_durations("eventually", within_s, check_s)
+        start = self.t_s
+        held = self._first_time(condition, start + within_s, check_s)
+        if held is None:
+            raise AssertionError(
+                f"{what or condition_text(condition)} did not hold within {within_s:g} s "
+                f"(from {start:.3f} to {self.t_s:.3f} s)\n{self.explain()}"
+            )
+        return held
+
+    def never(
+        self,
+        condition: Callable[[list[Kilobot]], bool],
+        *,
+        for_s: float,
+        check_s: float = 0.1,
+        what: str | None = None,
+    ) -> None:
+        """Run the swarm on for ``for_s`` simulated seconds, checking every ``check_s`` that
+        ``condition(programs)`` never holds.
+
+        Raises
+        ------
+        AssertionError
+            At the first check it held; the message shows every robot's state then.
+        ScriptError
+            If ``for_s`` is negative or ``check_s`` not positive.
+        """
+        __tracebackhide__ = True
+        _check_durations("never", for_s, check_s)
+        start = self.t_s
+        held = self._first_time(condition, start + for_s, check_s)
+        if held is not None:
+            raise AssertionError(
+                f"{what or condition_text(condition)} held at {held:.3f} s "
+                f"({held - start:.3f} s into the {for_s:g} s from {start:.3f} s)\n"
+                f"{self.explain()}"
+            )
+
+
+def _check_durations(name: str, span_s: float, check_s: float) -> None:
+    if not span_s >= 0:
+        raise ScriptError(f"{name}(): give a duration >= 0 s, got {span_s}")
+    if not check_s > 0:
+        raise ScriptError(f"{name}(check_s={check_s}): give a check period > 0 s")
 
 
 def run_swarm(
@@ -128,6 +225,8 @@ def run_swarm(
     seed: int | None = None,
     until_s: float | None = None,
     stop_when: Callable[[list[Kilobot]], bool] | None = None,
+    uids: Sequence[int] | None = None,
+    headings_rad: Sequence[float] | None = None,
 ) -> SwarmResult:
     """Run a small swarm and hand back what it did.
 
@@ -151,11 +250,17 @@ def run_swarm(
     stop_when : callable, optional
         ``stop_when(programs) -> bool``, checked every simulated second; the run ends as soon
         as it holds.
+    uids : sequence of int, optional
+        Each robot's ``kilo_uid`` (default: its index), as a placement's ``uid`` column.
+    headings_rad : sequence of float, optional
+        Each robot's start heading, counter-clockwise from +x (default: drawn at random from
+        the run's seed, as scenarios start).
 
     Raises
     ------
     ScriptError
-        If a named layout has no size, or ``robots`` disagrees with the placement given.
+        If a named layout has no size, ``robots`` disagrees with the placement given, or
+        ``uids`` or ``headings_rad`` do not give one value per robot.
     ValueError
         If the layout's generator refuses its parameters (e.g. robots that would overlap).
 
@@ -171,7 +276,7 @@ def run_swarm(
     ...     def message_tx(self):
     ...         return HOPS.pack(hops=self.hops) if self.hops < 255 else None
     >>> result = run_swarm(lambda i: Hops(source=i == 0), "line", robots=4,
-    ...                    params={"placement.spacing_mm": 50},  # 100 mm: beyond range
+    ...                    params={"placement.spacing_mm": 100},  # 200 mm: beyond reach
     ...                    stop_when=lambda programs: all(p.hops < 255 for p in programs))
     >>> result.stopped, [p.hops for p in result.programs]
     (True, [0, 1, 2, 3])
@@ -202,7 +307,12 @@ def run_swarm(
             raise ScriptError(
                 f"run_swarm(): robots={robots} but the placement has {len(positions)} robots"
             )
-    sim = Simulation(positions, program, p)
+    for name, values in (("uids", uids), ("headings_rad", headings_rad)):
+        if values is not None and len(values) != len(positions):
+            raise ScriptError(
+                f"run_swarm(): {name} gives {len(values)} values for {len(positions)} robots"
+            )
+    sim = Simulation(positions, program, p, uids=uids, headings_rad=headings_rad)
     stop = None if stop_when is None else (lambda: stop_when(sim.robots))
     sim.run(until_s, stop_when=stop)
     return SwarmResult(sim, stopped=stop is not None and bool(stop()))

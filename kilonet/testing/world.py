@@ -17,6 +17,7 @@ from simpy.events import URGENT, Event
 from kilonet.message import LIMITS, Layout, Message, PayloadError, message_crc
 from kilonet.params import Params
 from kilonet.placement import ROBOT_DIAMETER_MM
+from kilonet.radio import farthest_mm
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
 from kilonet.testing.errors import ScriptError
@@ -119,7 +120,7 @@ class ScriptedWorld:
     >>> world.sent(PING)[0].fields
     Ping(n=5)
     >>> [(round(h.t_s, 4), h.distance) for h in world.heard()], entry.fate
-    ([(0.5032, 60)], 'delivered')
+    ([(0.5044, 60)], 'delivered')
     """
 
     def __init__(
@@ -335,7 +336,8 @@ class ScriptedWorld:
         ------
         ScriptError
             If ``at_s`` is in the past, or no sender could be heard from ``distance_mm``
-            (closer than a body diameter, or beyond ``medium.range_mm``).
+            (closer than a body diameter, or beyond the farthest any link of the run reaches:
+            ``medium.range_mm`` with ``medium.reach = disc``).
         kilonet.message.PayloadError
             If the message does not fit the payload limit.
         """
@@ -344,11 +346,12 @@ class ScriptedWorld:
         where = f"hear() at {at:.3f} s from {sender!r}"
         if not at >= now:
             raise ScriptError(f"{where}: that is before now ({now:.3f} s); time only moves forward")
-        range_mm = self.params.medium.range_mm
+        range_mm = farthest_mm(self.params.medium)
         if not ROBOT_DIAMETER_MM <= distance_mm <= range_mm:
             raise ScriptError(
                 f"{where}: distance_mm={distance_mm} is outside the {ROBOT_DIAMETER_MM:g} mm body "
-                f"diameter to medium.range_mm = {range_mm:g} mm; no robot could be heard from there"
+                f"diameter to the {range_mm:g} mm the farthest link of this run reaches "
+                f"(medium.reach = {self.params.medium.reach}); no robot could be heard from there"
             )
         if not isinstance(message, Message):
             raise ScriptError(f"{where}: {message!r} is not a Message (use LAYOUT.pack(...))")
@@ -545,44 +548,33 @@ class ScriptedWorld:
         /,
         *,
         within_s: float | None = None,
+        since_s: float | None = None,
         robot: int = 0,
         **fields: Any,
     ) -> Sent:
         """Assert that ``robot`` sent a message of layout (or type byte) ``what`` whose fields
-        equal ``fields`` (values compare with ``==``, so ``pytest.approx`` works): among what
-        it sent so far, or, with ``within_s``, by letting up to that much time pass. Returns
-        the first such message (decoded with the layout).
+        equal ``fields`` (values compare with ``==``, so ``pytest.approx`` works). Returns the
+        first such message (decoded with the layout).
+
+        Without ``within_s``: among what it sent so far (since ``since_s``, default the
+        start). With ``within_s``: a window, from now (or ``since_s``) to ``within_s`` from
+        now; time passes until such a message goes on the air or the window ends, and a
+        message sent before the window does not count.
 
         Raises
         ------
         AssertionError
             If it sent none; the message lists what it sent instead.
         ScriptError
-            For fields without a layout or that the layout lacks, or an unknown robot.
+            For fields without a layout or that the layout lacks, an unknown robot, or a
+            negative ``within_s``.
         """
         __tracebackhide__ = True  # pytest shows the test's line, not the kit's
-        self._check_robot(robot)
-        layout = what if isinstance(what, Layout) else None
-        if fields and layout is None:
-            raise ScriptError("assert_sent(): matching fields needs the message's Layout")
-        if layout is not None:
-            names = [name for name, _, _ in layout.fields]
-            unknown = sorted(set(fields) - set(names))
-            if unknown:
-                raise ScriptError(
-                    f"assert_sent(): layout {layout.name!r} has no field {', '.join(unknown)}; "
-                    f"it has {', '.join(names)}"
-                )
-        kind = layout.type if layout is not None else int(what)
-
-        def matching() -> Sent | None:
-            for s in self.sent(layout, robot=robot) if layout else self.sent(robot=robot):
-                if s.message.type == kind and all(
-                    getattr(s.fields, k) == v for k, v in fields.items()
-                ):
-                    return s
-            return None
-
+        if within_s is not None and not within_s >= 0:
+            raise ScriptError(f"assert_sent(within_s={within_s}): give a duration >= 0 s")
+        if since_s is None:
+            since_s = self.now_s if within_s is not None else 0.0
+        matching, layout, kind = self._matcher(what, robot, fields, since_s, "assert_sent")
         if within_s is not None:
             self._first_time(lambda: matching() is not None, self.now_s + within_s)
         found = matching()
@@ -590,14 +582,80 @@ class ScriptedWorld:
             wanted = layout.name if layout else f"type {kind}"
             if fields:
                 wanted += " with " + ", ".join(f"{k}={v!r}" for k, v in fields.items())
+            window = f" from {since_s:.3f} s" if since_s > 0 else ""
             of_kind = [s for s in self.sent(robot=robot) if s.message.type == kind]
             raise AssertionError(
-                f"robot {robot} sent no {wanted} by {self.now_s:.3f} s; it sent "
+                f"robot {robot} sent no {wanted}{window} by {self.now_s:.3f} s; it sent "
                 f"{len(of_kind)} of type {kind} and "
                 f"{len(self.sent(robot=robot)) - len(of_kind)} of other types\n"
                 f"{self.explain(robot)}"
             )
         return found
+
+    def assert_not_sent(
+        self,
+        what: Layout | int,
+        /,
+        *,
+        for_s: float,
+        robot: int = 0,
+        **fields: Any,
+    ) -> None:
+        """Assert that ``robot`` sends no message of layout (or type byte) ``what`` with
+        ``fields`` in the next ``for_s`` simulated seconds (time passes that long, or stops
+        at the first such message).
+
+        Raises
+        ------
+        AssertionError
+            At the first such message; the message shows what led there.
+        ScriptError
+            As :meth:`assert_sent`, or for a negative ``for_s``.
+        """
+        __tracebackhide__ = True  # pytest shows the test's line, not the kit's
+        if not for_s >= 0:
+            raise ScriptError(f"assert_not_sent(for_s={for_s}): give a duration >= 0 s")
+        start = self.now_s
+        matching, layout, kind = self._matcher(what, robot, fields, start, "assert_not_sent")
+        self._first_time(lambda: matching() is not None, start + for_s)
+        found = matching()
+        if found is not None:
+            wanted = layout.name if layout else f"type {kind}"
+            raise AssertionError(
+                f"robot {robot} sent {wanted} {describe(found.message, self.layouts)} at "
+                f"{found.t_s:.3f} s ({found.t_s - start:.3f} s into the {for_s:g} s from "
+                f"{start:.3f} s)\n{self.explain(robot)}"
+            )
+
+    def _matcher(
+        self, what: Layout | int, robot: int, fields: dict[str, Any], since_s: float, name: str
+    ) -> tuple[Callable[[], Sent | None], Layout | None, int]:
+        """The first message ``robot`` sent from ``since_s`` on of ``what`` with ``fields``."""
+        self._check_robot(robot)
+        layout = what if isinstance(what, Layout) else None
+        if fields and layout is None:
+            raise ScriptError(f"{name}(): matching fields needs the message's Layout")
+        if layout is not None:
+            names = [field for field, _, _ in layout.fields]
+            unknown = sorted(set(fields) - set(names))
+            if unknown:
+                raise ScriptError(
+                    f"{name}(): layout {layout.name!r} has no field {', '.join(unknown)}; "
+                    f"it has {', '.join(names)}"
+                )
+        kind = layout.type if layout is not None else int(what)
+
+        def matching() -> Sent | None:
+            for s in self.sent(layout, robot=robot) if layout else self.sent(robot=robot):
+                if (
+                    s.t_s >= since_s
+                    and s.message.type == kind
+                    and all(getattr(s.fields, k) == v for k, v in fields.items())
+                ):
+                    return s
+            return None
+
+        return matching, layout, kind
 
     # -- records -----------------------------------------------------------------------------
     def _check_robot(self, robot: int) -> None:
@@ -664,6 +722,14 @@ class ScriptedWorld:
             return []
         self._follow_trace()
         return [e for e in self._events[robot] if name is None or e.name == name]
+
+    def pose(self, *, robot: int = 0) -> tuple[float, float, float]:
+        """``robot``'s true pose now: ``(x_mm, y_mm, heading_rad)``, the robot under test
+        starting at the origin (the world starts if it has not)."""
+        self._check_robot(robot)
+        world = self.start().world
+        x, y = world.positions_mm[robot]
+        return float(x), float(y), float(world.heading_rad[robot])
 
     @property
     def kilo_ticks(self) -> int:
