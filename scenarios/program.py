@@ -200,7 +200,7 @@ def robot_frame(frame: FrameType | None) -> tuple[Kilobot, FrameType] | None:
     found = None
     while frame is not None:
         robot = frame.f_locals.get("self")
-        if isinstance(robot, Kilobot) and hasattr(robot, "_index"):
+        if isinstance(robot, Kilobot) and hasattr(robot, "_kindex"):
             found = (robot, frame)
         frame = frame.f_back
     return found
