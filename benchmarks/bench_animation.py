@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from kilonet.animation import animate_run, frame_times, load_run
 from kilonet.placement import hex_lattice
+from presentation.animation import animate_run, frame_times, load_run
 
 
 def synthetic_run(

@@ -41,7 +41,8 @@ from kilonet.alignment import (
     unpack_quaternion,
     words_matrix,
 )
-from kilonet.geometry import collinear, crlb_rmse_mm, multilaterate, trilaterate_linear
+from kilonet.bounds import crlb_rmse_mm
+from kilonet.geometry import collinear, multilaterate, trilaterate_linear
 from kilonet.placement import hex_lattice
 from kilonet.visibility import pairs_in_range
 

@@ -327,7 +327,7 @@ def last_events(n: int, seed: int, overrides: dict[str, Any]) -> dict[str, Any]:
     robot's phase 3 opens and closes up to a second or so away from the nominal times.
     """
     import scenarios
-    from protocols.gcs import phase_windows_s
+    from protocols.gcs.program import phase_windows_s
 
     result = scenarios.run(
         scenarios.get("gcs"),

@@ -202,7 +202,7 @@ def _validation(context: Context) -> None:
 
 def _default_gif(context: Context) -> None:
     import scenarios
-    from kilonet.animation import animate_run
+    from presentation.animation import animate_run
     from scenarios.base import write_outputs
 
     run_dir = context.runs / "default-gif"

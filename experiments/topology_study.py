@@ -6,8 +6,8 @@ experiments/topology.toml --out DIR``) and writes a Markdown report with:
 * the confusion table of the predicted number of final frames (geometry and phase 2's
   election, :mod:`scenarios.prediction`) against the observed number, runs without recovery;
 * the share of runs ending with one global frame without and with recovery
-  (:mod:`protocols.recovery`), over the same placements;
-* the swarm's split detection (:mod:`protocols.split_detection`) judged against the run's
+  (:mod:`protocols.gcs.recovery`), over the same placements;
+* the swarm's split detection (:mod:`protocols.gcs.split_detection`) judged against the run's
   truth (robots with a neighbour whose estimate ended in another final frame): precision and
   recall, pooled over runs;
 * a figure: the probability of one global frame against the mean neighbour count.

@@ -28,16 +28,21 @@ import numpy as np
 
 __all__ = [
     "FIX_REASONS",
+    "MIRROR_SIGMAS",
     "Fix",
     "GeometryError",
     "angle_at",
     "choose_references_best_conditioned",
     "choose_references_max_angle",
+    "circle_intersections",
+    "circle_pair",
     "collinear",
-    "crlb_rmse_mm",
     "multilaterate",
     "place_references",
+    "robust_height",
+    "rotate",
     "trilaterate_linear",
+    "wrap_angle",
 ]
 
 
@@ -338,6 +343,127 @@ def place_references(
     return (float(d_ab_mm), 0.0), (float(x_c), y_c)
 
 
+# ------------------------------------------------------------------------- plane geometry
+
+#: A point or vector of the plane, mm (or any one unit).
+Point = tuple[float, float]
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """The angle in [−π, π), radians.
+
+    >>> round(wrap_angle(3 * math.pi / 2), 9)
+    -1.570796327
+    """
+    return (angle_rad + math.pi) % (2 * math.pi) - math.pi
+
+
+def rotate(u: Point, angle_rad: float) -> Point:
+    """``u`` rotated counter-clockwise by ``angle_rad`` about the origin.
+
+    >>> [round(c, 9) for c in rotate((1.0, 0.0), math.pi / 2)]
+    [0.0, 1.0]
+    """
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    return (c * u[0] - s * u[1], s * u[0] + c * u[1])
+
+
+def _chord(c1: Point, r1: float, c2: Point, r2: float) -> tuple[float, float, float, float]:
+    """``(d, a, ex, ey)``: the distance of the centres, how far along the line of centres from
+    ``c1`` the chord of the two circles crosses it, and the unit vector ``c1 → c2``. The law of
+    cosines, as :func:`place_references` writes it. ``d`` must be positive."""
+    dx, dy = c2[0] - c1[0], c2[1] - c1[1]
+    d = math.hypot(dx, dy)
+    return d, (r1**2 - r2**2 + d**2) / (2 * d), dx / d, dy / d
+
+
+def circle_intersections(c1: Point, r1: float, c2: Point, r2: float) -> list[Point]:
+    """The points at distance ``r1`` from ``c1`` and ``r2`` from ``c2`` (mm).
+
+    Measured ranges need not meet exactly: circles that miss each other (noise) give their
+    single closest point on the line of centres. Concentric circles give no point.
+
+    Examples
+    --------
+    >>> sorted((round(x, 9), round(y, 9)) for x, y in circle_intersections((0, 0), 5, (8, 0), 5))
+    [(4.0, -3.0), (4.0, 3.0)]
+    >>> circle_intersections((0, 0), 2, (10, 0), 3)
+    [(4.5, 0.0)]
+    """
+    if c1[0] == c2[0] and c1[1] == c2[1]:
+        return []
+    d, a, ex, ey = _chord(c1, r1, c2, r2)
+    h_sq = r1**2 - a**2
+    if h_sq <= 0:
+        # Tangent or missing circles: the point on the line of centres between the two rims.
+        if d > r1 + r2:
+            a = r1 + (d - r1 - r2) / 2
+        elif d < abs(r1 - r2):
+            a = (r1 + d + r2) / 2 if r1 > r2 else (d - r1 - r2) / 2
+        return [(c1[0] + a * ex, c1[1] + a * ey)]
+    h = math.sqrt(h_sq)
+    mx, my = c1[0] + a * ex, c1[1] + a * ey
+    return [(mx - h * ey, my + h * ex), (mx + h * ey, my - h * ex)]
+
+
+def circle_pair(
+    c1: Point, r1: float, c2: Point, r2: float, *, tolerance_mm: float = 0.5
+) -> tuple[Point, Point, float] | None:
+    """The two points at ``r1`` from ``c1`` and ``r2`` from ``c2``: mirror images across the
+    line of centres, and their distance from it (mm).
+
+    Circles that miss each other by at most ``tolerance_mm`` (rounding of measured ranges)
+    meet in one point on the line of centres, returned twice with distance 0. None if the
+    centres coincide, a range is not positive, or the circles miss by more.
+
+    Examples
+    --------
+    >>> p, q, h = circle_pair((0.0, 0.0), 50.0, (40.0, 0.0), 30.0)
+    >>> [round(v, 9) for v in (*p, *q, h)]
+    [40.0, 30.0, 40.0, -30.0, 30.0]
+    >>> circle_pair((0.0, 0.0), 40.0, (100.0, 0.0), 40.0) is None
+    True
+    """
+    length = math.hypot(c2[0] - c1[0], c2[1] - c1[1])
+    if (
+        length <= 0
+        or not abs(r1 - r2) - tolerance_mm <= length <= r1 + r2 + tolerance_mm
+        or not (math.isfinite(r1) and math.isfinite(r2) and r1 > 0 and r2 >= 0)
+    ):
+        return None
+    _, x, ux, uy = _chord(c1, r1, c2, r2)
+    h = math.sqrt(max(0.0, r1**2 - x**2))
+    cx, cy = c1[0] + x * ux, c1[1] + x * uy
+    return (cx - h * uy, cy + h * ux), (cx + h * uy, cy - h * ux), h
+
+
+def robust_height(d_ab_mm: float, d_ac_mm: float, d_bc_mm: float, margin_mm: float) -> float:
+    """The least height of C above line AB when each distance may be off by ``margin_mm``:
+    the smallest height over the eight corners of the box of distances (0 where a corner
+    forms no triangle), mm.
+
+    Near collinearity the height is ill-conditioned: a triple on one line, 40 + 40 = 80 mm,
+    measured 1 mm short, looks 12.5 mm high.
+
+    Examples
+    --------
+    >>> round(robust_height(40.0, 40.0, 79.0, 0.0), 1), robust_height(40.0, 40.0, 79.0, 1.0)
+    (12.5, 0.0)
+    >>> round(robust_height(40.0, 40.0, 40.0, 1.0), 1)  # equilateral: 34.6 mm at no margin
+    33.2
+    """
+    least = math.inf
+    for da, db, dc in itertools.product((-margin_mm, margin_mm), repeat=3):
+        try:
+            _, (_, height) = place_references(
+                d_ab_mm + da, d_ac_mm + db, d_bc_mm + dc, min_height_mm=0.0
+            )
+        except GeometryError:
+            return 0.0
+        least = min(least, height)
+    return least
+
+
 # ------------------------------------------------------------------ choosing the references
 
 #: Candidate reference pairs of one seed A: ``{(b, c): (d_ab_mm, d_ac_mm, d_bc_mm)}``, listing
@@ -483,6 +609,9 @@ FIX_REASONS = (
 )
 
 _TINY_MM = 1e-12
+#: The mirror test's margin, in noise deviations: a competing fit must be worse by more
+#: than (this · sigma)² in its sum of squared residuals (:func:`multilaterate`).
+MIRROR_SIGMAS = 3.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -530,7 +659,7 @@ def multilaterate(
     max_rmse_mm: float | None = None,
     max_gdop: float = 5.0,
     min_anchor_width_mm: float | None = None,
-    mirror_sigmas: float = 3.0,
+    mirror_sigmas: float = MIRROR_SIGMAS,
 ) -> Fix:
     """Least-squares position from ranges to k anchors, rejected with a reason when unreliable.
 
@@ -707,167 +836,3 @@ def _gdop(anchors: np.ndarray, p: np.ndarray) -> float:
     if det <= 1e-12 * trace * trace:
         return math.inf
     return math.sqrt(trace / det)  # trace of the inverse of a 2×2 matrix
-
-
-# ----------------------------------------------------------------------- Cramér–Rao bound
-
-
-def crlb_rmse_mm(
-    positions_mm: np.ndarray,
-    edges: np.ndarray,
-    sigma_mm: float,
-    *,
-    weights: np.ndarray | None = None,
-    require_rigid: bool = False,
-) -> float:
-    """Anchor-free Cramér–Rao bound on the RMS position error of a measured distance graph.
-
-    Each edge (i, j) is one distance measurement with independent noise of standard
-    deviation ``sigma_mm``. Its Fisher information on the 2N coordinates is
-    ``u uᵀ / σ²`` on the (i, i) and (j, j) blocks and ``−u uᵀ / σ²`` on (i, j) and (j, i),
-    u the unit vector from j to i. Distances cannot fix where the swarm is or how it is
-    turned, so J is singular: for a rigid connected graph its null space is the 3 gauge
-    freedoms (2 translations, 1 rotation), which the pseudo-inverse removes — the bound then
-    applies to the error after the best rigid alignment to the truth, as the metrics measure
-    it. The bound on the mean squared error per robot is ``trace(pinv(J)) / N``; its square
-    root is returned.
-
-    A disconnected or flexible graph has more null directions; the pseudo-inverse drops them
-    as well (each component is then aligned on its own, flexes are not counted) unless
-    ``require_rigid`` asks for an error.
-
-    Parameters
-    ----------
-    positions_mm : (N, 2) array
-        True positions, mm.
-    edges : (E, 2) int array
-        Measured pairs (row indices of ``positions_mm``); list a pair twice for two
-        independent measurements of it (e.g. both directions).
-    sigma_mm : float
-        Standard deviation of one distance measurement, mm (positive).
-    weights : (E,) array, optional
-        Independent measurements each edge stands for (its information is that many times
-        one measurement's, as if the edge were listed that many times); default 1 each.
-    require_rigid : bool
-        Raise when the null space is larger than the 3 gauge freedoms.
-
-    Returns
-    -------
-    float
-        Lower bound on ``sqrt(E[Σᵢ |p̂ᵢ − pᵢ|²] / N)`` for unbiased estimators, mm.
-
-    Raises
-    ------
-    GeometryError
-        If there are no edges, an edge joins coincident positions, or ``require_rigid`` is
-        set and the graph is not rigid.
-    ValueError
-        If an edge index is out of range or a self-loop, ``sigma_mm`` is not positive, or the
-        weights are not one non-negative finite number per edge.
-
-    Notes
-    -----
-    O(N³) time and O(N²) memory: J is a dense 2N × 2N matrix. A rigid connected graph is
-    handled by one Cholesky factorisation, other graphs by the slower eigen-decomposition
-    (``docs/math.md`` gives both at N = 1,000).
-
-    Examples
-    --------
-    An equilateral triangle with its three sides measured: the bound is σ √5 / 3.
-
-    >>> tri = np.array([[0.0, 0.0], [40.0, 0.0], [20.0, 20.0 * np.sqrt(3.0)]])
-    >>> round(crlb_rmse_mm(tri, [(0, 1), (0, 2), (1, 2)], sigma_mm=1.0), 9)
-    0.745355992
-    >>> round(math.sqrt(5.0) / 3.0, 9)
-    0.745355992
-
-    Four measurements of each side halve it:
-
-    >>> round(crlb_rmse_mm(tri, [(0, 1), (0, 2), (1, 2)], sigma_mm=1.0, weights=[4, 4, 4]), 9)
-    0.372677996
-    """
-    from scipy.sparse import coo_matrix
-
-    pos = np.asarray(positions_mm, dtype=float)
-    pairs = np.asarray(edges, dtype=np.intp).reshape(-1, 2)
-    n = len(pos)
-    if not sigma_mm > 0:
-        raise ValueError(f"sigma_mm must be positive; got {sigma_mm}")
-    if len(pairs) == 0:
-        raise GeometryError("no measured pairs: the bound is infinite")
-    if pairs.min() < 0 or pairs.max() >= n:
-        raise ValueError(f"edge index out of range 0..{n - 1}: {pairs.min()}..{pairs.max()}")
-    i, j = pairs[:, 0], pairs[:, 1]
-    if (i == j).any():
-        raise ValueError(f"self-loop in edges at robot {int(i[i == j][0])}")
-    diff = pos[i] - pos[j]
-    dist = np.sqrt((diff * diff).sum(axis=1))
-    if (dist <= 0).any():
-        e = int(np.flatnonzero(dist <= 0)[0])
-        raise GeometryError(f"edge ({int(i[e])}, {int(j[e])}) joins coincident positions")
-    u = diff / dist[:, None]
-    if weights is not None:
-        w = np.asarray(weights, dtype=float).reshape(-1)
-        if len(w) != len(pairs) or not (np.isfinite(w).all() and (w >= 0).all()):
-            raise ValueError("weights must be one non-negative finite number per edge")
-        u = u * np.sqrt(w)[:, None]
-    rows = np.repeat(np.arange(len(pairs)), 4)
-    cols = np.stack([2 * i, 2 * i + 1, 2 * j, 2 * j + 1], axis=1).ravel()
-    vals = np.stack([u[:, 0], u[:, 1], -u[:, 0], -u[:, 1]], axis=1).ravel()
-    rigidity = coo_matrix((vals, (rows, cols)), shape=(len(pairs), 2 * n)).tocsr()
-    info = (rigidity.T @ rigidity).toarray() / sigma_mm**2
-    total = _gauge_fixed_trace(info, pos, pairs)
-    if total is None:
-        eig = np.linalg.eigvalsh(info)
-        determined = eig > _NULL_RTOL * eig[-1]
-        null_dims = int((~determined).sum())
-        if require_rigid and null_dims > 3:
-            raise GeometryError(
-                f"the measurement graph is not rigid: {null_dims} undetermined directions "
-                "(3 are the rigid motions)"
-            )
-        total = float((1.0 / eig[determined]).sum())
-    return math.sqrt(total / n)
-
-
-#: Eigenvalues of the Fisher information below this fraction of the largest count as null.
-_NULL_RTOL = 1e-9
-
-
-def _gauge_fixed_trace(info: np.ndarray, pos: np.ndarray, pairs: np.ndarray) -> float | None:
-    """trace(pinv(J)) by Cholesky when J's null space is exactly the 3 rigid motions, else None.
-
-    With G an orthonormal basis of the rigid motions (the null space of a rigid connected
-    graph's J) and c > 0, ``(J + c G Gᵀ)⁻¹ = pinv(J) + G Gᵀ / c``, so the trace follows from
-    one Cholesky factor and a triangular inverse, cheaper than the full eigen-decomposition.
-    Returns None (use the eigenvalues) when the graph is disconnected,
-    when the factorisation fails (another null direction: a flexible graph) or when the
-    result shows an eigenvalue the eigenvalue path would count as null.
-    """
-    from scipy.linalg import LinAlgError, cholesky, lapack
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    n = len(pos)
-    adjacency = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    if connected_components(adjacency, directed=False)[0] != 1:
-        return None
-    centred = pos - pos.mean(axis=0)
-    gauge = np.zeros((2 * n, 3))
-    gauge[0::2, 0] = gauge[1::2, 1] = 1.0 / math.sqrt(n)
-    gauge[0::2, 2], gauge[1::2, 2] = -centred[:, 1], centred[:, 0]
-    gauge[:, 2] /= np.linalg.norm(gauge[:, 2])
-    mean_eig = float(np.trace(info)) / (2 * n)
-    try:
-        factor = cholesky(info + mean_eig * (gauge @ gauge.T), lower=True)
-    except LinAlgError:
-        return None
-    inverse, status = lapack.dtrtri(factor, lower=1)
-    if status != 0:
-        return None
-    total = float((inverse * inverse).sum()) - 3.0 / mean_eig
-    # Gershgorin: every eigenvalue is at most the largest absolute row sum.
-    largest_eig = float(np.abs(info).sum(axis=1).max())
-    if total > 1.0 / (_NULL_RTOL * largest_eig):
-        return None
-    return total

@@ -390,12 +390,7 @@ def _run_command(args: argparse.Namespace) -> int:
             except OSError as exc:
                 raise UsageError(f"{args.out}: cannot write the run ({exc.strerror})") from None
             if args.animate:
-                from kilonet.animation import AnimationError, animate_run
-
-                try:
-                    animate_run(out.staging)
-                except AnimationError as exc:
-                    raise UsageError(str(exc)) from None
+                _animator()(out.staging)
             out.publish()
             if not (args.json or args.quiet):
                 extra = " and animation.gif" if args.animate else ""
@@ -407,6 +402,18 @@ def _run_command(args: argparse.Namespace) -> int:
     else:
         _print_summary(result.summary)
     return 0
+
+
+def _animator():
+    """``kilonet run --animate``'s animator (``presentation.cli.animate_after_run``): the
+    ``gif`` entry point of ``kilonet.animators``. The presentation layer sits above the
+    scenarios, so the run command finds it there instead of importing it."""
+    from importlib.metadata import entry_points
+
+    found = list(entry_points(group="kilonet.animators", name="gif"))
+    if not found:
+        raise UsageError("--animate: no animator installed (reinstall kilonet: pip install .)")
+    return found[0].load()
 
 
 def _guarded(args: argparse.Namespace):

@@ -3,14 +3,17 @@ centroid (the seed ``trilateration-with-kilobots``).
 
 Four robots in role order: row 0 the origin (ID 1), row 1 the x-axis robot (ID 2), row 2 the
 third robot (ID 3), row 3 the follower (ID 4); a placement file must have exactly these four
-rows. A placement is refused when the robots stand beyond range of each other; a link that
+rows. A placement is refused when the frame robots stand beyond ranging distance of each other
+(:func:`ranging_mm`: the radio's reach, but at most ``follower.neighbour_max_mm``, beyond which
+kilolib's estimates saturate) or the follower beyond a median link's reach of one of them (it
+may start where it hears but cannot range a robot: it then walks nearer); a link that
 occlusion weakens or blocks (``medium.occlusion``) is the follower's to deal with, as on the
 robots: it listens, makes its small first move and listens again for fresh messages.
 
 The generated placements draw the frame's sides from ``[side_min_mm, side_max_mm]``, put robot 3
 on the ``handedness`` side of the 1→2 axis (``right`` makes the follower's frame a mirror image
 of the floor) and the follower at ``[start_min_mm, start_max_mm]`` from the goal
-(``start_max_mm`` 0: anywhere it hears all three), not touching any robot. ``start_min_mm``
+(``start_max_mm`` 0: anywhere it ranges all three), not touching any robot. ``start_min_mm``
 defaults to 20 mm: a follower that starts within a few millimetres of the goal has nothing to
 show (the default run of seed 1 used to start 2.6 mm from it and take no step). With
 ``direct_start`` (default) the straight line from the start to the goal must be passable (clear
@@ -43,7 +46,7 @@ from kilonet.params import BatteryParams, MotionParams, ParamError, Params, Robo
 from kilonet.placement import ROBOT_DIAMETER_MM
 from kilonet.simulation import Simulation, stream_for
 from kilonet.visibility import LinkModel
-from protocols.follower import (
+from protocols.follower.follower import (
     Follower,
     FollowerParams,
     Origin,
@@ -51,7 +54,7 @@ from protocols.follower import (
     XAxisRobot,
     reachable_goal,
 )
-from protocols.turn_calibration import TimedTurns, TurnCalibration
+from protocols.follower.turn_calibration import TimedTurns, TurnCalibration
 from scenarios.base import RunResult, Scenario, ScenarioError, run
 
 if TYPE_CHECKING:  # pandas and matplotlib are imported where used: listing scenarios is fast
@@ -66,6 +69,7 @@ __all__ = [
     "check_placement",
     "frame_to_floor",
     "path_length_mm",
+    "ranging_mm",
     "run_many",
     "trajectory",
 ]
@@ -184,8 +188,8 @@ def check_placement(positions: np.ndarray, params: Params) -> None:
     ------
     ScenarioError
         If there are not exactly four robots, robots 1–3 are (nearly) collinear, two of them
-        stand beyond ``medium.range_mm`` of each other, or a frame side is too long for the byte
-        message.
+        stand beyond :func:`ranging_mm` of each other, the follower beyond a median link's
+        reach of one of them, or a frame side is too long for the byte message.
     """
     pos = np.asarray(positions, dtype=float)
     if pos.shape != (4, 2):
@@ -199,14 +203,22 @@ def check_placement(positions: np.ndarray, params: Params) -> None:
             f"follower: robots 1-3 are nearly collinear (robot 3 is {abs(height):.1f} mm from "
             f"the line 1->2, need >= {_MIN_FRAME_HEIGHT_MM:g} mm): they form no frame"
         )
-    m = params.medium
+    from kilonet.radio import reach_of
+
+    frame_mm, hearing_mm = ranging_mm(params), reach_of(params.medium).median_mm
     for a, b in ((0, 1), (0, 2), (1, 2), (0, 3), (1, 3), (2, 3)):
         d = float(np.linalg.norm(pos[a] - pos[b]))
-        if d > m.range_mm:
-            who = "the follower" if b == 3 else f"robot {b + 1}"
+        if b == 3 and d > hearing_mm:
             raise ScenarioError(
-                f"follower: {who} stands {d:.1f} mm from robot {a + 1}, beyond medium.range_mm "
-                f"= {m.range_mm:g}; the follower needs messages from all three frame robots"
+                f"follower: the follower stands {d:.1f} mm from robot {a + 1}, beyond the "
+                f"{hearing_mm:g} mm a link reaches ({_ranging_source(params).split(',')[0]}); "
+                "the follower needs messages from all three frame robots"
+            )
+        if b < 3 and d > frame_mm:
+            raise ScenarioError(
+                f"follower: robot {b + 1} stands {d:.1f} mm from robot {a + 1}, beyond the "
+                f"{frame_mm:g} mm it can range ({_ranging_source(params)}); the frame robots "
+                "need distances to each other"
             )
     if params.scenario.message == "byte":
         side = max(float(np.linalg.norm(pos[a] - pos[b])) for a, b in ((0, 1), (0, 2), (1, 2)))
@@ -223,14 +235,15 @@ def _generate(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
     if n != 4:
         raise ParamError(f"the follower scenario has exactly 4 robots, not {n}")
     f = params.scenario
-    m = params.medium
+    reach_mm = ranging_mm(params)
+    links = LinkModel.from_params(params.medium, range_mm=reach_mm)
     if f.message == "byte" and f.side_max_mm > _BYTE_LAYOUT_MAX_SIDE_MM:
         raise ParamError(
             f"follower.side_max_mm = {f.side_max_mm:g} is too long for the byte message (sides "
             f"<= {_BYTE_LAYOUT_MAX_SIDE_MM:g} mm); set follower.message=wide"
         )
     radius = ROBOT_DIAMETER_MM + f.clearance_mm
-    r_max = f.start_max_mm or m.range_mm
+    r_max = f.start_max_mm or reach_mm
     for _ in range(200):
         d12, d13, d23 = rng.uniform(f.side_min_mm, f.side_max_mm, 3)
         x3 = (d13**2 - d23**2 + d12**2) / (2 * d12)
@@ -250,11 +263,11 @@ def _generate(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
             start = goal + r * np.array([math.cos(theta), math.sin(theta)])
             pos = np.vstack([frame, start])
             gaps = np.linalg.norm(frame - start, axis=1)
-            if gaps.min() < ROBOT_DIAMETER_MM + 1.0 or gaps.max() > m.range_mm:
+            if gaps.min() < ROBOT_DIAMETER_MM + 1.0 or gaps.max() > reach_mm:
                 continue  # touching or out of range: the cheap tests first
-            if not _hears_all(pos, m):
+            if not _hears_all(pos, links):
                 continue
-            if f.direct_start and not _passable(start, target, frame, radius, m):
+            if f.direct_start and not _passable(start, target, frame, radius, links):
                 continue
             try:
                 check_placement(pos, params)
@@ -264,22 +277,53 @@ def _generate(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
     raise ParamError(
         "follower placement: found no follower start that hears all three robots with "
         f"follower.start_min_mm={f.start_min_mm:g}, start_max_mm={f.start_max_mm:g} and "
-        f"medium.range_mm={m.range_mm:g}; widen the start band or the range"
+        f"the {reach_mm:g} mm it can range ({_ranging_source(params)}); widen the start band "
+        "or the range"
     )
 
 
-def _hears_all(pos: np.ndarray, medium) -> bool:
-    """Whether all four robots hear each other (range and occlusion)."""
-    return len(LinkModel.from_params(medium).links(pos)) == 6
+def ranging_mm(params: Params) -> float:
+    """How far apart the four robots may stand, mm: as far as a median link reaches (the disc's
+    ``medium.range_mm``, else the preset's median reach, :func:`kilonet.radio.reach_of`), but
+    at most ``follower.neighbour_max_mm``, beyond which the follower cannot range (kilolib's
+    estimates saturate). The follower plans its moves to stay within it.
+
+    Examples
+    --------
+    >>> from scenarios.base import build_params
+    >>> ranging_mm(build_params(SCENARIO))
+    100.0
+    >>> ranging_mm(build_params(SCENARIO, {"medium.reach": "disc"}))
+    85.0
+    """
+    from scenarios.neighbourhood import neighbourhood_mm
+
+    return neighbourhood_mm(params.medium, params.scenario.neighbour_max_mm)
 
 
-def _follower_hears(pos: np.ndarray, medium) -> bool:
-    """Whether the follower (row 3) hears all three frame robots."""
-    links = LinkModel.from_params(medium).links(pos)
-    return int((links.j == FOLLOWER_INDEX).sum()) == 3
+def _ranging_source(params: Params) -> str:
+    """The parameters :func:`ranging_mm` comes from, for messages."""
+    m = params.medium
+    hearing = (
+        f"medium.range_mm = {m.range_mm:g}" if m.reach == "disc" else f"medium.reach = {m.reach}"
+    )
+    return f"{hearing}, follower.neighbour_max_mm = {params.scenario.neighbour_max_mm:g}"
 
 
-def _passable(start: np.ndarray, target: np.ndarray, frame: np.ndarray, radius: float, m) -> bool:
+def _hears_all(pos: np.ndarray, links: LinkModel) -> bool:
+    """Whether all four robots have links to each other (range and occlusion)."""
+    return len(links.links(pos)) == 6
+
+
+def _follower_hears(pos: np.ndarray, links: LinkModel) -> bool:
+    """Whether the follower (row 3) has links to all three frame robots."""
+    found = links.links(pos)
+    return int((found.j == FOLLOWER_INDEX).sum()) == 3
+
+
+def _passable(
+    start: np.ndarray, target: np.ndarray, frame: np.ndarray, radius: float, links: LinkModel
+) -> bool:
     """Straight line start→target clear of the frame robots' bodies (plus clearance), and the
     follower hears all three all along it."""
     seg = target - start
@@ -292,7 +336,7 @@ def _passable(start: np.ndarray, target: np.ndarray, frame: np.ndarray, radius: 
     if (np.linalg.norm(closest - frame, axis=1) < radius + 0.5).any():
         return False
     for s in np.arange(0.0, length, 5.0):
-        if not _follower_hears(np.vstack([frame, start + s * u]), m):
+        if not _follower_hears(np.vstack([frame, start + s * u]), links):
             return False
     return True
 
@@ -318,7 +362,8 @@ def _program(params: Params, positions: np.ndarray):
             speed_mm_s=params.motion.speed_mm_s,  # the data sheet's figure, not this robot's
             saturation_mm=params.ranging.max_mm,
             body_mm=ROBOT_DIAMETER_MM,
-            hearing_mm=params.medium.range_mm,  # the radio's range, a hardware figure
+            # The planner stays where it can range all three; a robot unheard is farther.
+            hearing_mm=ranging_mm(params),
         )
 
     return build

@@ -1,6 +1,6 @@
 """``gcs``: Rubenstein's global coordinate system, phases 1–6, on a swarm without UIDs.
 
-Runs :class:`protocols.gcs.GcsRobot` on every robot (``robot.hardware_uids = false``: the
+Runs :class:`protocols.gcs.program.GcsRobot` on every robot (``robot.hardware_uids = false``: the
 robots build their own IDs) and measures each phase against ground truth:
 
 * ids — duplicate IDs left among neighbours (in the line-of-sight graph);
@@ -16,17 +16,17 @@ robots build their own IDs) and measures each phase against ground truth:
   the receptions averaged, the centralized solver on the run's measured distances) and
   ``done_s``, when the last seed was done merging (``done_over_hop_limit``: over
   ``hop_diameter × robot.tx_period_s``);
-* refine (``gcs.refine = true``, :mod:`protocols.global_refinement`) — the summary's estimates,
+* refine (``gcs.refine = true``, :mod:`protocols.gcs.phase7_refinement`) — the summary's estimates,
   ``rmse_mm`` and the figures are the refined ones; ``merge_rmse_mm`` keeps the RMSE the merged
   estimates had, ``refined_fraction`` the share of robots that refined, and ``done_s`` is when
   the last robot stopped refining;
 * failures (thesis §7) — ``failures``: what the run built (unlocalizable robots, isolated seeds,
   the frame graph's components, robots next to another final frame); ``predicted``: what the
   geometry and phase 2's election predicted (:mod:`scenarios.prediction`); ``detected``: what
-  the swarm flagged itself (:mod:`protocols.split_detection`); ``recoveries`` and
-  ``edge_seeds`` (:mod:`protocols.recovery`). ``robots.csv`` carries the same per robot.
+  the swarm flagged itself (:mod:`protocols.gcs.split_detection`); ``recoveries`` and
+  ``edge_seeds`` (:mod:`protocols.gcs.recovery`). ``robots.csv`` carries the same per robot.
 
-Every figure comes from one read of each robot's :meth:`~protocols.gcs.GcsRobot.outcome` at
+Every figure comes from one read of each robot's :meth:`~protocols.gcs.program.GcsRobot.outcome` at
 the end of the run (:func:`run_outcomes`), shared by the summary, ``robots.csv``'s columns and
 the figure.
 
@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from protocols.gcs_base import PHASES, GcsParams
+from protocols.gcs.base import PHASES, GcsParams
 from scenarios.base import RunResult, Scenario, ScenarioOption
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
@@ -54,8 +54,8 @@ if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios 
 
     from kilonet.params import Params
     from kilonet.simulation import Simulation
-    from protocols.frame_keys import FrameKey
-    from protocols.gcs import GcsRobot, RobotOutcome
+    from protocols.gcs.frame_keys import FrameKey
+    from protocols.gcs.program import GcsRobot, RobotOutcome
 
 __all__ = [
     "SCENARIO",
@@ -68,7 +68,7 @@ __all__ = [
 
 
 def _program(params: Any, positions: np.ndarray):
-    from protocols.gcs import GcsRobot
+    from protocols.gcs.program import GcsRobot
 
     return lambda _i: GcsRobot(params.scenario)
 
@@ -79,15 +79,15 @@ _CHECK_S = 5.0
 
 
 def _stop_when(sim: Simulation) -> bool:
-    from protocols.gcs import phase_windows_s
+    from protocols.gcs.program import OPEN_ENDED, phase_windows_s
 
     windows = phase_windows_s(sim.params.scenario)
     name, _, end = windows[-1]
     now = sim.env.now
-    if name not in ("merge", "refine"):
+    if name not in OPEN_ENDED:
         return now >= end + 1.0  # a second more, so every robot has closed the last window
-    merge_start = windows[PHASES.index("merge")][1]
-    if now <= merge_start:
+    open_start = next(start for phase, start, _ in windows if phase in OPEN_ENDED)
+    if now <= open_start:
         return False
     running = sim.world.running
     robots = [r for i, r in enumerate(sim.robots) if running[i]]  # a crashed seed is never done
@@ -102,6 +102,8 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
     robot still merging is about to refine (its estimate settled, :meth:`FrameMerging.finished`
     counting) or is a seed not done, all merge in one epoch, and no recovery is announced or
     awaited."""
+    from protocols.gcs.program import OPEN_ENDED
+
     if len({r.epoch for r in robots}) > 1 or any(r.awaiting_recovery() for r in robots):
         return False
     for r in robots:
@@ -112,7 +114,7 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
             r.phase.settled_since is not None or (r.is_seed and not r.merge_done)
         ):
             return False
-        if name not in ("merge", "refine", ""):
+        if name and name not in OPEN_ENDED:
             return False
     return any(r.phase_name != "merge" for r in robots) or not any(
         r.estimate.settled() for r in robots
@@ -122,7 +124,7 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
 def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
     """Nothing more will happen: every seed is done, every robot merges in the same epoch, and
     no recovery is announced or about to be (the robots then get :data:`_CHECK_S` to check
-    their neighbours, :mod:`protocols.split_detection`)."""
+    their neighbours, :mod:`protocols.gcs.split_detection`)."""
     if not seeds or not all(r.merge_done for r in seeds):
         return False
     if len({r.epoch for r in robots}) > 1:
@@ -132,7 +134,7 @@ def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
 
 def _expected_end_s(params: Params) -> float | None:
     """Where :func:`_stop_when` ends a run that stops before merging; merging has no known end."""
-    from protocols.gcs import phase_windows_s
+    from protocols.gcs.program import phase_windows_s
 
     end = phase_windows_s(params.scenario)[-1][2]
     return end + 1.0 if math.isfinite(end) else None
@@ -140,7 +142,7 @@ def _expected_end_s(params: Params) -> float | None:
 
 def _phase_note(sim: Simulation) -> str:
     """The phase the run is in, for the progress display: ``phase 3/6 frames (to 41 s)``."""
-    from protocols.gcs import phase_windows_s
+    from protocols.gcs.program import phase_windows_s
 
     windows = phase_windows_s(sim.params.scenario)
     now = sim.env.now
@@ -178,8 +180,8 @@ _READ: weakref.WeakKeyDictionary[Simulation, tuple[float, RunOutcomes]] = (
 
 
 def run_outcomes(sim: Simulation) -> RunOutcomes:
-    """Every robot's :meth:`~protocols.gcs.GcsRobot.outcome`, read once per simulated moment:
-    the summary, ``robots.csv`` and the figure of a run all use the same read."""
+    """Every robot's :meth:`~protocols.gcs.program.GcsRobot.outcome`, read once per simulated
+    moment: the summary, ``robots.csv`` and the figure of a run all use the same read."""
     read = _READ.get(sim)
     if read is not None and read[0] == sim.env.now:
         return read[1]
@@ -226,7 +228,7 @@ def _estimates(
 
 def estimates_frame(sim: Simulation) -> pd.DataFrame:
     """Per robot: role, ID, frames held, global estimate, final frame label
-    (:attr:`protocols.frame_keys.Root.label`) and the robot that seeded that root's frame
+    (:attr:`protocols.gcs.frame_keys.Root.label`) and the robot that seeded that root's frame
     (``root_robot``), the estimate aligned to the truth and its error
     (:func:`scenarios.estimates.with_alignment`), failure flags: ``robots.csv``'s columns."""
     return run_outcomes(sim).estimates
@@ -466,10 +468,15 @@ def _boundary(est: pd.DataFrame, i: np.ndarray, j: np.ndarray) -> list[int]:
 
 def _metrics(sim: Simulation) -> dict[str, Any]:
     from kilonet.visibility import LinkModel
-    from protocols.gcs import phase_windows_s
+    from protocols.gcs.program import phase_windows_s
 
     events = sim.trace.events_frame()
-    links = LinkModel.from_params(sim.params.medium, sim.world.radius_mm).links(
+    from scenarios.neighbourhood import neighbourhood_mm
+
+    p = sim.params
+    # The protocol's neighbours: robots it hears, within gcs.neighbour_max_mm.
+    reach_mm = neighbourhood_mm(p.medium, p.scenario.neighbour_max_mm)
+    links = LinkModel.from_params(p.medium, sim.world.radius_mm, range_mm=reach_mm).links(
         sim.world.positions_mm
     )
     i, j = links.i, links.j

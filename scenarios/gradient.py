@@ -1,8 +1,8 @@
 """``gradient``: the hop-count gradient from one source robot across a swarm.
 
 Metrics against ground truth: the share of robots whose gradient equals their hop distance
-from the source in the line-of-sight communication graph, when the last robot settled, and the
-largest gradient.
+from the source over the medium's own links (:func:`hop_distances`), when the last robot
+settled, and the largest gradient.
 """
 
 from __future__ import annotations
@@ -33,11 +33,29 @@ class GradientParams:
 
 
 def hop_distances(sim: Simulation, source: int) -> dict[int, int]:
-    """Hops from ``source`` in the medium's own communication graph of the running robots."""
+    """Hops from ``source`` over the medium's own links among the running robots, each link
+    from its sender to the robots that hear it (:meth:`~kilonet.medium.InfraredMedium.
+    receivers_of`) within its reach, where it delivers at least half its messages
+    (:func:`kilonet.radio.reception_probability`; the soft edge beyond delivers too rarely to
+    count): a robot adopts one more than the smallest gradient it hears, so a one-way link
+    counts in its own direction (real robots' links reach per sender, :mod:`kilonet.radio`)."""
     import networkx as nx
 
-    graph = sim.medium.graph()
-    graph.remove_nodes_from(np.flatnonzero(~sim.world.running).tolist())
+    from kilonet.radio import reception_probability
+
+    running = sim.world.running
+    pos = sim.world.positions_mm
+    radio = sim.transceivers
+    graph = nx.DiGraph()
+    graph.add_nodes_from(np.flatnonzero(running).tolist())
+    for sender in list(graph):
+        heard = np.array([r for r in sim.medium.receivers_of(sender) if running[r]], dtype=int)
+        if not len(heard):
+            continue
+        d = np.hypot(*(pos[heard] - pos[sender]).T)
+        reach = radio.link_reach_mm(np.full(len(heard), sender), heard)
+        p = reception_probability(d, reach, radio.reach.edge_mm)
+        graph.add_edges_from((sender, int(r)) for r in heard[p >= 0.5])
     if source not in graph:
         return {}
     return nx.single_source_shortest_path_length(graph, source)

@@ -1,9 +1,9 @@
 """``localize``: one global frame at the Cramér–Rao bound, by the swarm alone.
 
-Runs :class:`protocols.localize.LocalizeRobot` on every robot (``robot.hardware_uids =
+Runs :class:`protocols.localize.program.LocalizeRobot` on every robot (``robot.hardware_uids =
 false``: the robots draw their own IDs; ``robot.tx_period_s = 0.2``, the thesis library's
 period, as in ``gcs``) until every running robot is done (the swarm decides: see
-:mod:`protocols.localize_termination`), and scores the result against the truth the robots
+:mod:`protocols.localize.phase3_termination`), and scores the result against the truth the robots
 never saw:
 
 * ``frames``, ``localized_fraction``, ``largest_frame_fraction``: robots grouped by the root
@@ -16,7 +16,7 @@ never saw:
   reception of every message type counts; records marked ambiguous are left out);
 * ``phase_times_s``: when the root was elected, when the last robot was located, when the root
   declared done and when the last robot was done (``done_s``: a robot that stays awake after
-  DONE for an island, :mod:`protocols.localize_island`, when its island work is over; NaN
+  DONE for an island, :mod:`protocols.localize.phase4_island`, when its island work is over; NaN
   unless every running robot did; ``done_fraction`` is the share of running robots that heard
   DONE or declared it);
   ``hop_diameter`` of the communication graph, and ``done_over_hop_limit``, ``done_s`` over
@@ -31,8 +31,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from protocols.localize_base import LocalizeParams
+from protocols.localize.base import LocalizeParams
 from scenarios.base import RunResult, Scenario
+from scenarios.neighbourhood import trusted_links
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
     import pandas as pd
@@ -43,7 +44,7 @@ __all__ = ["SCENARIO", "estimates_frame"]
 
 
 def _program(params: Any, positions: np.ndarray):
-    from protocols.localize import LocalizeRobot
+    from protocols.localize.program import LocalizeRobot
 
     return lambda _i: LocalizeRobot(params.scenario)
 
@@ -125,7 +126,9 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
     rmse, aligned = pooled_aligned_rmse(np.nan_to_num(positions), truth, labels)
     error = np.hypot(*(aligned - truth).T)
     sizes = done.groupby("frame").size()
-    links = np.array(sim.medium.graph().edges(), dtype=np.intp).reshape(-1, 2)
+    # The links robots range: both ends' estimates within localize.neighbour_max_mm.
+    ranged = trusted_links(sim, p.scenario.neighbour_max_mm).to_undirected(reciprocal=True)
+    links = np.array(ranged.edges(), dtype=np.intp).reshape(-1, 2)
     i, j = links[:, 0], links[:, 1]
     out: dict[str, Any] = {
         "mean_neighbours": 2.0 * len(i) / n,

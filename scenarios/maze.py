@@ -1,14 +1,15 @@
 """``maze``: one robot localizes itself in a grid maze and visits every cell (the lab seed).
 
-Robots: robot 0 is the maze robot (:class:`protocols.maze.MazeRobot`), robots 1–4 the landmarks
-at the maze corners SW, SE, NE, NW (:class:`protocols.maze.LandmarkBeacon`). The maze is drawn
-from the run's placement stream (a perfect maze, or with ``maze.loops`` > 0 one with loops), and
-so is the robot's start cell.
+Robots: robot 0 is the maze robot (:class:`protocols.maze.program.MazeRobot`), robots 1–4 the
+landmarks at the maze corners SW, SE, NE, NW (:class:`protocols.maze.program.LandmarkBeacon`). The
+maze is drawn from the run's placement stream (a perfect maze, or with ``maze.loops`` > 0 one with
+loops), and so is the robot's start cell.
 
 ``maze.landmarks = camera`` (default) ranges the landmarks with the robot's camera model; with
 ``infrared`` the landmarks are Kilobots broadcasting their coordinates and the robot ranges only
-what it hears, so every cell centre must be within ``min(medium.range_mm, ranging.max_mm)`` of
-at least three landmarks — for example::
+what it hears and ranges, so every cell centre must be within
+:func:`scenarios.neighbourhood.neighbourhood_mm` (a median link's reach, at most
+``maze.neighbour_max_mm``) of at least three landmarks — for example::
 
     kilonet run maze --set maze.landmarks=infrared --set maze.size=2x2 --set maze.cell_mm=50
 
@@ -35,7 +36,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from kilonet.maze import (
+from kilonet.params import ParamError, Params
+from kilonet.placement import ROBOT_DIAMETER_MM
+from kilonet.simulation import Simulation, stream_for
+from protocols.maze.hardware import (
     Maze,
     MazeHardware,
     RangeSensor,
@@ -44,10 +48,7 @@ from kilonet.maze import (
     generate_maze,
     parse_size,
 )
-from kilonet.params import ParamError, Params
-from kilonet.placement import ROBOT_DIAMETER_MM
-from kilonet.simulation import Simulation, stream_for
-from protocols.maze import LANDMARK_COLORS, LandmarkBeacon, MazeParams, MazeRobot
+from protocols.maze.program import LANDMARK_COLORS, LandmarkBeacon, MazeParams, MazeRobot, MazeStage
 from scenarios.base import RunResult, Scenario, run
 
 if TYPE_CHECKING:  # pandas and matplotlib are imported where used: listing scenarios is fast
@@ -91,14 +92,18 @@ def _placement(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def _check_infrared_reach(params: Params, maze: Maze, landmarks_mm: np.ndarray) -> None:
-    reach = min(params.medium.range_mm, float(params.ranging.max_mm))
+    from scenarios.neighbourhood import neighbourhood_mm
+
+    limit = min(params.scenario.neighbour_max_mm, float(params.ranging.max_mm))
+    reach = neighbourhood_mm(params.medium, limit)
     for cell in range(maze.n_cells):
         d = np.hypot(*(landmarks_mm - maze.centre_mm(cell)).T)
         if int((d <= reach).sum()) < 3:
             raise ParamError(
-                f"maze.landmarks = infrared: cell {cell} is within {reach:.0f} mm "
-                f"(medium.range_mm, ranging.max_mm) of only {int((d <= reach).sum())} landmarks; "
-                "use a smaller maze (maze.size, maze.cell_mm) or a longer medium.range_mm"
+                f"maze.landmarks = infrared: cell {cell} is within {reach:.0f} mm (the reach of "
+                "a median link, at most maze.neighbour_max_mm and ranging.max_mm) of only "
+                f"{int((d <= reach).sum())} landmarks; use a smaller maze (maze.size, "
+                "maze.cell_mm)"
             )
 
 
@@ -141,7 +146,7 @@ def _program(params: Params, positions: np.ndarray):
 
 
 def _stop_when(sim: Simulation) -> bool:
-    return sim.robots[_ROBOT].state == "done" or not sim.world.running[_ROBOT]
+    return sim.robots[_ROBOT].state is MazeStage.DONE or not sim.world.running[_ROBOT]
 
 
 # -- metrics ----------------------------------------------------------------------------------

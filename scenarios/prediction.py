@@ -6,7 +6,7 @@ distances it will hold, and places its references as it will (:func:`_frame_memb
 join a seed's frame when they see the seed and at least two robots already in that frame and
 the robots' own fix test accepts those anchors where the seed's frame puts them (repeated until
 nothing changes, as localization spreads); merging groups are found as the robots would find
-them (:func:`protocols.merging_groups.find_groups`). The frame graph's components
+them (:func:`protocols.gcs.phase5_merging_groups.find_groups`). The frame graph's components
 (:func:`scenarios.topology.failure_cases`) are the global frames merging can reach.
 
 The distances a seed holds are true ones but for |BC|, which reaches it in whole millimetres
@@ -37,9 +37,9 @@ from kilonet.geometry import (
 )
 from kilonet.params import Params
 from kilonet.visibility import LinkModel, communication_graph
-from protocols.frame_keys import FrameKey
-from protocols.gcs_base import GcsParams
-from protocols.merging_groups import find_groups
+from protocols.gcs.base import GcsParams
+from protocols.gcs.frame_keys import FrameKey
+from protocols.gcs.phase5_merging_groups import find_groups
 from scenarios.topology import failure_cases, rigidity_facts
 
 __all__ = ["predict_from_seeds"]
@@ -63,9 +63,9 @@ def predict_from_seeds(
     seeds : sequence of int
         Robot indices elected seeds in phase 2.
     frame_keys : mapping, optional
-        Seed index → its frame key (:class:`protocols.frame_keys.FrameKey`). A robot located in
+        Seed index → its frame key (:class:`protocols.gcs.frame_keys.FrameKey`). A robot located in
         frames of several components reports the one of the smallest key (the merged frame's
-        root, as :mod:`protocols.frame_merging` ranks elected seeds), an isolated seed's only
+        root, as :mod:`protocols.gcs.phase6_merging` ranks elected seeds), an isolated seed's only
         if it has no other; without keys, the largest.
 
     Returns
@@ -80,14 +80,18 @@ def predict_from_seeds(
     """
     p = params
     n = len(pos)
-    graph = communication_graph(pos, LinkModel.from_params(p.medium))
+    from scenarios.neighbourhood import neighbourhood_mm
+
+    # The protocol's neighbours: the robots it hears, within gcs.neighbour_max_mm.
+    reach_mm = neighbourhood_mm(p.medium, p.scenario.neighbour_max_mm)
+    graph = communication_graph(pos, LinkModel.from_params(p.medium, range_mm=reach_mm))
     members: dict[int, dict[int, tuple[float, float]]] = {}
     for s in seeds:
         inside = _frame_members(pos, graph, s, p.scenario)
         if inside is not None:
             members[s] = inside
     located = {i: sorted(s for s, m in members.items() if i in m) for i in range(n)}
-    groups = _groups(pos, graph, located, members, p.medium.range_mm, p.scenario)
+    groups = _groups(pos, graph, located, members, reach_mm, p.scenario)
     cases = failure_cases(range(n), located, list(seeds), groups)
     final = _final_frames(cases["frames"], located, frame_keys, cases["isolated_seeds"])
     boundary = sorted(
@@ -118,9 +122,9 @@ def _frame_members(
     pair is usable.
 
     The seed's distances to its neighbours are true; |BC| is rounded to whole millimetres, as
-    the neighbours' tables carry it (:mod:`protocols.local_frames`). A fix uses true ranges and
-    the anchors' positions in the frame, so a frame the rounding has bent or widened admits the
-    robots it will admit.
+    the neighbours' tables carry it (:mod:`protocols.gcs.phase3_local_frames`). A fix uses true
+    ranges and the anchors' positions in the frame, so a frame the rounding has bent or widened
+    admits the robots it will admit.
     """
     rule = (
         choose_references_max_angle
@@ -151,7 +155,7 @@ def _frame_members(
             anchors = sorted(set(inside) & set(graph[robot]))
             if robot in inside or len(anchors) < 3:
                 continue
-            # The robot's own test (protocols.localization): a fix from nearly collinear
+            # The robot's own test (protocols.gcs.phase4_localization): a fix from nearly collinear
             # anchors, or one with a mirror image, is rejected there too.
             fix = multilaterate(
                 np.array([inside[a] for a in anchors]),
@@ -191,7 +195,7 @@ def _final_frames(
     """Robot → index into ``frames`` (the frame graph's components) of the merged frame it will
     report: of the components its frames are in, the one whose smallest frame key is smallest
     (the root that wins), or without keys the first (largest); an ``isolated`` seed's frame
-    only if it has no other (its root ranks last, :mod:`protocols.frame_merging`)."""
+    only if it has no other (its root ranks last, :mod:`protocols.gcs.phase6_merging`)."""
     component_of = {s: c for c, seeds in enumerate(frames) for s in seeds}
     alone = {component_of[s] for s in isolated}
     if frame_keys is None:

@@ -3,7 +3,7 @@
 A localization run (``gcs``, ``localize``) reports, next to its own RMSE:
 
 * ``crlb_rmse_mm``: the anchor-free Cramér–Rao bound of the communication graph with one
-  reception per pair (:func:`kilonet.geometry.crlb_rmse_mm`), each link's error the reception
+  reception per pair (:func:`kilonet.bounds.crlb_rmse_mm`), each link's error the reception
   model's effective error at its length (``effective_sigma_mm`` of
   :mod:`kilonet.reception`'s models: the systematic part that averaging cannot remove, plus
   one reading's noise and rounding), and ``rmse_over_crlb``;
@@ -113,8 +113,8 @@ def reference_metrics(
     ``largest_frame`` robots in its largest frame; ``links`` are the communication graph's
     pairs ``(i, j)``. Keys whose inputs are missing (no link, no measurement, no noise) are
     left out, except ``crlb_rmse_mm`` (None without a link: the bound is infinite)."""
+    from kilonet.bounds import crlb_rmse_mm
     from kilonet.central import central_reference
-    from kilonet.geometry import crlb_rmse_mm
 
     truth = sim.world.positions_mm
     i, j = links

@@ -1,4 +1,4 @@
-"""Tests for kilonet.animation and ``kilonet animate``: GIF and HTML of a real gradient run
+"""Tests for presentation.animation and ``kilonet animate``: GIF and HTML of a real gradient run
 (frame count, size, LED colours read back at the robots' centres), state sampled from event
 tables, overlays, and user errors."""
 
@@ -19,7 +19,7 @@ from PIL import Image
 import kilonet.cli as cli
 import scenarios
 from kilonet.alignment import procrustes_rmse
-from kilonet.animation import (
+from presentation.animation import (
     AnimationError,
     FrameRenderer,
     Replay,
@@ -561,3 +561,18 @@ def test_a_run_without_a_key_draws_none(tmp_path: Path):
     run_dir = _write_run(tmp_path / "run", _robots([(0, 0), (60, 0)]))
     renderer = FrameRenderer(Replay(load_run(run_dir)), set(), width_px=640)
     assert renderer.key_entries == []
+
+
+def test_the_replay_template_ships_with_the_package():
+    """CI installs non-editable: every file of ``presentation/`` that is not Python must be
+    package data in pyproject.toml, or ``pip install .`` leaves it behind."""
+    import fnmatch
+    import tomllib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    config = tomllib.loads((root / "pyproject.toml").read_text())
+    globs = config["tool"]["setuptools"]["package-data"]["presentation"]
+    data = [p.name for p in (root / "presentation").iterdir() if p.is_file() and p.suffix != ".py"]
+    assert "replay.html" in data
+    assert all(any(fnmatch.fnmatch(name, g) for g in globs) for name in data), (data, globs)

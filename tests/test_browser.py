@@ -20,7 +20,7 @@ import pytest
 
 import kilonet.cli
 import scenarios
-from protocols.localize import LocalizeRobot
+from protocols.localize.program import LocalizeRobot
 
 pytestmark = pytest.mark.browser
 
@@ -144,6 +144,39 @@ def test_the_replay_renders_its_robots_and_controls(browser, replay_file, tmp_pa
         f"rgb({r * 85}, {g * 85}, {b * 85})" for (r, g, b), _ in LocalizeRobot.LED_KEY
     ]
     p.screenshot(path=tmp_path / "replay.png")
+    assert page.errors == []
+
+
+def test_the_replay_has_a_scale_bar_and_a_key_for_estimates_and_frames(browser, replay_file):
+    page = Page(browser, replay_file)
+    p = page.page
+    assert {"estimates", "frames"} <= set(p.evaluate("D.overlays"))
+    entries = p.locator("#overlay-key > span")
+    names = [entries.nth(k).get_attribute("data-overlay") for k in range(entries.count())]
+    assert names == ["estimates", "frames"]
+    assert entries.nth(0).inner_text().replace(" ", "").startswith("×estimate")
+    assert "frame" in entries.nth(1).inner_text()
+    swatches = p.locator("#overlay-key .swatch")
+    drawn = [swatches.nth(k).evaluate("s => getComputedStyle(s).backgroundColor") for k in
+             range(swatches.count())]  # fmt: skip
+    hexes = p.evaluate("D.frames.colours.slice(0, 4)")
+    assert drawn == [f"rgb({int(h[1:3], 16)}, {int(h[3:5], 16)}, {int(h[5:7], 16)})" for h in hexes]
+    # The scale bar: the longest of the round lengths that fits in 150 px, drawn in black.
+    bar_mm, bar_px, lengths = p.evaluate("[barMm, barMm * scale, D.scale_bars_mm]")
+    assert bar_mm in lengths and bar_px <= 150
+    longer = [v for v in lengths if v > bar_mm]
+    assert not longer or longer[0] * bar_px / bar_mm > 150
+    row = p.evaluate(
+        """() => {
+            const k = window.devicePixelRatio || 1, c = document.getElementById('stage');
+            const g = c.getContext('2d'), y = Math.round((H - 8) * k);
+            const at = x => Array.from(g.getImageData(Math.round(x * k), y, 1, 1).data).slice(0, 3);
+            const x1 = W - 12, x0 = x1 - barMm * scale;
+            return [at(x0 + 2), at((x0 + x1) / 2), at(x1 - 2), at(x0 - 6)];
+        }"""
+    )
+    assert row[:3] == [[0, 0, 0]] * 3
+    assert row[3] != [0, 0, 0]  # left of the bar: the table
     assert page.errors == []
 
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from kilonet.alignment import procrustes_rmse
+from kilonet.bounds import crlb_rmse_mm
 from kilonet.central import central_reference, solve_positions
-from kilonet.geometry import crlb_rmse_mm
 from kilonet.placement import hex_lattice, random_uniform
 from kilonet.visibility import pairs_in_range
 

@@ -8,7 +8,7 @@ import re
 from pathlib import Path
 
 import scenarios
-from protocols.gcs import phase_windows_s
+from protocols.gcs.program import phase_windows_s
 from scenarios.base import build_params
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -147,7 +147,7 @@ def test_large_errors_are_drawn_at_true_scale_and_many_frames_share_an_entry(tmp
 
 @pytest.mark.parametrize("run_dir", ["gcs"], indirect=True)
 def test_gcs_records_no_global_estimate_before_merging(run_dir):
-    from protocols.gcs import phase_windows_s
+    from protocols.gcs.program import phase_windows_s
 
     result, out = run_dir
     start = {name: start for name, start, _ in phase_windows_s(result.params.scenario)}

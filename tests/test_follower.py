@@ -15,7 +15,7 @@ from kilonet.params import ParamError
 from kilonet.placement import save_csv
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
-from protocols.follower import (
+from protocols.follower.follower import (
     FRAME_BYTE,
     FRAME_WIDE,
     FrameReport,
@@ -27,7 +27,7 @@ from protocols.follower import (
     reachable_goal,
     turn_angle,
 )
-from protocols.turn_calibration import TurnCalibration
+from protocols.follower.turn_calibration import TurnCalibration
 from scenarios.base import ScenarioError, build_params, run, write_outputs
 from scenarios.follower import SCENARIO, calibrate_turns, frame_to_floor, run_many, trajectory
 
@@ -203,12 +203,22 @@ def test_placement_must_have_four_rows(tmp_path):
 
 
 def test_placement_with_a_deaf_follower_is_refused():
-    far = np.vstack([FRAME, [[37.5, -70.0]]])  # 135 mm from robot 3
+    far = np.vstack([FRAME, [[37.5, -100.0]]])  # 165 mm from robot 3
     with pytest.raises(
         ScenarioError,
-        match=r"the follower stands 135.0 mm from robot 3, beyond medium.range_mm = 85",
+        match=r"the follower stands 165.0 mm from robot 3, beyond the 148 mm a link reaches "
+        r"\(medium.reach = argos\)",
     ):
         run(SCENARIO, seed=1, placement=far)
+    disc = {"medium.reach": "disc"}  # one hard radius: medium.range_mm
+    with pytest.raises(ScenarioError, match=r"135.0 mm from robot 3, beyond the 85 mm"):
+        run(SCENARIO, disc, seed=1, placement=np.vstack([FRAME, [[37.5, -70.0]]]))
+
+
+def test_placement_with_a_frame_too_wide_to_range_is_refused():
+    wide = np.array([[0.0, 0.0], [110.0, 0.0], [55.0, 60.0], [55.0, 20.0]])
+    with pytest.raises(ScenarioError, match=r"robot 2 stands 110.0 mm from robot 1, beyond the"):
+        run(SCENARIO, {"follower.message": "wide"}, seed=1, placement=wide)
 
 
 def test_collinear_frame_is_refused():
@@ -224,6 +234,7 @@ def test_generator_needs_four_robots():
 
 def test_generated_placements_respect_the_geometry():
     from scenarios.base import place
+    from scenarios.follower import ranging_mm
 
     for seed in range(1, 6):
         params = build_params(SCENARIO, {"follower.handedness": "right"}, seed=seed)
@@ -231,7 +242,8 @@ def test_generated_placements_respect_the_geometry():
         sides = [np.linalg.norm(pos[a] - pos[b]) for a, b in ((0, 1), (0, 2), (1, 2))]
         assert all(60.0 <= s <= 80.0 for s in sides)
         assert np.linalg.norm(pos[:3] - pos[3], axis=1).min() >= 34.0
-        assert np.linalg.norm(pos[:3] - pos[3], axis=1).max() <= 85.0
+        # It starts where it ranges all three (follower.scenario's ranging_mm).
+        assert np.linalg.norm(pos[:3] - pos[3], axis=1).max() <= ranging_mm(params) == 100.0
         (ax, ay), (bx, by) = pos[1] - pos[0], pos[2] - pos[0]
         assert ax * by - ay * bx < 0  # robot 3 on the right: a mirrored frame
 
@@ -283,8 +295,8 @@ def test_works_with_twenty_percent_message_loss(seed):
 
 
 def test_goal_behind_the_robot():
-    params = build_params(SCENARIO, {"medium.range_mm": 150.0}, seed=4)
-    pos = np.vstack([FRAME, [[37.5, -60.0]]])
+    params = build_params(SCENARIO, seed=4)
+    pos = np.vstack([FRAME, [[37.5, -25.0]]])  # 90 mm from robot 3: it ranges all three
     sim = Simulation(
         pos, SCENARIO.program(params, pos), params, headings_rad=[0, 0, 0, -math.pi / 2]
     )
@@ -300,9 +312,21 @@ def test_goal_behind_the_robot():
 
 
 def test_longer_range_what_if():
+    # A what-if of robots that range to 300 mm: one hard radius (the disc) and independent
+    # noise (kilolib's tables end at 98 mm, so the follower must trust estimates up to 255 mm).
+    what_if = {
+        "medium.reach": "disc",
+        "ranging.model": "gaussian",
+        "follower.neighbour_max_mm": 255,
+    }
     result = run(
         SCENARIO,
-        {"medium.range_mm": 300, "follower.start_min_mm": 200, "follower.start_max_mm": 250},
+        {
+            "medium.range_mm": 300,
+            "follower.start_min_mm": 200,
+            "follower.start_max_mm": 250,
+            **what_if,
+        },
         seed=2,
     )
     s = result.summary
@@ -317,10 +341,11 @@ def test_longer_range_what_if():
 
 
 def test_saturated_distances_walk_to_the_nearest_robot_first():
-    """At 245 mm beyond robot 3 the distances to robots 1 and 2 read 255 (the uint8 ceiling):
-    no fix is possible, so the follower walks by the changes of its nearest distance."""
-    params = build_params(SCENARIO, {"medium.range_mm": 300}, seed=3)
-    pos = np.vstack([FRAME, [[GOAL[0], GOAL[1] + 245.0]]])
+    """At 90 mm beyond robot 3 the follower hears robots 1 and 2 (about 120 mm away) but reads
+    them above follower.neighbour_max_mm, where kilolib's estimates saturate: no fix is
+    possible, so the follower walks by the changes of its nearest distance."""
+    params = build_params(SCENARIO, seed=3)
+    pos = np.vstack([FRAME, [[GOAL[0], GOAL[1] + 90.0]]])
     sim = Simulation(pos, SCENARIO.program(params, pos), params)
     follower = sim.robots[3]
     fixes = lambda: sim.trace.events_frame().query("robot == 3 and event == 'fix'")  # noqa: E731
@@ -332,8 +357,13 @@ def test_saturated_distances_walk_to_the_nearest_robot_first():
     assert modes and set(modes) == {"approach"}
     first = json.loads(fixes()["data"].iloc[0])
     assert first["kind"] in ("three", "two")
-    distances = np.linalg.norm(FRAME - sim.world.positions_mm[3], axis=1)
-    assert distances.max() < 255.0 < np.linalg.norm(FRAME - pos[3], axis=1).max()
+    # It walked to where it ranges the robots its fix used (estimates within the limit stand
+    # within a link's systematic error, under 10 mm, of the truth).
+    limit = params.scenario.neighbour_max_mm
+    assert np.linalg.norm(FRAME[:2] - pos[3], axis=1).min() > limit + 10
+    distances = np.sort(np.linalg.norm(FRAME - sim.world.positions_mm[3], axis=1))
+    ranged = 3 if first["kind"] == "three" else 2
+    assert distances[ranged - 1] < limit + 10
     assert follower.outcome is None
 
 

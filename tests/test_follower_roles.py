@@ -1,5 +1,5 @@
-"""The trilateration frame robots (protocols.follower's Origin, XAxisRobot, ThirdRobot) on the
-test kit: what each announces, when it flags its coordinates, the seed's LED colours; first
+"""The trilateration frame robots (protocols.follower.follower's Origin, XAxisRobot, ThirdRobot) on
+the test kit: what each announces, when it flags its coordinates, the seed's LED colours; first
 hearing scripted reports, then beside the real frame robots in the real medium."""
 
 from __future__ import annotations
@@ -9,7 +9,9 @@ import math
 import pytest
 
 from kilonet.geometry import place_references
-from protocols.follower import (
+from kilonet.message import LIMITS
+from kilonet.params import MediumParams
+from protocols.follower.follower import (
     FRAME_BYTE,
     FRAME_WIDE,
     ORIGIN,
@@ -22,7 +24,9 @@ from protocols.follower import (
     encode,
 )
 
-AIRTIME_S = 12 * 8 / 30_000
+_MEDIUM = MediumParams()
+#: One message's airtime on the default medium: its bytes at the bit rate, plus the preamble.
+AIRTIME_S = LIMITS["kilolib"].air_bytes * 8 / _MEDIUM.bitrate_bps + _MEDIUM.preamble_s
 FROM_ORIGIN = encode(FrameReport(ORIGIN, True))
 WHITE, BLUE, GREEN, YELLOW, PURPLE = (3, 3, 3), (0, 0, 3), (0, 3, 0), (3, 3, 0), (3, 0, 3)
 
@@ -131,7 +135,10 @@ def test_the_wide_layout_carries_tenths(scripted_world):
 def test_the_frame_forms_beside_the_real_origin_and_x_axis_robot(scripted_world):
     """The third robot between the real robots 1 and 2, through the real medium (ranging
     noise 1 mm, averaged over 8 readings)."""
-    world = scripted_world(ThirdRobot(), seed=3)
+    # Independent noise (ranging.model = gaussian): the test checks the averaging; on the
+    # default tables each link also has a systematic error of a few mm that no averaging
+    # removes, and x3 = (d13² - d23² + d12²) / (2 d12) magnifies it.
+    world = scripted_world(ThirdRobot(), seed=3, params={"ranging.model": "gaussian"})
     world.add_neighbour(Origin(), at_mm=(0.0, -60.0))  # d13 = 60
     world.add_neighbour(XAxisRobot(), at_mm=(45.0, -60.0))  # d12 = 45, d23 = 75
     world.eventually(lambda: world.robot.known, within_s=30.0)

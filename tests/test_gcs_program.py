@@ -8,45 +8,34 @@ import typing
 
 import pytest
 
-import protocols.frame_merging
-import protocols.global_refinement
-import protocols.local_frames
-import protocols.localization
-import protocols.merging_groups
-import protocols.recovery
-import protocols.seed_election
-import protocols.split_detection
-import protocols.unique_ids
 import scenarios
-from kilonet.message import Layout, PayloadError
-from protocols.gcs import PHASE_SEQUENCE, RECOVERY_SEQUENCE, GcsRobot, led_colour, phase_windows_s
-from protocols.gcs_base import PHASES, GcsParams, Phase, gcs_layout, sender_of
-from protocols.localization import fix_anchors, worth_a_fix
-from protocols.neighbours import NeighbourTable
-from protocols.recovery import adopts_epoch
-from protocols.seed_election import seed_condition_met
-from protocols.split_detection import distance_mismatch_mm
-from protocols.unique_ids import is_duplicate
+from kilonet.message import PayloadError
+from protocols.common.layouts import discover
+from protocols.common.neighbours import NeighbourTable
+from protocols.gcs.base import LAYOUTS as GCS_LAYOUTS
+from protocols.gcs.base import PHASES, GcsParams, GcsStage, Phase, gcs_layout, sender_of
+from protocols.gcs.phase1_unique_ids import is_duplicate
+from protocols.gcs.phase2_seed_election import seed_condition_met
+from protocols.gcs.phase4_localization import fix_anchors, worth_a_fix
+from protocols.gcs.program import (
+    OPEN_ENDED,
+    PHASE_SEQUENCE,
+    RECOVERY_SEQUENCE,
+    GcsRobot,
+    led_colour,
+    phase_windows_s,
+)
+from protocols.gcs.recovery import adopts_epoch
+from protocols.gcs.split_detection import distance_mismatch_mm
 from scenarios.gcs import estimates_frame, run_outcomes
 
-MODULES = [
-    protocols.unique_ids,
-    protocols.seed_election,
-    protocols.local_frames,
-    protocols.localization,
-    protocols.merging_groups,
-    protocols.frame_merging,
-    protocols.split_detection,
-    protocols.recovery,
-    protocols.global_refinement,
-]
-LAYOUTS = list(
-    {id(v): v for m in MODULES for v in vars(m).values() if isinstance(v, Layout)}.values()
-)
+#: Every layout of the protocol, as its modules register them (phase 7's GPOS types and the
+#: refinement's DIST included).
+LAYOUTS = list(GCS_LAYOUTS)
 
 
 def test_every_layout_starts_with_the_sender_and_sender_of_reads_it():
-    assert len(LAYOUTS) == 23  # phase 7's three GPOS types, and the refinement's DIST
+    assert list(discover("protocols.gcs")) == LAYOUTS  # nothing built outside gcs_layout
     assert len({layout.type for layout in LAYOUTS}) == len(LAYOUTS)
     for layout in LAYOUTS:
         names = layout.record._fields
@@ -69,6 +58,22 @@ def test_the_phase_sequence_is_the_named_phases_and_gcs_until_offers_them():
     for cls in {*PHASE_SEQUENCE, *RECOVERY_SEQUENCE}:
         assert "window_s" in vars(cls) or callable(cls.window_s), cls.name
     assert not hasattr(Phase, "window_s")  # each phase defines its own (checked at definition)
+
+
+def test_open_ended_phases_are_declared_and_have_no_window_end():
+    """A phase that ends by itself says so (``open_ended``): the program's ``OPEN_ENDED`` and
+    the gcs scenario's stop rule read that declaration."""
+    p = GcsParams(refine=True)
+    declared = {cls.name for cls in {*PHASE_SEQUENCE, *RECOVERY_SEQUENCE} if cls.open_ended}
+    assert declared == OPEN_ENDED == {GcsStage.MERGE, GcsStage.REFINE}
+    for cls in {*PHASE_SEQUENCE, *RECOVERY_SEQUENCE}:  # a closed phase's window closes
+        assert math.isfinite(cls.window_s(p)) or cls.open_ended, cls.name
+    # From the first open-ended phase on, no window has a known end.
+    windows = phase_windows_s(p)
+    first = next(k for k, (name, _, _) in enumerate(windows) if name in OPEN_ENDED)
+    assert all(math.isinf(end) for _, _, end in windows[first:])
+    assert all(math.isfinite(end) for _, _, end in windows[:first])
+    assert [s.number for s in GcsStage] == list(range(1, len(PHASES) + 1))
 
 
 def test_phase_windows_come_from_each_phase():

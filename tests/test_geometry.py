@@ -13,17 +13,21 @@ from hypothesis import strategies as st
 from scipy.optimize import least_squares
 
 from kilonet.alignment import procrustes_rmse
+from kilonet.bounds import crlb_rmse_mm
 from kilonet.geometry import (
     FIX_REASONS,
     GeometryError,
     angle_at,
     choose_references_best_conditioned,
     choose_references_max_angle,
+    circle_intersections,
+    circle_pair,
     collinear,
-    crlb_rmse_mm,
     multilaterate,
     place_references,
+    rotate,
     trilaterate_linear,
+    wrap_angle,
 )
 from kilonet.placement import hex_lattice
 from kilonet.visibility import pairs_in_range
@@ -702,3 +706,72 @@ def test_crlb_refuses_bad_graphs():
         crlb_rmse_mm(_EQUILATERAL, [(0, 3)], 1.0)
     with pytest.raises(ValueError, match="sigma_mm"):
         crlb_rmse_mm(_EQUILATERAL, _SIDES, 0.0)
+
+
+# -- plane geometry: scipy as the oracle --------------------------------------------------------
+_coord = st.floats(-300.0, 300.0)
+_range = st.floats(5.0, 200.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(_coord, _coord, _coord, _coord, _range, _range)
+def test_circle_intersections_solve_both_range_equations_as_scipy_does(x1, y1, x2, y2, r1, r2):
+    """Where the circles meet, each point returned satisfies both range equations, and scipy's
+    least squares started from it stays there; where they miss, the one point is scipy's
+    minimum of the squared range residuals on the line of centres."""
+    d = math.hypot(x2 - x1, y2 - y1)
+    assume(d > 1.0)
+    c1, c2 = np.array([x1, y1]), np.array([x2, y2])
+
+    def residuals(p):
+        return [np.hypot(*(p - c1)) - r1, np.hypot(*(p - c2)) - r2]
+
+    points = circle_intersections((x1, y1), r1, (x2, y2), r2)
+    if abs(r1 - r2) + 1e-6 < d < r1 + r2 - 1e-6:
+        assert len(points) == 2
+        apart = math.dist(*points)
+        for p in points:
+            assert np.abs(residuals(np.array(p))).max() < 1e-6 * (1 + r1 + r2)
+            if apart > 2.0:  # an isolated root: scipy's solver from nearby converges to it
+                start = np.array(p) + 0.1 * (np.array(p) - np.mean(points, axis=0)) / apart
+                solved = least_squares(residuals, start, xtol=1e-14, ftol=1e-14).x
+                assert np.hypot(*(solved - p)) < 1e-4
+        pair = circle_pair((x1, y1), r1, (x2, y2), r2)
+        assert pair is not None
+        assert np.allclose([pair[0], pair[1]], points, atol=1e-9)
+        # the distance of each from the line of centres
+        u = (c2 - c1) / d
+        assert pair[2] == pytest.approx(
+            abs(u[0] * (pair[0][1] - y1) - u[1] * (pair[0][0] - x1)), abs=1e-6
+        )
+    elif d > r1 + r2 + 1e-6 or d < abs(r1 - r2) - 1e-6:
+        (p,) = points
+        u = (c2 - c1) / d
+        # scipy: the point t along the line of centres nearest both rims
+        best = least_squares(lambda s: residuals(c1 + s[0] * u), [d / 2]).x[0]
+        assert np.allclose(p, c1 + best * u, atol=1e-5)
+        if d > r1 + r2 + 0.5 or d < abs(r1 - r2) - 0.5:
+            assert circle_pair((x1, y1), r1, (x2, y2), r2) is None
+
+
+def test_circle_pair_takes_circles_that_miss_by_rounding_as_touching():
+    p, q, h = circle_pair((0.0, 0.0), 40.0, (80.4, 0.0), 40.0)
+    assert p == q == (40.2, 0.0) and h == 0.0
+    assert circle_pair((0.0, 0.0), 40.0, (80.6, 0.0), 40.0) is None
+    assert circle_intersections((1.0, 1.0), 3.0, (1.0, 1.0), 4.0) == []
+    assert circle_pair((1.0, 1.0), 3.0, (1.0, 1.0), 3.0) is None
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(-50.0, 50.0), _coord, _coord)
+def test_rotate_and_wrap_agree_with_scipy_rotation(angle, x, y):
+    from scipy.spatial.transform import Rotation
+
+    expected = Rotation.from_euler("z", angle).apply([x, y, 0.0])[:2]
+    assert np.allclose(rotate((x, y), angle), expected, atol=1e-9)
+    wrapped = wrap_angle(angle)
+    assert -math.pi <= wrapped < math.pi
+    # the same rotation: scipy's rotation vectors of both angles agree
+    assert np.allclose(
+        Rotation.from_euler("z", wrapped).as_matrix(), Rotation.from_euler("z", angle).as_matrix()
+    )

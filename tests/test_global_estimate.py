@@ -1,5 +1,5 @@
-"""A robot's global estimate (protocols.global_estimate): derived from what it holds, never stale,
-changed only through its methods."""
+"""A robot's global estimate (protocols.gcs.global_estimate): derived from what it holds, never
+stale, changed only through its methods."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from protocols.frame_keys import FrameKey, Rank, Root
-from protocols.frame_merging import Transform, version_byte
-from protocols.global_estimate import GlobalEstimate
+from protocols.gcs.frame_keys import FrameKey, Rank, Root
+from protocols.gcs.global_estimate import GlobalEstimate
+from protocols.gcs.transforms import Transform, version_byte
 
 A, B, C = FrameKey(3, 1), FrameKey(5, 2), FrameKey(8, 0)
 ROOT_1 = Rank.own(FrameKey(1, 0), edge=False)

@@ -11,11 +11,10 @@ import pytest
 
 import scenarios
 from kilonet.simulation import Simulation
-from protocols.frame_keys import FrameKey, Root
-from protocols.gcs import GcsRobot, phase_sequence
-from protocols.gcs_base import GcsParams
-from protocols.global_estimate import GlobalEstimate
-from protocols.global_refinement import (
+from protocols.gcs.base import GcsParams
+from protocols.gcs.frame_keys import FrameKey, Root
+from protocols.gcs.global_estimate import GlobalEstimate
+from protocols.gcs.phase7_refinement import (
     GPOS,
     GPOS_PLACED,
     GPOS_SETTLED,
@@ -24,6 +23,7 @@ from protocols.global_refinement import (
     frame_to_join,
     wave_reached,
 )
+from protocols.gcs.program import GcsRobot, phase_sequence
 from scenarios.base import build_params, place
 
 GCS = scenarios.get("gcs")
@@ -97,9 +97,12 @@ def test_refinement_lowers_the_rmse_and_the_run_ends_by_itself(refined):
     assert s["phases_run"][-1] == "refine"
     assert s["refined_fraction"] == 1.0
     assert s["frames"] == 1 and s["localized_fraction"] == 1.0
-    # Merging leaves 1.8 mm; the refinement takes the swarm to within a few times the optimum.
+    # Merging leaves a few mm; the refinement takes the swarm to about the bound, which counts
+    # each link's systematic error (the model's effective per-link error, kilonet.reception):
+    # no averaging of receptions removes that part, so the bound is the refinement's floor.
     assert s["merge_rmse_mm"] > 1.0
-    assert s["rmse_mm"] < s["merge_rmse_mm"] / 10
+    assert s["rmse_mm"] < s["merge_rmse_mm"] / 2
+    assert s["rmse_mm"] < 1.5 * s["crlb_rmse_mm"]
     assert s["rmse_mm"] < 5 * s["central_rmse_mm"]
     assert s["sim_time_s"] < refined.params.duration_s
     events = refined.sim.trace.events_frame()
@@ -127,7 +130,9 @@ def test_robots_refine_after_their_seeds_are_done_or_once_the_wave_reached_them(
     events = sim.trace.events_frame()
     seed_of = {r.own_key: k for k, r in enumerate(robots) if r.is_seed}
     index_of = {r.uid: k for k, r in enumerate(robots)}
-    done_at = events[events.event == "merge_done"].groupby("robot").t_s.max().to_dict()
+    # A seed may be done, resume merging (merge_resumed) and be done again: a robot may start
+    # after the first done it heard, so the test takes each seed's first.
+    done_at = events[events.event == "merge_done"].groupby("robot").t_s.min().to_dict()
     starts = events[(events.event == "phase") & events.data.str.contains('"refine"')]
     start_of = starts.groupby("robot").t_s.min()
     moved = events[(events.event == "refine_moved") & events.data.str.contains('"placed"')]
@@ -200,8 +205,10 @@ def test_summary_reports_the_reference_and_both_bounds(refined):
         assert key in s
     assert s["central_localized_fraction"] == 1.0
     assert s["rmse_over_crlb"] == pytest.approx(s["rmse_mm"] / s["crlb_rmse_mm"])
-    # Hundreds of receptions per pair: the bound for them is far below one reading's.
-    assert s["crlb_received_rmse_mm"] < s["crlb_rmse_mm"] / 10
+    # Hundreds of receptions per pair shrink each link's noise, not its systematic error (the
+    # larger part on the default tables): the bound for them is below one reading's, but not
+    # by half.
+    assert 0.5 * s["crlb_rmse_mm"] < s["crlb_received_rmse_mm"] < s["crlb_rmse_mm"]
     assert s["rmse_over_crlb_received"] == pytest.approx(s["rmse_mm"] / s["crlb_received_rmse_mm"])
 
 

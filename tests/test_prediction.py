@@ -14,8 +14,8 @@ from kilonet.geometry import (
     multilaterate,
     place_references,
 )
-from protocols.frame_keys import FrameKey
-from protocols.local_frames import reference_candidates
+from protocols.gcs.frame_keys import FrameKey
+from protocols.gcs.phase3_local_frames import reference_candidates
 from scenarios.base import build_params
 from scenarios.prediction import _final_frames, predict_from_seeds
 
@@ -23,6 +23,11 @@ from scenarios.prediction import _final_frames, predict_from_seeds
 #: the seed as 73 mm, longer than |AB| + |AC| = 72.59 mm, so the triangle the seed holds does not
 #: exist. Robots 3-5 stand around the seed.
 THIN = np.array([[0.0, 0.0], [36.0, 0.0], [-36.5, 2.5], [0.0, 36.0], [5.0, -34.0], [30.0, 30.0]])
+
+
+#: The geometries here are built for the mirror test at 1 mm of assumed ranging noise, the
+#: thesis's figure (the default gcs.sigma_mm assumes real robots' per-link error).
+THIN_GEOMETRY = {"medium.range_mm": 85, "gcs.sigma_mm": 1.0}
 
 
 def _distances(pos: np.ndarray, seed: int, b: int, c: int) -> tuple[float, float, float]:
@@ -42,7 +47,7 @@ def test_a_pair_that_whole_millimetres_make_degenerate_is_skipped_as_the_seed_sk
     assert {b, c} != {1, 2}
     # The prediction skips the pair too, so every robot is located in seed 0's frame; with the
     # thin pair, three nearly collinear anchors would have left robots 3-5 unlocalizable.
-    params = build_params(scenarios.get("gcs"), {"medium.range_mm": 85})
+    params = build_params(scenarios.get("gcs"), THIN_GEOMETRY)
     prediction = predict_from_seeds(THIN, params, [0])
     assert prediction["located_in"] == {i: [0] for i in range(len(THIN))}
     assert prediction["unlocalizable"] == []
@@ -57,7 +62,7 @@ def test_robots_are_located_where_the_seeds_frame_puts_their_anchors():
     assert multilaterate(anchors, ranges, max_rmse_mm=4.0).reason == "mirror_ambiguity"
     b, c = place_references(*_distances(pos, 0, 1, 2)[:2], round(math.dist(pos[1], pos[2])))
     assert multilaterate(np.array([(0.0, 0.0), b, c]), ranges, max_rmse_mm=4.0).ok
-    params = build_params(scenarios.get("gcs"), {"medium.range_mm": 85})
+    params = build_params(scenarios.get("gcs"), THIN_GEOMETRY)
     prediction = predict_from_seeds(pos, params, [0])
     assert prediction["located_in"] == {0: [0], 1: [0], 2: [0], 3: [0]}
 

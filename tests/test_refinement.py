@@ -1,4 +1,4 @@
-"""protocols.refinement: the symmetric distance reports, the momentum refiner and the local
+"""protocols.common.refinement: the symmetric distance reports, the momentum refiner and the local
 stopping rule, with exact values."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from protocols.refinement import (
+from protocols.common.refinement import (
     Refiner,
     agreed_range_mm,
     gauss_newton_step,

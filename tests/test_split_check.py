@@ -1,4 +1,4 @@
-"""The split check (protocols.split_detection) on a real GcsRobot: its flags describe the
+"""The split check (protocols.gcs.split_detection) on a real GcsRobot: its flags describe the
 present, they lapse when a neighbour stops reporting or the robot's own frame moves again, and
 only a boundary that lasts ``gcs.split_confirm_s`` asks for a recovery.
 
@@ -17,10 +17,10 @@ import pytest
 
 import scenarios
 from kilonet.placement import hex_lattice
-from protocols.frame_merging import TF_ROT, TF_SHIFT
-from protocols.gcs import GcsRobot, phase_windows_s
-from protocols.recovery import RECOVER
-from protocols.split_detection import POS
+from protocols.gcs.phase6_merging import TF_ROT, TF_SHIFT
+from protocols.gcs.program import GcsRobot, phase_windows_s
+from protocols.gcs.recovery import RECOVER
+from protocols.gcs.split_detection import POS
 from scenarios.base import build_params
 
 GCS = scenarios.get("gcs")

@@ -210,6 +210,13 @@ def test_recovery_joins_a_split_that_edge_seeds_can_bridge():
         "placement.density_per_m2": 350,
         "medium.range_mm": 125,
         "medium.occlusion": "block",  # as in the sweep that found it
+        # A what-if of the sweep's: one hard radius of 125 mm with independent 1 mm noise (real
+        # robots cannot range that far, kilolib's tables end at 98 mm), and a protocol that
+        # trusts estimates that far and assumes that noise.
+        "medium.reach": "disc",
+        "ranging.model": "gaussian",
+        "gcs.neighbour_max_mm": 125,
+        "gcs.sigma_mm": 1.0,
     }
     without = scenarios.run(GCS, {**settings, "gcs.recoveries": 0}, seed=6).summary
     assert without["frames"] == 2

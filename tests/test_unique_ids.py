@@ -1,14 +1,14 @@
-"""Phase 1 of the global coordinate system, locally unique IDs (protocols.unique_ids), on one
-real GcsRobot: scripted messages for its own rules, and scripted neighbours in the real medium
-that announce a duplicate ID."""
+"""Phase 1 of the global coordinate system, locally unique IDs (protocols.gcs.phase1_unique_ids),
+on one real GcsRobot: scripted messages for its own rules, and scripted neighbours in the real
+medium that announce a duplicate ID."""
 
 from __future__ import annotations
 
 import pytest
 
 import scenarios
-from protocols.gcs import GcsRobot
-from protocols.unique_ids import CONFLICT, ID
+from protocols.gcs.phase1_unique_ids import CONFLICT, ID
+from protocols.gcs.program import GcsRobot
 from scenarios.base import build_params
 
 GCS = scenarios.get("gcs")

@@ -231,12 +231,13 @@ def speaker_listener(sim: Simulation, speaker_uid: int = 0) -> dict[str, Any]:
 
 def gradient_simple(sim: Simulation, seed_uid: int = 42, unreached: int = 255) -> dict[str, Any]:
     """The gradient lab: how many robots hold a gradient equal to their hop count from the
-    seed over the medium's own communication graph (``sim.medium.graph()``; a robot the seed
-    cannot reach should still hold ``unreached``), the largest hop count, and the robots that
-    differ as ``(robot, gradient, hops)``."""
-    import networkx as nx
+    seed over the medium's own links, each from its sender to its receivers
+    (:func:`scenarios.gradient.hop_distances`; a robot the seed cannot reach should still hold
+    ``unreached``), the largest hop count, and the robots that differ as
+    ``(robot, gradient, hops)``."""
+    from scenarios.gradient import hop_distances
 
-    hops = nx.single_source_shortest_path_length(sim.medium.graph(), _robot_with_uid(sim, seed_uid))
+    hops = hop_distances(sim, _robot_with_uid(sim, seed_uid))
     wrong = [
         (robot, program.own_gradient, hops.get(robot))
         for robot, program in enumerate(sim.robots)
@@ -253,12 +254,24 @@ def gradient_simple(sim: Simulation, seed_uid: int = 42, unreached: int = 255) -
 def disperse(sim: Simulation) -> dict[str, Any]:
     """The disperse lab: how many robots have how many neighbours at the end (on the medium's
     own graph), the closest two centres (mm), how many robots still move, and the first whole
-    second at which every two robots stood farther apart than ``medium.range_mm``."""
+    second at which every two robots stood beyond their link's reach, soft edge included
+    (:mod:`kilonet.radio`: each sender reaches its own distance; ``medium.range_mm`` on the
+    disc)."""
+    from kilonet.radio import MIN_RECEPTION
+
     degrees = [d for _, d in sim.medium.graph().degree()]
-    range_mm = sim.params.medium.range_mm
+    radio = sim.transceivers
+    sender, receiver = np.nonzero(~np.eye(sim.n_robots, dtype=bool))
+    reach = radio.link_reach_mm(sender, receiver)
+    if radio.reach.edge_mm:  # where a link still delivers MIN_RECEPTION of its messages
+        reach = reach + radio.reach.edge_mm * math.log(1.0 / MIN_RECEPTION - 1.0)
+
+    def out_of_range(positions: np.ndarray) -> bool:
+        return bool(np.all(np.hypot(*(positions[sender] - positions[receiver]).T) > reach))
+
     tracks = pose_tracks(sim)
     seconds = np.arange(0.0, sim.env.now + 1e-9, 1.0)
-    apart = (float(t) for t in seconds if closest_pair_mm(positions_at(tracks, t)) > range_mm)
+    apart = (float(t) for t in seconds if out_of_range(positions_at(tracks, t)))
     return {
         "robots": sim.n_robots,
         "robots_by_neighbour_count": dict(sorted(Counter(degrees).items())),

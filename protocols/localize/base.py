@@ -1,0 +1,487 @@
+"""Shared parts of the ``localize`` protocol: its parameters, what a robot knows about each
+neighbour, and the distance reports that make every measured distance symmetric.
+
+Every message of the protocol starts with the sender's 16-bit ID, so every reception adds a
+distance sample to the sender's :class:`Neighbour` record (its running mean averages the
+ranging noise down). Both ends of a pair fit the same distance, agreed through the symmetric
+distance reports of :mod:`protocols.common.refinement` (DIST, and the choice of neighbour of
+:func:`~protocols.common.refinement.next_report`); one transmit opportunity in
+``localize.dist_every`` carries a report::
+
+    NBR  (85)  sender:uint16  neighbour:uint16  distance:uint16 (0.01 mm)            6 bytes
+
+A robot without a position reports in NBR, whose full distances also tell the root, while it
+is elected, how far apart its neighbours are (:mod:`protocols.localize.phase2_spread`); once it has
+one, in DIST, which carries the position too (:func:`distance_report`).
+
+Every robot measures its own ranging noise, as the median spread of the samples it gets from
+each neighbour (:meth:`Neighbours.noise_mm`), and scales its tolerances by it (the duplicate
+test here, the fix checks of :mod:`protocols.localize.phase2_spread`), so the protocol needs no
+calibration constant for it.
+
+IDs are drawn at random; :mod:`protocols.localize.phase1_election` redraws one heard from another
+robot. Two neighbours of one robot may still share an ID: when a sample from an ID lies more
+than ``duplicate_sigmas`` noise deviations from that ID's mean, the record is marked
+ambiguous and ignored from then on (:meth:`Neighbours.heard`).
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import insort
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from operator import attrgetter
+
+from kilonet.message import Layout, Message
+from kilonet.params import param
+from protocols.common.refinement import (
+    DIST,
+    DISTANCE_STEP_MM,
+    agreed_range_mm,
+    distance_code,
+    unwrap_distance,
+)
+
+__all__ = [
+    "COMPLETE",
+    "DONE",
+    "LOCALIZED",
+    "MAX_COORDINATE_MM",
+    "NBR",
+    "NO_ID",
+    "SETTLED",
+    "LocalizeParams",
+    "Neighbour",
+    "Neighbours",
+    "children_complete",
+    "choose_parent",
+    "distance_report",
+]
+
+#: No robot: an empty ID field (IDs are drawn from 0 .. 0xFFFE).
+NO_ID = 0xFFFF
+#: Largest coordinate a message can carry, mm (int16 tenths of a millimetre).
+MAX_COORDINATE_MM = 3276.7
+
+# State flags of POS and ROOT messages (protocols.localize.phase3_termination sets the last three).
+#: The sender has a position in the frame.
+LOCALIZED = 1
+#: The sender's position has stopped moving (or, unlocalized, it has given up).
+SETTLED = 2
+#: The sender and every robot below it in the hop structure are settled.
+COMPLETE = 4
+#: The swarm is done: stop refining.
+DONE = 8
+
+NBR = Layout(
+    "nbr",
+    type=85,
+    fields=[("sender", "H"), ("neighbour", "H"), ("distance_mm", "H", 0.01)],
+)
+
+
+@dataclass(frozen=True)
+class LocalizeParams:
+    """Parameters of the ``localize`` protocol (section ``localize``); times on the robot's
+    own clock."""
+
+    section_name = "localize"
+    round_s: float = param(0.2, lo=0.01, hi=10.0, doc="a robot updates its state this often")
+    sigma_mm: float = param(
+        1.0,
+        lo=0.01,
+        hi=100.0,
+        doc="ranging noise per reception assumed until a robot has measured its own",
+    )
+    noise_samples: int = param(
+        5, lo=2, hi=10_000, doc="receptions from a neighbour before its spread counts"
+    )
+    link_error_mm: float = param(
+        2.0,
+        lo=0.0,
+        hi=100.0,
+        doc="per-link ranging error robots add to the noise they measure (real robots: the "
+        "emitter's strength biases each link, which repeated readings cannot show)",
+    )
+    neighbour_max_mm: float = param(
+        90.0,
+        lo=33.0,
+        hi=255.0,
+        doc="a reception with a larger distance estimate is ignored: its sender is no neighbour "
+        "(kilolib's tables end at 98 mm; near their end a strong emitter reads up to 10 mm near)",
+    )
+    duplicate_after: int = param(
+        10, lo=3, hi=10_000, doc="receptions from an ID before the duplicate test applies"
+    )
+    dist_every: int = param(
+        3, lo=2, hi=100, doc="one transmit opportunity in this many carries a DIST report"
+    )
+    duplicate_sigmas: float = param(
+        6.0, lo=2.0, hi=1000.0, doc="a sample this many sigmas off its ID's mean: two robots"
+    )
+    stale_s: float = param(3.0, lo=0.2, hi=600.0, doc="a neighbour silent this long is ignored")
+    listen_s: float = param(
+        1.0, lo=0.0, hi=600.0, doc="election key follows the neighbour count until then"
+    )
+    elect_timeout_s: float = param(
+        60.0, lo=1.0, hi=3600.0, doc="the best-key robot starts without the echo after this"
+    )
+    bootstrap_timeout_s: float = param(
+        4.0, lo=0.2, hi=600.0, doc="the root picks other frame robots if these stay silent"
+    )
+    min_height_mm: float = param(
+        10.0,
+        lo=0.1,
+        hi=200.0,
+        doc="thinnest triangle allowed: frame start, fix anchors, candidates",
+    )
+    max_residual_sigmas: float = param(
+        4.0, lo=0.1, hi=1000.0, doc="reject fixes whose residual RMS exceeds this many sigmas"
+    )
+    max_candidate_neighbours: int = param(
+        3, lo=1, hi=6, doc="neighbours' candidate pairs combined in one fix at most"
+    )
+    overlap_mm: float = param(
+        28.0, lo=0.0, hi=200.0, doc="a candidate nearer than this to a located robot is impossible"
+    )
+    retry_s: float = param(
+        2.0, lo=0.2, hi=600.0, doc="an unlocalized robot retries an unchanged fix this often"
+    )
+    island_quiet_s: float = param(
+        1.0, lo=0.2, hi=3600.0, doc="an island member solves once its reports are quiet this long"
+    )
+    island_max_reports: int = param(
+        64,
+        lo=0,
+        hi=100_000,
+        doc="island reports a member stores; a larger island is not solved (0: no islands)",
+    )
+    huber_mm: float = param(
+        3.0, lo=0.01, hi=100.0, doc="refinement down-weights residuals beyond this"
+    )
+    max_step_mm: float = param(5.0, lo=0.01, hi=100.0, doc="largest refinement step per round")
+    momentum: float = param(
+        0.5, lo=0.0, hi=0.99, doc="share of its previous step a refinement step adds"
+    )
+    settle_mm: float = param(
+        0.5, lo=0.0, hi=100.0, doc="settled: moved less than this over settle_rounds rounds"
+    )
+    settle_rounds: int = param(10, lo=1, hi=10_000, doc="rounds the settle test looks back")
+    settle_timeout_s: float = param(
+        120.0, lo=1.0, hi=3600.0, doc="a localized robot counts as settled after this anyway"
+    )
+    give_up_s: float = param(
+        5.0, lo=0.2, hi=3600.0, doc="an unlocalized robot gives up after no news for this long"
+    )
+    done_confirm_rounds: int = param(
+        3, lo=1, hi=1000, doc="rounds the root must stay complete before it floods done"
+    )
+    done_repeats: int = param(3, lo=1, hi=100, doc="messages a done robot sends before silence")
+    parent_repeats: int = param(
+        3, lo=1, hi=100, doc="ELECT messages a robot sends after its parent changes (phase 2-3)"
+    )
+    parent_every: int = param(
+        10, lo=2, hi=1000, doc="after the election, one opportunity in this many sends the parent"
+    )
+    run_timeout_s: float = param(
+        600.0, lo=1.0, hi=86_400.0, doc="a robot declares itself done after this anyway"
+    )
+
+
+class Neighbour:
+    """What a robot knows about one neighbour ID.
+
+    Attributes
+    ----------
+    distance_sum_mm, distance_sq_sum_mm2, samples
+        Sum, sum of squares and count of the distance estimates received from it (mm, mm²).
+    reported_mm : float or None
+        Its own mean distance to this robot, from its DIST reports (mm).
+    sent_mm : float or None
+        This robot's mean distance to it when this robot last reported it (None: never), mm.
+    sent_round : int
+        This robot's round at that report (-1: never).
+    x_mm, y_mm : float or None
+        Its position as last announced (None: it has none).
+    hops : int
+        Its hop count to the root as last announced (255: unknown).
+    parent : int
+        The neighbour it reports to in the convergecasts, as its last ELECT announced
+        (``NO_ID``: none heard).
+    flags : int
+        Its state flags as last announced (:data:`LOCALIZED`, ...).
+    heard_round : int
+        This robot's round (its count of rounds of work) at the last reception.
+    ambiguous : bool
+        Two robots seem to use this ID; the record is ignored.
+    near : set of int
+        The neighbours it has reported distances to in NBR messages (it is unplaced then).
+    """
+
+    __slots__ = (
+        "ambiguous",
+        "candidates",
+        "distance_sq_sum_mm2",
+        "distance_sum_mm",
+        "echo",
+        "flags",
+        "heard_round",
+        "hops",
+        "key",
+        "near",
+        "parent",
+        "reported_mm",
+        "samples",
+        "sent_mm",
+        "sent_round",
+        "uid",
+        "x_mm",
+        "y_mm",
+    )
+
+    def __init__(self, uid: int) -> None:
+        self.uid = uid
+        self.distance_sum_mm = 0.0
+        self.distance_sq_sum_mm2 = 0.0
+        self.samples = 0
+        self.reported_mm: float | None = None
+        self.sent_mm: float | None = None
+        self.sent_round = -1
+        self.x_mm: float | None = None
+        self.y_mm: float | None = None
+        self.hops = 255
+        self.parent = NO_ID
+        self.flags = 0
+        self.key: int | None = None  # election key (protocols.localize.phase1_election)
+        self.echo = False
+        # Two candidate positions (protocols.localize.phase2_spread): (version, [p0, p1]) or None.
+        self.candidates: tuple[int, list] | None = None
+        self.heard_round = 0
+        self.ambiguous = False
+        self.near: set[int] = set()  # the IDs this neighbour's NBR reports were about
+
+    @property
+    def mean_mm(self) -> float:
+        """Mean of the distance estimates received from this neighbour, mm."""
+        return self.distance_sum_mm / self.samples
+
+    @property
+    def range_mm(self) -> float:
+        """The distance both ends fit (:func:`~protocols.common.refinement.agreed_range_mm`), mm."""
+        return agreed_range_mm(self.distance_sum_mm / self.samples, self.sent_mm, self.reported_mm)
+
+    @property
+    def position(self) -> tuple[float, float] | None:
+        """Its announced position, or None."""
+        return None if self.x_mm is None else (self.x_mm, self.y_mm)
+
+
+_uid_of = attrgetter("uid")
+
+
+class Neighbours:
+    """A robot's neighbour records by ID.
+
+    Parameters
+    ----------
+    duplicate_mm : float
+        A sample farther than this from its ID's mean marks the ID ambiguous (the robot sets
+        it from the noise it measures).
+    stale_rounds : int
+        Records not heard for this many of the robot's rounds are left out of :meth:`fresh`.
+    duplicate_after : int
+        Samples an ID needs before the duplicate test applies to it (its mean must be good,
+        and the robot's noise estimate made, first).
+
+    Examples
+    --------
+    >>> nbs = Neighbours(duplicate_mm=6.0, stale_rounds=15, duplicate_after=4)
+    >>> for d in (40, 49, 40, 42):  # 9 mm off at the second sample: too early to judge
+    ...     _ = nbs.heard(7, d, 1)
+    >>> nbs[7].mean_mm, nbs[7].ambiguous
+    (42.75, False)
+    >>> _ = nbs.heard(7, 62, 2)  # another robot with ID 7, 20 mm farther
+    >>> nbs[7].ambiguous, [n.uid for n in nbs.fresh(5)]
+    (True, [])
+    >>> _ = nbs.heard(8, 50, 3)
+    >>> [n.uid for n in nbs.fresh(18)], [n.uid for n in nbs.fresh(19)]
+    ([8], [])
+    >>> nbs.samples_total  # receptions from every ID
+    6
+    """
+
+    def __init__(self, *, duplicate_mm: float, stale_rounds: int, duplicate_after: int = 3) -> None:
+        self.by_id: dict[int, Neighbour] = {}
+        self._in_id_order: list[Neighbour] = []  # by_id's records sorted by ID, for fresh()
+        #: Receptions recorded, from every neighbour.
+        self.samples_total = 0
+        self.duplicate_mm = duplicate_mm
+        self.duplicate_after = duplicate_after
+        self.stale_rounds = stale_rounds
+
+    def heard(self, uid: int, distance_mm: float, stamp: int) -> Neighbour:
+        """Record a reception from ``uid`` at ``distance_mm`` in round ``stamp``; return its
+        record. (Runs on every reception: plain attribute arithmetic only.)"""
+        n = self.by_id.get(uid)
+        if n is None:
+            n = self.by_id[uid] = Neighbour(uid)
+            insort(self._in_id_order, n, key=_uid_of)
+        elif n.samples >= self.duplicate_after and abs(
+            distance_mm * n.samples - n.distance_sum_mm
+        ) > (self.duplicate_mm * n.samples):
+            n.ambiguous = True
+        n.distance_sum_mm += distance_mm
+        n.distance_sq_sum_mm2 += distance_mm * distance_mm
+        n.samples += 1
+        n.heard_round = stamp
+        self.samples_total += 1
+        return n
+
+    def report(self, n: Neighbour, code: int) -> None:
+        """Store ``n``'s DIST report of its distance to this robot (its code)."""
+        n.reported_mm = unwrap_distance(code, n.distance_sum_mm / n.samples)
+
+    def noise_mm(self, min_samples: int, default_mm: float) -> float:
+        """This robot's own estimate of the ranging noise per reception: the median, over
+        unambiguous neighbours heard at least ``min_samples`` times, of the standard deviation
+        of their distance estimates (mm; ``default_mm`` until there is one). The median keeps
+        a neighbour whose ID two robots share from inflating it.
+
+        Examples
+        --------
+        >>> nbs = Neighbours(duplicate_mm=6.0, stale_rounds=5)
+        >>> for d in (40, 42, 40, 42, 41):
+        ...     _ = nbs.heard(1, d, 1)
+        >>> nbs.noise_mm(5, 1.0), nbs.noise_mm(6, 1.0)
+        (1.0, 1.0)
+        >>> for d in (50, 54, 50, 54, 52):
+        ...     _ = nbs.heard(2, d, 1)
+        >>> for d in (60, 60, 60, 60, 60):
+        ...     _ = nbs.heard(3, d, 1)
+        >>> nbs.noise_mm(5, 1.0)
+        1.0
+        >>> for d in (70, 76, 70, 76, 73):
+        ...     _ = nbs.heard(4, d, 1)
+        >>> nbs.noise_mm(5, 1.0)
+        1.5
+        """
+        # The square root keeps the order: take the median of the variances, then its root.
+        variances = [
+            (n.distance_sq_sum_mm2 - n.distance_sum_mm**2 / n.samples) / (n.samples - 1)
+            for n in self.by_id.values()
+            if n.samples >= min_samples and not n.ambiguous
+        ]
+        if not variances:
+            return default_mm
+        variances.sort()
+        middle = len(variances) // 2
+        if len(variances) % 2:
+            return math.sqrt(max(variances[middle], 0.0))
+        low, high = (math.sqrt(max(v, 0.0)) for v in variances[middle - 1 : middle + 1])
+        return 0.5 * (low + high)
+
+    def fresh(self, stamp: int) -> list[Neighbour]:
+        """Unambiguous records heard within the last ``stale_rounds`` rounds before round
+        ``stamp``, by ID."""
+        oldest = stamp - self.stale_rounds
+        return [n for n in self._in_id_order if n.heard_round >= oldest and not n.ambiguous]
+
+    def known(self) -> list[Neighbour]:
+        """Every unambiguous record, however long ago it was heard, by ID (after DONE the
+        placed robots fall silent, and what they last said is final)."""
+        return [n for n in self._in_id_order if not n.ambiguous]
+
+    def __getitem__(self, uid: int) -> Neighbour:
+        return self.by_id[uid]
+
+    def __contains__(self, uid: object) -> bool:
+        return uid in self.by_id
+
+    def __len__(self) -> int:
+        return len(self.by_id)
+
+
+def distance_report(uid: int, position: tuple[float, float] | None, n: Neighbour) -> Message:
+    """This robot's report of its mean distance to ``n``: NBR without a position, else DIST.
+    Stamps ``n.sent_mm`` with the value as ``n`` will decode it (``n.sent_round`` is the
+    caller's).
+
+    Examples
+    --------
+    >>> n = Neighbour(9)
+    >>> n.distance_sum_mm, n.samples = 123.4, 2
+    >>> NBR.unpack(distance_report(5, None, n))
+    Nbr(sender=5, neighbour=9, distance_mm=61.7)
+    >>> m = DIST.unpack(distance_report(5, (10.0, -2.5), n))
+    >>> m.x_mm, m.y_mm, m.neighbour, round(unwrap_distance(m.distance, near_mm=61.0), 6)
+    (10.0, -2.5, 9, 61.7)
+    """
+    if position is None:
+        n.sent_mm = round(n.mean_mm, 2)
+        return NBR.pack(sender=uid, neighbour=n.uid, distance_mm=n.mean_mm)
+    n.sent_mm = round(n.mean_mm / DISTANCE_STEP_MM) * DISTANCE_STEP_MM
+    return DIST.pack(
+        sender=uid,
+        x_mm=position[0],
+        y_mm=position[1],
+        neighbour=n.uid,
+        distance=distance_code(n.mean_mm),
+    )
+
+
+def choose_parent(current: int, hops: int, neighbours: Iterable[Neighbour]) -> int:
+    """The neighbour a robot ``hops`` from the root reports to in the convergecasts (the
+    election's echo, the settled wave): of the ``neighbours`` one hop nearer the root, the one
+    heard most often — the strongest link, so the two ends hear each other soonest. The
+    ``current`` parent stays while it is one hop nearer and heard at least half as often as
+    the best, so two links of about the same strength do not take turns. ``NO_ID`` for the
+    root, or with no neighbour one hop nearer.
+
+    Examples
+    --------
+    >>> a, b, c = Neighbour(1), Neighbour(2), Neighbour(3)
+    >>> (a.hops, a.samples), (b.hops, b.samples), (c.hops, c.samples) = (1, 8), (1, 12), (2, 30)
+    >>> choose_parent(NO_ID, 2, [a, b, c]), choose_parent(1, 2, [a, b, c])
+    (2, 1)
+    >>> b.samples = 17  # more than twice a's receptions: the stronger link takes over
+    >>> choose_parent(1, 2, [a, b, c]), choose_parent(2, 0, [a, b, c]) == NO_ID
+    (2, True)
+    """
+    if hops == 0:
+        return NO_ID
+    nearer = hops - 1
+    best = kept = None
+    for n in neighbours:
+        if n.hops == nearer:
+            if best is None or n.samples > best.samples:
+                best = n
+            if n.uid == current:
+                kept = n
+    if best is None:
+        return NO_ID
+    if kept is not None and 2 * kept.samples >= best.samples:
+        return current
+    return best.uid
+
+
+def children_complete(
+    uid: int, neighbours: Iterable[Neighbour], complete: Callable[[Neighbour], object]
+) -> bool:
+    """Whether every neighbour that names robot ``uid`` its parent (:func:`choose_parent`) is
+    ``complete``: the step of a convergecast over the tree of parents, which the election's
+    echo and the termination's settled wave both climb. Only its children hold a robot up, not
+    every neighbour one hop farther out: a robot at the edge of two ranges would otherwise
+    wait for the weakest of many links at every hop.
+
+    Examples
+    --------
+    >>> a, b = Neighbour(1), Neighbour(2)
+    >>> a.parent, b.parent = 7, 3
+    >>> children_complete(3, [a, b], lambda n: n.echo), children_complete(9, [a, b], lambda n: 0)
+    (False, True)
+    >>> b.echo = True
+    >>> children_complete(3, [a, b], lambda n: n.echo)
+    True
+    """
+    return all(n.parent != uid or complete(n) for n in neighbours)

@@ -1,0 +1,623 @@
+"""Phase 2 of ``localize``: the frame starts at the root and spreads outward by
+multilateration, with collinearity and flip (mirror) checks.
+
+**Start.** The root is the origin. From its neighbours' NBR reports it knows which of its
+neighbours hear each other and how far apart they are, so it chooses the frame's other two
+robots itself (:func:`choose_frame`): an *axis* robot B and a *third* robot C that see each
+other, form a triangle at least ``localize.min_height_mm`` high even when each of its three
+distances is off by the ranging noise the root has measured (a nearly collinear triple, whose
+height the noise makes up, would start the frame from a line and set its handedness by
+chance), and share the most common neighbours with the root (each of those can place itself
+from R, B and C at once). ROOT
+messages name them. B places itself at ``(|RB|, 0)``; C, once it has heard B's position, at
+``(x, +y)`` from ``|RC|``, ``|BC|`` and B's x (:func:`~kilonet.geometry.place_references`; the
+positive root of y picks the frame's handedness). If B or C is not placed within
+``localize.bootstrap_timeout_s`` the root names another pair without them; a B or C that
+placed itself from the old naming after all (its position had not yet reached the root) gives
+its position up when it hears the new one, so the frame never holds two axis robots.
+
+**Spreading.** Every other robot, at each round, fixes its position from its neighbours that
+have one (their announced positions, the distances both ends agree on):
+
+1. *Three or more anchors*: least squares (:func:`~kilonet.geometry.multilaterate`), rejected
+   if the anchors lie within ``localize.min_height_mm`` of one line (the anchors' positions
+   carry errors of their own, which the mirror test below does not see), the residuals are
+   too large (``localize.max_residual_sigmas`` noise deviations), the geometry is poor, or the
+   mirror image across the anchors' line fits nearly as well — the flip that a noisy
+   near-collinear triple allows (Savvides et al. 2001; Moore et al. 2004).
+2. *Two anchors*: two candidate positions, mirror images across the anchors' line
+   (:func:`circle_candidates`). The robot announces both (CAND messages) unless they lie
+   closer than ``2 · min_height_mm``.
+3. *Anchors and neighbours' candidates*: a robot combines its anchors with the candidate pairs
+   of up to ``localize.max_candidate_neighbours`` neighbours and tries every choice of one
+   candidate each (:func:`fix_with_candidates`); a pair mirrored across (nearly) the robot's
+   own anchor line tells the robot's two mirror positions apart no better than its anchors
+   do, and is not used. It takes the fix only if exactly one choice
+   passes every check of rule 1 and every choice placing it elsewhere fits worse by more than
+   the mirror test's margin. Two robots that each see only two anchors thus place each other
+   (and a robot next to three such robots places itself and then them): the sparse swarms
+   where three anchors each are rare.
+
+4. *Bodies do not overlap*: a located robot that hears a neighbour's candidate pair checks
+   both candidates against the positions of its own located neighbours. A candidate closer
+   than ``localize.overlap_mm`` to one of them would put two Kilobots (33 mm across) on top of
+   each other, so it is impossible; when exactly one candidate is, the located robot sends a
+   VOTE for the other (:func:`overlap_vote`), and a robot that holds votes for one of its
+   candidates and none for the other takes it. This breaks the mirror ambiguity of robots
+   that only two anchors reach — at the swarm's edge, and where the frame has to squeeze
+   through a gap — with the knowledge of robots two hops away.
+
+A robot that fails retries when its anchors or candidates change, or every
+``localize.retry_s``. Candidates come from anchors only, never from other candidates, so no
+choice depends on itself.
+
+Messages::
+
+    ROOT (81)  sender:uint16  axis:uint16  third:uint16  flags:uint8             7 bytes
+               the root, at (0, 0), hop 0; axis/third 0xFFFF while not chosen
+    POS  (82)  sender:uint16  x:int16  y:int16 (0.1 mm)  hops:uint8  flags:uint8  8 bytes
+               every other robot; x, y are 0 while the LOCALIZED flag is clear
+    CAND (84)  sender:uint16  x:int16  y:int16 (0.1 mm)  index:uint8  version:uint8  8 bytes
+               one of a robot's two candidates; the version changes with its anchors
+    VOTE (86)  sender:uint16  target:uint16  index:uint8  version:uint8              6 bytes
+               the candidate of ``target``'s pair (of that version) that is possible
+
+``flags`` are :mod:`protocols.localize.base`'s LOCALIZED, SETTLED, COMPLETE, DONE.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from kilonet.geometry import (
+    MIRROR_SIGMAS,
+    Fix,
+    GeometryError,
+    circle_pair,
+    multilaterate,
+    place_references,
+    robust_height,
+)
+from kilonet.message import Layout, Message
+from protocols.localize.base import LOCALIZED, MAX_COORDINATE_MM, NO_ID, Neighbour
+
+if TYPE_CHECKING:
+    from protocols.localize.program import LocalizeRobot
+
+__all__ = [
+    "CAND",
+    "POS",
+    "ROOT",
+    "VOTE",
+    "Spread",
+    "choose_frame",
+    "circle_candidates",
+    "fix_with_candidates",
+    "overlap_vote",
+    "robust_height",
+]
+
+ROOT = Layout(
+    "root",
+    type=81,
+    fields=[("sender", "H"), ("axis", "H"), ("third", "H"), ("flags", "B")],
+)
+POS = Layout(
+    "pos",
+    type=82,
+    fields=[
+        ("sender", "H"),
+        ("x_mm", "h", 0.1),
+        ("y_mm", "h", 0.1),
+        ("hops", "B"),
+        ("flags", "B"),
+    ],
+)
+CAND = Layout(
+    "cand",
+    type=84,
+    fields=[
+        ("sender", "H"),
+        ("x_mm", "h", 0.1),
+        ("y_mm", "h", 0.1),
+        ("index", "B"),
+        ("version", "B"),
+    ],
+)
+VOTE = Layout(
+    "vote",
+    type=86,
+    fields=[("sender", "H"), ("target", "H"), ("index", "B"), ("version", "B")],
+)
+
+Point = tuple[float, float]
+
+
+def choose_frame(
+    ranges_mm: Mapping[int, float],
+    reports: Mapping[int, Mapping[int, float]],
+    min_height_mm: float,
+    *,
+    axis: int | None = None,
+    margin_mm: float = 0.0,
+) -> tuple[int, int] | None:
+    """The root's axis and third robot, or None if no pair qualifies.
+
+    Parameters
+    ----------
+    ranges_mm : mapping
+        The root's distance to each neighbour, mm, by ID.
+    reports : mapping
+        ``reports[b][c]``: neighbour b's reported distance to c, mm.
+    min_height_mm : float
+        Least height of the third robot above the root–axis line.
+    axis : int, optional
+        The axis robot already placed: only a third robot is chosen.
+    margin_mm : float
+        How far each of the triangle's three distances may be off, mm: the triangle must be
+        ``min_height_mm`` high at every corner of that box (:func:`robust_height`).
+
+    Returns
+    -------
+    (axis, third) : IDs of two neighbours that see each other, whose triangle with the root is
+    at least ``min_height_mm`` high, with the most other neighbours of the root adjacent to
+    both (ties: the higher triangle, to 0.1 mm, then the smaller IDs).
+
+    Examples
+    --------
+    Neighbours 1, 2, 3 of the root see each other; every pair has one common neighbour, and
+    robot 3 stands 45 mm above the root–1 line, higher than any other third robot:
+
+    >>> ranges = {1: 40.0, 2: 40.0, 3: 60.0}
+    >>> reports = {1: {2: 40.0, 3: 45.0}, 2: {1: 40.0, 3: 45.0}, 3: {1: 45.0, 2: 45.0}}
+    >>> choose_frame(ranges, reports, 10.0)
+    (1, 3)
+    >>> choose_frame(ranges, reports, 10.0, axis=3)
+    (3, 1)
+    >>> choose_frame(ranges, {1: {2: 80.0}}, 10.0) is None  # 1, root, 2 on one line
+    True
+
+    Measured 1.2 mm short, that line looks like a triangle 13.6 mm high; with a margin of 1.5 mm
+    it is seen for what it is:
+
+    >>> choose_frame({1: 40.0, 2: 40.0}, {1: {2: 78.8}}, 10.0)
+    (1, 2)
+    >>> choose_frame({1: 40.0, 2: 40.0}, {1: {2: 78.8}}, 10.0, margin_mm=1.5) is None
+    True
+    """
+    adjacent: dict[int, set[int]] = {u: set() for u in ranges_mm}
+    lengths: dict[tuple[int, int], list[float]] = {}
+    for b, row in reports.items():
+        for c, d in row.items():
+            if b in adjacent and c in adjacent and b != c:
+                adjacent[b].add(c)
+                adjacent[c].add(b)
+                lengths.setdefault((min(b, c), max(b, c)), []).append(d)
+    best: tuple | None = None
+    for (low, high), ds in sorted(lengths.items()):
+        d_bc = sum(ds) / len(ds)
+        orders = [(low, high), (high, low)] if axis is None else [(axis, low + high - axis)]
+        for b, c in orders:
+            if axis is not None and axis not in (low, high):
+                continue
+            height = robust_height(ranges_mm[b], ranges_mm[c], d_bc, margin_mm)
+            if height < min_height_mm:
+                continue
+            score = (len(adjacent[b] & adjacent[c]), round(height, 1), -b, -c)
+            if best is None or score > best[0]:
+                best = (score, b, c)
+    return None if best is None else (best[1], best[2])
+
+
+def circle_candidates(
+    a: Point, b: Point, range_a_mm: float, range_b_mm: float
+) -> tuple[Point, Point, float] | None:
+    """The two points at ``range_a_mm`` from ``a`` and ``range_b_mm`` from ``b``: mirror
+    images across the line ab, and their distance from it (mm). None if the anchors coincide
+    or the ranges form no triangle with them.
+
+    Examples
+    --------
+    >>> p, q, h = circle_candidates((0.0, 0.0), (40.0, 0.0), 50.0, 30.0)
+    >>> [round(v, 9) for v in (*p, *q, h)]
+    [40.0, 30.0, 40.0, -30.0, 30.0]
+    """
+    return circle_pair(a, range_a_mm, b, range_b_mm, tolerance_mm=0.5)
+
+
+def fix_with_candidates(
+    anchors: Sequence[Point],
+    ranges_mm: Sequence[float],
+    candidates: Sequence[tuple[Point, Point]],
+    candidate_ranges_mm: Sequence[float],
+    *,
+    sigma_mm: float,
+    max_rmse_mm: float,
+    min_width_mm: float,
+) -> Fix | None:
+    """A fix from anchors and neighbours' candidate pairs, if exactly one choice fits.
+
+    When the anchors lie within ``min_width_mm`` of one line (two anchors always do), the
+    robot's own mirror ambiguity is the reflection across that line, and a pair that this
+    reflection maps onto itself (within ``min_width_mm``) cannot resolve it: such pairs are
+    dropped. Every choice of one candidate per remaining pair is then multilaterated with the
+    anchors (:func:`~kilonet.geometry.multilaterate`). The best fix that passes every check is
+    returned when every choice that puts the robot more than ``3 · sigma_mm`` away from it has
+    a sum of squared residuals larger by more than ``(3 · sigma_mm)²``; otherwise (or with
+    fewer than three points, or if any choice is degenerate, so its fit cannot be compared)
+    None.
+
+    Examples
+    --------
+    The truth is (30, 20), with two anchors on the x axis; a neighbour at (50, 60) placed by
+    two other anchors on the line x = 60 holds its position and the mirror image across that
+    line, (70, 60):
+
+    >>> truth = np.array([30.0, 20.0])
+    >>> anchors = [(0.0, 0.0), (60.0, 0.0)]
+    >>> pair = ((50.0, 60.0), (70.0, 60.0))
+    >>> r = [float(np.hypot(*(truth - p))) for p in (*anchors, pair[0])]
+    >>> fix = fix_with_candidates(anchors, r[:2], [pair], r[2:], sigma_mm=1.0, max_rmse_mm=4.0,
+    ...                           min_width_mm=10.0)
+    >>> round(fix.x_mm, 6), round(fix.y_mm, 6)
+    (30.0, 20.0)
+
+    Had the neighbour been placed by the same two anchors, its candidates would be mirror
+    images across the robot's own mirror line: no choice.
+
+    >>> fix_with_candidates(anchors, r[:2], [((50.0, 60.0), (50.0, -60.0))], r[2:],
+    ...                     sigma_mm=1.0, max_rmse_mm=4.0, min_width_mm=10.0) is None
+    True
+    """
+    line = _line_through(anchors)
+    if line is not None and line[2] < min_width_mm:
+        kept = [
+            (pair, r)
+            for pair, r in zip(candidates, candidate_ranges_mm, strict=True)
+            if math.dist(_reflect(pair[0], line), pair[1]) >= min_width_mm
+        ]
+        candidates = [pair for pair, _ in kept]
+        candidate_ranges_mm = [r for _, r in kept]
+    if not candidates or len(anchors) + len(candidates) < 3:
+        return None
+    fits = []
+    for choice in itertools.product((0, 1), repeat=len(candidates)):
+        points = [*anchors, *(pair[k] for pair, k in zip(candidates, choice, strict=True))]
+        fix = multilaterate(
+            np.array(points),
+            np.array([*ranges_mm, *candidate_ranges_mm]),
+            sigma_mm=sigma_mm,
+            max_rmse_mm=max_rmse_mm,
+        )
+        if math.isnan(fix.x_mm):
+            return None
+        fits.append((fix.rmse_mm**2 * fix.anchors, fix))
+    good = [(ssr, fix) for ssr, fix in fits if fix.ok]
+    if not good:
+        return None
+    best_ssr, best = min(good, key=lambda t: t[0])
+    margin = (MIRROR_SIGMAS * sigma_mm) ** 2
+    for ssr, fix in fits:
+        apart = math.hypot(fix.x_mm - best.x_mm, fix.y_mm - best.y_mm)
+        if apart > MIRROR_SIGMAS * sigma_mm and ssr - best_ssr <= margin:
+            return None
+    return best
+
+
+def _line_through(points: Sequence[Point]) -> tuple[Point, Point, float] | None:
+    """The total-least-squares line of two or more points: (centre, unit normal, the largest
+    distance of a point from it); None for fewer than two points."""
+    if len(points) < 2:
+        return None
+    cx = sum(p[0] for p in points) / len(points)
+    cy = sum(p[1] for p in points) / len(points)
+    sxx = sum((p[0] - cx) ** 2 for p in points)
+    syy = sum((p[1] - cy) ** 2 for p in points)
+    sxy = sum((p[0] - cx) * (p[1] - cy) for p in points)
+    angle = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # direction of largest spread
+    nx, ny = -math.sin(angle), math.cos(angle)
+    width = max(abs((p[0] - cx) * nx + (p[1] - cy) * ny) for p in points)
+    return (cx, cy), (nx, ny), width
+
+
+def _reflect(p: Point, line: tuple[Point, Point, float]) -> Point:
+    (cx, cy), (nx, ny), _ = line
+    d = (p[0] - cx) * nx + (p[1] - cy) * ny
+    return p[0] - 2.0 * d * nx, p[1] - 2.0 * d * ny
+
+
+def overlap_vote(
+    candidates: tuple[Point, Point], others: Sequence[Point], overlap_mm: float
+) -> int | None:
+    """The index of the only candidate that keeps clear of every robot in ``others``, or None
+    when both or neither do: a candidate closer than ``overlap_mm`` to another robot would
+    put two bodies in one place.
+
+    Examples
+    --------
+    >>> overlap_vote(((0.0, 40.0), (0.0, -40.0)), [(5.0, -30.0), (80.0, 0.0)], 28.0)
+    0
+    >>> overlap_vote(((0.0, 40.0), (0.0, -40.0)), [(80.0, 0.0)], 28.0) is None
+    True
+    """
+    clash = [
+        any(math.hypot(cx - x, cy - y) < overlap_mm for x, y in others) for cx, cy in candidates
+    ]
+    if clash[0] == clash[1]:
+        return None
+    return 1 if clash[0] else 0
+
+
+class Spread:
+    """Phase 2 on one robot: the frame's start (root, axis, third) and rules 1-4.
+
+    The robot's position (``robot.position``) lives on the robot; this holds the attempt
+    bookkeeping, the robot's own candidates and, on the root, the frame robots it named.
+    """
+
+    name = "spread"
+
+    def __init__(self, robot: LocalizeRobot) -> None:
+        self.robot = robot
+        p = robot.params
+        tps = robot.ticks_per_s
+        self.retry_ticks = p.retry_s * tps
+        self.bootstrap_ticks = p.bootstrap_timeout_s * tps
+        self.attempt: tuple = ()  # what the last attempt used
+        self.next_retry = 0.0
+        self.news_tick = robot.kilo_ticks  # last change of anchors or candidates
+        # This robot's candidates: (version, [p0, p1]) or None, and the anchors they use.
+        self.candidates: tuple[int, list[Point]] | None = None
+        self.candidate_anchors: tuple[int, int] | None = None
+        self.cand_turn = 0
+        # The frame's start, as the root named it (on every robot that heard ROOT).
+        self.axis = NO_ID
+        self.third = NO_ID
+        self.root_uid = NO_ID
+        self.named_tick = 0.0
+        self.excluded: set[int] = set()  # the root's frame robots that stayed silent
+        self.frame_started = False  # on the root: its axis robot has placed itself
+        # Rule 4: votes to send, (target, index, version); votes sent, by (target, version);
+        # votes received for this robot's candidates, {index: set of voters}, and their version.
+        self.votes_out: list[tuple[int, int, int]] = []
+        self.voted: dict[tuple[int, int], float] = {}
+        self.votes_in: dict[int, set[int]] = {}
+        self.votes_version = -1
+
+    # -- messages ------------------------------------------------------------------------------
+    def message_tx(self) -> Message:
+        """A VOTE if one is due; else ROOT on the root; otherwise CAND, CAND and POS in turn
+        while holding candidates, else POS."""
+        r = self.robot
+        if self.votes_out:
+            target, index, version = self.votes_out.pop()
+            return VOTE.pack(sender=r.uid, target=target, index=index, version=version)
+        if self.candidates is not None and r.position is None:
+            self.cand_turn = (self.cand_turn + 1) % 3
+            if self.cand_turn < 2:
+                version, points = self.candidates
+                x, y = points[self.cand_turn]
+                return CAND.pack(
+                    sender=r.uid, x_mm=x, y_mm=y, index=self.cand_turn, version=version
+                )
+        return self.state_message()
+
+    def state_message(self) -> Message:
+        """ROOT on the root, else POS: position, hop count and flags."""
+        r = self.robot
+        if r.is_root:
+            return ROOT.pack(sender=r.uid, axis=self.axis, third=self.third, flags=r.flags)
+        x, y = r.position if r.position is not None else (0.0, 0.0)
+        return POS.pack(sender=r.uid, x_mm=x, y_mm=y, hops=r.hops, flags=r.flags)
+
+    def root_rx(self, n: Neighbour, message: Message) -> None:
+        m = ROOT.unpack(message)
+        n.x_mm, n.y_mm, n.hops, n.flags = 0.0, 0.0, 0, m.flags | LOCALIZED
+        r = self.robot
+        named, renamed = (self.axis, self.third), (m.axis, m.third)
+        if r.position is not None and r.uid in named and r.uid not in renamed:
+            r.unlocate("renamed")  # the root started the frame without this robot
+        self.root_uid, self.axis, self.third = m.sender, m.axis, m.third
+
+    def pos_rx(self, n: Neighbour, message: Message) -> None:
+        m = POS.unpack(message)
+        n.hops, n.flags = m.hops, m.flags
+        if m.flags & LOCALIZED:
+            n.x_mm, n.y_mm = m.x_mm, m.y_mm
+            n.candidates = None
+        else:
+            n.x_mm = n.y_mm = None
+
+    def cand_rx(self, n: Neighbour, message: Message) -> None:
+        m = CAND.unpack(message)
+        if n.candidates is None or n.candidates[0] != m.version:
+            n.candidates = (m.version, [None, None])
+        n.candidates[1][m.index] = (m.x_mm, m.y_mm)
+        n.x_mm = n.y_mm = None
+
+    def vote_rx(self, n: Neighbour, message: Message) -> None:
+        m = VOTE.unpack(message)
+        if m.target != self.robot.uid:
+            return
+        if m.version != self.votes_version:
+            self.votes_in, self.votes_version = {}, m.version
+        self.votes_in.setdefault(m.index, set()).add(m.sender)
+
+    # -- rounds --------------------------------------------------------------------------------
+    def round(self, tick: int, fresh: list[Neighbour]) -> None:
+        """The root names its frame robots; the others try to fix their position."""
+        r = self.robot
+        if r.is_root:
+            self._name_frame(tick, fresh)
+        elif r.position is None:
+            self._locate(tick, fresh)
+        if r.position is not None:
+            self._vote(tick, fresh)
+
+    def _vote(self, tick: int, fresh: list[Neighbour]) -> None:
+        """Rule 4: vote on the candidate pairs of neighbours (again after ``retry_s``)."""
+        others = None
+        for n in fresh:
+            held = n.candidates
+            if held is None or None in held[1] or n.x_mm is not None:
+                continue
+            key = (n.uid, held[0])
+            if tick < self.voted.get(key, -1.0):
+                continue
+            self.voted[key] = tick + self.retry_ticks
+            if others is None:
+                others = [(m.x_mm, m.y_mm) for m in fresh if m.x_mm is not None]
+            index = overlap_vote(tuple(held[1]), others, self.robot.params.overlap_mm)
+            if index is not None:
+                self.votes_out.append((n.uid, index, held[0]))
+
+    def _name_frame(self, tick: int, fresh: list[Neighbour]) -> None:
+        by_id = {n.uid: n for n in fresh}
+        placed = [by_id.get(u) for u in (self.axis, self.third)]
+        self.frame_started |= placed[0] is not None and placed[0].x_mm is not None
+        if all(n is not None and n.x_mm is not None for n in placed):
+            return
+        if self.axis != NO_ID and tick - self.named_tick < self.bootstrap_ticks:
+            return
+        axis_placed = placed[0] is not None and placed[0].x_mm is not None
+        if self.axis != NO_ID:  # the named robots did not all place themselves in time
+            self.excluded.add(self.third)
+            if not axis_placed:
+                self.excluded.add(self.axis)
+        usable = {n.uid: n.range_mm for n in fresh if n.uid not in self.excluded}
+        reports = {u: self.robot.reports.get(u, {}) for u in usable}
+        chosen = choose_frame(
+            usable,
+            reports,
+            self.robot.params.min_height_mm,
+            axis=self.axis if axis_placed else None,
+            margin_mm=self.robot.sigma_mm,
+        )
+        if chosen is not None:
+            self.axis, self.third = chosen
+            self.named_tick = tick
+            self.robot.log("frame_named", axis=self.axis, third=self.third)
+
+    def _locate(self, tick: int, fresh: list[Neighbour]) -> None:
+        r = self.robot
+        uid = r.uid
+        if uid == self.axis or uid == self.third:
+            self._start_frame(fresh)
+            if r.position is not None:
+                return
+        anchors = [n for n in fresh if n.x_mm is not None]
+        pairs = [
+            n
+            for n in fresh
+            if n.x_mm is None and n.candidates is not None and None not in n.candidates[1]
+        ]
+        attempt = (
+            tuple(n.uid for n in anchors),
+            tuple((n.uid, n.candidates[0]) for n in pairs),
+        )
+        if attempt != self.attempt:
+            self.attempt = attempt
+            self.news_tick = tick
+        elif tick < self.next_retry:
+            return
+        self.next_retry = tick + self.retry_ticks
+        points = [(n.x_mm, n.y_mm) for n in anchors]
+        ranges = [n.range_mm for n in anchors]
+        sigma = r.sigma_mm
+        max_rmse = r.params.max_residual_sigmas * sigma
+        if len(anchors) >= 3:
+            fix = multilaterate(
+                np.array(points),
+                np.array(ranges),
+                sigma_mm=sigma,
+                max_rmse_mm=max_rmse,
+                min_anchor_width_mm=r.params.min_height_mm,
+            )
+            if fix.ok:
+                self.place(fix.x_mm, fix.y_mm, "anchors", len(anchors))
+                return
+        if pairs:
+            # The pairs farthest apart discriminate best.
+            pairs.sort(key=lambda n: -_separation(n.candidates[1]))
+            pairs = pairs[: r.params.max_candidate_neighbours]
+            fix = fix_with_candidates(
+                points,
+                ranges,
+                [tuple(n.candidates[1]) for n in pairs],
+                [n.range_mm for n in pairs],
+                sigma_mm=sigma,
+                max_rmse_mm=max_rmse,
+                min_width_mm=r.params.min_height_mm,
+            )
+            if fix is not None:
+                self.place(fix.x_mm, fix.y_mm, "candidates", len(anchors) + len(pairs))
+                return
+        self._update_candidates(anchors)
+        self._take_vote(len(anchors))
+
+    def _take_vote(self, anchors: int) -> None:
+        """Rule 4: take the candidate the votes allow, if they allow exactly one."""
+        if self.candidates is None or self.votes_version != self.candidates[0]:
+            return
+        allowed = [k for k in (0, 1) if self.votes_in.get(k)]
+        if len(allowed) == 1:
+            x, y = self.candidates[1][allowed[0]]
+            self.place(x, y, "vote", anchors)
+
+    def _start_frame(self, fresh: list[Neighbour]) -> None:
+        """Place the axis robot on +x, or the third robot above it."""
+        by_id = {n.uid: n for n in fresh}
+        root = by_id.get(self.root_uid)
+        if root is None:
+            return
+        r = self.robot
+        if r.uid == self.axis:
+            self.place(root.range_mm, 0.0, "axis", 1)
+            return
+        axis = by_id.get(self.axis)
+        if axis is None or axis.x_mm is None:
+            return
+        try:
+            _, (x, y) = place_references(axis.x_mm, root.range_mm, axis.range_mm)
+        except GeometryError:
+            return
+        self.place(x, y, "third", 2)
+
+    def _update_candidates(self, anchors: list[Neighbour]) -> None:
+        """With exactly two anchors, hold (and announce) the two candidate positions."""
+        found = None
+        if len(anchors) == 2:
+            a, b = anchors
+            found = circle_candidates((a.x_mm, a.y_mm), (b.x_mm, b.y_mm), a.range_mm, b.range_mm)
+        if found is None or found[2] < self.robot.params.min_height_mm:
+            self.candidates = None
+            self.candidate_anchors = None
+            return
+        pair = (anchors[0].uid, anchors[1].uid)
+        if pair != self.candidate_anchors or self.candidates is None:
+            version = 0 if self.candidates is None else (self.candidates[0] + 1) % 256
+        else:
+            version = self.candidates[0]
+        self.candidate_anchors = pair
+        self.candidates = (version, [found[0], found[1]])
+
+    def place(self, x_mm: float, y_mm: float, rule: str, anchors: int) -> None:
+        """Take the position (x, y) in the frame, mm, found by ``rule`` from ``anchors``
+        placed points (both go to the event log); one beyond the messages' coordinate range
+        is refused."""
+        if abs(x_mm) > MAX_COORDINATE_MM or abs(y_mm) > MAX_COORDINATE_MM:
+            self.robot.log("out_of_frame", x_mm=x_mm, y_mm=y_mm)
+            return
+        self.candidates = None
+        self.robot.locate(x_mm, y_mm)
+        self.robot.log("located", rule=rule, anchors=anchors, x_mm=x_mm, y_mm=y_mm)
+
+
+def _separation(points: list[Point]) -> float:
+    (x0, y0), (x1, y1) = points
+    return math.hypot(x1 - x0, y1 - y0)

@@ -1,0 +1,420 @@
+"""``localize``: one global frame for a whole swarm, as one Kilobot program.
+
+The phases (one module each) follow one another on every robot as its local work is done,
+not in fixed windows:
+
+1. :mod:`protocols.localize.phase1_election` — locally unique IDs, a root elected by flooding the
+   smallest key, every robot's hop count to it, and an echo that tells the root everyone has
+   heard it;
+2. :mod:`protocols.localize.phase2_spread` — the frame starts at the root (root, axis and third
+   robot) and spreads outward by multilateration, with flip and collinearity checks and
+   neighbours' candidate pairs where three anchors are missing;
+3. :mod:`protocols.common.refinement` — from the moment it has a position, every robot keeps
+   improving it from its neighbours' announced positions and the distances both ends measured
+   (:mod:`protocols.common.refinement`'s DIST reports), while
+   :mod:`protocols.localize.phase3_termination` climbs settledness back to the root, which floods
+   DONE; every robot then freezes its estimate and falls silent;
+4. :mod:`protocols.localize.phase4_island` — except robots the spread left out in groups none of
+   which hears three placed robots: such an island stays awake after DONE and places itself
+   as rigid bodies tied to the now still frame by their distances.
+
+A robot learns only from what it receives: the messages and the distance estimate of each
+reception. It keeps time with its own clock (``kilo_ticks``): a round of work every
+``localize.round_s``, done from ``loop()``; ``message_tx()`` only packs the current state. It
+runs with either receive mode (in polled mode, ``loop()`` drains the buffer first).
+
+Messages (kilolib payloads of at most 9 bytes, the sender's ID first): ELECT (80), ROOT (81),
+POS (82), DIST (83), CAND (84), NBR (85), VOTE (86), ISLAND_PAIR (87), ISLAND_LINK (88),
+ISLAND_FULL (89) — layouts in the phase modules. One transmit opportunity in
+``localize.dist_every`` carries a distance report (DIST or NBR), the others the phase's own
+message.
+
+LED: electing blue; the root white; located green; settled cyan; done off.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+
+from kilonet.message import Message
+from kilonet.robot import Kilobot
+from protocols.common.ranging_limit import trusted_range
+from protocols.common.refinement import DIST, Refiner, next_report
+from protocols.localize.base import (
+    COMPLETE,
+    DONE,
+    LOCALIZED,
+    MAX_COORDINATE_MM,
+    NBR,
+    NO_ID,
+    SETTLED,
+    LocalizeParams,
+    Neighbour,
+    Neighbours,
+    choose_parent,
+    distance_report,
+)
+from protocols.localize.phase1_election import ELECT, MAX_HOPS, Election
+from protocols.localize.phase2_spread import CAND, POS, ROOT, VOTE, Spread
+from protocols.localize.phase3_termination import Termination
+from protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR, Island
+from protocols.localize.stages import LocalizeStage
+
+__all__ = ["LocalizeRobot"]
+
+#: Every message's first field, the sender's ID (uint16).
+_SENDER = struct.Struct("<H").unpack_from
+_ROUNDING_SIGMA_MM = 1.0 / math.sqrt(12.0)
+#: A robot re-estimates its ranging noise once the receptions behind the estimate have grown by
+#: this factor: the estimate's standard error falls as 1/sqrt(receptions), so 10 % more moves it
+#: by about 5 % of that error, while the estimate (a median over every neighbour) is costly to
+#: re-make every round.
+_NOISE_REESTIMATE_GROWTH = 1.1
+
+
+class LocalizeRobot(Kilobot):
+    """The ``localize`` program of one robot.
+
+    Parameters
+    ----------
+    params : LocalizeParams
+        The protocol's parameters.
+
+    Attributes
+    ----------
+    stage : LocalizeStage
+        ``"election"``, ``"localize"``, ``"island"`` (after DONE, for an island:
+        :mod:`protocols.localize.phase4_island`) or ``"done"``.
+    position : (float, float) or None
+        This robot's estimate in the frame, mm.
+    root_key : int
+        The election key of this robot's root (its frame's label).
+    sigma_mm : float
+        The ranging error per reception this robot assumes (mm): the noise it has measured
+        and ``localize.link_error_mm``, which no spread of readings shows.
+    """
+
+    LED_KEY = (
+        ((0, 0, 2), "electing, or not located yet"),
+        ((3, 3, 3), "root"),
+        ((0, 3, 0), "located"),
+        ((0, 3, 3), "settled"),
+        ((0, 0, 0), "done"),
+    )
+
+    def __init__(self, params: LocalizeParams) -> None:
+        self.params = params
+
+    # -- kilolib callbacks ---------------------------------------------------------------------
+    def setup(self) -> None:
+        p = self.params
+        tps = self.ticks_per_s
+        self._polled = self.polled  # fixed for a run; loop() asks many times a second
+        self.uid = int(self.rand.integers(NO_ID))
+        self.neighbours = Neighbours(
+            duplicate_mm=p.duplicate_sigmas * p.sigma_mm,
+            stale_rounds=math.ceil(p.stale_s / p.round_s),
+            duplicate_after=p.duplicate_after,
+        )
+        # Neighbours' NBR reports about each other, while electing and on the root.
+        self.reports: dict[int, dict[int, float]] = {}
+        # Ranging error per reception, as this robot measures it, with the per-link error.
+        self.sigma_mm = math.hypot(p.sigma_mm, p.link_error_mm)
+        self.position: tuple[float, float] | None = None
+        self.is_root = False
+        self.located_tick = 0
+        self.stage = LocalizeStage.ELECTION
+        self.hops = 0
+        self.parent = NO_ID  # the neighbour this robot reports to in the convergecasts
+        self._parent_repeats = 0  # ELECT messages still owed after a change of parent
+        self.root_key = 0
+        self.election = Election(self)
+        self.spread = Spread(self)
+        self.island = Island(self)
+        self._island_handlers = {
+            ISLAND_PAIR.type: self.island.pair_rx,
+            ISLAND_LINK.type: self.island.link_rx,
+            ISLAND_FULL.type: self.island.full_rx,
+        }
+        self.termination = Termination(self)
+        self.refiner = Refiner(
+            huber_mm=p.huber_mm,
+            max_step_mm=p.max_step_mm,
+            momentum=p.momentum,
+            settle_mm=p.settle_mm,
+            settle_rounds=p.settle_rounds,
+        )
+        self._round_ticks = p.round_s * tps
+        self._next_round = 0.0
+        self._noise_due = 0.0  # receptions recorded when the noise is next re-estimated
+        self._round = 0  # rounds of work done: the neighbour records' time stamps
+        self._news = False  # a neighbour's echo or flags changed since the last work
+        self._urgent = False  # this robot's own state changed: send it next
+        self._turn = 0
+        self._handlers = {
+            ELECT.type: self._elect_rx,
+            DIST.type: self._dist_rx,
+            NBR.type: self._nbr_rx,
+            ROOT.type: self._state_rx,
+            POS.type: self._state_rx,
+            CAND.type: self._cand_rx,
+            VOTE.type: self.spread.vote_rx,
+            ISLAND_PAIR.type: self._island_rx,
+            ISLAND_LINK.type: self._island_rx,
+            ISLAND_FULL.type: self._island_rx,
+        }
+        self.set_color(0, 0, 2)
+
+    def loop(self) -> None:
+        if self._polled:
+            self.drain_messages()
+        if self.stage == "done":
+            return
+        tick = self.kilo_ticks
+        if tick >= self._next_round:
+            self._next_round = tick + self._round_ticks
+            self._round += 1
+            p = self.params
+            # Estimates come in whole millimetres: their rounding alone has a spread of
+            # 1/sqrt(12) mm, the least noise a robot can measure.
+            neighbours = self.neighbours
+            if neighbours.samples_total >= self._noise_due:
+                self._noise_due = neighbours.samples_total * _NOISE_REESTIMATE_GROWTH
+                noise = neighbours.noise_mm(p.noise_samples, p.sigma_mm)
+                self.sigma_mm = math.hypot(max(noise, _ROUNDING_SIGMA_MM), p.link_error_mm)
+                neighbours.duplicate_mm = p.duplicate_sigmas * self.sigma_mm
+            self._work(tick, self.neighbours.fresh(self._round), full=True)
+        elif self._news:
+            # A neighbour's echo or flags changed: pass it on now, not at the next round, so
+            # the echo, the settled wave and DONE cross the swarm at the pace of messages.
+            self._work(tick, self.neighbours.fresh(self._round), full=False)
+        self._news = False
+
+    def _work(self, tick: int, fresh: list[Neighbour], *, full: bool) -> None:
+        """A round of work (``full``), or only the updates a neighbour's news calls for."""
+        before = (self.stage, self.election.echo, self.flags, self.parent)
+        if self.stage == "election":
+            self.election.round(tick, fresh, full=full)
+            if self.election.won:
+                self.is_root = True
+                self._enter_localize()
+                self.locate(0.0, 0.0)
+        elif self.stage == "island":
+            if full:
+                self._island_work(tick, self.neighbours.known())
+        else:
+            if full:
+                if not self.is_root:
+                    # Keep the hop count a breadth-first distance to the root from what the
+                    # neighbours announce now (a robot that joined late, or whose neighbour
+                    # left, would otherwise keep a count the convergecast misreads).
+                    self.hops = min(MAX_HOPS, 1 + min((n.hops for n in fresh), default=MAX_HOPS))
+                    parent = choose_parent(self.parent, self.hops, fresh)
+                    if parent != self.parent:
+                        self.parent = parent
+                        self._parent_repeats = self.params.parent_repeats
+                self.spread.round(tick, fresh)
+                if self.position is not None:
+                    self._refine(fresh)
+            self.termination.round(tick, fresh, full=full)
+            if self.termination.done:
+                self.stage = (
+                    LocalizeStage.ISLAND if self.island.wake(tick, fresh) else LocalizeStage.DONE
+                )
+                self.log("stage", name=self.stage)
+            self._show()
+        if (self.stage, self.election.echo, self.flags, self.parent) != before:
+            self._urgent = True
+
+    def message_tx(self) -> Message | None:
+        if self.stage == "done":
+            return self.spread.state_message() if self.termination.owes_done() else None
+        self._turn += 1
+        # After the election, announce the parent after it changed, and now and then anyway: a
+        # lost announcement would leave this robot out of its parent's convergecasts.
+        announce = self._parent_repeats or self._turn % self.params.parent_every == 0
+        if announce and self.stage == "localize" and not self.is_root:
+            self._parent_repeats = max(0, self._parent_repeats - 1)
+            return self.election.message_tx()
+        if self._urgent:  # a change of state goes out at once
+            self._urgent = False
+        elif self._turn % self.params.dist_every == 0:
+            message = self._dist_tx()
+            if message is not None:
+                return message
+        if self.stage == "election":
+            return self.election.message_tx()
+        if self.stage == "island":
+            report = self.island.message_tx()
+            if report is not None:
+                return report
+        return self.spread.message_tx()
+
+    def message_tx_success(self) -> None:
+        self.termination.sent()
+
+    def message_rx(self, message: Message, distance_mm: int) -> None:
+        if self.stage == "done" or not trusted_range(distance_mm, self.params.neighbour_max_mm):
+            return  # a robot measured beyond the tables' range is none of its neighbours
+        (sender,) = _SENDER(message.data)
+        if sender == self.uid:
+            if self.stage == "election":
+                self.election.heard_own_id()
+            return
+        n = self.neighbours.heard(sender, distance_mm, self._round)
+        handler = self._handlers.get(message.type)
+        # A handler returns whether the sender's echo, flags, key or parent changed.
+        if handler is not None and handler(n, message):
+            self._news = True
+
+    # -- state ---------------------------------------------------------------------------------
+    @property
+    def in_frame(self) -> bool:
+        """Whether this robot holds a position in a frame: a located robot, or a root whose
+        axis robot has placed itself (a lone root's origin is no frame)."""
+        if self.is_root:
+            return self.spread.frame_started
+        return self.position is not None
+
+    @property
+    def frame_label(self) -> str:
+        """The name of the frame this robot is in: ``root`` and the root's election key in
+        hex (as in ``robots.csv``)."""
+        return f"root{self.root_key:08x}"
+
+    def position_estimate(self) -> tuple[float, float, str] | None:
+        """Its position in the frame now (``None`` until it holds one), for the run's estimates
+        table."""
+        return (*self.position, self.frame_label) if self.in_frame else None
+
+    @property
+    def flags(self) -> int:
+        """This robot's state flags as POS and ROOT announce them."""
+        t = self.termination
+        return (
+            (LOCALIZED if self.position is not None else 0)
+            | (SETTLED if t.settled else 0)
+            | (COMPLETE if t.complete else 0)
+            | (DONE if t.done else 0)
+        )
+
+    def locate(self, x_mm: float, y_mm: float) -> None:
+        """Take a position in the frame (the spread's rules or the root's origin)."""
+        self.position = (x_mm, y_mm)
+        self.located_tick = self.kilo_ticks
+        self.refiner.reset()
+
+    def unlocate(self, cause: str) -> None:
+        """Give the position up (``cause`` goes to the event log): it was taken from a frame
+        start the root has since replaced."""
+        self.position = None
+        self.refiner.reset()
+        self.log("unlocated", cause=cause)
+
+    def _enter_localize(self) -> None:
+        if not self.is_root:
+            self.reports = {}  # only the root's choice of frame robots needs them
+        self.stage = LocalizeStage.LOCALIZE
+        self.log("stage", name="localize", hops=self.hops, root=self.is_root)
+
+    def _island_work(self, tick: int, known: list[Neighbour]) -> None:
+        """A round after DONE, for an island: the spread's rules and the island's solve while
+        unplaced, refinement once placed (the frame around stands still now), until the
+        island's work is over or the run's time-out."""
+        if self.position is None:
+            self.spread.round(tick, known)
+        self.island.round(tick, known)
+        if self.position is not None:
+            self._refine(known)
+        if self.island.finished(tick) or tick >= self.termination.run_timeout_tick:
+            self.stage = LocalizeStage.DONE
+            self.termination.repeat_done()
+            self.log("island_done", placed=self.position is not None)
+            self._show()
+
+    # -- refinement ----------------------------------------------------------------------------
+    def _refine(self, fresh: list[Neighbour]) -> None:
+        x, y = self.position
+        if self.is_root:
+            self.refiner.hold(x, y)
+            return
+        links = [(n.x_mm, n.y_mm, n.range_mm) for n in fresh if n.x_mm is not None]
+        x, y = self.refiner.step(x, y, links, fix_y=self.uid == self.spread.axis)
+        # Messages carry ±3276.7 mm: a frame that large is out of the protocol's range.
+        x = min(max(x, -MAX_COORDINATE_MM), MAX_COORDINATE_MM)
+        y = min(max(y, -MAX_COORDINATE_MM), MAX_COORDINATE_MM)
+        self.position = (x, y)
+
+    # -- distance reports ----------------------------------------------------------------------
+    def _dist_tx(self) -> Message | None:
+        """A distance report about the neighbour :func:`next_report` picks (never about an ID
+        two robots share), or None with no neighbour yet."""
+        n = next_report(self.neighbours.by_id.values())
+        if n is None:
+            return None
+        n.sent_round = self._round
+        return distance_report(self.uid, self.position, n)
+
+    def _dist_rx(self, n: Neighbour, message: Message) -> None:
+        m = DIST.unpack(message)
+        n.x_mm, n.y_mm = m.x_mm, m.y_mm
+        if m.neighbour == self.uid:
+            self.neighbours.report(n, m.distance)
+
+    def _nbr_rx(self, n: Neighbour, message: Message) -> None:
+        m = NBR.unpack(message)
+        if m.neighbour == self.uid:
+            n.reported_mm = m.distance_mm
+            return
+        n.near.add(m.neighbour)
+        if self.stage == "election" or self.is_root:
+            # A root chooses its frame robots from its neighbours' distances to each other.
+            self.reports.setdefault(m.sender, {})[m.neighbour] = m.distance_mm
+
+    def _elect_rx(self, n: Neighbour, message: Message) -> bool:
+        if self.stage == "election":
+            return self.election.message_rx(n, message)
+        return Election.record(n, message)  # a neighbour announcing its parent
+
+    def _phase2(self) -> None:
+        """A phase-2 message: the root has won; an electing robot moves on."""
+        if self.stage == "election":
+            self._enter_localize()
+            self._urgent = True
+
+    def _state_rx(self, n: Neighbour, message: Message) -> bool:
+        """ROOT or POS: the sender's state; whether its flags changed (a DONE among them ends
+        this robot's work too)."""
+        self._phase2()
+        before = n.flags
+        spread = self.spread
+        (spread.root_rx if message.type == ROOT.type else spread.pos_rx)(n, message)
+        if n.flags == before:
+            return False
+        if n.flags & DONE:
+            self.termination.finish("heard")
+        return True
+
+    def _island_rx(self, n: Neighbour, message: Message) -> bool:
+        if self.stage == "island":
+            self._island_handlers[message.type](n, message)
+        return False
+
+    def _cand_rx(self, n: Neighbour, message: Message) -> bool:
+        self._phase2()
+        self.spread.cand_rx(n, message)
+        return False
+
+    # -- LED -----------------------------------------------------------------------------------
+    def _show(self) -> None:
+        if self.stage == "done":
+            self.set_color(0, 0, 0)
+        elif self.is_root:
+            self.set_color(3, 3, 3)
+        elif self.termination.settled and self.position is not None:
+            self.set_color(0, 3, 3)
+        elif self.position is not None:
+            self.set_color(0, 3, 0)
+        else:
+            self.set_color(0, 0, 2)

@@ -1,0 +1,71 @@
+"""The neighbourhood a ranging protocol sees: the medium's links whose estimates it trusts.
+
+Real Kilobots hear each other farther than they can range
+(:mod:`protocols.common.ranging_limit`), so a protocol ignores receptions whose distance
+estimate is above its ``neighbour_max_mm``. The
+truth a scenario judges such a protocol by is then not every link of the medium but the links
+whose estimates fall within that limit: :func:`trusted_links`, from each link's noise-free
+estimate (its systematic error included).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import networkx as nx
+
+    from kilonet.params import MediumParams
+    from kilonet.simulation import Simulation
+
+__all__ = ["neighbourhood_mm", "noise_free_estimate_mm", "trusted_links"]
+
+
+def neighbourhood_mm(medium: MediumParams, max_mm: float) -> float:
+    """How far a protocol's neighbours stand, as a radius, mm: as far as a median link reaches
+    (the disc's ``medium.range_mm``, else the preset's median reach,
+    :func:`kilonet.radio.reach_of`), but at most the protocol's ``max_mm``, beyond which it
+    ignores what it hears.
+
+    Examples
+    --------
+    >>> from kilonet.params import MediumParams
+    >>> neighbourhood_mm(MediumParams(), 100.0), neighbourhood_mm(MediumParams(reach="disc"), 100.0)
+    (100.0, 85.0)
+    """
+    from kilonet.radio import reach_of
+
+    return min(reach_of(medium).median_mm, max_mm)
+
+
+def noise_free_estimate_mm(
+    sim: Simulation, sender: int, receiver: int, distance_mm: float
+) -> float:
+    """The estimate the link ``sender`` -> ``receiver`` gives at ``distance_mm`` without noise,
+    mm: :meth:`kilonet.reception.TableRanging.systematic_mm`, the true distance plus the
+    receiver's bias for :class:`~kilonet.reception.GaussianRanging`, else the true distance."""
+    model = sim.medium.reception
+    systematic = getattr(model, "systematic_mm", None)
+    if systematic is not None:
+        return float(systematic(sender, receiver, distance_mm))
+    bias = getattr(model, "bias_mm", None)
+    return float(distance_mm + (bias[receiver] if bias is not None else 0.0))
+
+
+def trusted_links(sim: Simulation, max_mm: float, margin_mm: float = 0.0) -> nx.DiGraph:
+    """The medium's links now, sender to receiver, whose noise-free estimate is at most
+    ``max_mm - margin_mm`` (mm; a positive margin keeps only links that every reception's
+    noise leaves within ``max_mm``), with their true ``distance_mm``; every robot is a node."""
+    import networkx as nx
+
+    pos = sim.world.positions_mm
+    graph = nx.DiGraph()
+    graph.add_nodes_from(range(sim.n_robots))
+    for s in range(sim.n_robots):
+        for r in sim.medium.receivers_of(s):
+            d = float(np.hypot(*(pos[s] - pos[r])))
+            if noise_free_estimate_mm(sim, s, r, d) <= max_mm - margin_mm:
+                graph.add_edge(s, r, distance_mm=d)
+    return graph
