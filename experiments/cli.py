@@ -1,7 +1,7 @@
 """``kilonet sweep`` and ``kilonet report``: the command-line face of the experiments package.
 
-    kilonet sweep SWEEP.toml --out DIR [--workers N | --scheduler ADDRESS]
-                  [--resume] [--retry-failed] [--no-progress]
+    kilonet sweep SWEEP.toml --out DIR [--workers N | --scheduler ADDRESS
+                  [--no-workers-timeout S]] [--resume] [--retry-failed] [--no-progress]
     kilonet report DIR --out REPORT.html|REPORT.md [--x KEY] [--metric NAME ...]
                    [--confidence 0.95]
 
@@ -10,8 +10,9 @@ runs missing from DIR are run. ``--resume`` says so explicitly and lets the swee
 out (DIR keeps the definition).
 
 Exit status: 0 when the sweep finished (failed runs are stored, listed, and counted in the
-message), 1 when it had to stop (a worker process died, the cluster is unreachable), 2 for a
-user error, 130 when interrupted.
+message), 1 when it had to stop (a worker process died, the cluster is unreachable or has no
+workers, the disk is full), 2 for a user error (including a damaged results store), 130 when
+interrupted. Every error is one line on stderr.
 """
 
 from __future__ import annotations
@@ -41,6 +42,14 @@ def register_sweep(subparsers: Any) -> None:
         "--scheduler",
         metavar="ADDRESS",
         help="run on a Dask distributed cluster (e.g. tcp://host:8786) instead of locally",
+    )
+    sweep.add_argument(
+        "--no-workers-timeout",
+        type=float,
+        default=300.0,
+        metavar="S",
+        help="with --scheduler: stop (and keep the stored runs) when the cluster has had no "
+        "workers for S seconds (default: 300; inf: wait for workers however long)",
     )
     sweep.add_argument(
         "--resume",
@@ -90,6 +99,10 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         raise UsageError(f"--workers must be at least 1, not {args.workers}")
     if args.workers is not None and args.scheduler is not None:
         raise UsageError("--workers is for the local pool; with --scheduler the cluster decides")
+    if not args.no_workers_timeout > 0:  # also refuses nan
+        raise UsageError(
+            f"--no-workers-timeout must be a number of seconds > 0, not {args.no_workers_timeout}"
+        )
     out = Path(args.out)
     if args.resume and not is_sweep_dir(out):
         raise UsageError(f"--resume: {out} holds no sweep to resume")
@@ -112,6 +125,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             retry_failed=args.retry_failed,
             progress=not args.no_progress,
             source=source,
+            no_workers_timeout_s=args.no_workers_timeout,
         )
     except (SweepError, StoreError) as exc:
         raise UsageError(str(exc)) from None
@@ -167,6 +181,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
         )
     except (ReportError, StoreError) as exc:
         raise UsageError(str(exc)) from None
+    except OSError as exc:  # a full disk, a directory we may not write
+        print(f"kilonet: error: cannot write {args.out}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
     figures = sum(1 for p in written if p.suffix == ".png")
     extra = f" and {figures} figures" if figures else ""
     print(f"wrote {written[0]}{extra}", file=sys.stderr)

@@ -12,6 +12,10 @@ stderr shows runs done, failures and the time left.
 
 Interrupts: Ctrl-C (SIGINT) and SIGTERM stop the sweep cleanly: pending runs are cancelled, local
 workers are terminated, the stored rows stay, and :class:`KeyboardInterrupt` reaches the caller.
+A sweep killed outright (``kill -9``) leaves no process behind: each local worker ends itself
+when the sweep's process ends, and the fork server and resource tracker follow. On a Dask
+cluster that has had no workers for ``no_workers_timeout_s`` the sweep stops with
+:class:`SweepAborted` instead of waiting for ever.
 
 Local workers are started with the ``forkserver`` method, so, as with any non-``fork``
 multiprocessing, a script that calls :func:`run_sweep` must do so under
@@ -25,13 +29,14 @@ import datetime as dt
 import json
 import multiprocessing
 import os
+import select
 import signal
 import socket
 import sys
 import threading
 import time
 import traceback
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -40,10 +45,17 @@ from typing import Any
 
 from tqdm import tqdm
 
-from experiments.store import ResultStore, RunRecord
+from experiments.store import ResultStore, RunRecord, StoreError, lock_directory
 from experiments.sweep import Run, Sweep
 
-__all__ = ["SweepAborted", "SweepOutcome", "default_workers", "execute_run", "run_sweep"]
+__all__ = [
+    "SweepAborted",
+    "SweepOutcome",
+    "WorkerWatch",
+    "default_workers",
+    "execute_run",
+    "run_sweep",
+]
 
 
 class SweepAborted(RuntimeError):
@@ -145,6 +157,7 @@ def run_sweep(
     retry_failed: bool = False,
     progress: bool = True,
     source: str | None = None,
+    no_workers_timeout_s: float = 300.0,
 ) -> SweepOutcome:
     """Run every run of ``sweep`` that ``directory`` does not hold yet.
 
@@ -164,6 +177,9 @@ def run_sweep(
         Show the progress bar on stderr.
     source : str, optional
         The sweep file's text, copied into a new directory.
+    no_workers_timeout_s : float
+        With ``scheduler``: seconds the cluster may have no workers at all before the sweep
+        stops (:class:`SweepAborted`; ``math.inf``: wait for workers however long).
 
     Returns
     -------
@@ -174,14 +190,22 @@ def run_sweep(
     experiments.store.StoreError
         If ``directory`` holds another sweep or is in use.
     SweepAborted
-        If a local worker process died or the scheduler is unreachable.
+        If a local worker process died or could not start, the scheduler is unreachable or
+        had no workers for ``no_workers_timeout_s``, or the store cannot take a row (full
+        disk).
     KeyboardInterrupt
         On Ctrl-C or SIGTERM, after cancelling the pending runs; finished runs stay stored.
     """
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be at least 1, not {workers}")
+    if not no_workers_timeout_s > 0:
+        raise ValueError(f"no_workers_timeout_s must be > 0, not {no_workers_timeout_s}")
     runs = sweep.runs()
-    with ResultStore.create_or_open(directory, sweep, source=source) as store, store.lock():
+    with (
+        lock_directory(directory),
+        ResultStore.create_or_open(directory, sweep, source=source) as store,
+    ):
+        store.records()  # every stored row checked against its checksum before resuming
         done = store.finished_ids(include_failed=not retry_failed)
         todo = [r for r in runs if r.run_id not in done]
         ok = failed = 0
@@ -191,19 +215,93 @@ def run_sweep(
             with (
                 _sigterm_as_interrupt(),
                 _progress_bar(len(runs), len(runs) - len(todo), failed_before, progress) as bar,
-                _executor(workers, scheduler, len(todo)) as executor,
+                _executor(workers, scheduler, len(todo)) as (executor, count_workers),
             ):
-                futures = {executor.submit(execute_run, run): run for run in todo}
-                for future in cf.as_completed(futures):
-                    record = _record_of(future, futures[future])
-                    store.append(record)
-                    if record.status == "ok":
-                        ok += 1
-                    else:
-                        failed += 1
-                    bar.set_postfix_str(f"{failed_before + failed} failed", refresh=False)
-                    bar.update()
+                futures = _submit_all(executor, todo)
+                pending = set(futures)
+                watch = WorkerWatch(no_workers_timeout_s)
+                while pending:
+                    done, pending = cf.wait(pending, _POLL_S, cf.FIRST_COMPLETED)
+                    for future in sorted(done, key=lambda f: futures[f][0]):
+                        record = _record_of(future, futures[future][1])
+                        _store(store, record)
+                        if record.status == "ok":
+                            ok += 1
+                        else:
+                            failed += 1
+                        bar.set_postfix_str(f"{failed_before + failed} failed", refresh=False)
+                        bar.update()
+                    if count_workers is not None and pending:
+                        now = time.monotonic()
+                        watch = watch.observe(count_workers(), now)
+                        if watch.expired(now):
+                            raise SweepAborted(
+                                f"the Dask cluster at {scheduler} has had no workers for "
+                                f"{watch.timeout_s:g} s ({len(pending)} runs waiting); start "
+                                "workers, then run the same command to resume"
+                            )
         return SweepOutcome(len(runs), len(runs) - len(todo), ok, failed, Path(directory))
+
+
+#: Seconds between looks at the cluster while no run finishes.
+_POLL_S = 1.0
+
+
+@dataclass(frozen=True)
+class WorkerWatch:
+    """How long a cluster has had no workers: the state of the sweep's no-workers rule.
+
+    Attributes
+    ----------
+    timeout_s : float
+        Seconds without any worker after which the sweep gives up.
+    empty_since_s : float or None
+        Monotonic time (s) of the first look that found no worker since the last look that
+        found one; ``None`` while workers are there.
+
+    Examples
+    --------
+    >>> w = WorkerWatch(10.0).observe(0, now_s=100.0)
+    >>> w.expired(109.0), w.expired(110.0)
+    (False, True)
+    >>> w.observe(2, now_s=105.0).expired(200.0)  # a worker came back: the wait starts over
+    False
+    """
+
+    timeout_s: float
+    empty_since_s: float | None = None
+
+    def observe(self, workers: int, now_s: float) -> WorkerWatch:
+        """The watch after a look at ``now_s`` found ``workers`` workers."""
+        if workers > 0:
+            return WorkerWatch(self.timeout_s)
+        if self.empty_since_s is None:
+            return WorkerWatch(self.timeout_s, now_s)
+        return self
+
+    def expired(self, now_s: float) -> bool:
+        """Whether at ``now_s`` the cluster has had no workers for ``timeout_s``."""
+        return self.empty_since_s is not None and now_s - self.empty_since_s >= self.timeout_s
+
+
+def _submit_all(executor: cf.Executor, todo: list[Run]) -> dict[cf.Future, tuple[int, Run]]:
+    """Submit every run; each future maps to (submission index, run)."""
+    try:
+        return {executor.submit(execute_run, run): (i, run) for i, run in enumerate(todo)}
+    except (BrokenProcessPool, EOFError, OSError) as exc:
+        raise SweepAborted(
+            f"the worker processes could not start ({type(exc).__name__}: {exc}); nothing was run"
+        ) from None
+
+
+def _store(store: ResultStore, record: RunRecord) -> None:
+    """Append ``record``; a store that cannot take it (a full disk) ends the sweep."""
+    try:
+        store.append(record)
+    except StoreError as exc:
+        raise SweepAborted(
+            f"{exc}; the runs stored so far are kept: fix that, then run the same command to resume"
+        ) from None
 
 
 def _record_of(future: cf.Future, run: Run) -> RunRecord:
@@ -263,13 +361,16 @@ def _sigterm_as_interrupt() -> Iterator[None]:
 
 
 @contextmanager
-def _executor(workers: int | None, scheduler: str | None, runs: int) -> Iterator[cf.Executor]:
+def _executor(
+    workers: int | None, scheduler: str | None, runs: int
+) -> Iterator[tuple[cf.Executor, Callable[[], int] | None]]:
+    """The executor and, for a cluster, a function counting its workers now."""
     if scheduler is not None:
-        with _dask_executor(scheduler) as executor:
-            yield executor
+        with _dask_executor(scheduler) as (executor, count_workers):
+            yield executor, count_workers
     else:
         with _local_executor(min(workers or default_workers(), runs)) as executor:
-            yield executor
+            yield executor, None
 
 
 @contextmanager
@@ -278,8 +379,12 @@ def _local_executor(workers: int) -> Iterator[cf.Executor]:
     # parent may hold threads and open files, which fork would copy), and start fast.
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(["scenarios", "experiments.runner"])
+    _start_forkserver()
     executor = cf.ProcessPoolExecutor(
-        max_workers=workers, mp_context=context, initializer=_prepare_worker
+        max_workers=workers,
+        mp_context=context,
+        initializer=_prepare_worker,
+        initargs=(os.getpid(),),
     )
     try:
         yield executor
@@ -289,15 +394,74 @@ def _local_executor(workers: int) -> Iterator[cf.Executor]:
     executor.shutdown(wait=True)
 
 
-def _prepare_worker() -> None:
-    """Set up a local worker process.
+def _start_forkserver() -> None:
+    """Start the fork server (if it is not running) without the working directory on its
+    ``sys.path``.
+
+    The server is a ``python -c`` process, so Python puts the working directory first on its
+    path, and the preloaded packages would be imported from a folder there named like one of
+    them (``scenarios/``, ``experiments/``) instead of kilonet's; every worker would then die.
+    ``PYTHONSAFEPATH`` (Python >= 3.11) tells the new interpreter not to add it; the sweep's
+    own environment is restored at once.
+    """
+    from multiprocessing import forkserver
+
+    previous = os.environ.get("PYTHONSAFEPATH")
+    os.environ["PYTHONSAFEPATH"] = "1"
+    try:
+        forkserver.ensure_running()
+    finally:
+        if previous is None:
+            del os.environ["PYTHONSAFEPATH"]
+        else:
+            os.environ["PYTHONSAFEPATH"] = previous
+
+
+def _prepare_worker(parent_pid: int) -> None:
+    """Set up a local worker process of the sweep running in process ``parent_pid``.
 
     Workers leave Ctrl-C to the parent, which cancels the sweep and terminates them. tqdm (the
     runs' disabled progress bars) would otherwise create a named multiprocessing lock here that
-    a terminated worker never releases; a thread lock serves a worker's single thread.
+    a terminated worker never releases; a thread lock serves a worker's single thread. A worker
+    ends itself when the sweep's process ends however it ends (``kill -9`` included), see
+    :func:`_die_with`; once the workers are gone the fork server and the resource tracker end
+    too, as they do when their last client closes.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     tqdm.set_lock(threading.RLock())
+    _die_with(parent_pid)
+
+
+def _die_with(pid: int, poll_s: float = 1.0) -> None:
+    """Start a daemon thread that ends this process the moment process ``pid`` has ended.
+
+    A worker's parent is the fork server, not the sweep, so ``PR_SET_PDEATHSIG`` and
+    ``os.getppid`` cannot see the sweep die. On Linux the thread waits on a pidfd of ``pid``
+    (readable when it ends; no polling, immune to pid reuse); elsewhere it polls every
+    ``poll_s`` seconds whether ``pid`` still exists.
+    """
+    try:
+        pidfd: int | None = os.pidfd_open(pid)
+    except ProcessLookupError:
+        os._exit(1)  # the sweep ended before this worker started
+    except (AttributeError, OSError):  # not Linux >= 5.3
+        pidfd = None
+
+    def watch() -> None:
+        if pidfd is not None:
+            select.select([pidfd], [], [])
+        else:
+            while True:
+                time.sleep(poll_s)
+                try:
+                    os.kill(pid, 0)
+                except ProcessLookupError:
+                    break
+                except PermissionError:
+                    continue
+        os._exit(1)
+
+    threading.Thread(target=watch, name="kilonet-sweep-watch", daemon=True).start()
 
 
 def _terminate_local(executor: cf.ProcessPoolExecutor) -> None:
@@ -315,7 +479,7 @@ def _terminate_local(executor: cf.ProcessPoolExecutor) -> None:
 
 
 @contextmanager
-def _dask_executor(scheduler: str) -> Iterator[cf.Executor]:
+def _dask_executor(scheduler: str) -> Iterator[tuple[cf.Executor, Callable[[], int]]]:
     try:
         from distributed import Client
     except ImportError:
@@ -327,8 +491,13 @@ def _dask_executor(scheduler: str) -> Iterator[cf.Executor]:
     except OSError as exc:
         raise SweepAborted(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
     executor = client.get_executor(pure=False)
+
+    def count_workers() -> int:
+        # the client's copy of the scheduler's state, refreshed every couple of seconds
+        return len(client.scheduler_info().get("workers", {}))
+
     try:
-        yield executor
+        yield executor, count_workers
     except BaseException:
         executor.shutdown(wait=False)  # cancels the runs not finished yet
         client.close()

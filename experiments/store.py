@@ -23,8 +23,14 @@ again, and never hold a run twice.
   (:meth:`ResultStore.frame`); Parquet would need one schema for every part.
 * **No new dependency**: ``sqlite3`` is in the standard library, and one file is easy to copy.
 
+Every row carries a SHA-256 checksum of its columns, checked whenever rows are read, so a
+value changed outside kilonet (an edited digit, a damaged disk block) is refused instead of
+reported. A store is created as a temporary file and linked into place complete, so a crash or
+a full disk never leaves a half-made store that blocks the directory.
+
 Its limits: one writer at a time (the sweep's parent process writes; workers only return
-rows), guarded by a lock file so two sweeps cannot fill one directory at once; and SQLite
+rows), guarded by a lock file (:func:`lock_directory`, taken before anything in the directory
+is written) so two sweeps cannot fill one directory at once; and SQLite
 locking is unreliable on network file systems, so keep the directory on a local disk (copy it
 afterwards). :meth:`ResultStore.frame` hands the table to pandas, so ``frame().to_parquet()``
 exports it for analyses that want Parquet.
@@ -32,11 +38,13 @@ exports it for analyses that want Parquet.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
+import hashlib
 import json
 import os
 import sqlite3
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,12 +61,14 @@ __all__ = [
     "RunRecord",
     "StoreError",
     "is_sweep_dir",
+    "lock_directory",
     "write_atomically",
 ]
 
 DB_NAME = "results.sqlite"
 _LOCK_NAME = ".sweep.lock"
-_SCHEMA_VERSION = "1"
+#: Schema 2 adds the per-row ``checksum``; a schema-1 store is upgraded when opened.
+_SCHEMA_VERSION = "2"
 #: Columns every row of :meth:`ResultStore.frame` has besides the swept parameters and figures.
 META_COLUMNS = ("run_id", "seed", "status", "error", "wall_s", "worker", "finished_at")
 
@@ -73,9 +83,12 @@ CREATE TABLE IF NOT EXISTS runs (
     wall_s      REAL,
     worker      TEXT NOT NULL,
     finished_at TEXT NOT NULL,
-    summary     TEXT
+    summary     TEXT,
+    checksum    TEXT
 );
 """
+#: The stored columns of a row, in the order :func:`row_checksum` hashes them.
+_ROW_COLUMNS = "run_id, cell, seed, status, error, wall_s, worker, finished_at, summary"
 
 
 class StoreError(ValueError):
@@ -123,7 +136,11 @@ def is_sweep_dir(path: str | Path) -> bool:
 
 class ResultStore:
     """The results of one sweep in ``directory``; open with :meth:`create_or_open` or
-    :meth:`open`."""
+    :meth:`open`.
+
+    Every method raises :class:`StoreError` (one line naming the file) when the database cannot
+    be read or written: a damaged file, a full disk, a row whose checksum fails.
+    """
 
     def __init__(self, directory: Path, connection: sqlite3.Connection) -> None:
         self.directory = directory
@@ -137,71 +154,101 @@ class ResultStore:
     ) -> ResultStore:
         """Open the store of ``sweep`` in ``directory``, creating both if needed.
 
-        ``source`` is the sweep file's text, copied to ``sweep.toml`` for people to read.
+        ``source`` is the sweep file's text, copied to ``sweep.toml`` for people to read. A
+        sweep that writes must hold :func:`lock_directory` first: the description, ``[report]``
+        and ``sweep.toml`` of a store in use must not change under it.
 
         Raises
         ------
         StoreError
             If ``directory`` exists but is not a directory, is a non-empty directory without a
-            store, or holds a sweep whose runs differ from ``sweep``'s.
+            store, holds a sweep whose runs differ from ``sweep``'s, or cannot be written.
         """
         directory = Path(directory)
         if directory.exists() and not directory.is_dir():
             raise StoreError(f"{directory} exists and is not a directory")
-        if is_sweep_dir(directory):
-            store = cls.open(directory)
-            stored = store.sweep()
-            differences = stored.differences(sweep)
-            if differences:
-                store.close()
+        if not is_sweep_dir(directory):
+            if directory.exists() and _foreign_entries(directory):
+                raise StoreError(f"{directory} is not empty and holds no sweep results")
+            try:
+                directory.mkdir(parents=True, exist_ok=True)
+                _create_database(directory / DB_NAME, sweep)
+            except FileExistsError:
+                pass  # another process created it at this instant: open theirs
+            except (OSError, sqlite3.DatabaseError) as exc:
                 raise StoreError(
-                    f"{directory} holds sweep {stored.name!r} with a different "
-                    f"{', '.join(differences)}; use another --out directory"
-                )
-            # Same runs: the newer file's name, description and [report] take over.
+                    f"{directory}: cannot create the results store ({_reason(exc)})"
+                ) from None
+        store = cls.open(directory)
+        try:
+            stored = store.sweep()
+        except BaseException:
+            store.close()
+            raise
+        differences = stored.differences(sweep)
+        if differences:
+            store.close()
+            raise StoreError(
+                f"{directory} holds sweep {stored.name!r} with a different "
+                f"{', '.join(differences)}; use another --out directory"
+            )
+        # Same runs: the newer file's name, description and [report] take over.
+        try:
             store._write_meta(sweep, source)
-            return store
-        if directory.exists() and any(directory.iterdir()):
-            raise StoreError(f"{directory} is not empty and holds no sweep results")
-        directory.mkdir(parents=True, exist_ok=True)
-        store = cls(directory, _connect(directory / DB_NAME))
-        with store._db:
-            store._db.executescript(_SCHEMA)
-            store._db.execute("INSERT INTO meta VALUES ('schema', ?)", (_SCHEMA_VERSION,))
-        store._write_meta(sweep, source)
+        except BaseException:
+            store.close()
+            raise
         return store
 
     def _write_meta(self, sweep: Sweep, source: str | None) -> None:
-        with self._db:
+        with self._guard("cannot write the sweep definition"), self._db:
             self._db.execute(
                 "INSERT OR REPLACE INTO meta VALUES ('sweep', ?)", (json.dumps(sweep.to_dict()),)
             )
             if source is not None:
                 self._db.execute("INSERT OR REPLACE INTO meta VALUES ('source', ?)", (source,))
         if source:
-            write_atomically(self.directory / "sweep.toml", source)
+            try:
+                write_atomically(self.directory / "sweep.toml", source)
+            except OSError as exc:
+                raise StoreError(
+                    f"{self.directory / 'sweep.toml'}: cannot write ({_reason(exc)})"
+                ) from None
 
     @classmethod
     def open(cls, directory: str | Path) -> ResultStore:
-        """Open an existing store.
+        """Open an existing store; a schema-1 store (rows without checksums, made by an older
+        kilonet) is upgraded in place, its rows checksummed as they are.
 
         Raises
         ------
         StoreError
-            If ``directory`` holds no store or a store of another schema.
+            If ``directory`` holds no store, a damaged one, or a store of an unknown schema.
         """
         directory = Path(directory)
         if not is_sweep_dir(directory):
             raise StoreError(f"{directory}: no sweep results here (no {DB_NAME})")
-        db = _connect(directory / DB_NAME)
+        path = directory / DB_NAME
+        db = None
         try:
+            db = _connect(path)
             row = db.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone()
+            if row is not None and row[0] == "1":
+                _upgrade_from_schema_1(db)
+                row = (_SCHEMA_VERSION,)
         except sqlite3.DatabaseError as exc:
-            db.close()
-            raise StoreError(f"{directory / DB_NAME}: not a sweep store ({exc})") from None
+            if db is not None:
+                db.close()
+            damaged = getattr(exc, "sqlite_errorname", "") in ("SQLITE_NOTADB", "SQLITE_CORRUPT")
+            if damaged or str(exc).startswith("no such table"):
+                raise StoreError(
+                    f"{path}: not a readable sweep store ({_reason(exc)}); move it away or use "
+                    "another --out directory"
+                ) from None
+            raise StoreError(f"{path}: cannot open the store ({_reason(exc)})") from None
         if row is None or row[0] != _SCHEMA_VERSION:
             db.close()
-            raise StoreError(f"{directory / DB_NAME}: unknown store schema {row}")
+            raise StoreError(f"{path}: unknown store schema {row[0] if row else None!r}")
         return cls(directory, db)
 
     def close(self) -> None:
@@ -214,46 +261,39 @@ class ResultStore:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def lock(self) -> contextlib.AbstractContextManager[None]:
+        """:func:`lock_directory` of this store's directory."""
+        return lock_directory(self.directory)
+
     @contextmanager
-    def lock(self) -> Iterator[None]:
-        """Hold the directory's lock while a sweep writes to it.
+    def _guard(self, doing: str) -> Iterator[None]:
+        """SQLite's errors (damaged file, disk full) as one-line :class:`StoreError` s."""
+        try:
+            yield
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{self.directory / DB_NAME}: {doing} ({_reason(exc)})") from None
 
-        The operating system releases it when the process ends, however it ends.
-
-        Raises
-        ------
-        StoreError
-            If another process holds it.
-        """
-        with open(self.directory / _LOCK_NAME, "a+") as handle:
-            try:
-                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                handle.seek(0)
-                holder = handle.read().strip() or "another process"
-                raise StoreError(
-                    f"{self.directory} is in use by a running sweep ({holder})"
-                ) from None
-            handle.seek(0)
-            handle.truncate()
-            handle.write(f"pid {os.getpid()}\n")
-            handle.flush()
-            try:
-                yield
-            finally:
-                fcntl.flock(handle, fcntl.LOCK_UN)
+    def _fetch(self, query: str, params: Sequence[Any] = ()) -> list[tuple]:
+        with self._guard("cannot read the store"):
+            return self._db.execute(query, params).fetchall()
 
     # ---------------------------------------------------------------------------- reading
 
     def sweep(self) -> Sweep:
         """The sweep this store belongs to."""
-        (text,) = self._db.execute("SELECT value FROM meta WHERE key = 'sweep'").fetchone()
-        return Sweep.from_dict(json.loads(text))
+        rows = self._fetch("SELECT value FROM meta WHERE key = 'sweep'")
+        try:
+            return Sweep.from_dict(json.loads(rows[0][0]))
+        except (IndexError, ValueError, KeyError, TypeError) as exc:
+            raise StoreError(
+                f"{self.directory / DB_NAME}: the stored sweep definition is damaged "
+                f"({type(exc).__name__}: {exc})"
+            ) from None
 
     def source(self) -> str:
         """The text of the sweep file the store was created from ('' if unknown)."""
-        row = self._db.execute("SELECT value FROM meta WHERE key = 'source'").fetchone()
-        return row[0] if row else ""
+        rows = self._fetch("SELECT value FROM meta WHERE key = 'source'")
+        return rows[0][0] if rows else ""
 
     def finished_ids(self, *, include_failed: bool = True) -> set[str]:
         """``run_id`` of every stored run (of the successful ones only if not
@@ -261,35 +301,48 @@ class ResultStore:
         query = "SELECT run_id FROM runs"
         if not include_failed:
             query += " WHERE status = 'ok'"
-        return {row[0] for row in self._db.execute(query)}
+        return {row[0] for row in self._fetch(query)}
 
     def counts(self) -> dict[str, int]:
         """Stored runs by status: ``{"ok": n, "failed": m}``."""
         out = {"ok": 0, "failed": 0}
-        for status, n in self._db.execute("SELECT status, COUNT(*) FROM runs GROUP BY status"):
+        for status, n in self._fetch("SELECT status, COUNT(*) FROM runs GROUP BY status"):
             out[status] = n
         return out
 
     def records(self) -> list[RunRecord]:
-        """Every stored run, in the order they finished."""
-        rows = self._db.execute(
-            "SELECT run_id, cell, seed, status, error, wall_s, worker, finished_at, summary "
-            "FROM runs ORDER BY rowid"
-        )
-        return [
-            RunRecord(
-                run_id=r[0],
-                cell=json.loads(r[1]),
-                seed=r[2],
-                status=r[3],
-                error=r[4],
-                wall_s=r[5],
-                worker=r[6],
-                finished_at=r[7],
-                summary=json.loads(r[8]) if r[8] is not None else None,
+        """Every stored run, in the order they finished, each checked against its checksum.
+
+        Raises
+        ------
+        StoreError
+            If a row does not match its checksum (it was changed outside kilonet).
+        """
+        records = []
+        for *columns, checksum in self._fetch(
+            f"SELECT {_ROW_COLUMNS}, checksum FROM runs ORDER BY rowid"
+        ):
+            if checksum != row_checksum(columns):
+                raise StoreError(
+                    f"{self.directory / DB_NAME}: the row of run {columns[0]} does not match "
+                    "its checksum (changed outside kilonet); restore the file from a copy or "
+                    "run the sweep into a new directory"
+                )
+            r = columns
+            records.append(
+                RunRecord(
+                    run_id=r[0],
+                    cell=json.loads(r[1]),
+                    seed=r[2],
+                    status=r[3],
+                    error=r[4],
+                    wall_s=r[5],
+                    worker=r[6],
+                    finished_at=r[7],
+                    summary=json.loads(r[8]) if r[8] is not None else None,
+                )
             )
-            for r in rows
-        ]
+        return records
 
     def frame(self) -> pd.DataFrame:
         """One row per stored run: the swept parameters (dotted names), the meta columns
@@ -328,33 +381,183 @@ class ResultStore:
     # ---------------------------------------------------------------------------- writing
 
     def append(self, record: RunRecord) -> bool:
-        """Store ``record`` durably; returns whether it was written.
+        """Store ``record`` durably with its checksum; returns whether it was written.
 
         A run already stored as ``ok`` is never overwritten (returns ``False``); a run stored
         as ``failed`` is replaced by its new result (a retry).
+
+        Raises
+        ------
+        StoreError
+            If the row cannot be written (e.g. the disk is full); the store keeps its last row.
         """
         summary = None if record.summary is None else json.dumps(record.summary)
-        with self._db:
+        columns = (
+            record.run_id,
+            json.dumps(record.cell),
+            record.seed,
+            record.status,
+            record.error,
+            record.wall_s,
+            record.worker,
+            record.finished_at,
+            summary,
+        )
+        with self._guard(f"cannot store run {record.run_id}"), self._db:
             cursor = self._db.execute(
-                "INSERT INTO runs (run_id, cell, seed, status, error, wall_s, worker, "
-                "finished_at, summary) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?) "
+                f"INSERT INTO runs ({_ROW_COLUMNS}, checksum) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?) "
                 "ON CONFLICT (run_id) DO UPDATE SET cell = excluded.cell, seed = excluded.seed, "
                 "status = excluded.status, error = excluded.error, wall_s = excluded.wall_s, "
                 "worker = excluded.worker, finished_at = excluded.finished_at, "
-                "summary = excluded.summary WHERE runs.status != 'ok'",
-                (
-                    record.run_id,
-                    json.dumps(record.cell),
-                    record.seed,
-                    record.status,
-                    record.error,
-                    record.wall_s,
-                    record.worker,
-                    record.finished_at,
-                    summary,
-                ),
+                "summary = excluded.summary, checksum = excluded.checksum "
+                "WHERE runs.status != 'ok'",
+                (*columns, row_checksum(columns)),
             )
         return cursor.rowcount == 1
+
+
+def row_checksum(columns: Sequence[Any]) -> str:
+    """SHA-256 (hex) of a row's stored columns (``run_id, cell, seed, status, error, wall_s,
+    worker, finished_at, summary``, the JSON ones as their stored text).
+
+    >>> row = ("ab12", '{"p": 0.1}', 3, "ok", None, 0.25, "h:1", "2026-01-01T00:00:00", "{}")
+    >>> row_checksum(row) == row_checksum(list(row))
+    True
+    >>> row_checksum(row) == row_checksum(row[:5] + (0.26,) + row[6:])
+    False
+    """
+    return hashlib.sha256(json.dumps(list(columns)).encode()).hexdigest()
+
+
+@contextmanager
+def lock_directory(directory: str | Path) -> Iterator[None]:
+    """Hold the lock of sweep directory ``directory`` (created if missing) while a sweep writes
+    to it.
+
+    The lock is an ``flock`` on ``.sweep.lock``, which the operating system releases when the
+    process ends however it ends; the file is removed when the lock is given back, and so is
+    the directory if this call created it and nothing else was put in it.
+
+    Raises
+    ------
+    StoreError
+        If another process holds it, or ``directory`` cannot be created.
+    """
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise StoreError(f"{directory} exists and is not a directory")
+    created = not directory.exists()
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StoreError(f"{directory}: cannot create the directory ({_reason(exc)})") from None
+    path = directory / _LOCK_NAME
+    try:
+        handle = _acquire(path)
+    except BaseException:
+        if created:
+            _remove_if_empty(directory)
+        raise
+    try:
+        yield
+    finally:
+        # Unlinked while still held, so a process waiting on the old file sees it is gone.
+        path.unlink(missing_ok=True)
+        os.close(handle)
+        if created:
+            _remove_if_empty(directory)
+
+
+def _acquire(path: Path) -> int:
+    """Open and ``flock`` the lock file at ``path``; returns its file descriptor. Retries if
+    the holder removed the file between our open and our lock (we would then hold a file
+    nobody else can find)."""
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise StoreError(f"{path}: cannot create the lock file ({_reason(exc)})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 100, 0).decode(errors="replace").strip() or "another process"
+            os.close(fd)
+            raise StoreError(f"{path.parent} is in use by a running sweep ({holder})") from None
+        try:
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if not same:
+            os.close(fd)
+            continue
+        with contextlib.suppress(OSError):  # a full disk: the lock holds without its note
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"pid {os.getpid()}\n".encode(), 0)
+        return fd
+
+
+def _remove_if_empty(directory: Path) -> None:
+    with contextlib.suppress(OSError):
+        directory.rmdir()
+
+
+def _foreign_entries(directory: Path) -> list[str]:
+    """Entries of ``directory`` that are not a sweep's own (lock file, unfinished store)."""
+    return [
+        p.name
+        for p in directory.iterdir()
+        if p.name != _LOCK_NAME
+        and not (p.name.startswith(f".{DB_NAME}.") and p.name.endswith(".tmp"))
+    ]
+
+
+def _create_database(path: Path, sweep: Sweep) -> None:
+    """Create the store at ``path`` with its schema and ``sweep``'s definition, complete or not
+    at all: built in a temporary file and hard-linked into place.
+
+    Raises
+    ------
+    FileExistsError
+        If ``path`` appeared meanwhile (another sweep created it).
+    OSError, sqlite3.DatabaseError
+        If it cannot be written; nothing is left behind.
+    """
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.unlink(missing_ok=True)
+    try:
+        db = sqlite3.connect(tmp, isolation_level="DEFERRED")
+        try:
+            db.execute("PRAGMA synchronous = FULL")
+            with db:
+                db.executescript(_SCHEMA)
+                db.execute("INSERT INTO meta VALUES ('schema', ?)", (_SCHEMA_VERSION,))
+                db.execute("INSERT INTO meta VALUES ('sweep', ?)", (json.dumps(sweep.to_dict()),))
+        finally:
+            db.close()
+        os.link(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+        Path(f"{tmp}-journal").unlink(missing_ok=True)
+
+
+def _upgrade_from_schema_1(db: sqlite3.Connection) -> None:
+    """Add the ``checksum`` column to a schema-1 store and checksum its rows as they are."""
+    with db:
+        db.execute("ALTER TABLE runs ADD COLUMN checksum TEXT")
+        for rowid, *columns in db.execute(f"SELECT rowid, {_ROW_COLUMNS} FROM runs").fetchall():
+            db.execute(
+                "UPDATE runs SET checksum = ? WHERE rowid = ?", (row_checksum(columns), rowid)
+            )
+        db.execute("UPDATE meta SET value = ? WHERE key = 'schema'", (_SCHEMA_VERSION,))
+        db.execute("INSERT OR REPLACE INTO meta VALUES ('upgraded_from_schema', '1')")
+
+
+def _reason(exc: BaseException) -> str:
+    """The one-line reason of an OS or SQLite error."""
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
 
 
 def _flat_summary(summary: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -376,9 +579,13 @@ def _flat_summary(summary: dict[str, Any], prefix: str = "") -> dict[str, Any]:
 
 def _connect(path: Path) -> sqlite3.Connection:
     db = sqlite3.connect(path, isolation_level="DEFERRED")
-    # WAL + FULL: a committed row survives the process being killed and a power cut.
-    db.execute("PRAGMA journal_mode = WAL")
-    db.execute("PRAGMA synchronous = FULL")
+    try:
+        # WAL + FULL: a committed row survives the process being killed and a power cut.
+        db.execute("PRAGMA journal_mode = WAL")
+        db.execute("PRAGMA synchronous = FULL")
+    except BaseException:
+        db.close()
+        raise
     return db
 
 

@@ -25,7 +25,7 @@ A sweep file is TOML::
 
 A *cell* is one combination of swept values; a *run* is a cell with one seed. Every parameter
 value is checked against the scenario's parameters before anything runs, and every error names
-the file and the key.
+the file and the key. A sweep has at most :data:`MAX_RUNS` runs.
 
 Examples
 --------
@@ -60,13 +60,16 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Run", "Sweep", "SweepError", "load_sweep", "parse_sweep"]
+__all__ = ["MAX_RUNS", "Run", "Sweep", "SweepError", "load_sweep", "parse_sweep"]
 
 _TOP_KEYS = ("name", "description", "scenario", "seeds", "fixed", "grid", "cases", "report")
 _RANGE_KEYS = frozenset({"start", "stop", "num", "step", "log"})
 _REPORT_KEYS = ("x", "metrics", "xscale")
 #: Grid values are rounded to this many significant digits so that 0.1 + 0.2 is stored as 0.3.
 _SIGNIFICANT_DIGITS = 12
+#: Most runs a sweep may have (and values a range or seed count may give): a range with a tiny
+#: step would otherwise build billions of values before anything is checked.
+MAX_RUNS = 100_000
 
 
 class SweepError(ValueError):
@@ -287,6 +290,9 @@ class _Validator:
             for key in case:
                 if key in fixed or key in grid or key == "seed":
                     raise self.fail(f"[[cases]] #{i + 1} {key} is also in [fixed] or [grid]")
+        runs = len(seeds) * max(len(cases), 1) * math.prod(len(v) for v in grid.values())
+        if runs > MAX_RUNS:
+            raise self.fail(f"{runs} runs (cells x seeds); a sweep has at most {MAX_RUNS}")
         self.check_params(scenario, fixed, grid, cases)
         sweep = Sweep(
             name=name,
@@ -323,6 +329,8 @@ class _Validator:
         if isinstance(raw, int):
             if raw < 1:
                 raise self.fail(f"seeds = {raw}: need at least one seed")
+            if raw > MAX_RUNS:
+                raise self.fail(f"seeds = {raw}: at most {MAX_RUNS} seeds")
             return tuple(range(1, raw + 1))
         if isinstance(raw, dict):
             extra = set(raw) - {"first", "count"}
@@ -333,6 +341,8 @@ class _Validator:
                 raise self.fail(f"seeds.first and seeds.count must be integers, got {raw!r}")
             if first < 0 or count < 1:
                 raise self.fail(f"seeds = {raw!r}: need first >= 0 and count >= 1")
+            if count > MAX_RUNS:
+                raise self.fail(f"seeds = {raw!r}: at most {MAX_RUNS} seeds")
             return tuple(range(first, first + count))
         if isinstance(raw, list):
             if not raw:
@@ -392,6 +402,8 @@ class _Validator:
             num = spec["num"]
             if isinstance(num, bool) or not isinstance(num, int) or num < 1:
                 raise self.fail(f"[grid] {key}: range num = {num!r} is not a positive integer")
+            if num > MAX_RUNS:
+                raise self.fail(f"[grid] {key}: range num = {num}: at most {MAX_RUNS} values")
             if log and (start <= 0 or stop <= 0):
                 raise self.fail(f"[grid] {key}: a log range needs start and stop > 0")
             fractions = [i / (num - 1) if num > 1 else 0.0 for i in range(num)]
@@ -405,7 +417,13 @@ class _Validator:
                 raise self.fail(f"[grid] {key}: log ranges take 'num', not 'step'")
             if step == 0 or (stop - start) / step < 0:
                 raise self.fail(f"[grid] {key}: step {step} never reaches stop {stop} from {start}")
-            count = math.floor((stop - start) / step + 1e-9) + 1
+            steps = (stop - start) / step
+            if not steps < MAX_RUNS:  # also catches an overflow to inf
+                raise self.fail(
+                    f"[grid] {key}: step {step} from {start} to {stop} gives more than "
+                    f"{MAX_RUNS} values"
+                )
+            count = math.floor(steps + 1e-9) + 1
             values = [start + i * step for i in range(count)]
         # Integer bounds that give whole values stay integers (swarm sizes, counts).
         integral = all(isinstance(spec.get(p, 0), int) for p in ("start", "stop", "step"))

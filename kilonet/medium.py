@@ -71,6 +71,10 @@ _BLOCK = 1 << 11
 _MAX_ROWS_PER_REFILL = 64
 _CRC = max(CAUSES) + 1  # the loss code of a reception dropped for a wrong CRC
 _CODE_CAUSE = {**CAUSES, _CRC: "crc"}
+#: Least ``medium.backoff_max_s`` (s): one count of kilolib's 8 MHz / 1024 = 7,812.5 Hz timer,
+#: the shortest wait its ``OCR0A = rand() & 0xFF`` retry can make (its longest: 255 counts,
+#: 32.6 ms); the parameter's lower bound.
+BACKOFF_MAX_FLOOR_S = 1 / 7812.5
 
 
 class RandomBlock:
@@ -206,7 +210,9 @@ class InfraredMedium:
         factor = self._factor = sim.clocks.factor.tolist()
         self._period = [rp.tx_period_s / f for f in factor]
         self._jitter = [rp.tx_jitter_s / f for f in factor]
-        self._backoff = [p.backoff_max_s / f for f in factor]
+        # never below kilolib's least wait (parameters forced past validation): a back-off
+        # near 0 would re-sense a busy channel without end
+        self._backoff = [max(p.backoff_max_s, BACKOFF_MAX_FLOOR_S) / f for f in factor]
         self._tick = [1.0 / (rp.ticks_per_s * f) for f in factor]
         self._retry_tick = rp.tx_retry == "tick"
         self._csma = p.csma

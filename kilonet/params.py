@@ -123,7 +123,7 @@ class MediumParams:
     )
     backoff_max_s: float = param(
         0.03264,
-        lo=0.0,
+        lo=1.28e-4,  # one count of kilolib's 7,812.5 Hz timer, its least wait
         hi=10.0,
         doc="random back-off is U(0, this), own clock (kilolib: rand() & 0xFF counts at 7812.5/s)",
     )

@@ -494,7 +494,8 @@ def read_placement(
             xy.append(value)
         if uid_at is not None:
             text = row[uid_at].strip() if uid_at < len(row) else ""
-            if not text.isdigit() or int(text) > 0xFFFF:
+            # ASCII digits only: str.isdigit() is also true for '²', which int() refuses
+            if not (text.isascii() and text.isdigit()) or int(text) > 0xFFFF:
                 problems.append(f"line {line_no}: uid is not an integer 0-65535 ({text!r})")
             else:
                 uids.append(int(text))

@@ -104,6 +104,12 @@ class Scenario:
     progress_note : callable, optional
         ``progress_note(sim) -> str``: where the run is (the current phase), for the progress
         display.
+    supports : dict
+        Parameters whose values its programs are written for, each with those values
+        (dotted key -> tuple); any other value is refused when the parameters are built. E.g.
+        ``{"medium.message_format": ("kilolib",)}``: the thesis's 23 bits hold no type byte
+        and too few bytes for the messages; ``{"robot.rx_mode": ("callback",)}``: a program
+        that only implements ``message_rx`` hears nothing from a polled buffer.
     """
 
     name: str
@@ -121,6 +127,7 @@ class Scenario:
     expected_end_s: Callable[[Params], float | None] | None = None
     ends_when: str = ""
     progress_note: Callable[[Simulation], str] | None = None
+    supports: dict[str, tuple[Any, ...]] = field(default_factory=dict)
 
 
 @dataclass
@@ -141,13 +148,21 @@ def build_params(
     Raises
     ------
     kilonet.params.ParamError
-        For an unknown key or an invalid value.
+        For an unknown key or an invalid value, or a value the scenario's programs are not
+        written for (:attr:`Scenario.supports`).
     """
     params = Params(scenario=scenario.section() if scenario.section else None)
     params = params.with_overrides(scenario.defaults)
     params = params.with_overrides(dict(overrides or {}))
     if seed is not None:
         params = params.with_overrides({"seed": seed})
+    flat = params.to_flat_dict()
+    for key, allowed in scenario.supports.items():
+        if flat[key] not in allowed:
+            raise ParamError(
+                f"{key} = {flat[key]!r}: the {scenario.name} scenario's programs are written "
+                f"for {' or '.join(map(repr, allowed))} only"
+            )
     return params
 
 

@@ -545,6 +545,11 @@ def _outputs(result: RunResult, out_dir: Path) -> None:
 
 SCENARIO = Scenario(
     name="follower",
+    supports={
+        "medium.message_format": ("kilolib",),
+        "robot.rx_mode": ("callback",),
+        "robot.rx_distance": ("estimate",),
+    },
     summary="trilateration: three robots build a frame, a fourth walks to their centroid",
     program=_program,
     section=FollowerParams,

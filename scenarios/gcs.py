@@ -535,6 +535,7 @@ def _figure_title(summary: dict[str, Any]) -> str:
 
 SCENARIO = Scenario(
     name="gcs",
+    supports={"medium.message_format": ("kilolib",), "robot.rx_distance": ("estimate",)},
     summary="Rubenstein's global coordinate system, phases 1-6 (IDs, seeds, frames, "
     "localization, merging groups, merging)",
     program=_program,

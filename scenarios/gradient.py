@@ -101,6 +101,11 @@ def _figure(result: RunResult, out_dir: Path) -> None:
     ax.scatter(*pos[src], marker="*", s=250, c="red", label="source")
     fig.colorbar(sc, ax=ax, label="gradient (hops)")
     ax.set_aspect("equal")
+    # Limits a body diameter beyond the outermost robots: a swarm whose extent is (nearly)
+    # zero in x or y (a line at y = 0 and 1e-30) would otherwise make a singular transform.
+    lo, hi = pos.min(axis=0) - 33.0, pos.max(axis=0) + 33.0
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
     s = result.summary
@@ -116,6 +121,7 @@ def _figure(result: RunResult, out_dir: Path) -> None:
 
 SCENARIO = Scenario(
     name="gradient",
+    supports={"medium.message_format": ("kilolib",), "robot.rx_mode": ("callback",)},
     summary="hop-count gradient from one source robot (Kilobot self-assembly building block)",
     program=_program,
     section=GradientParams,

@@ -173,15 +173,24 @@ def _outputs(result: RunResult, out_dir: Path) -> None:
         est.robot[est.role == "root"].to_numpy(),
         "root",
         f"localize: {summary.get('frames', '?')} frame(s), RMSE "
-        f"{summary.get('rmse_mm', math.nan):.2f} mm (CRLB "
-        f"{summary.get('crlb_rmse_mm', math.nan):.2f}, central "
-        f"{summary.get('central_rmse_mm', math.nan):.2f})",
+        f"{_mm(summary.get('rmse_mm'))} mm (CRLB {_mm(summary.get('crlb_rmse_mm'))}, "
+        f"central {_mm(summary.get('central_rmse_mm'))})",
         out_dir / "localize.png",
     )
 
 
+def _mm(value: float | None) -> str:
+    """A length for a title: two decimals, or "n/a" when there is none (no robot localized).
+
+    >>> _mm(1.234), _mm(None), _mm(math.nan)
+    ('1.23', 'n/a', 'n/a')
+    """
+    return "n/a" if value is None or not math.isfinite(value) else f"{value:.2f}"
+
+
 SCENARIO = Scenario(
     name="localize",
+    supports={"medium.message_format": ("kilolib",), "robot.rx_distance": ("estimate",)},
     summary="one global frame by root election, multilateration spreading outward and "
     "distributed refinement, ended by the swarm itself",
     program=_program,

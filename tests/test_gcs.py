@@ -409,7 +409,10 @@ def test_failures_section_names_the_lone_robot_and_its_isolated_frame():
     failures = result.summary["failures"]
     assert 19 in failures["unlocalizable"]
     assert 19 in failures["isolated_seeds"]
-    assert failures["split_frames"] >= 2  # the lone frame is a component of its own
+    assert [19] in failures["frame_components"]  # the lone seed's frame is a component
+    # ... but no robot is located in it alone (not even the seed, which has no frame), so it
+    # splits no global frame: the thesis's case 2, not case 3 (scenarios.gcs.own_components).
+    assert failures["split_frames"] == 0
     assert 19 in failures["robots_with_fewer_than_3_neighbours"]
 
 

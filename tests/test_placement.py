@@ -439,7 +439,7 @@ def test_a_placement_file_may_give_each_robots_uid(tmp_path):
     assert read_placement(path).uids is None
 
 
-@pytest.mark.parametrize("bad", ["x", "-1", "65536", "1.5", ""])
+@pytest.mark.parametrize("bad", ["x", "-1", "65536", "1.5", "", "²", "٣", "１"])
 def test_a_uid_that_is_not_a_uint16_is_refused_with_file_and_line(tmp_path, bad):
     path = tmp_path / "bad.csv"
     path.write_text(f"x_mm,y_mm,uid\n0,0,1\n\n50,0,{bad}\n")

@@ -403,7 +403,7 @@ class ScriptedWorld:
 
     def _arrive(self, entry: ScriptedReception) -> None:
         medium, now = self.sim.medium, self.sim.env.now
-        if entry.sense_carrier and medium.receiving(0):
+        if entry.sense_carrier and medium.channel.busy_until[0] > now:  # sensed or not yet
             wait = medium.channel.busy_until[0] - now
             self.sim.env.timeout(wait).callbacks.append(lambda _event: self._arrive(entry))
             return
