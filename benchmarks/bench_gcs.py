@@ -71,7 +71,7 @@ class TrafficFloor(Kilobot):
     tx_share = 1.0
 
     def setup(self) -> None:
-        self.message = FLOOR.pack(sender=self._index, padding=0)
+        self.message = FLOOR.pack(sender=self._kindex, padding=0)
         self.opportunities = 0
         self.heard = 0
 

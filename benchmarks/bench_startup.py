@@ -5,9 +5,9 @@
 2. ``kilonet run SCENARIO --robots N``, stopped at its first simulated event: wall time from
    starting the process to that event, the process's CPU time and peak memory then, and which
    heavy libraries (pandas, matplotlib, scipy, networkx, tqdm) it had imported by then. The run
-   goes through the real command line (``kilonet.cli.main``); the child process replaces
-   ``simpy.Environment.step`` with a function that records the time and exits, so nothing of
-   the run itself is measured. Best of ``--repeat`` (the least disturbed run).
+   goes through the real command line (``kilonet.cli.main``); the child process replaces the
+   kernel environment's ``run`` and ``step`` with a function that records the time and exits,
+   so nothing of the run itself is measured. Best of ``--repeat`` (the least disturbed run).
 
 ``--source DIR`` measures another checkout of kilonet (its modules first on ``sys.path``), e.g.
 an older commit unpacked with ``git archive``, to compare before and after.
@@ -32,8 +32,9 @@ HEAVY = ("pandas", "matplotlib", "scipy", "networkx", "tqdm")
 _CHILD = """
 import json, os, resource, sys, time
 import simpy
+import kilonet.clock
 
-def first_event(self):
+def first_event(self, *args, **kwargs):
     usage = resource.getrusage(resource.RUSAGE_SELF)
     print(json.dumps({
         "at": time.time(),
@@ -44,7 +45,11 @@ def first_event(self):
     }), flush=True)
     os._exit(0)
 
-simpy.Environment.step = first_event
+if hasattr(kilonet.clock, "KernelEnvironment"):  # the kernel's own step loop
+    kilonet.clock.KernelEnvironment.run = first_event
+    kilonet.clock.KernelEnvironment.step = first_event
+else:  # a checkout from before it
+    simpy.Environment.step = first_event
 from kilonet.cli import main
 main(sys.argv[1:])
 """.replace("HEAVY_NAMES", repr(HEAVY))

@@ -318,6 +318,53 @@ def _localize_speed_block(context: Context) -> str:
     return "\n".join(lines)
 
 
+def _large_runs_block(context: Context) -> str:
+    bench = _benchmark("bench_large")
+    timeout_s = 1800.0
+    lines = [
+        "| command | finished | wall s | CPU s | simulated s | messages sent |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for scenario in ("gcs", "localize"):
+        r = bench.run_cli(scenario, 1000, 1, timeout_s)
+        command = f"`kilonet run {scenario} --robots 1000 --seed 1`"
+        if r["finished"]:
+            lines.append(
+                f"| {command} | yes | {r['wall_s']:.0f} | {r['cpu_s']:.0f} "
+                f"| {r['sim_time_s']:.0f} | {r['messages_sent']:,} |"
+            )
+        else:
+            lines.append(f"| {command} | not within {timeout_s:.0f} s | | {r['cpu_s']:.0f} | | |")
+    lines += ["", "One run each through the command line (`python benchmarks/bench_large.py`)."]
+    return "\n".join(lines)
+
+
+def _kilombo_block(context: Context) -> str:
+    bench = _benchmark("bench_kilombo")
+    source = os.environ.get("KILOMBO_SRC")
+    binary = bench.build_kilombo(Path(source)) if source else None
+    reference = "Kilombo" if binary else "kilonet, channel off"
+    lines = [
+        f"| robots | kilonet wall s | kilonet CPU s | {reference} wall s | {reference} CPU s "
+        "| ratio, wall | ratio, CPU |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for n in (1000, 5000):
+        positions = bench.placement(n)
+        ours = bench.run_kilonet(positions, channel=True, repeat=3)
+        if binary:
+            theirs = bench.run_kilombo(binary, Path(source), positions, 3)
+        else:
+            theirs = bench.run_kilonet(positions, channel=False, repeat=3)
+        lines.append(
+            f"| {n:,} | {ours['wall_s']:.2f} | {ours['cpu_s']:.2f} | {theirs['wall_s']:.2f} "
+            f"| {theirs['cpu_s']:.2f} | {ours['wall_s'] / theirs['wall_s']:.1f} "
+            f"| {ours['cpu_s'] / theirs['cpu_s']:.1f} |"
+        )
+    lines += ["", "Fastest of 3 runs each, one core (`python benchmarks/bench_kilombo.py`)."]
+    return "\n".join(lines)
+
+
 def _gcs_page(make: Callable[[], str]) -> Block:
     """A block of ``docs/gcs.md`` made by ``make``, one of :mod:`experiments.gcs_measured`'s
     functions (they run their own simulations, no sweep)."""
@@ -388,6 +435,8 @@ BLOCKS: dict[str, Block] = {
     "startup": Block("docs/performance.md", _startup_block),
     "testkit-speed": Block("docs/performance.md", _testkit_block),
     "localize-speed": Block("docs/performance.md", _localize_speed_block),
+    "kilombo": Block("docs/performance.md", _kilombo_block),
+    "large-runs": Block("docs/performance.md", _large_runs_block),
     # docs/gcs.md: experiments/gcs_measured.py
     "gcs-robot-model": _gcs_page(gcs_measured.robot_model_block),
     "gcs-isolated-seeds": _gcs_page(gcs_measured.isolated_seeds_block),

@@ -9,27 +9,39 @@ first tick, so robots that start together on the overhead controller's signal st
 Everything a program sees runs on its own clock: ``kilo_ticks``, ``delay``, the loop rate and
 the transmit period.
 
-**Cheap callbacks.** The medium schedules two wake-ups per message and every robot's loop one
-per tick; a ``simpy.Timeout`` builds a full event for each. Here the queue entry is a bare
-object carrying exactly what ``Environment.step`` reads (``callbacks``, ``_ok``, ``_value``),
-pushed onto the environment's queue with the key a Timeout would get (time, NORMAL priority,
-insertion counter), so ordering and determinism are SimPy's own. A :class:`Timer` is reusable:
-an entity with at most one pending wake-up (a robot's next transmit opportunity) allocates
-nothing per wake-up. The robots' plain loops share one :class:`LoopSchedule`, which runs them at
-the times and in the order one Timer each would, mostly without going through the queue.
+**The kernel's environment.** :class:`KernelEnvironment` is a documented subclass of
+``simpy.Environment`` that keeps its own event queue and clock behind SimPy's public interface
+(``now``, ``schedule``, ``peek``, ``step``, ``run``), so SimPy's processes, timeouts and
+conditions run on it unchanged and nothing here reads or writes SimPy's private state. Three
+things it adds, all for the hot path:
+
+* a negative delay is refused where it would be queued (an event in the past would run the
+  clock backwards);
+* :meth:`KernelEnvironment.schedule_at` queues at an absolute time (no ``at - now + now``
+  rounding), and the queue takes any object with the event protocol its step loop reads
+  (``callbacks``, ``ok``, ``defused``, ``value``), so a :class:`Timer` is a reusable queue entry
+  that allocates nothing per wake-up;
+* recurring calls (every robot's plain ``loop()``, each on its own clock) cost no event: the
+  step loop takes them from a window, every pending run within the shortest period sorted by
+  NumPy at once, merged with the queue by key, so they run exactly when and in the order one
+  Timer each would (the key such a Timer would have: time accumulated as ``t + period_s``,
+  NORMAL priority, an insertion number drawn when added and each time it runs).
 
 Examples
 --------
->>> import simpy
->>> env = simpy.Environment()
+>>> env = KernelEnvironment()
 >>> log = []
->>> timer = Timer(env, lambda t: log.append((env.now, t._value)), 7)
+>>> timer = Timer(env, lambda t: log.append((env.now, t.value)), 7)
 >>> timer.schedule(1.0)
 >>> env.run()
 >>> timer.schedule(0.5)
 >>> env.run()
 >>> log
 [(1.0, 7), (1.5, 7)]
+>>> env.schedule(env.event(), delay=-0.1)
+Traceback (most recent call last):
+...
+ValueError: an event cannot be scheduled in the past: delay -0.1 s at 1.5 s
 """
 
 from __future__ import annotations
@@ -37,19 +49,16 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from heapq import heapify, heappop, heappush, heapreplace
+from heapq import heappop, heappush
+from itertools import count
 from typing import Any
 
 import numpy as np
 import simpy
-from simpy.events import NORMAL
+from simpy.core import EmptySchedule, StopSimulation
+from simpy.events import NORMAL, URGENT, Event
 
-__all__ = ["LoopSchedule", "RobotClocks", "Timer", "push"]
-
-
-def push(env: simpy.Environment, at_s: float, event: Any) -> None:
-    """Queue ``event`` (anything with ``callbacks``, ``_ok``, ``_value``) at time ``at_s``."""
-    heappush(env._queue, (at_s, NORMAL, next(env._eid), event))
+__all__ = ["KernelEnvironment", "RobotClocks", "Timer"]
 
 
 @dataclass(frozen=True)
@@ -116,133 +125,339 @@ class RobotClocks:
 
 
 class Timer:
-    """A reusable wake-up: ``callback(timer)`` runs each time a scheduled delay ends.
+    """A reusable wake-up on a :class:`KernelEnvironment`: ``callback(timer)`` runs each time a
+    scheduled delay ends; ``value`` is whatever the owner wants the callback to see.
 
-    Schedule it again only after it fired (``step()`` clears ``callbacks`` when it runs).
+    Schedule it again only after it fired (the step loop clears ``callbacks`` when it runs).
     """
 
-    __slots__ = ("_callbacks", "_env", "_ok", "_value", "callbacks")
+    __slots__ = ("_callbacks", "_env", "callbacks", "value")
+    ok = True  # the event protocol of KernelEnvironment's step loop: never a failed event
+    defused = False
 
-    def __init__(self, env: simpy.Environment, callback: Callable[[Timer], None], value: Any):
+    def __init__(
+        self, env: KernelEnvironment, callback: Callable[[Timer], None], value: Any
+    ) -> None:
         self._env = env
-        self._callbacks = [callback]  # step() only iterates it, so one list serves every run
+        self._callbacks = [callback]  # the step loop only iterates it: one list serves every run
         self.callbacks: list | None = None
-        self._value = value
-        self._ok = True
+        self.value = value
 
     def schedule(self, delay_s: float) -> None:
-        """Fire after ``delay_s`` simulated seconds."""
+        """Fire after ``delay_s`` simulated seconds.
+
+        Raises
+        ------
+        ValueError
+            If ``delay_s`` is negative.
+        """
         self.callbacks = self._callbacks
-        env = self._env
-        heappush(env._queue, (env._now + delay_s, NORMAL, next(env._eid), self))
+        self._env.schedule(self, NORMAL, delay_s)
 
 
-class LoopSchedule:
-    """Callbacks that each recur with a period of their own (every robot's ``loop()`` on its
-    own clock), run exactly when and in the order separate :class:`Timer` s would run them, but
-    with one entry in the event queue for all of them.
+class KernelEnvironment(simpy.Environment):
+    """A ``simpy.Environment`` with its own queue, refusing events in the past, taking
+    reusable entries, and running recurring callbacks without events (see the module
+    docstring).
 
-    The schedule keeps its own heap of next calls. After one runs, it runs the next at once
-    (moving the clock to its time) as long as that comes before everything in SimPy's queue,
-    and queues itself only when something else comes first; at 1,000 robots loops are about two
-    events in three, and most of them then never touch SimPy's queue.
+    It overrides SimPy's public interface (``now``, ``schedule``, ``peek``, ``step``, ``run``)
+    and nothing else, so SimPy's own events and processes run on it as on SimPy's
+    environment. A queue entry is any object with ``callbacks`` (a list, cleared to ``None``
+    when it runs), ``ok``, ``defused`` and ``value``: every SimPy event, and :class:`Timer`.
 
-    Each callback keeps the queue key a Timer of its own would have: its times accumulate as
-    ``t + period_s`` and it draws an insertion number from the environment when it is added and
-    each time it runs (as rescheduling a Timer does), so even events due at the very same time
-    run in SimPy's order.
-
-    Examples
-    --------
-    >>> import simpy
-    >>> env = simpy.Environment()
-    >>> log = []
-    >>> loops = LoopSchedule(env)
-    >>> for name, first, period in (("a", 0.5, 1.0), ("b", 0.25, 0.75)):
-    ...     loops.add(first, period, lambda name=name: log.append((name, env.now)) or env.now < 2)
-    >>> loops.start()
-    >>> env.run(until=4)
-    >>> log
-    [('b', 0.25), ('a', 0.5), ('b', 1.0), ('a', 1.5), ('b', 1.75), ('a', 2.5), ('b', 2.5)]
+    Parameters
+    ----------
+    initial_time : float
+        The clock at the start, s.
     """
 
-    __slots__ = ("_callbacks", "_env", "_heap", "_periods", "_started", "_timer")
+    def __init__(self, initial_time: float = 0) -> None:
+        super().__init__(initial_time)
+        self._kt = initial_time
+        self._kqueue: list[tuple[float, int, int, Any]] = []
+        self._kids = count()
+        # Recurring calls. A window holds every pending run within the shortest period of the
+        # earliest, in key order, consumed from `_kpos` on; each runs once in it, so the next
+        # runs of those consumed are filled in with one NumPy addition when the window ends.
+        self._kcalls: list[Callable[[], Any]] = []
+        self._kperiods = np.empty(0)
+        self._knext = np.empty(0)  # each call's next run, as of the window's start (inf: none)
+        self._keids: list[int] = []  # insertion number of each call's pending run
+        self._kalive: list[bool] = []
+        self._kcancelled: list[int] = []  # cancelled or raised since the window was built
+        self._kmin_period = math.inf
+        self._kwin_t: list[float] = []
+        self._kwin_k: list[int] = []
+        self._kwin_t_arr = np.empty(0)
+        self._kwin_k_arr = np.empty(0, dtype=np.intp)
+        self._kpos = 0
+        self._kdirty = False  # every() added a call: the window must be rebuilt
+        self._kidle = True  # no recurring call pending: no window to build
 
-    def __init__(self, env: simpy.Environment) -> None:
-        self._env = env
-        self._heap: list[tuple[float, int, int, int]] = []
-        self._callbacks: list[Callable[[], bool]] = []
-        self._periods: list[float] = []
-        self._started = False
-        self._timer = Timer(env, self._run, None)
+    @property
+    def now(self) -> float:
+        """The current simulation time, s."""
+        return self._kt
 
-    def add(self, first_s: float, period_s: float, callback: Callable[[], bool]) -> None:
-        """Run ``callback() -> bool`` first in ``first_s`` seconds, then every ``period_s``
-        until it returns ``False`` (a robot that stopped).
+    def schedule(self, event: Any, priority: int = NORMAL, delay: float = 0) -> None:
+        """Queue ``event`` ``delay`` seconds from now.
+
+        Raises
+        ------
+        ValueError
+            If ``delay`` is negative or not a number (the clock would run backwards).
+        """
+        if not delay >= 0:
+            raise ValueError(
+                f"an event cannot be scheduled in the past: delay {delay} s at {self._kt} s"
+            )
+        heappush(self._kqueue, (self._kt + delay, priority, next(self._kids), event))
+
+    def schedule_at(self, event: Any, at_s: float, priority: int = NORMAL) -> None:
+        """Queue ``event`` at simulated time ``at_s`` (exactly that float).
+
+        Raises
+        ------
+        ValueError
+            If ``at_s`` is before now.
+        """
+        if not at_s >= self._kt:
+            raise ValueError(
+                f"an event cannot be scheduled in the past: at {at_s} s, now {self._kt} s"
+            )
+        heappush(self._kqueue, (at_s, priority, next(self._kids), event))
+
+    def every(self, first_s: float, period_s: float, callback: Callable[[], Any]) -> int:
+        """Call ``callback()`` first ``first_s`` seconds from now and then every ``period_s``,
+        until :meth:`cancel` (a robot that stopped) or until it raises (it is then not called
+        again, and the others go on if the caller runs on); the handle for :meth:`cancel`.
 
         Raises
         ------
         ValueError
             If ``first_s`` is negative or ``period_s`` is not positive.
-        RuntimeError
-            If the schedule has started.
         """
-        if self._started:
-            raise RuntimeError("loops can only be added to a LoopSchedule before it starts")
-        if first_s < 0 or not period_s > 0:
+        if not (first_s >= 0 and period_s > 0):
             raise ValueError(
-                f"a loop needs first_s >= 0 and period_s > 0, got {first_s} s and {period_s} s"
+                f"a recurring call needs first_s >= 0 and period_s > 0, got {first_s} s and "
+                f"{period_s} s"
             )
-        env = self._env
-        k = len(self._callbacks)
-        self._heap.append((env._now + first_s, NORMAL, next(env._eid), k))
-        self._callbacks.append(callback)
-        self._periods.append(period_s)
+        k = len(self._kcalls)  # appended: the window's indices stay valid until it is rebuilt
+        self._kcalls.append(callback)
+        self._kperiods = np.append(self._kperiods, period_s)
+        self._knext = np.append(self._knext, self._kt + first_s)
+        self._keids.append(next(self._kids))
+        self._kalive.append(True)
+        self._kmin_period = min(self._kmin_period, period_s)
+        self._kdirty = True
+        self._kidle = False
+        return k
 
-    def start(self) -> None:
-        """Queue the schedule (after the last :meth:`add`).
+    def cancel(self, handle: int) -> None:
+        """Call the recurring call ``handle`` never again (from now on, even within a call)."""
+        if self._kalive[handle]:
+            self._kalive[handle] = False
+            self._kcancelled.append(handle)
+
+    def _close_window(self) -> None:
+        """Note the next runs of the calls the window has run, and drop the rest of it (their
+        pending runs stay as they are)."""
+        pos = self._kpos
+        if pos:
+            ran = self._kwin_k_arr[:pos]
+            self._knext[ran] = self._kwin_t_arr[:pos] + self._kperiods[ran]
+        if self._kcancelled:
+            self._knext[self._kcancelled] = math.inf
+            self._kcancelled = []
+        self._kwin_t, self._kwin_k, self._kpos = [], [], 0
+        self._kwin_t_arr = self._kwin_t_arr[:0]
+        self._kwin_k_arr = self._kwin_k_arr[:0]
+
+    def _window(self) -> None:
+        """Close the window and build the next: every pending run within the shortest period
+        of the earliest, ordered by (time, insertion number) as the queue would order them.
+        None of them comes round again within it, so it stays valid while it is consumed."""
+        self._close_window()
+        self._kdirty = False
+        nexts = self._knext
+        start = nexts.min() if len(nexts) else math.inf
+        if start == math.inf:
+            self._kidle = True
+            return
+        chosen = np.flatnonzero(nexts < start + self._kmin_period)
+        times = nexts[chosen]
+        order = np.argsort(times, kind="stable")
+        ordered = times[order]
+        if len(ordered) > 1 and (ordered[1:] == ordered[:-1]).any():  # ties: by insertion
+            order = np.lexsort((np.array(self._keids)[chosen], times))
+            ordered = times[order]
+        self._kwin_t_arr, self._kwin_k_arr = ordered, chosen[order]
+        self._kwin_t, self._kwin_k = ordered.tolist(), self._kwin_k_arr.tolist()
+
+    def _next_recurring(self) -> tuple[float, int, int] | None:
+        """The next live recurring run as (time, insertion number, call), or None."""
+        while True:
+            if self._kdirty or self._kpos == len(self._kwin_k):
+                if self._kidle and not self._kdirty:
+                    return None
+                self._window()
+                continue
+            pos = self._kpos
+            k = self._kwin_k[pos]
+            if self._kalive[k]:
+                return self._kwin_t[pos], self._keids[k], k
+            self._kpos = pos + 1  # cancelled
+
+    def _recur(self, t: float, k: int) -> None:
+        """Run recurring call ``k`` due at ``t`` (the window's next)."""
+        self._kpos += 1
+        self._kt = t
+        try:
+            self._kcalls[k]()
+        except BaseException:
+            self.cancel(k)
+            raise
+        if self._kalive[k]:
+            self._keids[k] = next(self._kids)
+
+    def peek(self) -> float:
+        """Time of the next event or recurring call (``inf`` if there is none)."""
+        recurring, queue = self._next_recurring(), self._kqueue
+        if recurring is not None and (not queue or recurring < queue[0][:3]):
+            return recurring[0]
+        return queue[0][0] if queue else math.inf
+
+    def step(self) -> None:
+        """Process the next event or recurring call.
 
         Raises
         ------
-        RuntimeError
-            If it has started already.
+        simpy.core.EmptySchedule
+            If nothing is queued.
         """
-        if self._started:
-            raise RuntimeError("a LoopSchedule starts only once")
-        self._started = True
-        heapify(self._heap)
-        if self._heap:
-            self._queue()
+        recurring, queue = self._next_recurring(), self._kqueue
+        if recurring is not None and (not queue or (recurring[0], NORMAL, recurring[1]) < queue[0]):
+            self._recur(recurring[0], recurring[2])
+            return
+        try:
+            self._kt, _, _, event = heappop(queue)
+        except IndexError:
+            raise EmptySchedule from None
+        callbacks, event.callbacks = event.callbacks, None
+        try:
+            for callback in callbacks:
+                callback(event)
+        except StopSimulation:
+            event.callbacks = callbacks[callbacks.index(callback) + 1 :]
+            self.schedule(event, URGENT - 1)
+            raise
+        if not event.ok and not event.defused:
+            _raise_failed(event)
 
-    def _queue(self) -> None:
-        timer = self._timer
-        timer.callbacks = timer._callbacks
-        t, priority, eid, _ = self._heap[0]
-        heappush(self._env._queue, (t, priority, eid, timer))
+    def run(self, until: float | Event | None = None) -> Any:
+        """Run until simulated time ``until`` (events due then are left for the next run, as
+        SimPy's ``run`` leaves them), until the event ``until`` has happened, or, with
+        ``None``, until nothing is queued.
 
-    def _run(self, _timer: Timer) -> None:
-        env, heap, callbacks, periods = self._env, self._heap, self._callbacks, self._periods
-        queue, eid = env._queue, env._eid
-        while True:
-            t, _, _, k = heap[0]
-            env._now = t
-            try:
-                again = callbacks[k]()
-            except BaseException:
-                # As with a Timer of its own, the loop that raised is not run again, and the
-                # others go on if whoever runs the simulation carries on.
-                heappop(heap)
-                if heap:
-                    self._queue()
-                raise
-            if again:
-                heapreplace(heap, (t + periods[k], NORMAL, next(eid), k))
-            else:
-                heappop(heap)
-                if not heap:
+        Raises
+        ------
+        ValueError
+            If ``until`` is a time not after now.
+        """
+        if until is None or isinstance(until, Event):
+            return super().run(until)
+        at = until if isinstance(until, int) else float(until)
+        if at <= self._kt:
+            raise ValueError(f"until ({at}) must be greater than the current simulation time")
+        try:
+            self._run_to(at)
+        except StopSimulation as stop:
+            return stop.args[0]
+        self._kt = at
+        return None
+
+    def _run_to(self, at: float) -> None:
+        """The step loop of :meth:`step` inline, up to (not including) time ``at``: the window
+        of recurring calls and the queue merged by key."""
+        queue, eids, calls, alive, ids = (
+            self._kqueue,
+            self._keids,
+            self._kcalls,
+            self._kalive,
+            self._kids,
+        )
+        win_t, win_k, pos = self._kwin_t, self._kwin_k, self._kpos
+        n_win = len(win_k)
+        try:
+            while True:
+                if pos == n_win or self._kdirty:
+                    if self._kidle and not self._kdirty:
+                        win_t, win_k, pos, n_win = (), (), 0, 0
+                    else:
+                        self._kpos = pos
+                        self._window()
+                        win_t, win_k, pos = self._kwin_t, self._kwin_k, 0
+                        n_win = len(win_k)
+                        continue
+                if pos < n_win:
+                    t = win_t[pos]
+                    if queue:
+                        head = queue[0]
+                        event_first = head[0] < t or (
+                            head[0] == t and head < (t, NORMAL, eids[win_k[pos]])
+                        )
+                    else:
+                        event_first = False
+                elif queue:
+                    event_first = True
+                else:
                     return
-            # Due before everything queued: run it now; otherwise queue the schedule behind it.
-            # Insertion numbers are unique, so the comparison never reaches the last items.
-            if queue and queue[0] < heap[0]:
-                break
-        self._queue()
+                if event_first:
+                    if queue[0][0] >= at:
+                        return
+                    self._kt, _, _, event = heappop(queue)
+                    callbacks, event.callbacks = event.callbacks, None
+                    for callback in callbacks:
+                        callback(event)
+                    if not event.ok and not event.defused:
+                        _raise_failed(event)
+                    continue
+                if t >= at:
+                    return
+                # Recurring calls strictly before the queue's next event and `at` run back to
+                # back here; a tie or anything else goes round the outer loop.
+                # The first of them won against the queue's head by key, ties included.
+                limit = queue[0][0] if queue and queue[0][0] < at else at
+                k = -1
+                try:
+                    while True:
+                        k = win_k[pos]
+                        pos += 1
+                        if alive[k]:
+                            self._kt = t
+                            calls[k]()
+                            if alive[k]:
+                                eids[k] = next(ids)
+                            if self._kdirty:
+                                break
+                            if queue and queue[0][0] < limit:
+                                limit = queue[0][0]
+                        if pos == n_win:
+                            break
+                        t = win_t[pos]
+                        if t >= limit:
+                            break
+                except BaseException:
+                    self.cancel(k)
+                    raise
+        finally:
+            if self._kwin_k is win_k:
+                self._kpos = pos
+
+
+def _raise_failed(event: Any) -> None:
+    """Raise the exception of a failed event nobody defused, as SimPy's step does."""
+    error = event.value
+    exc = type(error)(*error.args)
+    exc.__cause__ = error
+    raise exc

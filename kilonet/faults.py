@@ -21,22 +21,54 @@ from simpy.events import Timeout
 from kilonet.message import Message
 
 if TYPE_CHECKING:
-    from kilonet.simulation import Simulation
+    import numpy as np
+    import simpy
+
+    from kilonet.medium import InfraredMedium
+    from kilonet.params import FaultParams
 
 __all__ = ["FaultInjector"]
 
 
 class FaultInjector:
-    """Schedules the faults of one simulation."""
+    """Schedules the faults of one simulation.
 
-    def __init__(self, sim: Simulation) -> None:
-        self.sim = sim
-        self.rng = sim.stream("faults")
+    Parameters
+    ----------
+    params : FaultParams
+        What to inject (``faults.*``).
+    env : simpy.Environment
+        The run's clock, where faults are scheduled.
+    rng : numpy.random.Generator
+        The ``faults`` stream.
+    n_robots : int
+        Robots in the swarm.
+    stop : callable
+        ``stop(robot, cause, remove=False)``: stop a robot (crash) or lift it off the table.
+    medium : InfraredMedium
+        Whose receiver losses and delivery routes a faulty receiver changes.
+    deliver : callable
+        ``deliver(robot, message, distance)``: hand a reception to a robot's program late.
+    """
+
+    def __init__(
+        self,
+        params: FaultParams,
+        env: simpy.Environment,
+        rng: np.random.Generator,
+        n_robots: int,
+        *,
+        stop: Callable[..., None],
+        medium: InfraredMedium,
+        deliver: Callable[[int, Message, int], None],
+    ) -> None:
+        self.params, self.env, self.rng, self.n_robots = params, env, rng, n_robots
+        self._stop, self._medium, self._deliver = stop, medium, deliver
         self.faulty_receivers: set[int] = set()
 
     def start(self) -> None:
         """Draw and schedule the random faults that the parameters ask for."""
-        p = self.sim.params.faults
+        p = self.params
         for fraction, lo, hi, action in (
             (p.crash_fraction, p.crash_from_s, p.crash_to_s, self.crash_at),
             (p.remove_fraction, p.remove_from_s, p.remove_to_s, self.remove_at),
@@ -52,21 +84,21 @@ class FaultInjector:
             )
 
     def _pick(self, fraction: float) -> list[int]:
-        n = self.sim.n_robots
+        n = self.n_robots
         count = round(fraction * n)
         return sorted(self.rng.choice(n, size=count, replace=False).tolist()) if count else []
 
     def crash_at(self, robot: int, t_s: float) -> None:
         """Crash ``robot`` at simulated time ``t_s``."""
-        self._at(t_s, lambda: self.sim.stop_robot(robot, "crash"))
+        self._at(t_s, lambda: self._stop(robot, "crash"))
 
     def remove_at(self, robot: int, t_s: float) -> None:
         """Lift ``robot`` off the table at simulated time ``t_s``."""
-        self._at(t_s, lambda: self.sim.stop_robot(robot, "removed", remove=True))
+        self._at(t_s, lambda: self._stop(robot, "removed", remove=True))
 
     def _at(self, t_s: float, action: Callable[[], None]) -> None:
-        delay = max(0.0, t_s - self.sim.env.now)
-        Timeout(self.sim.env, delay).callbacks.append(lambda _e: action())
+        delay = max(0.0, t_s - self.env.now)
+        Timeout(self.env, delay).callbacks.append(lambda _e: action())
 
     def faulty_receiver(
         self, robot: int, *, drop_prob: float, delay_prob: float, delay_s: float
@@ -74,7 +106,7 @@ class FaultInjector:
         """Make ``robot``'s receiver drop ``drop_prob`` of its receptions (counted as fault
         losses) and delay ``delay_prob`` of the others by ``U(0, delay_s)`` seconds."""
         self.faulty_receivers.add(robot)
-        medium = self.sim.medium
+        medium = self._medium
         medium.set_extra_loss(robot, fault=drop_prob)
         if delay_prob > 0 and delay_s > 0:
             medium.set_handler(robot, self._delaying(robot, delay_prob, delay_s))
@@ -82,15 +114,14 @@ class FaultInjector:
     def _delaying(
         self, robot: int, delay_prob: float, delay_s: float
     ) -> Callable[[Message, int], None]:
-        sim = self.sim
-        rng = self.rng
+        env, rng, late = self.env, self.rng, self._deliver
 
         def deliver(message: Message, distance_mm: int) -> None:
             if rng.random() < delay_prob:
-                Timeout(sim.env, float(rng.uniform(0, delay_s))).callbacks.append(
-                    lambda _e: sim.deliver(robot, message, distance_mm)
+                Timeout(env, float(rng.uniform(0, delay_s))).callbacks.append(
+                    lambda _e: late(robot, message, distance_mm)
                 )
             else:
-                sim.deliver(robot, message, distance_mm)
+                late(robot, message, distance_mm)
 
         return deliver

@@ -24,7 +24,8 @@ The medium itself is the event flow that joins them, with kilolib's transmit sem
 * **CRC.** A message whose ``crc`` is wrong goes on the air (it occupies the channel and
   collides) but every receiver drops it, counted as ``lost_crc``.
 * **Receive modes.** ``callback``: ``message_rx`` is called on arrival. ``polled``: the message
-  joins a buffer of ``robot.rx_buffer`` messages that drops the oldest on overflow.
+  joins a buffer of ``robot.rx_buffer`` messages that drops the oldest on overflow (a program
+  with a ``message_rx`` gets what its ``loop()`` leaves there through it after each call).
 
 Why it is fast: two SimPy events per transmission (the offer and the end of airtime, both
 callbacks on pre-bound functions, no processes); receiver and handler lists precomputed per
@@ -43,7 +44,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from kilonet.clock import Timer, push
+from kilonet.clock import Timer
 from kilonet.counters import LOSS_CAUSES, MediumCounters
 from kilonet.mac import Channel
 from kilonet.message import LIMITS, Message, PayloadLimit
@@ -107,13 +108,11 @@ class _Transmission:
     ``estimates`` holds the distance estimate (mm) per receiver, ``losses`` a loss code per
     receiver or ``None`` when nothing is lost; ``epoch`` tells whether receiver lists changed
     while the message was on the air. The object is also its own end-of-airtime event on the
-    SimPy queue (``callbacks``, ``_ok``, ``_value``: see :mod:`kilonet.clock`), which saves an
-    allocation per message.
+    kernel's queue (``callbacks``, ``ok``, ``defused``, ``value``: see :mod:`kilonet.clock`),
+    which saves an allocation per message.
     """
 
     __slots__ = (
-        "_ok",
-        "_value",
         "callbacks",
         "corrupted",
         "epoch",
@@ -145,8 +144,10 @@ class _Transmission:
         self.epoch = epoch
         self.corrupted: set[int] | None = None
         self.callbacks = callbacks
-        self._ok = True
-        self._value = None  # step() reads it only for failed events; no self-reference cycle
+
+    ok = True  # the kernel queue's event protocol: a transmission never fails
+    defused = False
+    value = None
 
 
 class InfraredMedium:
@@ -358,7 +359,20 @@ class InfraredMedium:
 
     def set_tx_period(self, robot: int, period_s: float) -> None:
         """Set ``robot``'s transmit period to ``period_s`` seconds of its own clock (a program
-        writing kilolib's ``kilo_tx_period``); it applies from its next opportunity."""
+        writing kilolib's ``kilo_tx_period``); it applies from its next opportunity.
+
+        Raises
+        ------
+        ValueError
+            If ``period_s`` is not above ``robot.tx_jitter_s`` (an offer would fall before the
+            one it follows).
+        """
+        jitter_s = self.sim.params.robot.tx_jitter_s
+        if not period_s > jitter_s:
+            raise ValueError(
+                f"robot {robot}: a transmit period of {period_s} s must exceed "
+                f"robot.tx_jitter_s = {jitter_s} s"
+            )
         self._period[robot] = period_s / self._factor[robot]
 
     def set_handlers(self, handlers: list[Callable[[Message, int], None]]) -> None:
@@ -423,10 +437,10 @@ class InfraredMedium:
 
     # -- the hot path ------------------------------------------------------------------------
     def _offer(self, timer: Timer) -> None:
-        s = timer._value
+        s = timer.value
         if not self._running[s]:
             return
-        now = self.env._now
+        now = self.env.now
         if self._csma and self._busy_until[s] > now >= self._sensed_from[s]:
             self.counts.backoffs[s] += 1
             delay = self._uniform.next() * self._backoff[s]
@@ -478,21 +492,68 @@ class InfraredMedium:
         counters = self.counts
         counters.sent[s] += 1
         counters.bytes_sent[s] += self._message_bytes[s]
-        push(self.env, end, tx)
+        self.env.schedule_at(tx, end)
         success = self._tx_success[s]
         if success is not None:
             success()
 
     def _end_of_airtime(self, tx: _Transmission) -> None:
-        # Called by Environment.step with the event, which is the transmission itself.
+        # Called by the step loop with the event, which is the transmission itself.
         message = tx.message
-        if tx.losses is None and tx.corrupted is None and tx.epoch == self._epoch:
+        corrupted, losses = tx.corrupted, tx.losses
+        if tx.epoch != self._epoch or tx.sender < 0:
+            self._deliver_carefully(tx)
+            return
+        counters = self.counts
+        if losses is None and corrupted is None:
             self._sink.extend(map(operator.call, tx.handlers, repeat(message), tx.estimates))
-            self.counts.clean_delivery(tx.sender)
+            counters.clean_delivery(tx.sender)
             if self._trace_messages:
                 n = len(tx.receivers)
-                self.sim.trace.message(self.env._now, tx.sender, n, n)
+                self.sim.trace.message(self.env.now, tx.sender, n, n)
             return
+        # Some receptions fail: deliver the others in one comprehension, count the
+        # transmission as clean and take the failed receptions back out of `received`.
+        receivers = tx.receivers
+        if losses is None:
+            [
+                h(message, e)
+                for r, h, e in zip(receivers, tx.handlers, tx.estimates, strict=True)
+                if r not in corrupted
+            ]
+            failed = [(r, 0) for r in corrupted]
+        else:
+            corrupted = corrupted or ()
+            [
+                h(message, e)
+                for r, h, e, loss in zip(receivers, tx.handlers, tx.estimates, losses, strict=True)
+                if not loss and r not in corrupted
+            ]
+            failed = [
+                (r, loss)
+                for r, loss in zip(receivers, losses, strict=True)
+                if loss or r in corrupted
+            ]
+        counters.clean_delivery(tx.sender)
+        received, lost_collision, lost_by_code = (
+            counters.received,
+            counters.lost("collision"),
+            self._lost_by_code,
+        )
+        for r, loss in failed:
+            received[r] -= 1
+            if r in corrupted:
+                lost_collision[r] += 1
+            else:
+                lost_by_code[loss][r] += 1
+        if self._trace_messages:
+            n = len(receivers)
+            self.sim.trace.message(self.env.now, tx.sender, n, n - len(failed))
+
+    def _deliver_carefully(self, tx: _Transmission) -> None:
+        """End of airtime of a message whose receiver lists changed while it was on the air,
+        or that came from outside the swarm (:meth:`arrive`): receiver by receiver."""
+        message = tx.message
         corrupted = tx.corrupted or ()
         counters = self.counts
         received = counters.received
@@ -516,7 +577,7 @@ class InfraredMedium:
                 delivered += 1
                 handler(message, estimate)
         if self._trace_messages:
-            self.sim.trace.message(self.env._now, tx.sender, len(tx.receivers), delivered)
+            self.sim.trace.message(self.env.now, tx.sender, len(tx.receivers), delivered)
 
     def arrive(
         self,
@@ -583,7 +644,7 @@ class InfraredMedium:
             code = RANDOM
         else:
             code = 0 if outcome.losses is None else int(outcome.losses[0, 0])
-        now = self.env._now
+        now = self.env.now
         tx = _Transmission(
             -1,
             message,
@@ -595,7 +656,7 @@ class InfraredMedium:
             self._end_callbacks,
         )
         self.channel.occupy(tx, self._outside, tx.receivers, now, now + self.airtime_s)
-        push(self.env, now + self.airtime_s, tx)
+        self.env.schedule_at(tx, now + self.airtime_s)
         return _CODE_CAUSE[code] if code else None
 
     def forget_receiver(self, robot: int) -> None:
@@ -610,7 +671,7 @@ class InfraredMedium:
 
     def receiving(self, robot: int) -> bool:
         """Whether a reception is in progress at ``robot`` now (kilolib's ``rx_busy``)."""
-        return self.channel.busy(robot, self.env._now)
+        return self.channel.busy(robot, self.env.now)
 
 
 def _drop(message: Message, distance_mm: int) -> None:

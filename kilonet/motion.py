@@ -47,8 +47,11 @@ from kilonet.clock import Timer
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from kilonet.battery import Battery
+    from kilonet.clock import KernelEnvironment
     from kilonet.params import MotionParams
-    from kilonet.simulation import Simulation
+    from kilonet.simulation import World
+    from kilonet.trace import Trace
 
 __all__ = [
     "Calibration",
@@ -235,14 +238,39 @@ class MotorState:
 
 
 class Motion:
-    """Motor state and pose integration for all robots of a simulation."""
+    """Motor state and pose integration for all robots of a simulation.
 
-    def __init__(self, sim: Simulation) -> None:
-        self.sim = sim
-        p = sim.params.motion
-        self.params = p
-        n = sim.n_robots
-        rng = sim.stream("motion")
+    Parameters
+    ----------
+    params : MotionParams
+        ``motion.*``.
+    env : KernelEnvironment
+        The run's clock.
+    world : World
+        The poses it moves (and the robots it checks for contact).
+    trace : Trace
+        Where poses are recorded.
+    rng : numpy.random.Generator
+        The ``motion`` stream (each robot's speed, turn rate, motor curves and calibration).
+
+    The battery (motor time, the speed factor of a low battery) and the medium (links change
+    when a robot moves) are connected afterwards with :meth:`connect`: programs read their
+    calibration from here before those exist.
+    """
+
+    def __init__(
+        self,
+        params: MotionParams,
+        env: KernelEnvironment,
+        world: World,
+        trace: Trace,
+        rng: np.random.Generator,
+    ) -> None:
+        self.params = p = params
+        self._env, self._world, self._trace = env, world, trace
+        self._battery: Battery | None = None
+        self._moved: Callable[[], None] = _unconnected
+        n = len(world.positions_mm)
         self.speed_mm_s = p.speed_mm_s * np.clip(1 + rng.normal(0, p.speed_error, n), 0.1, None)
         self.turn_rad_s = np.radians(p.turn_deg_s) * np.clip(
             1 + rng.normal(0, p.turn_error, n), 0.1, None
@@ -267,10 +295,16 @@ class Motion:
         self._last_update = [0.0] * n
         self._moving: set[int] = set()
         self._dirty = False  # a robot moved since the links were last rebuilt
-        self._timer = Timer(sim.env, self._tick, None)
+        self._timer = Timer(env, self._tick, None)
         self._timer_on = False
         self._watchers: list[Callable[[int, int, int], None]] = []
         self.blocked_count = [0] * n
+
+    def connect(self, battery: Battery, moved: Callable[[], None]) -> None:
+        """Wire the battery it drains and ``moved()``, called after robots moved (the medium
+        rebuilds its links)."""
+        self._battery = battery
+        self._moved = moved
 
     def pivot_rate_rad_s(self, robot: int, motor: int, duty: int) -> float:
         """How fast ``robot`` turns on one running motor (0 left, 1 right) at ``duty``, rad/s
@@ -288,7 +322,7 @@ class Motion:
 
     def set_motors(self, robot: int, left: int, right: int) -> None:
         """Set the duty cycles of ``robot``'s motors; its pose is integrated up to now first."""
-        if not self.sim.world.running[robot]:
+        if not self._world.running[robot]:
             return
         for listener in self._watchers:
             listener(robot, left, right)
@@ -321,24 +355,24 @@ class Motion:
             self._integrate(robot)
         if self._dirty:
             self._dirty = False
-            self.sim.medium.rebuild_topology()
+            self._moved()
         if self._moving:
             self._timer.schedule(self.params.step_s)
         else:
             self._timer_on = False
 
     def _integrate(self, robot: int) -> None:
-        sim = self.sim
-        now = sim.env.now
+        now = self._env.now
         dt = now - self._last_update[robot]
         self._last_update[robot] = now
         state = self.motors[robot]
         if dt <= 0 or not any(state.running):
             return
-        sim.battery.motor_s[robot] += dt * sum(state.running)
-        factor = float(sim.battery.motor_factor[robot])
+        battery = self._battery
+        battery.motor_s[robot] += dt * sum(state.running)
+        factor = float(battery.motor_factor[robot])
         left, right = state.drive[0] * factor, state.drive[1] * factor
-        world = sim.world
+        world = self._world
         x, y = world.positions_mm[robot]
         h = float(world.heading_rad[robot])
         steps = max(1, math.ceil(dt / self.params.step_s - 1e-9))
@@ -367,13 +401,13 @@ class Motion:
         moved = (x, y) != tuple(world.positions_mm[robot])
         world.positions_mm[robot] = (x, y)
         world.heading_rad[robot] = h % (2 * math.pi)
-        sim.trace.pose(now, robot, x, y, world.heading_rad[robot])
+        self._trace.pose(now, robot, x, y, world.heading_rad[robot])
         if moved:
             self._dirty = True
 
     def _others(self, robot: int, dt_s: float) -> np.ndarray:
         """Centres of the present robots that ``robot`` could touch within ``dt_s``."""
-        world = self.sim.world
+        world = self._world
         others = np.flatnonzero(world.present)
         others = others[others != robot]
         pos = world.positions_mm[others]
@@ -399,13 +433,12 @@ class Motion:
         This is what a robot with a heading sensor and wall-following controller achieves (the
         maze hardware uses it); programs on plain Kilobots use :meth:`set_motors`.
         """
-        sim = self.sim
-        world = sim.world
+        world, env, trace, battery = self._world, self._env, self._trace, self._battery
         if not world.running[robot]:
             on_arrival(False)
             return
         self._integrate(robot)
-        factor = float(sim.battery.motor_factor[robot])
+        factor = float(battery.motor_factor[robot])
         turn = abs((heading_rad - world.heading_rad[robot] + math.pi) % (2 * math.pi) - math.pi)
         # A robot configured with no speed at all never gets there (1e-9: no division by zero).
         turn_s = turn / max(self.turn_rad_s[robot] * factor, 1e-9)
@@ -413,34 +446,38 @@ class Motion:
         distance = float(np.hypot(*(np.asarray(target_mm) - start)))
         driven = distance if drive_mm is None else drive_mm
         straight_s = driven / max(self.speed_mm_s[robot] * factor, 1e-9)
-        sim.trace.pose(sim.env.now, robot, *start, world.heading_rad[robot])
+        trace.pose(env.now, robot, *start, world.heading_rad[robot])
 
         def turned(_t: Timer) -> None:
             if not world.running[robot]:
                 on_arrival(False)
                 return
             world.heading_rad[robot] = heading_rad % (2 * math.pi)
-            sim.battery.motor_s[robot] += turn_s  # one motor pivots
-            sim.trace.pose(sim.env.now, robot, *world.positions_mm[robot], world.heading_rad[robot])
-            Timer(sim.env, arrived, None).schedule(straight_s)
+            battery.motor_s[robot] += turn_s  # one motor pivots
+            trace.pose(env.now, robot, *world.positions_mm[robot], world.heading_rad[robot])
+            Timer(env, arrived, None).schedule(straight_s)
 
         def arrived(_t: Timer) -> None:
             if not world.running[robot]:
                 on_arrival(False)
                 return
-            sim.battery.motor_s[robot] += 2 * straight_s  # both motors run
+            battery.motor_s[robot] += 2 * straight_s  # both motors run
             direction = (np.asarray(target_mm) - start) / max(distance, 1e-12)
             free, _ = contact_distance(start, direction, self._all_others(robot), world.diameter_mm)
             moved = distance > 0 and free >= distance
             if moved:
                 world.positions_mm[robot] = target_mm
-                sim.medium.rebuild_topology()
-            sim.trace.pose(sim.env.now, robot, *world.positions_mm[robot], world.heading_rad[robot])
+                self._moved()
+            trace.pose(env.now, robot, *world.positions_mm[robot], world.heading_rad[robot])
             on_arrival(moved)
 
-        Timer(sim.env, turned, None).schedule(turn_s)
+        Timer(env, turned, None).schedule(turn_s)
 
     def _all_others(self, robot: int) -> np.ndarray:
-        world = self.sim.world
+        world = self._world
         others = np.flatnonzero(world.present)
         return world.positions_mm[others[others != robot]]
+
+
+def _unconnected() -> None:
+    raise RuntimeError("Motion.connect() was not called: nothing rebuilds the links")

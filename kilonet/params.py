@@ -345,6 +345,12 @@ class Params:
             raise ParamError(
                 f"battery.cutoff_v ({b.cutoff_v}) must be below battery.degrade_v ({b.degrade_v})"
             )
+        r = self.robot
+        if not r.tx_jitter_s < r.tx_period_s:
+            raise ParamError(
+                f"robot.tx_jitter_s ({r.tx_jitter_s}) must be below robot.tx_period_s "
+                f"({r.tx_period_s}): an offer would fall before the one it follows"
+            )
         model = self.ranging.model
         if model not in ("tables", "gaussian") and not _is_import_path(model):
             raise ParamError(

@@ -16,7 +16,9 @@ of the robot's own clock, ``message_tx()`` at every transmit opportunity (return
 :class:`~kilonet.message.Message` or ``None``), ``message_tx_success()`` after a message went on
 the air, and ``message_rx(message, distance)`` on every reception in callback mode. In polled
 mode (the thesis's library) receptions wait in a 3-message buffer and the program polls them
-with :meth:`Kilobot.get_message`.
+with :meth:`Kilobot.get_message`; a program that overrides ``message_rx`` gets what is left in
+the buffer through it after each ``loop()`` (:meth:`Kilobot.drain_messages`), so a kilolib v2
+program receives in both modes.
 
 **Blocking calls.** kilolib's ``delay(ms)`` blocks the loop while receptions and transmissions
 go on (they run in interrupts). In Python, write ``setup`` or ``loop`` as a generator and
@@ -30,6 +32,7 @@ what arrives through the medium. It has no handle on the world.
 
 from __future__ import annotations
 
+import inspect
 from collections import deque
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -45,11 +48,13 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ADC_CONVERSION_S",
+    "RESERVED_PREFIX",
     "RGB",
     "TICKS_PER_SEC",
     "TIMER_COUNTS_PER_S",
     "Kilobot",
     "RobotStopped",
+    "check_program_class",
 ]
 
 #: kilolib's ``kilo_tx_period`` unit: timer-0 counts, 8 MHz / 1024 = 7812.5 per second.
@@ -82,6 +87,10 @@ def RGB(r: int, g: int, b: int) -> int:
     return int(r) | int(g) << 2 | int(b) << 4
 
 
+#: Attribute names the kernel keeps in every robot start with this; a program must not use it.
+RESERVED_PREFIX = "_k"
+
+
 class RobotStopped(RuntimeError):
     """Raised when a program uses a robot that has stopped (crash, removal, flat battery)."""
 
@@ -104,8 +113,10 @@ class Kilobot:
         This robot's own :class:`numpy.random.Generator`, for Python programs (a Kilobot has
         ``rand_hard`` and ``rand_soft``, which are here too).
 
-    The simulation keeps its handles in attributes whose names start with ``_``; a program
-    must not use names that start with ``_k``.
+    The simulation keeps its handles in attributes whose names start with ``_k``
+    (:data:`RESERVED_PREFIX`); a program that defines or sets such a name is refused when the
+    simulation is built or right after its ``setup()``. Every other name, ``_rate`` or
+    ``_index`` included, is the program's own.
     """
 
     # The simulation's handles live in slots inside the object: kilo_ticks reads three of them
@@ -114,19 +125,20 @@ class Kilobot:
     __slots__ = (
         "__dict__",
         "__weakref__",
-        "_color",
-        "_env",
-        "_index",
+        "_kadc",
+        "_kcolor",
         "_kdelay",
+        "_kenv",
+        "_kindex",
         "_kprocess",
+        "_krate",
+        "_krx",
+        "_ksim",
         "_ksoft",
         "_ktables",
+        "_ktheta",
         "_ktx_period",
         "_kuid",
-        "_rate",
-        "_rx_buffer",
-        "_sim",
-        "_theta",
         "kilo_straight_left",
         "kilo_straight_right",
         "kilo_turn_left",
@@ -134,8 +146,8 @@ class Kilobot:
         "rand",
     )
 
-    _sim: Simulation
-    _index: int
+    _ksim: Simulation
+    _kindex: int
     rand: np.random.Generator
 
     #: What the program's LED colours mean, for the key of a run's animations:
@@ -175,18 +187,19 @@ class Kilobot:
 
     # -- attachment (the simulation calls this) ----------------------------------------------
     def _attach(self, sim: Simulation, index: int, rng: np.random.Generator) -> None:
-        self._sim = sim
-        self._env = sim.env
-        self._index = index
+        self._ksim = sim
+        self._kenv = sim.env
+        self._kindex = index
         clocks = sim.clocks
-        self._rate = clocks.rate_hz(index)
-        self._theta = float(clocks.phase[index])
+        self._krate = clocks.rate_hz(index)
+        self._ktheta = float(clocks.phase[index])
         self.rand = rng
-        self._rx_buffer: deque[tuple[Message, int]] = deque(maxlen=sim.params.robot.rx_buffer)
-        self._color = (0, 0, 0)
+        self._krx: deque[tuple[Message, int]] = deque(maxlen=sim.params.robot.rx_buffer)
+        self._kcolor = (0, 0, 0)
         self._kuid = sim.uids[index] if sim.uids is not None else None
         self._ksoft = [0xAA, 0]  # rand_soft's seed and accumulator, as kilolib starts them
         self._kdelay = None  # the delay a generator program has not yielded yet
+        self._kadc = None  # (callback time, end) of the last ADC reading
         self._kprocess = False  # runs as a SimPy process (a generator setup or loop)
         self._ktx_period: int | None = None  # kilo_tx_period as the program last set it
         self._ktables: CalibrationTables = sim.calibration_tables[index]
@@ -198,19 +211,19 @@ class Kilobot:
     @property
     def kilo_ticks(self) -> int:
         """Ticks of this robot's clock since the start."""
-        return int(self._env._now * self._rate + self._theta)
+        return int(self._kenv._kt * self._krate + self._ktheta)  # the kernel clock, no call
 
     @property
     def ticks_per_s(self) -> float:
         """kilolib's ``TICKS_PER_SEC`` (31): the nominal rate; this robot's true rate differs
         by its clock error."""
-        return self._sim.params.robot.ticks_per_s
+        return self._ksim.params.robot.ticks_per_s
 
     @property
     def TICKS_PER_SEC(self) -> int:
         """kilolib's ``TICKS_PER_SEC`` as an integer: 31, or ``robot.ticks_per_s`` rounded
         when a run sets another nominal rate (Kilombo's 32)."""
-        return round(self._sim.params.robot.ticks_per_s)
+        return round(self._ksim.params.robot.ticks_per_s)
 
     def delay(self, ms: float) -> Timeout:
         """kilolib's ``delay(ms)``: in a generator ``setup`` or ``loop``, ``yield
@@ -227,14 +240,14 @@ class Kilobot:
         """
         if not self._kprocess:
             raise RuntimeError(
-                f"robot {self._index}: delay() blocks only in a generator setup/loop; write "
+                f"robot {self._kindex}: delay() blocks only in a generator setup/loop; write "
                 "`yield self.delay(ms)` there"
             )
         if self._kdelay is not None:
-            raise RuntimeError(f"robot {self._index}: delay() was called without `yield`")
+            raise RuntimeError(f"robot {self._kindex}: delay() was called without `yield`")
         if ms < 0:
             raise ValueError(f"delay(ms) needs ms >= 0, got {ms}")
-        self._kdelay = self._env.timeout(self._sim.clocks.true_s(self._index, ms / 1000.0))
+        self._kdelay = self._kenv.timeout(self._ksim.clocks.true_s(self._kindex, ms / 1000.0))
         return self._kdelay
 
     @property
@@ -244,7 +257,7 @@ class Kilobot:
         ``kilo_tx_period // 255 + 1`` ticks (3906: 16 ticks, 0.524 s of this robot's clock)."""
         if self._ktx_period is not None:
             return self._ktx_period
-        own_s = self._sim.medium.tx_period_own_s(self._index)
+        own_s = self._ksim.medium.tx_period_own_s(self._kindex)
         ticks = own_s * TIMER_COUNTS_PER_S / 256
         if abs(ticks - 16) < 1e-9:
             return 3906
@@ -256,7 +269,7 @@ class Kilobot:
             raise ValueError(f"kilo_tx_period is a uint16 of timer counts > 0, got {counts}")
         self._ktx_period = int(counts)
         ticks = counts // 255 + 1
-        self._sim.medium.set_tx_period(self._index, ticks * 256 / TIMER_COUNTS_PER_S)
+        self._ksim.medium.set_tx_period(self._kindex, ticks * 256 / TIMER_COUNTS_PER_S)
 
     # -- identity and randomness -------------------------------------------------------------
     @property
@@ -319,22 +332,32 @@ class Kilobot:
         ValueError
             If a channel is not an integer in 0–3, or a packed colour not one of 0–63.
         """
-        if g is None and b is None:
-            if not isinstance(r, int | np.integer) or not 0 <= r <= 63:
-                raise ValueError(f"set_color(RGB(r, g, b)) takes a byte 0-63, got {r!r}")
-            r, g, b = r & 3, (r >> 2) & 3, (r >> 4) & 3
-        color = (r, g, b)
-        if any(not isinstance(c, int | np.integer) or not 0 <= c <= 3 for c in color):
-            raise ValueError(f"set_color channels must be integers 0-3, got {color}")
-        color = (int(r), int(g), int(b))
-        if color != self._color:
-            self._color = color
-            self._sim.trace.led(self._env._now, self._index, color)
+        if (
+            r.__class__ is int
+            and g.__class__ is int
+            and b.__class__ is int
+            and 0 <= r <= 3
+            and 0 <= g <= 3
+            and 0 <= b <= 3
+        ):
+            color = (r, g, b)  # the common case, checked without a call (loops set it often)
+        else:
+            if g is None and b is None:
+                if not isinstance(r, int | np.integer) or not 0 <= r <= 63:
+                    raise ValueError(f"set_color(RGB(r, g, b)) takes a byte 0-63, got {r!r}")
+                r, g, b = r & 3, (r >> 2) & 3, (r >> 4) & 3
+            color = (r, g, b)
+            if any(not isinstance(c, int | np.integer) or not 0 <= c <= 3 for c in color):
+                raise ValueError(f"set_color channels must be integers 0-3, got {color}")
+            color = (int(r), int(g), int(b))
+        if color != self._kcolor:
+            self._kcolor = color
+            self._ksim.trace.led(self._kenv.now, self._kindex, color)
 
     @property
     def color(self) -> tuple[int, int, int]:
         """The LED colour last set."""
-        return self._color
+        return self._kcolor
 
     def set_motors(self, left: int, right: int) -> None:
         """kilolib's ``set_motors(left, right)``: duty cycles 0–255.
@@ -352,13 +375,13 @@ class Kilobot:
         for value in (left, right):
             if not isinstance(value, int | np.integer) or not 0 <= value <= 255:
                 raise ValueError(f"motor values must be integers 0-255, got ({left}, {right})")
-        self._sim.motion.set_motors(self._index, int(left), int(right))
+        self._ksim.motion.set_motors(self._kindex, int(left), int(right))
 
     def spinup_motors(self) -> None:
         """kilolib's ``spinup_motors()``: both motors at full duty, which starts a motor at
         rest. (kilolib then waits 15 ms; here the next ``set_motors`` follows at once, so the
         burst moves the robot by nothing instead of about 0.3 mm.)"""
-        self._sim.motion.set_motors(self._index, 255, 255)
+        self._ksim.motion.set_motors(self._kindex, 255, 255)
 
     # -- messages and receptions -------------------------------------------------------------
     @staticmethod
@@ -369,7 +392,21 @@ class Kilobot:
 
     def get_message(self) -> tuple[Message, int] | None:
         """Polled mode: the oldest buffered ``(message, distance)``, or ``None``."""
-        return self._rx_buffer.popleft() if self._rx_buffer else None
+        return self._krx.popleft() if self._krx else None
+
+    def drain_messages(self) -> int:
+        """Polled mode: hand every buffered message, oldest first, to ``message_rx``; the
+        number handed over (0 in callback mode, where nothing is buffered).
+
+        The simulation calls it after every ``loop()`` of a program that overrides
+        ``message_rx``, so such a program receives in polled mode too (a tick late at most);
+        a program calls it itself to take its messages at a point of its choosing.
+        """
+        buffer, receive, n = self._krx, self.message_rx, 0
+        while buffer:
+            receive(*buffer.popleft())
+            n += 1
+        return n
 
     def estimate_distance(self, distance: int | DistanceMeasurement) -> int:
         """kilolib's ``estimate_distance(&d)``: centre-to-centre mm from a raw measurement, on
@@ -380,27 +417,27 @@ class Kilobot:
     def get_ambientlight(self) -> int:
         """kilolib's ``get_ambientlight()``: a 10-bit reading of the light where the robot
         stands, or -1 while a message is arriving (the ADC is busy measuring it)."""
-        sim = self._sim
+        sim = self._ksim
         if self._kadc_busy():
             return -1
-        return sim.sensors.ambient_light(self._index)
+        return sim.sensors.ambient_light(self._kindex)
 
     def get_voltage(self) -> int:
         """kilolib's ``get_voltage()``: a 10-bit reading of the battery (about ``169 * V +
         6``: 547 at 3.2 V, 716 at 4.2 V), or -1 while a message is arriving."""
-        sim = self._sim
+        sim = self._ksim
         if self._kadc_busy():
             return -1
-        return sim.sensors.voltage_reading(self._index)
+        return sim.sensors.voltage_reading(self._kindex)
 
     def get_temperature(self) -> int:
         """kilolib's ``get_temperature()``: a 10-bit reading of the ATmega328P's temperature
         sensor against its 1.1 V reference (about 292 at 25 °C), or -1 while a message is
         arriving."""
-        sim = self._sim
+        sim = self._ksim
         if self._kadc_busy():
             return -1
-        return sim.sensors.temperature_reading(self._index)
+        return sim.sensors.temperature_reading(self._kindex)
 
     def _kadc_busy(self) -> bool:
         """Whether this ADC reading finds a message arriving. Each reading takes
@@ -408,19 +445,92 @@ class Kilobot:
         other, so a callback that spins on ``while get_ambientlight() == -1`` (kilolib's
         idiom) reads a real value once the message has ended, as on the robot, although the
         simulation's clock stands still until the callback returns."""
-        now = self._env._now
-        last = self.__dict__.get("_kadc")
+        now = self._kenv.now
+        last = self._kadc
         at = last[1] + ADC_CONVERSION_S if last is not None and last[0] == now else now
         self._kadc = (now, at)
-        return self._sim.medium.channel.busy(self._index, at)  # a carrier at `at`
+        return self._ksim.medium.channel.busy(self._kindex, at)  # a carrier at `at`
 
     # -- the run's record --------------------------------------------------------------------
     def log(self, event: str, **fields: Any) -> None:
         """Record a protocol event (name and fields) in the run's trace."""
-        self._sim.trace.event(self._env._now, self._index, event, fields)
+        self._ksim.trace.event(self._kenv.now, self._kindex, event, fields)
 
     @property
     def polled(self) -> bool:
         """Whether receptions wait in the polled buffer (the thesis's library) rather than
         arriving through ``message_rx``; fixed for a run, like a kilolib build option."""
-        return self._sim.params.robot.rx_mode == "polled"
+        return self._ksim.params.robot.rx_mode == "polled"
+
+
+def check_program_class(cls: type[Kilobot]) -> None:
+    """Refuse a program class the kernel would run wrongly without a word.
+
+    Raises
+    ------
+    TypeError
+        If a class of the program defines a name starting with :data:`RESERVED_PREFIX` (the
+        kernel's own attributes), or overrides a generator ``setup``/``loop`` with a plain
+        function that calls ``super().setup()``/``super().loop()`` (that call only builds
+        the parent's generator and throws it away: the parent's code never runs).
+
+    Examples
+    --------
+    >>> class Parent(Kilobot):
+    ...     def setup(self):
+    ...         yield self.delay(10)
+    >>> class Child(Parent):
+    ...     def setup(self):
+    ...         super().setup()
+    >>> check_program_class(Child)
+    Traceback (most recent call last):
+    ...
+    TypeError: Child.setup is a plain function but calls super().setup(), which is a generator...
+    >>> class Fixed(Parent):
+    ...     def setup(self):
+    ...         yield from super().setup()
+    >>> check_program_class(Fixed)
+    """
+    own = [k for k in cls.__mro__ if k is not Kilobot and issubclass(k, Kilobot)]
+    for klass in own:
+        for name in vars(klass):
+            if name.startswith(RESERVED_PREFIX):
+                raise TypeError(
+                    f"{klass.__name__}.{name}: names starting with {RESERVED_PREFIX!r} are the "
+                    "kernel's; rename it"
+                )
+    for method in ("setup", "loop"):
+        for i, klass in enumerate(own):
+            fn = vars(klass).get(method)
+            if fn is None or inspect.isgeneratorfunction(fn):
+                continue
+            code = getattr(fn, "__code__", None)
+            if code is None or "super" not in code.co_names or method not in code.co_names:
+                continue
+            parent = next((k for k in own[i + 1 :] if method in vars(k)), None)
+            if parent is not None and inspect.isgeneratorfunction(vars(parent)[method]):
+                raise TypeError(
+                    f"{klass.__name__}.{method} is a plain function but calls super().{method}(), "
+                    f"which is a generator ({parent.__name__}.{method}): that call does not run "
+                    f"it; make {klass.__name__}.{method} a generator with "
+                    f"`yield from super().{method}()`"
+                )
+
+
+def check_kernel_names(robot: Kilobot, index: int, slots: dict[str, Any]) -> None:
+    """Refuse a program that set an attribute starting with :data:`RESERVED_PREFIX` (the
+    simulation calls it once, after ``setup()``, with the values its kernel slots must hold).
+
+    Raises
+    ------
+    TypeError
+        If such a name is in the robot's ``__dict__``, or a slot in ``slots`` no longer holds
+        that value.
+    """
+    names = [k for k in vars(robot) if k.startswith(RESERVED_PREFIX)]
+    names += [k for k, v in slots.items() if getattr(robot, k, None) != v]
+    if names:
+        raise TypeError(
+            f"robot {index} ({type(robot).__name__}) set {', '.join(names)}: names starting "
+            f"with {RESERVED_PREFIX!r} are the kernel's; rename them"
+        )

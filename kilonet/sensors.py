@@ -32,7 +32,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from kilonet.simulation import Simulation
+    from collections.abc import Callable
+
+    from kilonet.params import LightParams
+    from kilonet.simulation import World
 
 __all__ = ["Sensors", "temperature_mv", "voltage_reading"]
 
@@ -63,21 +66,45 @@ def temperature_mv(celsius: float) -> float:
 
 
 class Sensors:
-    """The analogue sensors of every robot of a simulation."""
+    """The analogue sensors of every robot of a simulation.
 
-    def __init__(self, sim: Simulation) -> None:
-        self.sim = sim
-        self.light = sim.params.light
+    Parameters
+    ----------
+    light : LightParams
+        The light on the table (``light.*``).
+    temperature_c : float
+        Air temperature, degrees C (``robot.temperature_c``).
+    world : World
+        Where the robots stand and face (read at each light reading).
+    voltage_v : callable
+        ``voltage_v(robot)``: the battery voltage of ``robot`` now, V.
+    rng : numpy.random.Generator
+        The ``sensors`` stream: each robot's temperature offset, then the light noise.
+    """
+
+    def __init__(
+        self,
+        light: LightParams,
+        temperature_c: float,
+        world: World,
+        voltage_v: Callable[[int], float],
+        rng: np.random.Generator,
+    ) -> None:
+        self.light = light
+        self._world = world
+        self._voltage_v = voltage_v
+        self._temperature_mv = temperature_mv(temperature_c)
         self._sensor_angle = math.radians(self.light.sensor_angle_deg)
-        self._rng = sim.stream("sensors")
-        self.temperature_offset = np.rint(self._rng.normal(0.0, 5.0, sim.n_robots)).astype(int)
+        self._rng = rng
+        n = len(world.positions_mm)
+        self.temperature_offset = np.rint(self._rng.normal(0.0, 5.0, n)).astype(int)
 
     def ambient_light(self, robot: int) -> int:
         """The light reading at ``robot``'s position and heading now."""
         p = self.light
         value = p.ambient
         if p.source_intensity > 0:
-            world = self.sim.world
+            world = self._world
             x, y = world.positions_mm[robot]
             dx, dy = p.source_x_mm - float(x), p.source_y_mm - float(y)
             off = math.atan2(dy, dx) - float(world.heading_rad[robot]) - self._sensor_angle
@@ -90,9 +117,9 @@ class Sensors:
 
     def voltage_reading(self, robot: int) -> int:
         """The battery reading of ``robot`` now."""
-        return voltage_reading(self.sim.battery.voltage(robot))
+        return voltage_reading(self._voltage_v(robot))
 
     def temperature_reading(self, robot: int) -> int:
         """The temperature reading of ``robot``."""
-        mv = temperature_mv(self.sim.params.robot.temperature_c)
+        mv = self._temperature_mv
         return int(np.clip(round(mv * 1024 / 1100) + self.temperature_offset[robot], 0, 1023))

@@ -24,10 +24,9 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import simpy
 
 from kilonet.battery import Battery
-from kilonet.clock import LoopSchedule, RobotClocks
+from kilonet.clock import KernelEnvironment, RobotClocks
 from kilonet.counters import LOSS_CAUSES
 from kilonet.faults import FaultInjector
 from kilonet.medium import InfraredMedium
@@ -37,7 +36,7 @@ from kilonet.params import Params
 from kilonet.placement import ROBOT_DIAMETER_MM, validate_positions
 from kilonet.radio import Transceivers, reach_of
 from kilonet.ranging import calibration_tables, measurement_for, read_calibration
-from kilonet.robot import Kilobot
+from kilonet.robot import Kilobot, check_kernel_names, check_program_class
 from kilonet.sensors import Sensors
 from kilonet.trace import Trace
 
@@ -150,7 +149,7 @@ class Simulation:
         positions = validate_positions(positions_mm, source="positions", min_robots=1)
         n = len(positions)
         self.n_robots = n
-        self.env = simpy.Environment()
+        self.env = KernelEnvironment()
         model_seq, robot_seq = np.random.SeedSequence(self.params.seed).spawn(2)
         self._streams = {
             name: np.random.Generator(np.random.PCG64(s))
@@ -175,20 +174,43 @@ class Simulation:
         self.transceivers = Transceivers.draw(
             n, reach_of(mp), mp.tx_strength_sd, self.stream("radio")
         )
-        self.motion = Motion(self)
+        self.motion = Motion(
+            self.params.motion, self.env, self.world, self.trace, self.stream("motion")
+        )
         self.robots: list[Kilobot] = []
         build = program if not _is_program_class(program) else (lambda _i: program())
+        checked: set[type] = set()
         for i in range(n):
             robot = build(i)
             if not isinstance(robot, Kilobot):
                 raise TypeError(f"program({i}) returned {type(robot).__name__}, not a Kilobot")
+            if type(robot) not in checked:
+                check_program_class(type(robot))
+                checked.add(type(robot))
             robot._attach(self, i, robot_rngs[i])
             self.robots.append(robot)
         self.medium = InfraredMedium(self, links=links, reception=reception)
         self.battery = Battery(self)
-        self.sensors = Sensors(self)
-        self.faults = FaultInjector(self)
+        self.motion.connect(self.battery, self.medium.rebuild_topology)
+        rp = self.params.robot
+        self.sensors = Sensors(
+            self.params.light,
+            rp.temperature_c,
+            self.world,
+            self.battery.voltage,
+            self.stream("sensors"),
+        )
+        self.faults = FaultInjector(
+            self.params.faults,
+            self.env,
+            self.stream("faults"),
+            n,
+            stop=self.stop_robot,
+            medium=self.medium,
+            deliver=self.deliver,
+        )
         self.stop_causes: dict[int, str] = {}
+        self._loops: dict[int, int] = {}  # robot -> its loop's handle in the environment
         self.wall_time_s = 0.0
         self._started = False
         self._estimating: list[int] = []  # robots whose position_estimate() is sampled
@@ -210,23 +232,38 @@ class Simulation:
         self._started = True
         self.faults.start()
         self.battery.start()
-        loops = LoopSchedule(self.env)
         loop_ticks = self.params.robot.loop_ticks
+        polled = self.params.robot.rx_mode == "polled"
         for i, robot in enumerate(self.robots):
             cls = type(robot)
-            has_loop = cls.loop is not Kilobot.loop
+            # In polled mode a program with a message_rx gets what its loop leaves in the
+            # buffer through it after each loop call (see Kilobot.drain_messages).
+            drains = polled and cls.message_rx is not Kilobot.message_rx
+            has_loop = cls.loop is not Kilobot.loop or drains
             if inspect.isgeneratorfunction(cls.setup) or inspect.isgeneratorfunction(cls.loop):
                 robot._kprocess = True
-                self.env.process(self._program(i, has_loop))
+                self.env.process(self._program(i, has_loop, drains))
                 continue
             robot.setup()
+            self._check_kernel_names(i)
             self.medium.start(i)
             # An empty loop() has no effect on a robot; skipping it keeps idle programs cheap.
             if has_loop:
                 period = loop_ticks / self.clocks.rate_hz(i)
-                loops.add(self.clocks.first_mid_tick_s(i), period, self._loop_call(i))
-        loops.start()
+                first = self.clocks.first_mid_tick_s(i)
+                self._loops[i] = self.env.every(first, period, self._loop_call(i, drains))
         self._sample_estimates()
+
+    def _check_kernel_names(self, i: int) -> None:
+        """Refuse robot ``i``'s program if its setup set a kernel name (see
+        :func:`kilonet.robot.check_kernel_names`)."""
+        slots = {
+            "_kenv": self.env,
+            "_kindex": i,
+            "_krate": self.clocks.rate_hz(i),
+            "_ktheta": float(self.clocks.phase[i]),
+        }
+        check_kernel_names(self.robots[i], i, slots)
 
     def _sample_estimates(self) -> None:
         """Every ``trace.estimates_period_s`` from the start, and whenever :meth:`run` returns,
@@ -271,52 +308,72 @@ class Simulation:
                 held[i] = estimate
                 self.trace.estimate(now, i, *estimate)
 
-    def _loop_call(self, i: int) -> Callable[[], bool]:
-        """Robot ``i``'s turn in the loop schedule: its ``loop()`` while it runs."""
-        loop = self.robots[i].loop
-        running = self.world.running
+    def _loop_call(self, i: int, drains: bool) -> Callable[[], None]:
+        """Robot ``i``'s turn in the loop schedule: its ``loop()`` (and, with ``drains``, its
+        polled buffer into ``message_rx`` after it); :meth:`stop_robot` cancels it."""
+        robot = self.robots[i]
+        if not drains:
+            return robot.loop
+        loop, drain, running = robot.loop, robot.drain_messages, self.world.running
+        if type(robot).loop is Kilobot.loop:
+            return drain
 
-        def call() -> bool:
+        def call() -> None:
+            loop()
             if running[i]:
-                loop()
-                return True
-            return False
+                drain()
 
         return call
 
-    def _program(self, i: int, has_loop: bool) -> Generator[Any, Any, None]:
+    def _program(self, i: int, has_loop: bool, drains: bool) -> Generator[Any, Any, None]:
         """Robot ``i``'s program as a SimPy process: setup, then its loop, each call allowed to
         block in ``yield self.delay(ms)``. A call that blocked is followed by the next at once
         (kilolib calls ``loop()`` back to back); one that did not, at the middle of the tick
-        ``robot.loop_ticks`` later (nothing a program reads changes in between but its
-        receptions)."""
+        ``robot.loop_ticks`` ticks after the tick it ran in (nothing a program reads changes in
+        between but its receptions). With ``drains``, the polled buffer goes to
+        ``message_rx`` after each call."""
         robot, running = self.robots[i], self.world.running
         yield from self._blocking(i, robot.setup())
         if not running[i]:
             return
+        self._check_kernel_names(i)
         self.medium.start(i)
         if not has_loop:
             return
         rate, theta = self.clocks.rate_hz(i), float(self.clocks.phase[i])
-        loop_s = self.params.robot.loop_ticks / rate
-        due = self.env.now
+        loop_ticks = self.params.robot.loop_ticks
+        plain_loop = type(robot).loop is Kilobot.loop
+        # The first call falls mid-tick, in the tick under way if its middle is still ahead.
+        position = self.env.now * rate + theta
+        tick = math.floor(position)
+        if position - tick > 0.5:
+            tick += 1
         blocked = False
         while True:
+            started = self.env.now
             if not blocked:
-                # The next loop call falls mid-tick, at or after `due`.
-                tick = np.floor(due * rate + theta)
-                at = (tick + 0.5 - theta) / rate
-                if at < due:
-                    at += 1.0 / rate
-                yield self.env.timeout(at - self.env.now)
+                # Ticks are counted, not times compared: a float comparison of two times that
+                # name the same mid-tick would skip a tick now and then.
+                yield self.env.timeout(max(0.0, (tick + 0.5 - theta) / rate - started))
                 if not running[i]:
                     return
-            started = self.env.now
-            yield from self._blocking(i, robot.loop())
-            if not running[i]:
-                return
+                started, call_tick = self.env.now, tick
+            else:
+                call_tick = None  # right after a call that blocked: not on a tick's middle
+            if not plain_loop:
+                yield from self._blocking(i, robot.loop())
+                if not running[i]:
+                    return
+            if drains:
+                robot.drain_messages()
             blocked = self.env.now > started
-            due = started + loop_s
+            if call_tick is not None:
+                tick = call_tick + loop_ticks
+            else:  # the middle of a tick at or after `loop_ticks` ticks from `started`
+                position = started * rate + theta + loop_ticks
+                tick = math.floor(position)
+                if position - tick > 0.5:
+                    tick += 1
 
     def _blocking(self, i: int, result: Any) -> Generator[Any, Any, None]:
         """Run a program call that may be a generator of delays (see :meth:`Kilobot.delay`).
@@ -373,7 +430,7 @@ class Simulation:
         robot = self.robots[i]
         rp = self.params.robot
         if rp.rx_mode == "polled":
-            buffer, size, medium = robot._rx_buffer, robot._rx_buffer.maxlen, self.medium
+            buffer, size, medium = robot._krx, robot._krx.maxlen, self.medium
 
             def push(message: Message, distance: Any) -> None:
                 if len(buffer) == size:
@@ -423,6 +480,8 @@ class Simulation:
             return
         self.motion.stop(robot)
         self.world.running[robot] = False
+        if robot in self._loops:
+            self.env.cancel(self._loops[robot])
         if remove:
             self.world.present[robot] = False
         self.stop_causes.setdefault(robot, cause)

@@ -450,7 +450,7 @@ def _guarded(args: argparse.Namespace):
                 robot, call = found
                 raise KeyboardInterrupt(
                     f"in {describe_call(robot, call, tb.tb_frame)} at "
-                    f"{robot._env._now:.3f} simulated s"
+                    f"{robot._kenv.now:.3f} simulated s"
                 ) from None
 
     return guarded

@@ -200,7 +200,7 @@ def robot_frame(frame: FrameType | None) -> tuple[Kilobot, FrameType] | None:
     found = None
     while frame is not None:
         robot = frame.f_locals.get("self")
-        if isinstance(robot, Kilobot) and hasattr(robot, "_index"):
+        if isinstance(robot, Kilobot) and hasattr(robot, "_kindex"):
             found = (robot, frame)
         frame = frame.f_back
     return found
@@ -210,7 +210,7 @@ def describe_call(robot: Kilobot, frame: FrameType, innermost: FrameType | None 
     """``robot 4's loop (my_bot.py:12)``: the robot, the callback, where it runs now."""
     at = innermost or frame
     return (
-        f"robot {robot._index}'s {frame.f_code.co_name} "
+        f"robot {robot._kindex}'s {frame.f_code.co_name} "
         f"({Path(at.f_code.co_filename).name}:{at.f_lineno})"
     )
 
@@ -249,7 +249,7 @@ def busy_watchdog(seconds: float = BUSY_CALL_S) -> Iterator[None]:
             last[0] = None
             return
         robot, call = found
-        now = robot._env._now
+        now = robot._kenv.now
         if last[0] is not None and last[0][0] is call and last[0][1] == now:
             last[0] = None
             raise BusyCallError(

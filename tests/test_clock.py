@@ -1,5 +1,5 @@
-"""Tests for kilonet.clock: robot clocks, reusable timers, and the loop schedule that stands in
-for one timer per robot loop."""
+"""Tests for kilonet.clock: robot clocks, reusable timers, and the kernel environment with the
+recurring calls that stand in for one timer per robot loop."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import simpy
 from hypothesis import given
 from hypothesis import strategies as st
 
-from kilonet.clock import LoopSchedule, RobotClocks, Timer
+from kilonet.clock import KernelEnvironment, RobotClocks, Timer
 
 # Coarse values on purpose: loops and other events often fall due at the very same time, where
 # only the insertion order SimPy keeps decides which runs first.
@@ -28,7 +28,8 @@ class Boom(RuntimeError):
 
 def _journal(periods_s, first_s, event_times, chunk_s, *, round_of_loops, stops=None, raises=None):
     """(what, simulated time) of every loop call and every other event in a 3 s run, with the
-    loops on one Timer each or in a LoopSchedule (loop k recurring every ``periods_s[k]``),
+    loops on one Timer each or recurring calls of the environment (loop k every
+    ``periods_s[k]``),
     added in turn with the other events (as the simulation adds a robot's loop after its first
     transmit opportunity).
 
@@ -36,7 +37,7 @@ def _journal(periods_s, first_s, event_times, chunk_s, *, round_of_loops, stops=
     events of its own: one half a period ahead, one a whole period ahead (due with the loop's
     next call) and one urgent at once. Loop k stops for good at ``stops[k]`` s, and raises
     :class:`Boom` the first time it runs at or after ``raises[k]`` s; the run carries on."""
-    env = simpy.Environment()
+    env = KernelEnvironment()
     journal = []
     stops, raises = stops or {}, raises or {}
 
@@ -61,18 +62,17 @@ def _journal(periods_s, first_s, event_times, chunk_s, *, round_of_loops, stops=
 
         return call
 
-    loops = LoopSchedule(env)
     for k, first in enumerate(first_s):
         for j, t in enumerate(event_times[k :: len(first_s)]):
             event(f"event {k}.{j}").schedule(t)
         call = loop_call(k)
         if round_of_loops:
-            loops.add(first, periods_s[k], call)
+            handle = env.every(first, periods_s[k], lambda call=call, k=k: call() or env.cancel(k))
+            assert handle == k
         else:
             Timer(
                 env, lambda timer, call=call, p=periods_s[k]: call() and timer.schedule(p), k
             ).schedule(first)
-    loops.start()
     while env.now < 3.0:
         try:
             env.run(until=min(3.0, env.now + chunk_s))
@@ -117,34 +117,89 @@ def test_a_loop_that_stops_or_raises_leaves_the_schedule_and_the_others_go_on(
 
 
 def test_a_schedule_whose_loops_all_stopped_leaves_the_queue_empty():
-    env = simpy.Environment()
+    env = KernelEnvironment()
     calls = []
 
     def call():
         calls.append(round(env.now, 9))
-        return env.now < 1.0
+        if env.now >= 1.0:
+            env.cancel(handle)
 
-    loops = LoopSchedule(env)
-    loops.add(0.1, 0.25, call)
-    loops.start()
+    handle = env.every(0.1, 0.25, call)
     env.run()  # without `until`: returns only once nothing is queued
     assert calls == [0.1, 0.35, 0.6, 0.85, 1.1]
+    assert env.peek() == float("inf")
 
 
 @pytest.mark.parametrize(("first_s", "period_s"), [(-0.1, 0.5), (0.0, 0.0), (0.1, -1.0)])
 def test_a_negative_first_time_or_a_period_not_above_zero_is_refused(first_s, period_s):
     with pytest.raises(ValueError, match="first_s >= 0 and period_s > 0"):
-        LoopSchedule(simpy.Environment()).add(first_s, period_s, lambda: True)
+        KernelEnvironment().every(first_s, period_s, lambda: True)
 
 
-def test_a_schedule_takes_loops_only_before_it_starts_and_starts_once():
-    loops = LoopSchedule(simpy.Environment())
-    loops.add(0.1, 0.5, lambda: True)
-    loops.start()
-    with pytest.raises(RuntimeError, match="before it starts"):
-        loops.add(0.2, 0.5, lambda: True)
-    with pytest.raises(RuntimeError, match="starts only once"):
-        loops.start()
+@pytest.mark.parametrize("delay", [-1e-9, -0.5, float("nan")])
+def test_an_event_in_the_past_is_refused_and_the_clock_never_runs_backwards(delay):
+    env = KernelEnvironment()
+    env.run(until=1.0)
+    with pytest.raises(ValueError, match="in the past"):
+        env.schedule(env.event(), delay=delay)
+    with pytest.raises(ValueError, match="in the past"):
+        Timer(env, lambda _t: None, None).schedule(delay)
+    with pytest.raises(ValueError, match="in the past"):
+        env.schedule_at(env.event(), 1.0 + delay)
+    with pytest.raises(ValueError, match=r"in the past|Negative delay"):
+        env.timeout(delay)  # SimPy's Timeout refuses a negative delay itself, the kernel NaN
+    assert env.now == 1.0 and env.peek() == float("inf")
+
+
+def _process_journal(env: simpy.Environment) -> list:
+    """What SimPy's own events do on ``env``: processes, timeouts, conditions, an interrupt,
+    a failed event that is caught, run in chunks and to the end."""
+    journal = []
+
+    def sleeper(name, delays):
+        try:
+            for d in delays:
+                yield env.timeout(d)
+                journal.append((name, env.now))
+        except simpy.Interrupt as why:
+            journal.append((name, "interrupted", why.cause, env.now))
+
+    def boss():
+        a = env.process(sleeper("a", [0.5, 0.5, 0.25]))
+        b = env.process(sleeper("b", [0.25] * 8))
+        yield env.all_of([env.timeout(0.75), env.timeout(1.0)])
+        journal.append(("all", env.now))
+        b.interrupt("enough")
+        failing = env.event()
+        failing.fail(KeyError("k"))
+        try:
+            yield failing
+        except KeyError:
+            journal.append(("caught", env.now))
+        yield a
+        journal.append(("a done", env.now, a.value))
+        yield env.any_of([env.timeout(2.0), env.timeout(0.5, value="fast")])
+        journal.append(("any", env.now))
+
+    env.process(boss())
+    env.run(until=1.1)
+    journal.append(("paused", env.now))
+    env.run()
+    journal.append(("end", env.now))
+    return journal
+
+
+def test_simpy_events_and_processes_run_on_the_kernel_environment_as_on_simpys():
+    assert _process_journal(KernelEnvironment()) == _process_journal(simpy.Environment())
+
+
+def test_an_unhandled_failed_event_raises_as_in_simpy():
+    for env in (KernelEnvironment(), simpy.Environment()):
+        event = env.event()
+        event.fail(KeyError("lost"))
+        with pytest.raises(KeyError, match="lost"):
+            env.run(until=1.0)
 
 
 # ------------------------------------------------------------------------------ robot clocks
@@ -178,3 +233,30 @@ def test_the_first_loop_falls_mid_tick_of_tick_zero_or_one(phase, factor):
     t = clocks.first_mid_tick_s(0)
     assert 0 <= t < 1 / clocks.rate_hz(0)
     assert (t * clocks.rate_hz(0) + phase) % 1 == pytest.approx(0.5, abs=1e-9)
+
+
+@given(_PERIODS_S, _FIRST_S, _CHUNK_S, st.sampled_from([0.0, 0.3, 1.0, 1.05]))
+def test_recurring_calls_added_while_running_run_as_one_timer_each_would(
+    periods_s, first_s, chunk_s, added_at_s
+):
+    def journal(recurring: bool) -> list:
+        env = KernelEnvironment()
+        log = []
+
+        def start(k, first):
+            def call():
+                log.append((k, env.now))
+
+            if recurring:
+                env.every(first, periods_s[k], call)
+            else:
+                Timer(env, lambda t, p=periods_s[k]: call() or t.schedule(p), k).schedule(first)
+
+        start(0, first_s[0])
+        adder = Timer(env, lambda _t: [start(k, f) for k, f in enumerate(first_s)], None)
+        adder.schedule(added_at_s)
+        while env.now < 3.0:
+            env.run(until=min(3.0, env.now + chunk_s))
+        return log
+
+    assert journal(True) == journal(False)

@@ -37,7 +37,7 @@ class Numbered(Kilobot):
 
     @property
     def now(self) -> float:
-        return self._sim.env.now
+        return self._ksim.env.now
 
     def message_tx(self) -> Message | None:
         return Message(self.seq.to_bytes(2, "little")) if self.send else None
@@ -51,6 +51,12 @@ class Numbered(Kilobot):
 
     def loop(self) -> None:
         self.journal.append(("loop", self.kilo_uid, self.now, None))
+
+
+class _Buffered(Numbered):
+    """Numbered without message_rx: in polled mode its receptions stay in the buffer."""
+
+    message_rx = Kilobot.message_rx
 
 
 def times(log: list, name: str, robot: int) -> list[float]:
@@ -159,7 +165,9 @@ def test_faulty_receiver_drops_a_share_and_delays_others():
 
 def test_faulty_receiver_in_polled_mode_buffers_delayed_messages():
     params = quiet_params({"robot.rx_mode": "polled", "robot.rx_buffer": 1000})
-    sim, log = _sender_and_listeners([[0, 0], [50, 0]], params)
+    log: list = []
+    programs = [Numbered(log, send=True), _Buffered(log)]
+    sim = Simulation([[0, 0], [50, 0]], lambda i: programs[i], params)
     sim.faults.faulty_receiver(1, drop_prob=0.0, delay_prob=1.0, delay_s=0.1)
     sim.run(10.0)
     sim.robots[0].send = False

@@ -621,7 +621,7 @@ def test_protocol_runs_on_the_robot_api_alone():
     positions = place(LOCALIZE, params)
     sim = Simulation(positions, LOCALIZE.program(params, positions), params)
     for robot in sim.robots:
-        robot._sim = _RobotApiOnly(sim)
+        robot._ksim = _RobotApiOnly(sim)
     sim.run(60.0, stop_when=lambda: LOCALIZE.stop_when(sim))
     assert all(r.stage == "done" for r in sim.robots)
     assert all(r.in_frame for r in sim.robots)

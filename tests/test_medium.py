@@ -2,7 +2,7 @@
 
 The style is SimPy's own: tiny robot programs log ``(name, robot, t_s, values)`` into a shared
 list and the tests assert on exact times and counts. Programs read the true clock
-(``self._sim.env.now``) only to log it; what they send and when is fixed by the test.
+(``self._ksim.env.now``) only to log it; what they send and when is fixed by the test.
 
 Controlling when a robot transmits: with ``robot.tx_period_s`` tiny (1 ms) and no jitter, a
 robot gets a transmit opportunity every millisecond, so a program that offers its message only
@@ -84,7 +84,7 @@ class Radio(Kilobot):
 
     @property
     def now(self) -> float:
-        return self._sim.env.now
+        return self._ksim.env.now
 
     def setup(self) -> None:
         self.seq = 0
@@ -563,18 +563,25 @@ def test_callback_mode_calls_message_rx_on_arrival():
     assert sim.robots[1].get_message() is None  # nothing is buffered in callback mode
 
 
+class Buffered(Radio):
+    """A Radio without ``message_rx``: in polled mode its receptions wait in the buffer."""
+
+    message_rx = Kilobot.message_rx
+
+
 @pytest.mark.parametrize("rx_buffer", [3, 5])
 def test_polled_mode_keeps_the_newest_messages(rx_buffer):
     log: list = []
     params = quiet_params(
         {"robot.rx_mode": "polled", "robot.rx_buffer": rx_buffer, "ranging.sigma_mm": 0.0}
     )
-    sim = build([[0, 0], [50, 0]], params, log, r0={"max_messages": 8})
+    programs = [Radio(log, max_messages=8), Buffered(log, send=False)]
+    sim = Simulation([[0, 0], [50, 0]], lambda i: programs[i], params)
     sim.run(5.0)
     c = sim.medium.counters
     assert c["sent"][0] == c["received"][1] == 8
     assert c["lost_overflow"][1] == 8 - rx_buffer
-    assert entries(log, "rx") == []  # message_rx is not called in polled mode
+    assert entries(log, "rx") == []  # nothing drains a buffer of a program without message_rx
     robot = sim.robots[1]
     polled = [robot.get_message() for _ in range(rx_buffer)]
     assert [(m.data[0], int.from_bytes(m.data[1:3], "little")) for m, _ in polled] == [
@@ -582,6 +589,46 @@ def test_polled_mode_keeps_the_newest_messages(rx_buffer):
     ]
     assert [d for _, d in polled] == [50] * rx_buffer
     assert robot.get_message() is None
+
+
+@pytest.mark.parametrize("loop", [False, True])
+def test_polled_mode_hands_a_callback_program_its_messages_after_each_loop(loop):
+    # A kilolib v2 program (message_rx, no polling) under the thesis's buffered library: the
+    # kernel drains its buffer into message_rx after every loop() call, a tick late at most.
+    log: list = []
+    params = quiet_params({"robot.rx_mode": "polled", "ranging.sigma_mm": 0.0})
+
+    class Listener(Radio):
+        def loop(self) -> None:
+            self.journal.append(("loop", self.kilo_uid, self.now))
+
+    listener = (Listener if loop else Radio)(log, send=False)
+    sim = Simulation([[0, 0], [50, 0]], lambda i: Radio(log) if i == 0 else listener, params)
+    sim.run(10.0)
+    c = sim.medium.counters
+    rx = entries(log, "rx", 1)
+    starts = {seq: t for _, t, seq in entries(log, "tx", 0)}
+    assert c["received"][1] > 40 and c["lost_overflow"][1] == 0
+    assert len(rx) == c["received"][1] - len(listener._krx)
+    tick_s = 1 / sim.clocks.rate_hz(1)
+    delays = [t - starts[seq] - sim.medium.airtime_s for _, t, _, seq, _ in rx]
+    assert min(delays) > 0 and max(delays) <= tick_s
+    if loop:  # each batch arrives right after a loop call, at the same time
+        loops = {t for _, t in entries(log, "loop", 1)}
+        assert {t for _, t, *_ in rx} <= loops
+
+
+def test_drain_messages_hands_over_the_buffer_oldest_first():
+    log: list = []
+    params = quiet_params({"robot.rx_mode": "polled", "ranging.sigma_mm": 0.0})
+    programs = [Radio(log, max_messages=2), Buffered(log, send=False)]
+    sim = Simulation([[0, 0], [50, 0]], lambda i: programs[i], params)
+    sim.run(5.0)
+    listener = programs[1]
+    listener.message_rx = Radio.message_rx.__get__(listener)
+    assert listener.drain_messages() == 2
+    assert [seq for _, _, _, seq, _ in entries(log, "rx", 1)] == [0, 1]
+    assert listener.drain_messages() == 0
 
 
 class Poller(Radio):

@@ -150,10 +150,10 @@ class Clock(Kilobot):
         self.journal = log
 
     def setup(self) -> None:
-        self.journal.append(("setup", self.kilo_uid, self._sim.env.now))
+        self.journal.append(("setup", self.kilo_uid, self._ksim.env.now))
 
     def loop(self) -> None:
-        self.journal.append(("loop", self.kilo_uid, self._sim.env.now, self.kilo_ticks))
+        self.journal.append(("loop", self.kilo_uid, self._ksim.env.now, self.kilo_ticks))
 
 
 @pytest.mark.parametrize("loop_ticks", [1, 8])
@@ -381,3 +381,167 @@ def test_delay_in_a_plain_loop_is_refused_with_the_way_out():
     sim = Simulation([[0, 0], [50, 0]], PlainDelay, Params(seed=1))
     with pytest.raises(RuntimeError, match=r"write `yield self\.delay\(ms\)`"):
         sim.run(1.0)
+
+
+# ------------------------------------------------------------------------ timing guarantees
+
+
+class TickCounter(Kilobot):
+    """Counts its loop() calls and the ticks they saw."""
+
+    def setup(self) -> None:
+        self.calls = 0
+        self.first = self.last = None
+
+    def loop(self) -> None:
+        ticks = self.kilo_ticks
+        if self.first is None:
+            self.first = ticks
+        self.last = ticks
+        self.calls += 1
+
+
+class GeneratorTickCounter(TickCounter):
+    """The same counter as a generator loop that never blocks (kilolib-style ports with
+    ``yield self.delay(ms)`` only in some branches look like this between their delays)."""
+
+    def loop(self):
+        super().loop()
+        if False:
+            yield self.delay(0)
+
+
+@pytest.mark.parametrize("program", [TickCounter, GeneratorTickCounter])
+@pytest.mark.parametrize("loop_ticks", [1, 3])
+def test_loop_runs_exactly_once_per_tick_over_long_runs_with_drifting_clocks(program, loop_ticks):
+    params = quiet_params({"robot.clock_sd": 0.01, "robot.loop_ticks": loop_ticks}, seed=4)
+    sim = Simulation(hex_lattice(12, spacing_mm=200.0), program, params)
+    sim.run(600.0)
+    for robot in sim.robots:
+        assert robot.last - robot.first == (robot.calls - 1) * loop_ticks
+        assert robot.first in (0, 1)  # the middle of tick 0 may have passed at the start
+        assert robot.kilo_ticks - robot.last <= loop_ticks  # no call missing at the end either
+
+
+def test_kilo_tx_period_below_the_jitter_is_refused():
+    class Fast(Kilobot):
+        def setup(self) -> None:
+            self.kilo_tx_period = 100  # one tick of kilolib's timer, 33 ms: below the jitter
+
+    params = quiet_params({"robot.tx_period_s": 0.2, "robot.tx_jitter_s": 0.05})
+    with pytest.raises(ValueError, match=r"must exceed robot.tx_jitter_s = 0.05 s"):
+        Simulation([[0, 0]], Fast, params).run(1.0)
+
+
+@pytest.mark.parametrize("times_the_period", [1.0, 1.4])
+def test_a_jitter_not_below_the_period_is_refused_naming_both_keys(times_the_period):
+    jitter_s = Params().robot.tx_period_s * times_the_period
+    with pytest.raises(ValueError, match=r"robot\.tx_jitter_s .* below robot\.tx_period_s"):
+        Params().with_overrides({"robot.tx_jitter_s": jitter_s})
+
+
+def test_offers_never_run_the_clock_backwards_at_the_largest_jitter():
+    times = []
+
+    class Stamp(Kilobot):
+        def message_tx(self):
+            times.append(self._ksim.env.now)
+            return None
+
+    params = quiet_params(
+        {"robot.tx_period_s": 0.2, "robot.tx_jitter_s": 0.1999, "robot.tx_retry": "period"}
+    )
+    Simulation(hex_lattice(5, spacing_mm=200.0), Stamp, params).run(20.0)
+    assert len(times) > 400 and times == sorted(times)
+
+
+class PrivateRate(TickCounter):
+    """A program with state named like the kernel's former slots."""
+
+    def setup(self) -> None:
+        super().setup()
+        self._rate, self._theta, self._index, self._env, self._sim = 0.5, 0.9, -1, None, None
+        self._color, self._rx_buffer = "red", []
+
+
+def test_a_program_attribute_named_like_kernel_state_changes_nothing():
+    params = quiet_params({"robot.clock_sd": 0.01})
+    plain = Simulation([[0, 0]], TickCounter, params)
+    private = Simulation([[0, 0]], PrivateRate, params)
+    plain.run(10.0)
+    private.run(10.0)
+    assert private.robots[0].kilo_ticks == plain.robots[0].kilo_ticks > 300
+    assert private.robots[0].calls == plain.robots[0].calls
+    assert private.robots[0]._rate == 0.5
+
+
+def test_kernel_names_are_refused_when_a_program_defines_or_sets_them():
+    class Defines(Kilobot):
+        _kstate = 3
+
+    with pytest.raises(TypeError, match=r"Defines\._kstate: names starting with '_k'"):
+        Simulation([[0, 0]], Defines, quiet_params())
+
+    class SetsNew(Kilobot):
+        def setup(self) -> None:
+            self._kmine = 1
+
+    with pytest.raises(TypeError, match=r"robot 0 \(SetsNew\) set _kmine"):
+        Simulation([[0, 0]], SetsNew, quiet_params()).run(1.0)
+
+    class Overwrites(Kilobot):
+        def setup(self):
+            self._krate = 0.5
+            yield self.delay(10)
+
+    with pytest.raises(TypeError, match=r"robot 0 \(Overwrites\) set _krate: names"):
+        Simulation([[0, 0]], Overwrites, quiet_params()).run(1.0)
+
+
+class SlowStart(Kilobot):
+    def setup(self):
+        self.started = True
+        yield self.delay(100)
+
+
+def test_a_plain_setup_calling_a_generator_parent_setup_is_refused():
+    class Plain(SlowStart):
+        def setup(self) -> None:
+            super().setup()
+            self.mine = True
+
+    with pytest.raises(TypeError, match=r"Plain\.setup is a plain function but calls super"):
+        Simulation([[0, 0]], Plain, quiet_params())
+
+
+def test_a_generator_setup_running_its_generator_parent_setup_works():
+    class Chained(SlowStart):
+        def setup(self):
+            yield from super().setup()
+            self.mine = self.kilo_ticks
+
+    class Replaces(SlowStart):  # overrides without calling the parent: allowed
+        def setup(self) -> None:
+            self.mine = 0
+
+    sim = Simulation(
+        [[0, 0], [100, 0]], lambda i: Chained() if i == 0 else Replaces(), quiet_params()
+    )
+    sim.run(1.0)
+    assert sim.robots[0].started and sim.robots[0].mine == 3  # 100 ms of 31 ticks a second
+    assert not hasattr(sim.robots[1], "started") and sim.robots[1].mine == 0
+
+
+def test_a_plain_loop_calling_a_generator_parent_loop_is_refused():
+    class Parent(Kilobot):
+        def loop(self):
+            yield self.delay(10)
+
+    class Child(Parent):
+        def loop(self) -> None:
+            super().loop()
+
+    with pytest.raises(
+        TypeError, match=r"Child\.loop is a plain function but calls super\(\)\.loop"
+    ):
+        Simulation([[0, 0]], Child, quiet_params())

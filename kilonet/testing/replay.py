@@ -80,4 +80,4 @@ class Replay(Kilobot):
         return None
 
     def message_tx(self) -> Message | None:
-        return self.due(self._env.now)
+        return self.due(self._kenv.now)

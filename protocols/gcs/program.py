@@ -496,8 +496,7 @@ class GcsRobot(Kilobot):
     def loop(self) -> None:
         self._advance()
         if self._polled:
-            while (received := self.get_message()) is not None:
-                self.message_rx(*received)
+            self.drain_messages()
         phase = self.phase
         if phase is not None:
             phase.loop()

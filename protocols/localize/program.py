@@ -170,8 +170,7 @@ class LocalizeRobot(Kilobot):
 
     def loop(self) -> None:
         if self._polled:
-            while (received := self.get_message()) is not None:
-                self.message_rx(*received)
+            self.drain_messages()
         if self.stage == "done":
             return
         tick = self.kilo_ticks

@@ -571,10 +571,12 @@ class MazeKilobot(Kilobot):
 
         Landmarks lifted off the table are never found.
         """
-        hw, world = self._hardware, self._sim.world
+        hw, world = self._hardware, self._ksim.world
         marks = list(hw.landmark_robots)
         ranges = hw.range_sensor.read(
-            world.positions_mm[self._index], world.positions_mm[marks], self._sim.stream("ranging")
+            world.positions_mm[self._kindex],
+            world.positions_mm[marks],
+            self._ksim.stream("ranging"),
         )
         ranges[~world.present[marks]] = np.nan
         return ranges
@@ -588,7 +590,7 @@ class MazeKilobot(Kilobot):
             If the robot is not standing in the maze.
         """
         return self._hardware.wall_sensor.read(
-            self._hardware.maze.walls_of(self._true_cell()), self._sim.stream("ranging")
+            self._hardware.maze.walls_of(self._true_cell()), self._ksim.stream("ranging")
         )
 
     def drive(self, direction: str) -> None:
@@ -608,7 +610,7 @@ class MazeKilobot(Kilobot):
         heading = HEADING_RAD[DIRECTIONS[_index(direction)]]
         if self._driving:
             raise RuntimeError("drive() called while the previous move is still under way")
-        sim, i = self._sim, self._index
+        sim, i = self._ksim, self._kindex
         if not sim.world.running[i]:
             return
         maze = self._hardware.maze
@@ -624,8 +626,8 @@ class MazeKilobot(Kilobot):
 
     def _true_cell(self) -> int:
         # The hardware's own contact with the world: which cell's walls the sensor faces.
-        x, y = self._sim.world.positions_mm[self._index]
+        x, y = self._ksim.world.positions_mm[self._kindex]
         cell = self._hardware.maze.cell_at(x, y)
         if cell is None:
-            raise MazeError(f"robot {self._index} at ({x:.1f}, {y:.1f}) mm is outside the maze")
+            raise MazeError(f"robot {self._kindex} at ({x:.1f}, {y:.1f}) mm is outside the maze")
         return cell
