@@ -547,7 +547,6 @@ SCENARIO = Scenario(
     name="follower",
     supports={
         "medium.message_format": ("kilolib",),
-        "robot.rx_mode": ("callback",),
         "robot.rx_distance": ("estimate",),
     },
     summary="trilateration: three robots build a frame, a fourth walks to their centroid",

@@ -121,7 +121,7 @@ def _figure(result: RunResult, out_dir: Path) -> None:
 
 SCENARIO = Scenario(
     name="gradient",
-    supports={"medium.message_format": ("kilolib",), "robot.rx_mode": ("callback",)},
+    supports={"medium.message_format": ("kilolib",)},
     summary="hop-count gradient from one source robot (Kilobot self-assembly building block)",
     program=_program,
     section=GradientParams,

@@ -353,7 +353,7 @@ def _figures(result: RunResult, out_dir: Path) -> None:
 
 SCENARIO = Scenario(
     name="maze",
-    supports={"robot.rx_mode": ("callback",), "robot.rx_distance": ("estimate",)},
+    supports={"robot.rx_distance": ("estimate",)},
     summary="a robot trilaterates, covers a grid maze and localizes from walls (lab seed)",
     program=_program,
     section=MazeParams,

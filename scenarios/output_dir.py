@@ -94,6 +94,8 @@ class OutputDir:
         self._make_parents(target.parent)
         try:
             self.staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
+            # mkdtemp makes it 0700; the run directory gets the mode mkdir would give it.
+            self.staging.chmod(0o777 & ~_umask())
         except OSError as exc:
             self.discard()
             raise OutputDirError(f"cannot write in {target.parent} ({exc.strerror})") from None
@@ -185,3 +187,10 @@ def _exchange(a: Path, b: Path) -> bool:
     if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOTSUP):
         return False
     raise OSError(err, os.strerror(err), os.fspath(b))
+
+
+def _umask() -> int:
+    """The process's umask (reading it means setting it: set it straight back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask

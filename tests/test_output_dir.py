@@ -82,3 +82,31 @@ def test_a_read_only_parent_is_refused(tmp_path):
             OutputDir(locked / "run")
     finally:
         locked.chmod(0o700)
+
+
+def test_a_run_directory_gets_the_mode_the_umask_gives(tmp_path, capsys):
+    import os
+    import stat
+
+    from kilonet.cli import main
+
+    old = os.umask(0o027)
+    try:
+        assert (
+            main(
+                [
+                    "run",
+                    "gradient",
+                    "--robots",
+                    "3",
+                    "--duration",
+                    "1",
+                    "--out",
+                    str(tmp_path / "r"),
+                ]
+            )
+            == 0
+        )
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "r").stat().st_mode) == 0o750  # not mkdtemp's 0700
