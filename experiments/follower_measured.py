@@ -17,12 +17,15 @@ __all__ = ["CONDITIONS", "SEEDS", "success_block"]
 SEEDS = range(1, 101)
 #: Label, overrides of each measured condition.
 CONDITIONS: tuple[tuple[str, dict[str, Any]], ...] = (
-    ("hardware range (85 mm), no loss", {}),
-    ("hardware range, 10 % message loss", {"medium.loss_prob": 0.1}),
+    ("real-robot medium (ranging to 100 mm), no loss", {}),
+    ("real-robot medium, 10 % message loss", {"medium.loss_prob": 0.1}),
     (
-        "range 300 mm, start 120-250 mm away, 10 % loss",
+        "what-if: 300 mm disc, iid ranging, start 120-250 mm away, 10 % loss",
         {
+            "medium.reach": "disc",
+            "ranging.model": "gaussian",
             "medium.range_mm": 300,
+            "follower.neighbour_max_mm": 255,
             "follower.start_min_mm": 120,
             "follower.start_max_mm": 250,
             "medium.loss_prob": 0.1,
