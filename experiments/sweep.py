@@ -383,6 +383,20 @@ class _Validator:
         return out
 
     def range_values(self, key: str, spec: dict[str, Any]) -> list[float]:
+        self.check_range(key, spec)
+        start, stop, log = spec["start"], spec["stop"], spec.get("log", False)
+        if "num" in spec:
+            values = self.num_values(key, start, stop, spec["num"], log)
+        else:
+            values = self.step_values(key, start, stop, spec["step"], log)
+        # Integer bounds that give whole values stay integers (swarm sizes, counts).
+        integral = all(isinstance(spec.get(p, 0), int) for p in ("start", "stop", "step"))
+        if integral and all(_round(v).is_integer() for v in values):
+            return [round(v) for v in values]
+        return [_round(v) for v in values]
+
+    def check_range(self, key: str, spec: dict[str, Any]) -> None:
+        """Refuse a range table whose keys or values are not a range's."""
         unknown = set(spec) - _RANGE_KEYS
         if unknown:
             raise self.fail(f"[grid] {key}: unknown range key {sorted(unknown)[0]!r}")
@@ -390,46 +404,40 @@ class _Validator:
             raise self.fail(f"[grid] {key}: a range needs 'start' and 'stop'")
         if ("num" in spec) == ("step" in spec):
             raise self.fail(f"[grid] {key}: a range needs exactly one of 'num' and 'step'")
-        start, stop = spec["start"], spec["stop"]
         for part in ("start", "stop", "step"):
             v = spec.get(part, 0.0)
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise self.fail(f"[grid] {key}: range {part} = {v!r} is not a finite number")
-        log = spec.get("log", False)
-        if not isinstance(log, bool):
+        if not isinstance(spec.get("log", False), bool):
             raise self.fail(f"[grid] {key}: range log must be true or false")
-        if "num" in spec:
-            num = spec["num"]
-            if isinstance(num, bool) or not isinstance(num, int) or num < 1:
-                raise self.fail(f"[grid] {key}: range num = {num!r} is not a positive integer")
-            if num > MAX_RUNS:
-                raise self.fail(f"[grid] {key}: range num = {num}: at most {MAX_RUNS} values")
-            if log and (start <= 0 or stop <= 0):
-                raise self.fail(f"[grid] {key}: a log range needs start and stop > 0")
-            fractions = [i / (num - 1) if num > 1 else 0.0 for i in range(num)]
-            if log:
-                values = [start * (stop / start) ** f for f in fractions]
-            else:
-                values = [start + (stop - start) * f for f in fractions]
-        else:
-            step = spec["step"]
-            if log:
-                raise self.fail(f"[grid] {key}: log ranges take 'num', not 'step'")
-            if step == 0 or (stop - start) / step < 0:
-                raise self.fail(f"[grid] {key}: step {step} never reaches stop {stop} from {start}")
-            steps = (stop - start) / step
-            if not steps < MAX_RUNS:  # also catches an overflow to inf
-                raise self.fail(
-                    f"[grid] {key}: step {step} from {start} to {stop} gives more than "
-                    f"{MAX_RUNS} values"
-                )
-            count = math.floor(steps + 1e-9) + 1
-            values = [start + i * step for i in range(count)]
-        # Integer bounds that give whole values stay integers (swarm sizes, counts).
-        integral = all(isinstance(spec.get(p, 0), int) for p in ("start", "stop", "step"))
-        if integral and all(_round(v).is_integer() for v in values):
-            return [round(v) for v in values]
-        return [_round(v) for v in values]
+
+    def num_values(self, key: str, start: float, stop: float, num: Any, log: bool) -> list:
+        """``num`` values from ``start`` to ``stop``, evenly or (``log``) geometrically."""
+        if isinstance(num, bool) or not isinstance(num, int) or num < 1:
+            raise self.fail(f"[grid] {key}: range num = {num!r} is not a positive integer")
+        if num > MAX_RUNS:
+            raise self.fail(f"[grid] {key}: range num = {num}: at most {MAX_RUNS} values")
+        if log and (start <= 0 or stop <= 0):
+            raise self.fail(f"[grid] {key}: a log range needs start and stop > 0")
+        fractions = [i / (num - 1) if num > 1 else 0.0 for i in range(num)]
+        if log:
+            return [start * (stop / start) ** f for f in fractions]
+        return [start + (stop - start) * f for f in fractions]
+
+    def step_values(self, key: str, start: float, stop: float, step: float, log: bool) -> list:
+        """Values from ``start`` by ``step`` up to ``stop`` (inclusive)."""
+        if log:
+            raise self.fail(f"[grid] {key}: log ranges take 'num', not 'step'")
+        if step == 0 or (stop - start) / step < 0:
+            raise self.fail(f"[grid] {key}: step {step} never reaches stop {stop} from {start}")
+        steps = (stop - start) / step
+        if not steps < MAX_RUNS:  # also catches an overflow to inf
+            raise self.fail(
+                f"[grid] {key}: step {step} from {start} to {stop} gives more than "
+                f"{MAX_RUNS} values"
+            )
+        count = math.floor(steps + 1e-9) + 1
+        return [start + i * step for i in range(count)]
 
     def cases(self, raw: Any) -> list[dict[str, Any]]:
         if not isinstance(raw, list) or not all(isinstance(c, dict) for c in raw):
