@@ -440,10 +440,13 @@ def test_start_heading_in_the_trajectory_is_the_true_one():
 
 
 @pytest.mark.slow
-def test_hardware_range_success_rate():
+def test_real_medium_success_rate():
+    # docs/follower.md's second row. On the fitted medium each link keeps a systematic
+    # ranging error of about 2 mm and the frame ranges only to 100 mm: 92 % of these seeds,
+    # where the 85 mm disc with iid noise gave 97 %.
     table = run_many(range(1, 101), {"medium.loss_prob": 0.1})
     ok = (table["outcome"] == "reached") & (table["final_distance_mm"] <= 8.0)
-    assert ok.mean() >= 0.95
+    assert ok.mean() >= 0.90
     assert table["mirrored_frame_true"].any() and (~table["mirrored_frame_true"]).any()
 
 
