@@ -325,18 +325,18 @@ def _move_to_light_paragraph() -> str:
 
 def _sync_paragraph() -> str:
     base = [_sync(s)[0] for s in SEEDS]
-    far = [_sync(s, **{"medium.range_mm": 140})[0] for s in VARIANT_SEEDS]
+    near = [_sync(s, **{"medium.reach": "disc"})[0] for s in VARIANT_SEEDS]
     exact = [_sync(s, **{"robot.clock_sd": 0})[0] for s in VARIANT_SEEDS]
-    ticks = [s["spread_end_s"] * 31 for s in base]
+    ticks = [s["spread_end_s"] * 30.52 for s in base]
     return (
         f"**Sync** ({_loop('sync', SEEDS)}, 300 s each): the flash spread falls from "
         f"{_span([s['spread_start_s'] for s in base], '.2f')} s once every robot has flashed to "
         f"{_span([s['spread_end_s'] for s in base], '.2f')} s "
         f"({_span([s['end_over_start'] for s in base], '.2f')} of the start; "
-        f"{_span(ticks, '.0f')} ticks). Every robot hearing all others "
-        f"(`--set medium.range_mm=140`, seeds {VARIANT_SEEDS[0]}–{VARIANT_SEEDS[-1]}): "
-        f"{_span([s['spread_end_s'] for s in far], '.2f')} s at the end "
-        f"({_span([s['end_over_start'] for s in far], '.2f')} of the start). Perfect clocks "
+        f"{_span(ticks, '.0f')} ticks). Each robot hearing only its neighbours within 85 mm "
+        f"(`--set medium.reach=disc`, seeds {VARIANT_SEEDS[0]}–{VARIANT_SEEDS[-1]}): "
+        f"{_span([s['spread_end_s'] for s in near], '.2f')} s at the end "
+        f"({_span([s['end_over_start'] for s in near], '.2f')} of the start). Perfect clocks "
         f"(`--set robot.clock_sd=0`, seeds {VARIANT_SEEDS[0]}–{VARIANT_SEEDS[-1]}): "
         f"{_and(sorted(s['spread_end_s'] for s in exact), '.2f')} s at the end."
     )
