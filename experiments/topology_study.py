@@ -33,6 +33,8 @@ from experiments.report import _markdown_table, load
 __all__ = ["detection_scores", "one_frame_shares", "prediction_confusion", "write_report"]
 
 RECOVERY = "gcs.recoveries"
+#: The sweep's range axis: how far a robot's gcs takes its neighbours, mm.
+RANGE = "gcs.neighbour_max_mm"
 
 
 def _done(results: pd.DataFrame) -> pd.DataFrame:
@@ -53,11 +55,11 @@ def prediction_confusion(results: pd.DataFrame) -> tuple[pd.DataFrame, float]:
 
 
 def one_frame_shares(results: pd.DataFrame) -> pd.DataFrame:
-    """Share of runs ending with one global frame, without and with recovery, by range and
-    density and overall."""
+    """Share of runs ending with one global frame, without and with recovery, by neighbour
+    range (``gcs.neighbour_max_mm``) and density and overall."""
     runs = _done(results)
     runs["one_frame"] = runs["frames"] == 1
-    by = ["medium.range_mm", "placement.density_per_m2"]
+    by = [RANGE, "placement.density_per_m2"]
     cells = runs.pivot_table(index=by, columns=RECOVERY, values="one_frame", aggfunc="mean")
     cells.loc[("all", "all"), :] = runs.groupby(RECOVERY)["one_frame"].mean()
     neighbours = runs.groupby(by)["mean_neighbours"].mean()
@@ -100,12 +102,12 @@ def _figure(results: pd.DataFrame, path: Path) -> None:
         # The binomial standard error of each share: enough to show which bins are thin.
         err = np.sqrt(share * (1 - share) / count)
         ax.errorbar(centres, share, yerr=err, marker="o", capsize=3, label=label)
-    ax.set_xlabel("mean neighbour count (line of sight)")
+    ax.set_xlabel("mean neighbour count (within gcs.neighbour_max_mm)")
     ax.set_ylabel("P(one global frame)")
     ax.set_ylim(-0.05, 1.05)
     ax.grid(alpha=0.3)
     ax.legend()
-    ax.set_title("Global coordinate system: one frame against density and range")
+    ax.set_title("Global coordinate system: one frame against density and neighbour range")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
