@@ -107,6 +107,9 @@ def test_swarm_misuse_is_refused():
         run_swarm(hops, [[0, 0], [40, 0]], robots=3)
     with pytest.raises(ValueError, match="unknown layout 'ring'"):
         run_swarm(hops, "ring", robots=3)
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ScriptError, match="until_s must be a positive number of seconds"):
+            run_swarm(hops, "line", robots=2, until_s=bad)
     result = run_swarm(hops, "line", robots=2, until_s=0.1)
     with pytest.raises(ScriptError, match=r"robot 5 is not in this swarm of 2 robots \(0-1\)"):
         result.program(5)

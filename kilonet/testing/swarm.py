@@ -259,8 +259,9 @@ def run_swarm(
     Raises
     ------
     ScriptError
-        If a named layout has no size, ``robots`` disagrees with the placement given, or
-        ``uids`` or ``headings_rad`` do not give one value per robot.
+        If a named layout has no size, ``robots`` disagrees with the placement given,
+        ``uids`` or ``headings_rad`` do not give one value per robot, or ``until_s`` is not a
+        positive number of seconds.
     ValueError
         If the layout's generator refuses its parameters (e.g. robots that would overlap).
 
@@ -283,6 +284,10 @@ def run_swarm(
     >>> result.state_frame().hops.tolist()
     [0, 1, 2, 3]
     """
+    if until_s is not None and not until_s > 0:
+        raise ScriptError(
+            f"run_swarm(): until_s must be a positive number of seconds, got {until_s}"
+        )
     p = build_params(params, seed)
     if isinstance(placement, str):
         n = robots or p.placement.robots
