@@ -172,6 +172,7 @@ class ResultStore:
                 raise StoreError(f"{directory} is not empty and holds no sweep results")
             try:
                 directory.mkdir(parents=True, exist_ok=True)
+                _remove_stale_creations(directory)
                 _create_database(directory / DB_NAME, sweep)
             except FileExistsError:
                 pass  # another process created it at this instant: open theirs
@@ -508,8 +509,30 @@ def _foreign_entries(directory: Path) -> list[str]:
         p.name
         for p in directory.iterdir()
         if p.name != _LOCK_NAME
-        and not (p.name.startswith(f".{DB_NAME}.") and p.name.endswith(".tmp"))
+        and not (p.name.startswith(f".{DB_NAME}.") and p.name.endswith((".tmp", ".tmp-journal")))
     ]
+
+
+def _remove_stale_creations(directory: Path) -> None:
+    """Remove the unfinished stores (``.results.sqlite.PID.tmp`` and its journal) that a
+    process killed while creating one left behind: those whose process is gone."""
+    for tmp in directory.glob(f".{DB_NAME}.*.tmp"):
+        pid = tmp.name[len(DB_NAME) + 2 : -len(".tmp")]
+        if not pid.isdigit() or _alive(int(pid)):
+            continue
+        tmp.unlink(missing_ok=True)
+        Path(f"{tmp}-journal").unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (signal 0 checks without sending anything)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _create_database(path: Path, sweep: Sweep) -> None:

@@ -244,6 +244,24 @@ def test_the_lock_file_goes_with_the_sweep(tmp_path):
     assert outcome.ok == 4 and not (tmp_path / "new" / ".sweep.lock").exists()
 
 
+def test_an_unfinished_store_of_a_killed_creator_is_removed_a_live_ones_kept(tmp_path):
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    out = tmp_path / "new"
+    out.mkdir()
+    stale = out / f".{DB_NAME}.{int(dead.stdout)}.tmp"
+    live = out / f".{DB_NAME}.{os.getppid()}.tmp"
+    for path in (stale, Path(f"{stale}-journal"), live):
+        path.write_bytes(b"half a database")
+    outcome = run_sweep(parse_sweep(SMALL, name="small"), out, workers=1, progress=False)
+    assert outcome.ok == 4
+    assert sorted(p.name for p in out.iterdir()) == sorted([DB_NAME, live.name])
+
+
 def test_a_refused_sweep_into_a_new_directory_leaves_no_directory(tmp_path):
     with lock_directory(tmp_path / "a" / "b"):
         with (
