@@ -34,8 +34,8 @@ from typing import Any
 import scenarios
 from kilonet.cli import UsageError
 from kilonet.params import ParamError, Params, describe
+from kilonet.watchdog import BUSY_CALL_S
 from scenarios.base import Scenario, ScenarioOption, build_params, json_safe
-from scenarios.program import BUSY_CALL_S
 from scenarios.progress import MODES
 
 __all__ = ["register_params", "register_run", "register_scenarios", "run_file_overrides"]
@@ -422,14 +422,9 @@ def _guarded(args: argparse.Namespace):
     stopped, and a user program's exceptions reported as one-line errors."""
     from contextlib import ExitStack, redirect_stdout
 
+    from kilonet.watchdog import busy_watchdog, describe_call, robot_frame
     from scenarios.base import run
-    from scenarios.program import (
-        busy_watchdog,
-        describe_call,
-        parse_spec,
-        reported_as_user_errors,
-        robot_frame,
-    )
+    from scenarios.program import parse_spec, reported_as_user_errors
 
     def guarded(*a: Any, **k: Any):
         with ExitStack() as stack:

@@ -28,43 +28,29 @@ import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 from kilonet.errors import read_text
 from kilonet.message import PayloadError
 from kilonet.robot import Kilobot
+from kilonet.watchdog import BusyCallError
 from scenarios.base import RunResult, Scenario, ScenarioError
 
 if TYPE_CHECKING:
     from kilonet.simulation import Simulation
 
 __all__ = [
-    "BUSY_CALL_S",
-    "BusyCallError",
     "ProgramError",
-    "busy_watchdog",
-    "describe_call",
     "load_program",
     "parse_spec",
     "program_scenario",
     "program_settings",
     "reported_as_user_errors",
-    "robot_frame",
 ]
 
 
 class ProgramError(ScenarioError):
     """A user's program file cannot be run; the message names the file and line."""
-
-
-class BusyCallError(ProgramError):
-    """One call into a robot program ran too long while simulated time stood still."""
-
-
-#: Wall-clock seconds one call into a program may run, with simulated time standing still,
-#: before :func:`busy_watchdog` stops the run (``kilonet run --watchdog``).
-BUSY_CALL_S = 30.0
 
 
 def parse_spec(spec: str) -> tuple[Path, str | None]:
@@ -170,7 +156,7 @@ def reported_as_user_errors(path: str | Path, during: str = "") -> Iterator[None
     target = Path(path).resolve()
     try:
         yield
-    except ScenarioError:
+    except (ScenarioError, BusyCallError):
         raise
     except PayloadError as exc:
         frames = [f for f in traceback.extract_tb(exc.__traceback__) if f.filename]
@@ -192,82 +178,6 @@ def reported_as_user_errors(path: str | Path, during: str = "") -> Iterator[None
         raise ProgramError(
             f"{path}:{last.lineno}: {context}: {type(exc).__name__}: {exc}"
         ) from None
-
-
-def robot_frame(frame: FrameType | None) -> tuple[Kilobot, FrameType] | None:
-    """The outermost frame of ``frame``'s stack that runs a method of a robot program (its
-    ``self`` is a :class:`Kilobot`): the callback the simulation called, and its robot."""
-    found = None
-    while frame is not None:
-        robot = frame.f_locals.get("self")
-        if isinstance(robot, Kilobot) and hasattr(robot, "_kindex"):
-            found = (robot, frame)
-        frame = frame.f_back
-    return found
-
-
-def describe_call(robot: Kilobot, frame: FrameType, innermost: FrameType | None = None) -> str:
-    """``robot 4's loop (my_bot.py:12)``: the robot, the callback, where it runs now."""
-    at = innermost or frame
-    return (
-        f"robot {robot._kindex}'s {frame.f_code.co_name} "
-        f"({Path(at.f_code.co_filename).name}:{at.f_lineno})"
-    )
-
-
-@contextmanager
-def busy_watchdog(seconds: float = BUSY_CALL_S) -> Iterator[None]:
-    """Stop a run whose program is stuck in one call (``while True: pass`` in ``loop``).
-
-    Every ``seconds`` of wall time a timer signal (``SIGALRM``) looks at what runs: if the same
-    call into the same robot's program was running at the previous look, and simulated time
-    has not moved, the call has run at least ``seconds`` without returning, and
-    :class:`BusyCallError` is raised inside it, naming the robot, the callback and the line.
-    Nothing runs between looks, so a run pays nothing for it. Off (a no-op) when ``seconds``
-    is 0, outside the main thread, or where the system has no ``SIGALRM``.
-
-    Raises
-    ------
-    BusyCallError
-        From inside the stuck call.
-    """
-    import signal
-    import threading
-
-    if (
-        seconds <= 0
-        or not hasattr(signal, "SIGALRM")
-        or threading.current_thread() is not (threading.main_thread())
-    ):
-        yield
-        return
-    last: list[Any] = [None]
-
-    def look(_signum: int, frame: FrameType | None) -> None:
-        found = robot_frame(frame)
-        if found is None:
-            last[0] = None
-            return
-        robot, call = found
-        now = robot._kenv.now
-        if last[0] is not None and last[0][0] is call and last[0][1] == now:
-            last[0] = None
-            raise BusyCallError(
-                f"{describe_call(robot, call, frame)} has run {seconds:g} s of wall time "
-                f"without returning, at {now:.3f} simulated s: simulated time passes only "
-                "between calls, so a loop that waits for something (a sensor, a message, "
-                "kilo_ticks) never sees it change; return from the callback and check again "
-                "at its next call, or write it as a generator and `yield self.delay(ms)`"
-            )
-        last[0] = (call, now)
-
-    previous = signal.signal(signal.SIGALRM, look)
-    signal.setitimer(signal.ITIMER_REAL, seconds, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 #: Types a ``[program]`` setting may have: those of the class attribute it replaces.

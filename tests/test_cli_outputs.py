@@ -185,7 +185,7 @@ def test_a_uid_given_twice_is_refused(tmp_path, capsys):
 def test_the_readme_quotes_the_defaults_it_names():
     from kilonet.params import Params
     from kilonet.robot import ADC_CONVERSION_S
-    from scenarios.program import BUSY_CALL_S
+    from kilonet.watchdog import BUSY_CALL_S
 
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     readme = " ".join(readme.split())

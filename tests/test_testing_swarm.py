@@ -190,3 +190,27 @@ def test_settings_are_valid_parameter_overrides(loss, noise, both):
     assert 0 <= p.medium.loss_prob <= 0.3 and p.ranging.sigma_mm <= 3.0
     assert set(both) == {"medium.loss_prob", "ranging.sigma_mm", "ranging.bias_sigma_mm"}
     assert Params().with_overrides(both).medium.loss_prob <= 0.1
+
+
+class _Spin(Kilobot):
+    """Waits in loop() for kilo_ticks to move, which it never does inside one call."""
+
+    def loop(self):
+        start = self.kilo_ticks
+        while self.kilo_ticks == start:
+            pass
+
+
+def test_a_busy_loop_stops_the_swarm_naming_the_robot_and_line():
+    from kilonet.testing import ScriptedWorld
+    from kilonet.watchdog import BusyCallError
+
+    with pytest.raises(
+        BusyCallError, match=r"robot 0's loop \(test_testing_swarm.py:\d+\) has run 0.2 s"
+    ):
+        run_swarm(_Spin, [[0, 0], [40, 0]], until_s=1.0, watchdog_s=0.2)
+    world = ScriptedWorld(_Spin, watchdog_s=0.2)
+    with pytest.raises(BusyCallError, match="kilo_ticks"):
+        world.advance(1.0)
+    with pytest.raises(BusyCallError, match=r"has run 0\.2 s of wall time"):
+        ScriptedWorld(_Spin, watchdog_s=0.2).eventually(lambda: False, within_s=1.0)

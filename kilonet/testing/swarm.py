@@ -16,6 +16,7 @@ from kilonet.testing.errors import ScriptError
 from kilonet.testing.explain import condition_text, short_repr
 from kilonet.testing.record import program_state
 from kilonet.testing.world import build_params
+from kilonet.watchdog import BUSY_CALL_S, busy_watchdog
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -33,10 +34,15 @@ class SwarmResult:
         The run itself, for anything the attributes below do not give.
     stopped : bool
         Whether the stop condition held when the run ended (``False`` without one).
+    watchdog_s : float
+        Wall-clock seconds one call into a program may run before
+        :class:`~kilonet.watchdog.BusyCallError` stops it, here and in :meth:`eventually` and
+        :meth:`never` (0: never).
     """
 
     sim: Simulation
     stopped: bool
+    watchdog_s: float = BUSY_CALL_S
 
     @property
     def t_s(self) -> float:
@@ -143,10 +149,11 @@ class SwarmResult:
         programs = sim.robots
         if condition(programs):
             return self.t_s
-        while sim.env.now < until_s:
-            sim.run(min(until_s, sim.env.now + check_s))
-            if condition(programs):
-                return self.t_s
+        with busy_watchdog(self.watchdog_s):
+            while sim.env.now < until_s:
+                sim.run(min(until_s, sim.env.now + check_s))
+                if condition(programs):
+                    return self.t_s
         return None
 
     def eventually(
@@ -227,6 +234,7 @@ def run_swarm(
     stop_when: Callable[[list[Kilobot]], bool] | None = None,
     uids: Sequence[int] | None = None,
     headings_rad: Sequence[float] | None = None,
+    watchdog_s: float = BUSY_CALL_S,
 ) -> SwarmResult:
     """Run a small swarm and hand back what it did.
 
@@ -255,6 +263,9 @@ def run_swarm(
     headings_rad : sequence of float, optional
         Each robot's start heading, counter-clockwise from +x (default: drawn at random from
         the run's seed, as scenarios start).
+    watchdog_s : float
+        Wall-clock seconds one call into a program may run while simulated time stands still
+        (a ``while True`` in ``loop``) before it is stopped (default 30; 0: never).
 
     Raises
     ------
@@ -262,6 +273,8 @@ def run_swarm(
         If a named layout has no size, ``robots`` disagrees with the placement given,
         ``uids`` or ``headings_rad`` do not give one value per robot, or ``until_s`` is not a
         positive number of seconds.
+    BusyCallError
+        If a call into a program runs ``watchdog_s`` of wall time without returning.
     ValueError
         If the layout's generator refuses its parameters (e.g. robots that would overlap).
 
@@ -319,5 +332,6 @@ def run_swarm(
             )
     sim = Simulation(positions, program, p, uids=uids, headings_rad=headings_rad)
     stop = None if stop_when is None else (lambda: stop_when(sim.robots))
-    sim.run(until_s, stop_when=stop)
-    return SwarmResult(sim, stopped=stop is not None and bool(stop()))
+    with busy_watchdog(watchdog_s):
+        sim.run(until_s, stop_when=stop)
+    return SwarmResult(sim, stopped=stop is not None and bool(stop()), watchdog_s=watchdog_s)

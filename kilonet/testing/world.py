@@ -30,6 +30,7 @@ from kilonet.testing.record import (
     Sent,
     program_state,
 )
+from kilonet.watchdog import BUSY_CALL_S, busy_watchdog
 
 __all__ = ["ScriptedWorld", "build_params"]
 
@@ -91,6 +92,10 @@ class ScriptedWorld:
         Its heading, counter-clockwise from +x.
     layouts : iterable of Layout
         Message layouts to decode messages with in failure messages.
+    watchdog_s : float
+        Wall-clock seconds one call into the program may run while simulated time stands
+        still (a ``while True`` in ``loop``) before
+        :class:`~kilonet.watchdog.BusyCallError` stops it (default 30; 0: never).
 
     Attributes
     ----------
@@ -132,8 +137,10 @@ class ScriptedWorld:
         uid: int | None = None,
         heading_rad: float = 0.0,
         layouts: Iterable[Layout] = (),
+        watchdog_s: float = BUSY_CALL_S,
     ) -> None:
         self.params = build_params(params, seed)
+        self.watchdog_s = watchdog_s
         self._robots = [_OnTable(_instance(program, "program"), (0.0, 0.0), heading_rad, uid)]
         self.layouts = list(layouts)
         self.script: list[ScriptedReception] = []
@@ -458,7 +465,8 @@ class ScriptedWorld:
                 f"run_until({t_s}) is before now ({now:.3f} s); time only moves forward"
             )
         if t_s > now:
-            self.sim.env.run(until=t_s)
+            with busy_watchdog(self.watchdog_s):
+                self.sim.env.run(until=t_s)
 
     def _first_time(self, condition: Callable[[], bool], until_s: float) -> float | None:
         """Advance toward ``until_s``, checking ``condition`` after every event and at least
@@ -470,21 +478,22 @@ class ScriptedWorld:
         if condition():
             return self.now_s
         noted = env.now
-        while env.now < until_s:
-            # A marker at the end of the slice, as SimPy's run(until=...) places one: the
-            # robots' loop schedule never runs loops past it in one step.
-            marker = Event(env)
-            marker._ok, marker._value = True, None
-            env.schedule(marker, URGENT, min(until_s, env.now + CHECK_S) - env.now)
-            while marker.callbacks is not None:
-                env.step()
-                if condition():
+        with busy_watchdog(self.watchdog_s):
+            while env.now < until_s:
+                # A marker at the end of the slice, as SimPy's run(until=...) places one: the
+                # robots' loop schedule never runs loops past it in one step.
+                marker = Event(env)
+                marker._ok, marker._value = True, None
+                env.schedule(marker, URGENT, min(until_s, env.now + CHECK_S) - env.now)
+                while marker.callbacks is not None:
+                    env.step()
+                    if condition():
+                        self._note_state()
+                        return self.now_s
+                if env.now - noted >= STATE_S or env.now >= until_s:
                     self._note_state()
-                    return self.now_s
-            if env.now - noted >= STATE_S or env.now >= until_s:
-                self._note_state()
-                noted = env.now
-        return None
+                    noted = env.now
+            return None
 
     def _note_state(self) -> None:
         state = {k: fields_text({k: v}, self.layouts) for k, v in program_state(self.robot).items()}
