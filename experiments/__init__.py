@@ -6,6 +6,8 @@
 - :mod:`experiments.store`: one SQLite row per finished run, appended durably.
 - :mod:`experiments.report`: DataFrames and Figures aggregated over seeds; HTML/Markdown files.
 - :mod:`experiments.cli`: the ``kilonet sweep`` and ``kilonet report`` sub-commands.
+- :mod:`experiments.publish`: regenerates the docs' measured blocks and the sweeps' reports.
+- :mod:`experiments.studies`: one-off studies and the docs' measured figures.
 
 The shipped sweeps are the ``*.toml`` files beside this module; their reports are in
 ``experiments/reports/``.

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from experiments import follower_measured, gcs_measured
+from experiments.studies import follower_measured, gcs_measured
 
 __all__ = [
     "BLOCKS",
@@ -173,7 +173,7 @@ def _sweep_report(name: str) -> Callable[[Context], None]:
 
 
 def _topology(context: Context) -> None:
-    from experiments.topology_study import write_report
+    from experiments.studies.topology_study import write_report
 
     write_report(
         _sweep(context, "topology"), REPORTS, stamp=stamp("python -m experiments.publish topology")
@@ -181,7 +181,7 @@ def _topology(context: Context) -> None:
 
 
 def _localization(context: Context) -> None:
-    from experiments.localization_study import write_report
+    from experiments.studies.localization_study import write_report
 
     write_report(
         _sweep(context, "localization_gcs"),
@@ -193,7 +193,7 @@ def _localization(context: Context) -> None:
 
 
 def _validation(context: Context) -> None:
-    from experiments.validation import write_page
+    from experiments.studies.validation import write_page
 
     write_page(
         ROOT / "docs" / "validation.md", stamp=stamp("python -m experiments.publish validation")
@@ -366,16 +366,17 @@ def _kilombo_block(context: Context) -> str:
 
 
 def _gcs_page(make: Callable[[], str]) -> Block:
-    """A block of ``docs/gcs.md`` made by ``make``, one of :mod:`experiments.gcs_measured`'s
+    """A block of ``docs/gcs.md`` made by ``make``, one of :mod:`experiments.studies.gcs_measured`'s
     functions (they run their own simulations, no sweep)."""
     return Block("docs/gcs.md", lambda _context: make())
 
 
 def _localization_runs(context: Context):
-    """The localization study's runs, joined (:func:`experiments.localization_study.joined`),
-    and the localize sweep's own results."""
-    from experiments.localization_study import joined
+    """The localization study's runs, joined
+    (:func:`experiments.studies.localization_study.joined`), and the localize sweep's own
+    results."""
     from experiments.report import load
+    from experiments.studies.localization_study import joined
 
     _, gcs = load(_sweep(context, "localization_gcs"))
     _, localize = load(_sweep(context, "localization_localize"))
@@ -397,13 +398,13 @@ def _localization_block(table: Callable) -> Callable[[Context], str]:
 
 
 def _localize_lattice(joined, localize):
-    from experiments.localization_study import lattice_table
+    from experiments.studies.localization_study import lattice_table
 
     return lattice_table(joined)
 
 
 def _localize_random(joined, localize):
-    from experiments.localization_study import targets_table
+    from experiments.studies.localization_study import targets_table
 
     return targets_table(localize)
 
@@ -411,7 +412,7 @@ def _localize_random(joined, localize):
 def _localize_compared(joined, localize):
     import pandas as pd
 
-    from experiments.localization_study import base_table
+    from experiments.studies.localization_study import base_table
 
     parts = []
     for label, case in (("no loss", {}), ("20 % loss", {"medium.loss_prob": 0.2})):
@@ -422,8 +423,9 @@ def _localize_compared(joined, localize):
 
 
 def _labs():
-    """:mod:`experiments.labs_measured`, imported when a labs block is made (it loads the labs)."""
-    from experiments import labs_measured
+    """:mod:`experiments.studies.labs_measured`, imported when a labs block is made (it loads the
+    labs)."""
+    from experiments.studies import labs_measured
 
     return labs_measured
 
@@ -437,7 +439,7 @@ BLOCKS: dict[str, Block] = {
     "localize-speed": Block("docs/performance.md", _localize_speed_block),
     "kilombo": Block("docs/performance.md", _kilombo_block),
     "large-runs": Block("docs/performance.md", _large_runs_block),
-    # docs/gcs.md: experiments/gcs_measured.py
+    # docs/gcs.md: experiments/studies/gcs_measured.py
     "gcs-robot-model": _gcs_page(gcs_measured.robot_model_block),
     "gcs-isolated-seeds": _gcs_page(gcs_measured.isolated_seeds_block),
     "gcs-runs": _gcs_page(gcs_measured.runs_block),
@@ -447,11 +449,11 @@ BLOCKS: dict[str, Block] = {
     "localize-lattice": Block("docs/localize.md", _localization_block(_localize_lattice)),
     "localize-random": Block("docs/localize.md", _localization_block(_localize_random)),
     "localize-compared": Block("docs/localize.md", _localization_block(_localize_compared)),
-    # docs/follower.md: experiments/follower_measured.py
+    # docs/follower.md: experiments/studies/follower_measured.py
     "follower-success": Block(
         "docs/follower.md", lambda _context: follower_measured.success_block()
     ),
-    # examples/labs/README.md: experiments/labs_measured.py
+    # examples/labs/README.md: experiments/studies/labs_measured.py
     "labs-seed-1": Block("examples/labs/README.md", lambda _context: _labs().seed_one_block()),
     "labs-seeds": Block("examples/labs/README.md", lambda _context: _labs().seeds_block()),
 }
@@ -512,14 +514,14 @@ PUBLICATIONS: dict[str, Publication] = {
     },
     "topology": Publication(
         "topology",
-        "the topology sweep and its study (python -m experiments.topology_study)",
+        "the topology sweep and its study (python -m experiments.studies.topology_study)",
         ("experiments/reports/topology.md", "experiments/reports/topology_files/"),
         _topology,
     ),
     "localization": Publication(
         "localization",
         "the sweeps localization_gcs and localization_localize and their study "
-        "(python -m experiments.localization_study)",
+        "(python -m experiments.studies.localization_study)",
         (
             "experiments/reports/localization.md",
             "experiments/reports/localization_files/",
@@ -542,7 +544,7 @@ PUBLICATIONS: dict[str, Publication] = {
     "validation": Publication(
         "validation",
         "kilonet beside real Kilobots: the ARGoS communication data, ICRA 2012's ranging "
-        "and battery (experiments/validation.py)",
+        "and battery (experiments/studies/validation.py)",
         ("docs/validation.md", "docs/validation_files/"),
         _validation,
     ),

@@ -9,8 +9,8 @@ them on ground truth. Degenerate inputs are reported, never silently accepted.
   :func:`choose_references_best_conditioned` (the widest triangle).
 - Degeneracy: :func:`collinear` (do points lie too close to one line?).
 - Positions from ranges: :func:`trilaterate_linear` (the seeds' closed form for three
-  anchors) and :func:`multilaterate` (least squares over k anchors that says why it rejects a
-  fix).
+  anchors), :func:`linear_position` (the linearised least squares over k anchors) and
+  :func:`multilaterate` (least squares over k anchors that says why it rejects a fix).
 - What is achievable: :func:`crlb_rmse_mm`, the anchor-free Cramér–Rao bound of a measurement
   graph.
 
@@ -37,6 +37,7 @@ __all__ = [
     "circle_intersections",
     "circle_pair",
     "collinear",
+    "linear_position",
     "multilaterate",
     "place_references",
     "robust_height",
@@ -232,6 +233,51 @@ def trilaterate_linear(
     x = (r1**2 - r2**2 + d12**2) / (2 * d12)
     y = (r1**2 - r3**2 + u3**2 + v3**2) / (2 * v3) - u3 * x / v3
     return float(x1 + ex * x - ey * y), float(y1 + ey * x + ex * y)
+
+
+def linear_position(anchors_mm: np.ndarray, ranges_mm: np.ndarray) -> tuple[np.ndarray, float]:
+    """The least-squares point of the range equations made linear, and how well the anchors
+    condition it.
+
+    Each range equation ``|p − aᵢ|² = rᵢ²`` minus their mean leaves a linear one,
+    ``2 (aᵢ − ā) · p = |aᵢ|² − mean|a|² − (rᵢ² − mean r²)`` (the ``|p|²`` term cancels); their
+    least-squares solution is exact with exact ranges, and with noisy ones a start for the
+    fit of the range residuals (:func:`multilaterate`). It also serves the island solve's
+    rigid motions (:mod:`protocols.localize.island_solve`), whose shift is such a point.
+
+    Parameters
+    ----------
+    anchors_mm : (k, 2) array
+        Anchor positions, mm (k ≥ 1).
+    ranges_mm : (k,) array
+        Ranges to them, mm.
+
+    Returns
+    -------
+    point : (2,) array
+        The least-squares solution, mm (the minimum-norm one when the system is singular).
+    conditioning : float
+        The system's smallest singular value over its largest, in [0, 1]: 0 when the anchors
+        lie on one line (or coincide), small when nearly so and the point is unreliable.
+
+    Examples
+    --------
+    >>> anchors = np.array([[0.0, 0.0], [60.0, 0.0], [10.0, 50.0], [70.0, 40.0]])
+    >>> p, c = linear_position(anchors, np.hypot(*(anchors - [30.0, 20.0]).T))
+    >>> p.round(9).tolist(), 0.5 < c <= 1.0
+    ([30.0, 20.0], True)
+    >>> linear_position(anchors[:, :1] * [1.0, 0.0], np.ones(4))[1]  # all on the x axis
+    0.0
+    """
+    anchors = np.asarray(anchors_mm, dtype=float)
+    ranges = np.asarray(ranges_mm, dtype=float)
+    r2 = ranges**2
+    a2 = (anchors**2).sum(axis=1)
+    point, _, rank, singular = np.linalg.lstsq(
+        2.0 * (anchors - anchors.mean(axis=0)), (a2 - a2.mean()) - (r2 - r2.mean()), rcond=None
+    )
+    conditioning = float(singular[-1] / singular[0]) if rank == 2 else 0.0
+    return point, conditioning
 
 
 # ----------------------------------------------------------------------------- local frames
@@ -663,9 +709,8 @@ def multilaterate(
 ) -> Fix:
     """Least-squares position from ranges to k anchors, rejected with a reason when unreliable.
 
-    The linearised system (each range equation minus their mean: ``2 (aᵢ − ā) · p =
-    |aᵢ|² − mean|a|² − (rᵢ² − mean r²)``) gives the start; Levenberg–Marquardt on the range
-    residuals ``|p − aᵢ| − rᵢ`` refines it. The fix is then checked, in this order:
+    The linearised system (:func:`linear_position`) gives the start; Levenberg–Marquardt on
+    the range residuals ``|p − aᵢ| − rᵢ`` refines it. The fix is then checked, in this order:
 
     1. ``too_few_anchors``: fewer than 3 anchors.
     2. ``collinear_anchors``: all anchors lie within ``min_anchor_width_mm`` of one line
@@ -755,11 +800,7 @@ def multilaterate(
 
     scale = 1.0 + float(np.abs(anchors).max()) + float(ranges.max())
     tol = 1e-9 * scale
-    r2 = ranges**2
-    a2 = (anchors**2).sum(axis=1)
-    start, *_ = np.linalg.lstsq(
-        2.0 * (anchors - centre), (a2 - a2.mean()) - (r2 - r2.mean()), rcond=None
-    )
+    start, _ = linear_position(anchors, ranges)
     best, best_ssr = _refine_position(anchors, ranges, start, tol)
 
     mirror_ssr = math.nan
@@ -798,6 +839,8 @@ def _refine_position(
 
     The 2×2 normal equations are solved in closed form: this runs once or twice per fix
     and per robot, so numpy's per-call overhead would dominate.
+    (The island solve's fit of a rigid motion, three unknowns, is its own:
+    :mod:`protocols.localize.island_solve`.)
     """
     x, y = float(start[0]), float(start[1])
     dx, dy, dist, res, ssr = _range_residuals(anchors, ranges, x, y)

@@ -452,7 +452,7 @@ def test_real_medium_success_rate():
 
 @pytest.mark.slow
 def test_long_range_success_rate():
-    from experiments.follower_measured import CONDITIONS
+    from experiments.studies.follower_measured import CONDITIONS
 
     (what_if,) = (overrides for label, overrides in CONDITIONS if label.startswith("what-if"))
     table = run_many(range(1, 101), what_if)  # the 300 mm disc of docs/follower.md's table

@@ -1,10 +1,10 @@
-"""Tests for experiments.gcs_measured: what docs/gcs.md's blocks read from a run."""
+"""Tests for experiments.studies.gcs_measured: what docs/gcs.md's blocks read from a run."""
 
 from __future__ import annotations
 
 import pytest
 
-from experiments.gcs_measured import THIN_DEG, gcs_run
+from experiments.studies.gcs_measured import THIN_DEG, gcs_run
 
 
 @pytest.mark.slow

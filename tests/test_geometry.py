@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from scipy.linalg import lstsq, svdvals
 from scipy.optimize import least_squares
 
 from kilonet.alignment import procrustes_rmse
@@ -23,6 +24,7 @@ from kilonet.geometry import (
     circle_intersections,
     circle_pair,
     collinear,
+    linear_position,
     multilaterate,
     place_references,
     rotate,
@@ -242,6 +244,40 @@ def test_multilaterate_is_the_least_squares_fit_of_scipy(
     assert fix.rmse_mm == pytest.approx(
         math.sqrt(np.mean((_ranges(anchors, want) - ranges) ** 2)), abs=1e-9
     )
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(point, min_size=3, max_size=8, unique=True),
+    point,
+    st.floats(0.0, 3.0),
+    st.integers(0, 2**32 - 1),
+)
+def test_linear_position_is_scipys_least_squares_of_the_squared_range_equations(
+    anchor_list, truth, sigma_mm, seed
+):
+    """The oracle keeps ``|p|²`` as a free unknown w instead of subtracting the mean equation:
+    scipy's least squares of ``2 aᵢ · p − w = |aᵢ|² − rᵢ²`` over (p, w) has the same p."""
+    anchors = np.array(anchor_list)
+    width = svdvals(anchors - anchors.mean(axis=0))
+    assume(width[-1] > 1.0)  # anchors spread in both directions
+    rng = np.random.default_rng(seed)
+    ranges = np.abs(_ranges(anchors, truth) + rng.normal(0.0, sigma_mm, len(anchors)))
+    p, conditioning = linear_position(anchors, ranges)
+    system = np.column_stack([2.0 * anchors, -np.ones(len(anchors))])
+    want, *_ = lstsq(system, (anchors**2).sum(axis=1) - ranges**2)
+    scale = 1.0 + np.abs(anchors).max() + ranges.max()
+    assert math.dist(p, want[:2]) < 1e-9 * scale / (width[-1] / width[0])
+    assert conditioning == pytest.approx(width[-1] / width[0], rel=1e-9)
+    if sigma_mm == 0.0:
+        assert math.dist(p, truth) < 1e-7 * scale / (width[-1] / width[0])
+
+
+def test_linear_position_says_when_the_anchors_lie_on_one_line():
+    line = np.array([[0.0, 0.0], [40.0, 30.0], [80.0, 60.0], [-40.0, -30.0]])
+    assert linear_position(line, np.full(4, 50.0))[1] < 1e-12  # 0 but for rounding
+    bent = line + np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.05]])
+    assert 0.0 < linear_position(bent, np.full(4, 50.0))[1] < 1e-3
 
 
 # ----------------------------------------------------------------------------- local frames

@@ -128,7 +128,7 @@ class UniqueIds(Phase):
             if is_duplicate(
                 salt,
                 m.salt,
-                None if known is None else known.distance_mm,
+                None if known is None else known.mean_mm,
                 0 if known is None else known.samples,
                 distance_mm,
                 self.params.duplicate_distance_mm,

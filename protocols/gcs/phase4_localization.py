@@ -79,7 +79,7 @@ def fix_anchors(
 
     Examples
     --------
-    >>> t = NeighbourTable(); t.heard(1, 40); t.heard(2, 42); t.heard(3, 39)
+    >>> t = NeighbourTable(); _ = [t.heard(uid, d) for uid, d in ((1, 40), (2, 42), (3, 39))]
     >>> fix_anchors(1, {2: (40.0, 0.0), 3: (20.0, 35.0), 9: (0.0, 80.0)}, t)
     ([(0.0, 0.0), (40.0, 0.0), (20.0, 35.0)], [40.0, 42.0, 39.0])
     """

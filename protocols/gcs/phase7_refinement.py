@@ -231,12 +231,12 @@ class Peer:
     @property
     def mean_mm(self) -> float:
         """This robot's mean measured distance to the neighbour, mm."""
-        return self.record.distance_mm
+        return self.record.mean_mm
 
     @property
     def range_mm(self) -> float:
         """The distance both ends fit (:func:`~protocols.common.refinement.agreed_range_mm`), mm."""
-        return agreed_range_mm(self.record.distance_mm, self.sent_mm, self.reported_mm)
+        return agreed_range_mm(self.record.mean_mm, self.sent_mm, self.reported_mm)
 
 
 class GlobalRefinement(Phase):

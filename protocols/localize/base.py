@@ -2,9 +2,10 @@
 neighbour, and the distance reports that make every measured distance symmetric.
 
 Every message of the protocol starts with the sender's 16-bit ID, so every reception adds a
-distance sample to the sender's :class:`Neighbour` record (its running mean averages the
-ranging noise down). Both ends of a pair fit the same distance, agreed through the symmetric
-distance reports of :mod:`protocols.common.refinement` (DIST, and the choice of neighbour of
+distance sample to the sender's :class:`Neighbour` record, in the neighbour table common to
+both protocols (:mod:`protocols.common.neighbours`; its mean averages the ranging noise
+down). Both ends of a pair fit the same distance, agreed through the symmetric distance
+reports of :mod:`protocols.common.refinement` (DIST, and the choice of neighbour of
 :func:`~protocols.common.refinement.next_report`); one transmit opportunity in
 ``localize.dist_every`` carries a report::
 
@@ -27,14 +28,13 @@ ambiguous and ignored from then on (:meth:`Neighbours.heard`).
 
 from __future__ import annotations
 
-import math
-from bisect import insort
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from operator import attrgetter
 
 from kilonet.message import Layout, Message
 from kilonet.params import param
+from protocols.common import neighbours as common_neighbours
+from protocols.common.neighbours import NeighbourTable
 from protocols.common.refinement import (
     DIST,
     DISTANCE_STEP_MM,
@@ -210,13 +210,14 @@ class LocalizeParams:
     )
 
 
-class Neighbour:
-    """What a robot knows about one neighbour ID.
+class Neighbour(common_neighbours.Neighbour):
+    """What a robot knows about one neighbour ID: the distance samples of the common record
+    (:class:`protocols.common.neighbours.Neighbour`: ``uid``, ``distance_sum_mm``,
+    ``distance_sq_sum_mm2``, ``samples``, ``heard_round``, ``ambiguous``), and what
+    ``localize`` learns besides.
 
     Attributes
     ----------
-    distance_sum_mm, distance_sq_sum_mm2, samples
-        Sum, sum of squares and count of the distance estimates received from it (mm, mm²).
     reported_mm : float or None
         Its own mean distance to this robot, from its DIST reports (mm).
     sent_mm : float or None
@@ -232,40 +233,27 @@ class Neighbour:
         (``NO_ID``: none heard).
     flags : int
         Its state flags as last announced (:data:`LOCALIZED`, ...).
-    heard_round : int
-        This robot's round (its count of rounds of work) at the last reception.
-    ambiguous : bool
-        Two robots seem to use this ID; the record is ignored.
     near : set of int
         The neighbours it has reported distances to in NBR messages (it is unplaced then).
     """
 
     __slots__ = (
-        "ambiguous",
         "candidates",
-        "distance_sq_sum_mm2",
-        "distance_sum_mm",
         "echo",
         "flags",
-        "heard_round",
         "hops",
         "key",
         "near",
         "parent",
         "reported_mm",
-        "samples",
         "sent_mm",
         "sent_round",
-        "uid",
         "x_mm",
         "y_mm",
     )
 
     def __init__(self, uid: int) -> None:
-        self.uid = uid
-        self.distance_sum_mm = 0.0
-        self.distance_sq_sum_mm2 = 0.0
-        self.samples = 0
+        super().__init__(uid)
         self.reported_mm: float | None = None
         self.sent_mm: float | None = None
         self.sent_round = -1
@@ -278,14 +266,7 @@ class Neighbour:
         self.echo = False
         # Two candidate positions (protocols.localize.phase2_spread): (version, [p0, p1]) or None.
         self.candidates: tuple[int, list] | None = None
-        self.heard_round = 0
-        self.ambiguous = False
         self.near: set[int] = set()  # the IDs this neighbour's NBR reports were about
-
-    @property
-    def mean_mm(self) -> float:
-        """Mean of the distance estimates received from this neighbour, mm."""
-        return self.distance_sum_mm / self.samples
 
     @property
     def range_mm(self) -> float:
@@ -298,129 +279,16 @@ class Neighbour:
         return None if self.x_mm is None else (self.x_mm, self.y_mm)
 
 
-_uid_of = attrgetter("uid")
+class Neighbours(NeighbourTable[Neighbour]):
+    """A robot's neighbour records by ID (:class:`~protocols.common.neighbours.NeighbourTable`,
+    its duplicate test and ageing on), each a ``localize`` :class:`Neighbour`; the robot sets
+    ``duplicate_mm`` from the noise it measures."""
 
-
-class Neighbours:
-    """A robot's neighbour records by ID.
-
-    Parameters
-    ----------
-    duplicate_mm : float
-        A sample farther than this from its ID's mean marks the ID ambiguous (the robot sets
-        it from the noise it measures).
-    stale_rounds : int
-        Records not heard for this many of the robot's rounds are left out of :meth:`fresh`.
-    duplicate_after : int
-        Samples an ID needs before the duplicate test applies to it (its mean must be good,
-        and the robot's noise estimate made, first).
-
-    Examples
-    --------
-    >>> nbs = Neighbours(duplicate_mm=6.0, stale_rounds=15, duplicate_after=4)
-    >>> for d in (40, 49, 40, 42):  # 9 mm off at the second sample: too early to judge
-    ...     _ = nbs.heard(7, d, 1)
-    >>> nbs[7].mean_mm, nbs[7].ambiguous
-    (42.75, False)
-    >>> _ = nbs.heard(7, 62, 2)  # another robot with ID 7, 20 mm farther
-    >>> nbs[7].ambiguous, [n.uid for n in nbs.fresh(5)]
-    (True, [])
-    >>> _ = nbs.heard(8, 50, 3)
-    >>> [n.uid for n in nbs.fresh(18)], [n.uid for n in nbs.fresh(19)]
-    ([8], [])
-    >>> nbs.samples_total  # receptions from every ID
-    6
-    """
-
-    def __init__(self, *, duplicate_mm: float, stale_rounds: int, duplicate_after: int = 3) -> None:
-        self.by_id: dict[int, Neighbour] = {}
-        self._in_id_order: list[Neighbour] = []  # by_id's records sorted by ID, for fresh()
-        #: Receptions recorded, from every neighbour.
-        self.samples_total = 0
-        self.duplicate_mm = duplicate_mm
-        self.duplicate_after = duplicate_after
-        self.stale_rounds = stale_rounds
-
-    def heard(self, uid: int, distance_mm: float, stamp: int) -> Neighbour:
-        """Record a reception from ``uid`` at ``distance_mm`` in round ``stamp``; return its
-        record. (Runs on every reception: plain attribute arithmetic only.)"""
-        n = self.by_id.get(uid)
-        if n is None:
-            n = self.by_id[uid] = Neighbour(uid)
-            insort(self._in_id_order, n, key=_uid_of)
-        elif n.samples >= self.duplicate_after and abs(
-            distance_mm * n.samples - n.distance_sum_mm
-        ) > (self.duplicate_mm * n.samples):
-            n.ambiguous = True
-        n.distance_sum_mm += distance_mm
-        n.distance_sq_sum_mm2 += distance_mm * distance_mm
-        n.samples += 1
-        n.heard_round = stamp
-        self.samples_total += 1
-        return n
+    record_type = Neighbour
 
     def report(self, n: Neighbour, code: int) -> None:
         """Store ``n``'s DIST report of its distance to this robot (its code)."""
         n.reported_mm = unwrap_distance(code, n.distance_sum_mm / n.samples)
-
-    def noise_mm(self, min_samples: int, default_mm: float) -> float:
-        """This robot's own estimate of the ranging noise per reception: the median, over
-        unambiguous neighbours heard at least ``min_samples`` times, of the standard deviation
-        of their distance estimates (mm; ``default_mm`` until there is one). The median keeps
-        a neighbour whose ID two robots share from inflating it.
-
-        Examples
-        --------
-        >>> nbs = Neighbours(duplicate_mm=6.0, stale_rounds=5)
-        >>> for d in (40, 42, 40, 42, 41):
-        ...     _ = nbs.heard(1, d, 1)
-        >>> nbs.noise_mm(5, 1.0), nbs.noise_mm(6, 1.0)
-        (1.0, 1.0)
-        >>> for d in (50, 54, 50, 54, 52):
-        ...     _ = nbs.heard(2, d, 1)
-        >>> for d in (60, 60, 60, 60, 60):
-        ...     _ = nbs.heard(3, d, 1)
-        >>> nbs.noise_mm(5, 1.0)
-        1.0
-        >>> for d in (70, 76, 70, 76, 73):
-        ...     _ = nbs.heard(4, d, 1)
-        >>> nbs.noise_mm(5, 1.0)
-        1.5
-        """
-        # The square root keeps the order: take the median of the variances, then its root.
-        variances = [
-            (n.distance_sq_sum_mm2 - n.distance_sum_mm**2 / n.samples) / (n.samples - 1)
-            for n in self.by_id.values()
-            if n.samples >= min_samples and not n.ambiguous
-        ]
-        if not variances:
-            return default_mm
-        variances.sort()
-        middle = len(variances) // 2
-        if len(variances) % 2:
-            return math.sqrt(max(variances[middle], 0.0))
-        low, high = (math.sqrt(max(v, 0.0)) for v in variances[middle - 1 : middle + 1])
-        return 0.5 * (low + high)
-
-    def fresh(self, stamp: int) -> list[Neighbour]:
-        """Unambiguous records heard within the last ``stale_rounds`` rounds before round
-        ``stamp``, by ID."""
-        oldest = stamp - self.stale_rounds
-        return [n for n in self._in_id_order if n.heard_round >= oldest and not n.ambiguous]
-
-    def known(self) -> list[Neighbour]:
-        """Every unambiguous record, however long ago it was heard, by ID (after DONE the
-        placed robots fall silent, and what they last said is final)."""
-        return [n for n in self._in_id_order if not n.ambiguous]
-
-    def __getitem__(self, uid: int) -> Neighbour:
-        return self.by_id[uid]
-
-    def __contains__(self, uid: object) -> bool:
-        return uid in self.by_id
-
-    def __len__(self) -> int:
-        return len(self.by_id)
 
 
 def distance_report(uid: int, position: tuple[float, float] | None, n: Neighbour) -> Message:

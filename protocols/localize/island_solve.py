@@ -26,6 +26,15 @@ solves that problem from the island's distances alone (pure math, no robot API):
 The island's members solve it each on its own from the same reports and take their own
 positions (:mod:`protocols.localize.phase4_island`); refinement then polishes them with
 full-precision distances.
+
+The plane geometry is :mod:`kilonet.geometry`'s: members are placed by its
+:func:`~kilonet.geometry.multilaterate`, and an alignment's starting shift is its
+:func:`~kilonet.geometry.linear_position`. Only the alignment's Levenberg–Marquardt
+(:func:`_fit_motion`) is this module's own: its unknowns are a body's rotation angle and
+shift (three, the angle entering through a rotation of every member, the residuals those of
+many moved points), where geometry's fit (``_refine_position``) moves one point's two
+coordinates, with a closed-form 2×2 step that keeps every robot's multilateration cheap. One
+routine for both would be a general n-unknown solver on geometry's hot path.
 """
 
 from __future__ import annotations
@@ -41,6 +50,7 @@ from kilonet.geometry import (
     MIRROR_SIGMAS,
     GeometryError,
     circle_pair,
+    linear_position,
     multilaterate,
     place_references,
     robust_height,
@@ -84,14 +94,11 @@ class RigidMotion:
 def _start_shift(turned: np.ndarray, fixed: np.ndarray, ranges: np.ndarray) -> np.ndarray:
     """The translation that best puts each turned member at its link's distance from the
     placed point: the shift t lies at ``ranges[k]`` from ``fixed[k] − turned[k]``, a
-    multilateration, solved in its linear form (differences of the squared equations). Where
-    those points lie too close to one line for it, the shift that matches the centroids."""
-    virtual = fixed - turned
-    rows = virtual[1:] - virtual[0]
-    norms = (virtual**2).sum(axis=1)
-    rhs = 0.5 * (norms[1:] - norms[0] - ranges[1:] ** 2 + ranges[0] ** 2)
-    shift, _, rank, singular = np.linalg.lstsq(rows, rhs, rcond=None)
-    if rank < 2 or singular[-1] < 1e-3 * singular[0]:
+    multilateration, solved in its linear form (:func:`~kilonet.geometry.linear_position`).
+    Where those points lie too close to one line for it, the shift that matches the
+    centroids."""
+    shift, conditioning = linear_position(fixed - turned, ranges)
+    if conditioning < 1e-3:
         return fixed.mean(axis=0) - turned.mean(axis=0)
     return shift
 
