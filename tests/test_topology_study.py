@@ -1,4 +1,4 @@
-"""The topology study's tables (experiments/topology_study.py) on hand-made sweep results."""
+"""The topology study (experiments/studies/topology_study.py) on hand-made sweep results."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import json
 import pandas as pd
 import pytest
 
-from experiments.topology_study import (
+from experiments.studies.topology_study import (
     RANGE,
     RECOVERY,
     detection_scores,
