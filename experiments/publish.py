@@ -230,12 +230,12 @@ def _clock_drift_block(context: Context) -> str:
     wide.columns = [
         "robots",
         "clock sd",
-        "gradient equal to hop count (mean of seeds)",
+        "gradient within the hop counts (mean of seeds)",
         "collided receptions (mean)",
     ]
     wide["collided receptions (mean)"] = [f"{v:,.0f}" for v in wide["collided receptions (mean)"]]
-    wide["gradient equal to hop count (mean of seeds)"] = wide[
-        "gradient equal to hop count (mean of seeds)"
+    wide["gradient within the hop counts (mean of seeds)"] = wide[
+        "gradient within the hop counts (mean of seeds)"
     ].round(3)
     runs = len(sweep.seeds)
     return "\n".join([*_markdown_table(wide), "", f"Mean over {runs} seeds per row."])

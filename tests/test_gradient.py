@@ -7,6 +7,7 @@ import networkx as nx
 import pytest
 
 import scenarios
+from kilonet.radio import MIN_RECEPTION
 from scenarios.gradient import hop_distances
 
 GRADIENT = scenarios.get("gradient")
@@ -26,10 +27,14 @@ def test_the_gradient_equals_hop_counts_over_the_mediums_own_graph():
     strong = hop_distances(sim, 0)
     every = nx.DiGraph((s, r) for s in range(sim.n_robots) for r in sim.medium.receivers_of(s))
     weakest = nx.single_source_shortest_path_length(every, 0)
+    assert hop_distances(sim, 0, MIN_RECEPTION) == weakest
     values = [r.gradient for r in sim.robots]
-    assert all(weakest[i] <= values[i] <= strong[i] for i in range(sim.n_robots))
+    within = sum(weakest[i] <= values[i] <= strong[i] for i in range(sim.n_robots))
+    assert result.summary["gradient_correct_fraction"] == within / sim.n_robots == 1.0
+    # Most robots hold the reliable links' count; a few heard a weak link in the soft edge.
     equal = sum(values[i] == strong[i] for i in range(sim.n_robots))
-    assert result.summary["gradient_correct_fraction"] == equal / sim.n_robots >= 0.95
+    assert 0.9 <= equal / sim.n_robots < 1.0
+    assert any(weakest[i] < strong[i] for i in range(sim.n_robots))
 
 
 @pytest.mark.parametrize("seed", [1, 2])
