@@ -45,7 +45,7 @@ import numpy as np
 if TYPE_CHECKING:
     from kilonet.params import Params
     from kilonet.radio import Transceivers
-    from kilonet.ranging import CalibrationTables
+    from kilonet.ranging import CalibrationTables, TableLookup
 
 __all__ = [
     "CAUSES",
@@ -269,6 +269,7 @@ class TableRanging(GaussianRanging):
         super().__init__(params, n_robots, ranging_rng, loss_rng)
         self._irhigh = np.array([t.irhigh for t in tables], dtype=np.int64)
         self._irlow = np.array([t.irlow for t in tables], dtype=np.int64)
+        self._lookup: TableLookup | None = None  # built at the first draw
         self._gain = np.array([t.gain for t in tables])
         self._strength = np.asarray(strength, dtype=float)
         self._strength_sd = params.medium.tx_strength_sd
@@ -287,8 +288,10 @@ class TableRanging(GaussianRanging):
     def estimates(
         self, sender: int, receivers: np.ndarray, distance_mm: np.ndarray, rows: int
     ) -> np.ndarray:
-        from kilonet.ranging import estimate_distance_array, intensity, readings
+        from kilonet.ranging import TableLookup, intensity, readings
 
+        if self._lookup is None:
+            self._lookup = TableLookup(self._irhigh, self._irlow)
         rg = self.ranging
         strength = 1.0 if sender < 0 else self._strength[sender]
         mean = strength * self._gain[receivers] * intensity(np.maximum(distance_mm - 33.0, 0.0))
@@ -296,9 +299,7 @@ class TableRanging(GaussianRanging):
         noise *= rg.intensity_noise
         noise += 1.0
         high, low = readings(np.maximum(noise * mean, 0.0))
-        est = estimate_distance_array(
-            np.rint(high), np.rint(low), self._irhigh[receivers], self._irlow[receivers]
-        )
+        est = self._lookup.estimates(np.rint(high), np.rint(low), receivers)
         return np.clip(est, rg.min_mm, rg.max_mm).astype(np.uint8)
 
     def systematic_mm(self, sender: int, receiver: int, distance_mm: float) -> float:
