@@ -265,6 +265,9 @@ class InfraredMedium:
         self._row_next = [0] * n
         self._row_count = [0] * n
         self._refill_rows = [4] * n
+        # Each sender's loss shares while its receiver list and their shares stand (the
+        # reception model may keep what it derives from them while they are the same object).
+        self._shares: list[LossShares | None] = [None] * n
         self.rebuild_topology()
 
     # -- topology ----------------------------------------------------------------------------
@@ -309,6 +312,7 @@ class InfraredMedium:
         self._rx_r[s] = [ids[k] for k in r.tolist()]
         self._rx_h[s] = [self._handlers[k] for k in self._rx_r[s]]
         self._row_count[s] = self._row_next[s] = 0  # rows drawn for the old lists are void
+        self._shares[s] = None
 
     def _senders_reaching(self, robot: int) -> list[int]:
         """Senders whose receiver lists may contain ``robot`` (links are symmetric)."""
@@ -352,6 +356,7 @@ class InfraredMedium:
             self._loss_fault[robot] = fault
         for s in self._senders_reaching(robot):
             self._row_count[s] = self._row_next[s] = 0  # redraw with the new loss shares
+            self._shares[s] = None
 
     def tx_period_own_s(self, robot: int) -> float:
         """``robot``'s transmit period in seconds of its own clock."""
@@ -410,13 +415,15 @@ class InfraredMedium:
         # Draw few rows for a sender's first messages and more as it keeps sending, so short
         # runs do not draw what they never use.
         n_rows = self._refill_rows[s] = min(2 * self._refill_rows[s], _MAX_ROWS_PER_REFILL)
-        shares = LossShares(
-            self.params.loss_prob,
-            self._rx_loss[s],
-            self._loss_battery[receivers],
-            self._loss_fault[receivers],
-            self._rx_signal[s],
-        )
+        shares = self._shares[s]
+        if shares is None:
+            shares = self._shares[s] = LossShares(
+                self.params.loss_prob,
+                self._rx_loss[s],
+                self._loss_battery[receivers],
+                self._loss_fault[receivers],
+                self._rx_signal[s],
+            )
         outcomes = self.reception.draw(s, receivers, self._rx_d[s], shares, n_rows)
         self._estimates[s] = outcomes.estimates.tobytes()
         if outcomes.losses is None:
@@ -440,7 +447,7 @@ class InfraredMedium:
         s = timer.value
         if not self._running[s]:
             return
-        now = self.env.now
+        now = self.env._kt  # the kernel's clock (KernelEnvironment.now without the call)
         if self._csma and self._busy_until[s] > now >= self._sensed_from[s]:
             self.counts.backoffs[s] += 1
             delay = self._uniform.next() * self._backoff[s]
@@ -516,11 +523,18 @@ class InfraredMedium:
         # transmission as clean and take the failed receptions back out of `received`.
         receivers = tx.receivers
         if losses is None:
-            [
-                h(message, e)
-                for r, h, e in zip(receivers, tx.handlers, tx.estimates, strict=True)
-                if r not in corrupted
-            ]
+            # The receptions between the corrupted ones, in receiver order, run by run.
+            handlers, estimates, sink, start = tx.handlers, tx.estimates, self._sink, 0
+            for at in sorted(map(receivers.index, corrupted)):
+                if at > start:
+                    sink.extend(
+                        map(operator.call, handlers[start:at], repeat(message), estimates[start:at])
+                    )
+                start = at + 1
+            if start < len(handlers):
+                sink.extend(
+                    map(operator.call, handlers[start:], repeat(message), estimates[start:])
+                )
             failed = [(r, 0) for r in corrupted]
         else:
             corrupted = corrupted or ()

@@ -332,15 +332,13 @@ class Kilobot:
         ValueError
             If a channel is not an integer in 0–3, or a packed colour not one of 0–63.
         """
-        if (
-            r.__class__ is int
-            and g.__class__ is int
-            and b.__class__ is int
-            and 0 <= r <= 3
-            and 0 <= g <= 3
-            and 0 <= b <= 3
-        ):
-            color = (r, g, b)  # the common case, checked without a call (loops set it often)
+        color = (r, g, b)
+        if r.__class__ is int and g.__class__ is int and b.__class__ is int:
+            # the common case, checked without a call (loops set it often)
+            if color == self._kcolor:
+                return  # the colour it has: valid already
+            if not (0 <= r <= 3 and 0 <= g <= 3 and 0 <= b <= 3):
+                raise ValueError(f"set_color channels must be integers 0-3, got {color}")
         else:
             if g is None and b is None:
                 if not isinstance(r, int | np.integer) or not 0 <= r <= 63:
