@@ -214,9 +214,14 @@ def estimate_distance(d: DistanceMeasurement | int, tables: CalibrationTables) -
 def _table_mm_array(reading: np.ndarray, table: np.ndarray, beyond: int | None) -> np.ndarray:
     """:func:`_table_mm` on arrays: ``reading`` (..., R) on tables (R, 14), one per column."""
     table = table.astype(np.int64)
-    above = reading[..., None] > table[:, 1:]  # (..., R, 13)
-    found = above.any(axis=-1)
-    index = np.where(found, above.argmax(axis=-1) + 1, 13)
+    # The first k in 1..13 with reading > table[k] (13 if none): from the last down, each
+    # match overwrites, so the first one stays.
+    index = np.full(np.broadcast_shapes(np.shape(reading), table.shape[:1]), 13)
+    found = np.zeros(index.shape, dtype=bool)
+    for k in range(13, 0, -1):
+        above = reading > table[:, k]
+        index[above] = k
+        found |= above
     cols = np.broadcast_to(np.arange(table.shape[0]), index.shape)
     t_hi, t_lo = table[cols, index], table[cols, index - 1]
     slope = (t_hi - t_lo) / 0.5
