@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import operator
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from itertools import repeat
 from typing import TYPE_CHECKING
 
@@ -49,21 +49,18 @@ from kilonet.counters import LOSS_CAUSES, MediumCounters
 from kilonet.mac import Channel
 from kilonet.message import LIMITS, Message, PayloadLimit
 from kilonet.radio import MIN_RECEPTION, reception_probability
-from kilonet.reception import (
-    CAUSES,
-    RANDOM,
-    LossShares,
-    ModelContext,
-    ReceptionModel,
-    reception_model,
-)
+from kilonet.reception import CAUSES, RANDOM, LossShares, ReceptionModel
 from kilonet.robot import Kilobot
 from kilonet.visibility import LinkModel
 
 if TYPE_CHECKING:
     import networkx as nx
 
-    from kilonet.simulation import Simulation
+    from kilonet.clock import KernelEnvironment, RobotClocks
+    from kilonet.params import MediumParams, RobotParams
+    from kilonet.radio import Transceivers
+    from kilonet.simulation import World
+    from kilonet.trace import Trace
 
 __all__ = ["LOSS_CAUSES", "InfraredMedium", "RandomBlock"]
 
@@ -155,44 +152,62 @@ class InfraredMedium:
 
     Parameters
     ----------
-    sim : Simulation
-        The simulation; the medium reads its environment, world, robot clocks, parameters,
-        robots and the ``medium`` and ``ranging`` random streams.
+    params : MediumParams
+        The run's ``medium`` section.
+    robot : RobotParams
+        The run's ``robot`` section (transmit period, jitter and retry, the tick rate).
+    env : KernelEnvironment
+        The run's clock and queue.
+    world : World
+        Where the robots are and which run (the links follow them).
+    clocks : RobotClocks
+        Each robot's oscillator (its transmit timing runs on it).
+    radio : Transceivers
+        Each robot's emitter strength and receiver sensitivity.
+    programs : sequence of Kilobot
+        The robots' programs, whose ``message_tx`` and ``message_tx_success`` it calls.
+    reception : ReceptionModel
+        Distance estimates and losses of the receptions.
+    rng : numpy.random.Generator
+        The run's ``medium`` stream: transmit phases and back-offs.
+    trace : Trace
+        Where messages are recorded with ``trace.messages``.
     links : LinkModel, optional
-        Range and occlusion (default: from ``medium.*`` parameters).
-    reception : ReceptionModel, optional
-        Distance estimates and losses (default: :class:`~kilonet.reception.GaussianRanging`).
+        Range and occlusion (default: from ``params``).
+    trace_messages : bool
+        Record every transmission in ``trace`` (``trace.messages``).
     """
 
     def __init__(
         self,
-        sim: Simulation,
+        params: MediumParams,
+        robot: RobotParams,
+        env: KernelEnvironment,
+        world: World,
+        clocks: RobotClocks,
+        radio: Transceivers,
+        programs: Sequence[Kilobot],
+        reception: ReceptionModel,
+        rng: np.random.Generator,
+        trace: Trace,
         *,
         links: LinkModel | None = None,
-        reception: ReceptionModel | None = None,
+        trace_messages: bool = False,
     ) -> None:
-        self.sim = sim
-        self.env = sim.env
-        p = sim.params.medium
+        self.env = env
+        p = params
         self.params = p
-        n = sim.n_robots
+        self._robot_params = robot
+        self._world = world
+        self._trace = trace
+        n = len(programs)
         self.n = n
-        self.radio = sim.transceivers
+        self.radio = radio
         self._edge_mm = self.radio.reach.edge_mm
         self.link_model = links or LinkModel.from_params(
-            p, sim.world.radius_mm, range_mm=self.radio.max_distance_mm
+            p, world.radius_mm, range_mm=self.radio.max_distance_mm
         )
-        self._medium_rng = sim.stream("medium")
-        self.reception = reception or reception_model(
-            ModelContext(
-                sim.params,
-                n,
-                sim.stream("ranging"),
-                self._medium_rng,
-                sim.calibration_tables,
-                self.radio,
-            )
-        )
+        self.reception = reception
         # One channel slot per robot and one more, the last, for senders outside the swarm
         # (a test's scripted messages, see arrive()): it is a sender's slot only, never
         # a receiver's.
@@ -206,8 +221,8 @@ class InfraredMedium:
         self.airtime_s = p.airtime_s or self.limit.air_bytes * 8 / p.bitrate_bps + p.preamble_s
 
         # Timing per robot in true seconds: each robot's clock runs at its own rate.
-        rp = sim.params.robot
-        factor = self._factor = sim.clocks.factor.tolist()
+        rp = robot
+        factor = self._factor = clocks.factor.tolist()
         self._period = [rp.tx_period_s / f for f in factor]
         self._jitter = [rp.tx_jitter_s / f for f in factor]
         # never below kilolib's least wait (parameters forced past validation): a back-off
@@ -216,15 +231,15 @@ class InfraredMedium:
         self._tick = [1.0 / (rp.ticks_per_s * f) for f in factor]
         self._retry_tick = rp.tx_retry == "tick"
         self._csma = p.csma
-        self._uniform = RandomBlock(self._medium_rng.random)
+        self._uniform = RandomBlock(rng.random)
         self._ids = list(range(n))  # one int object per robot, shared by every list
 
         # Receiver-side loss shares (battery, fault), per robot.
         self._loss_battery = np.zeros(n)
         self._loss_fault = np.zeros(n)
-        self._trace_messages = sim.params.trace.messages
+        self._trace_messages = trace_messages
         self._running = [True] * n
-        robots = sim.robots
+        robots = programs
         self._message_tx = [r.message_tx for r in robots]
         # An empty message_tx_success() has no effect; not calling it saves a call per message.
         self._tx_success = [
@@ -243,7 +258,7 @@ class InfraredMedium:
         self._sink: deque = deque(maxlen=0)
         # One reusable queue entry per robot for its next transmit opportunity (a robot has at
         # most one pending), and one shared callback list for ends of airtime.
-        self._offer_timers = [Timer(sim.env, self._offer, i) for i in range(n)]
+        self._offer_timers = [Timer(env, self._offer, i) for i in range(n)]
         self._end_callbacks = [self._end_of_airtime]
 
         # Per-sender links at full range (receiver, distance, reach, occlusion loss), and the
@@ -273,7 +288,7 @@ class InfraredMedium:
     # -- topology ----------------------------------------------------------------------------
     def rebuild_topology(self) -> None:
         """Recompute who hears whom from the world's present positions and running robots."""
-        world = self.sim.world
+        world = self._world
         links = self.link_model.links(world.positions_mm, world.present)
         sender = np.concatenate([links.i, links.j])
         receiver = np.concatenate([links.j, links.i])
@@ -372,7 +387,7 @@ class InfraredMedium:
             If ``period_s`` is not above ``robot.tx_jitter_s`` (an offer would fall before the
             one it follows).
         """
-        jitter_s = self.sim.params.robot.tx_jitter_s
+        jitter_s = self._robot_params.tx_jitter_s
         if not period_s > jitter_s:
             raise ValueError(
                 f"robot {robot}: a transmit period of {period_s} s must exceed "
@@ -517,7 +532,7 @@ class InfraredMedium:
             counters.clean_delivery(tx.sender)
             if self._trace_messages:
                 n = len(tx.receivers)
-                self.sim.trace.message(self.env.now, tx.sender, n, n)
+                self._trace.message(self.env.now, tx.sender, n, n)
             return
         # Some receptions fail: deliver the others in one comprehension, count the
         # transmission as clean and take the failed receptions back out of `received`.
@@ -562,7 +577,7 @@ class InfraredMedium:
                 lost_by_code[loss][r] += 1
         if self._trace_messages:
             n = len(receivers)
-            self.sim.trace.message(self.env.now, tx.sender, n, n - len(failed))
+            self._trace.message(self.env.now, tx.sender, n, n - len(failed))
 
     def _deliver_carefully(self, tx: _Transmission) -> None:
         """End of airtime of a message whose receiver lists changed while it was on the air,
@@ -591,7 +606,7 @@ class InfraredMedium:
                 delivered += 1
                 handler(message, estimate)
         if self._trace_messages:
-            self.sim.trace.message(self.env.now, tx.sender, len(tx.receivers), delivered)
+            self._trace.message(self.env.now, tx.sender, len(tx.receivers), delivered)
 
     def arrive(
         self,
