@@ -58,12 +58,7 @@ import simpy
 from simpy.core import EmptySchedule, StopSimulation
 from simpy.events import NORMAL, URGENT, Event
 
-__all__ = ["WINDOW_RUNS", "KernelEnvironment", "RobotClocks", "Timer"]
-
-#: About how many recurring runs a window of :class:`KernelEnvironment` holds when it can
-#: take several periods at once (fewer, larger NumPy sorts).
-WINDOW_RUNS = 4096
-_MAX_ROUNDS = 16  # a few calls: a window of more periods would be built for nothing
+__all__ = ["KernelEnvironment", "RobotClocks", "Timer"]
 
 
 @dataclass(frozen=True)
@@ -272,10 +267,8 @@ class KernelEnvironment(simpy.Environment):
         pending runs stay as they are)."""
         pos = self._kpos
         if pos:
-            # A call may have run several times in the window: its last run counts.
-            last = pos - 1 - np.unique(self._kwin_k_arr[pos - 1 :: -1], return_index=True)[1]
-            ran = self._kwin_k_arr[last]
-            self._knext[ran] = self._kwin_t_arr[last] + self._kperiods[ran]
+            ran = self._kwin_k_arr[:pos]
+            self._knext[ran] = self._kwin_t_arr[:pos] + self._kperiods[ran]
         if self._kcancelled:
             self._knext[self._kcancelled] = math.inf
             self._kcancelled = []
@@ -284,12 +277,9 @@ class KernelEnvironment(simpy.Environment):
         self._kwin_k_arr = self._kwin_k_arr[:0]
 
     def _window(self) -> None:
-        """Close the window and build the next: every pending run before a horizon, ordered
-        by (time, insertion number) as the queue would order them. The horizon is the
-        earliest run plus several shortest periods, as many as keep the window near
-        :data:`WINDOW_RUNS` runs, when no two of those runs fall at the same time; with a tie
-        it is one shortest period, in which no call comes round again, so that the insertion
-        numbers it is ordered by are the ones its runs have when they are due."""
+        """Close the window and build the next: every pending run within the shortest period
+        of the earliest, ordered by (time, insertion number) as the queue would order them.
+        None of them comes round again within it, so it stays valid while it is consumed."""
         self._close_window()
         self._kdirty = False
         nexts = self._knext
@@ -299,37 +289,13 @@ class KernelEnvironment(simpy.Environment):
             return
         chosen = np.flatnonzero(nexts < start + self._kmin_period)
         times = nexts[chosen]
-        rounds = min(WINDOW_RUNS // len(chosen), _MAX_ROUNDS)
-        if rounds > 1:
-            horizon = start + rounds * self._kmin_period
-            chosen = np.flatnonzero(nexts < horizon)
-            runs_t, runs_k = [nexts[chosen]], [chosen]
-            while True:  # each call's later runs, its time accumulated as the queue would
-                later = runs_t[-1] + self._kperiods[runs_k[-1]]
-                keep = later < horizon
-                if not keep.any():
-                    break
-                runs_t.append(later[keep])
-                runs_k.append(runs_k[-1][keep])
-            all_t = np.concatenate(runs_t)
-            order = np.argsort(all_t, kind="stable")
-            ordered = all_t[order]
-            if not (ordered[1:] == ordered[:-1]).any():
-                self._set_window(ordered, np.concatenate(runs_k)[order])
-                return
-            chosen = np.flatnonzero(nexts < start + self._kmin_period)  # a tie: one period
-            times = nexts[chosen]
         order = np.argsort(times, kind="stable")
         ordered = times[order]
         if len(ordered) > 1 and (ordered[1:] == ordered[:-1]).any():  # ties: by insertion
             order = np.lexsort((np.array(self._keids)[chosen], times))
             ordered = times[order]
-        self._set_window(ordered, chosen[order])
-
-    def _set_window(self, times: np.ndarray, calls: np.ndarray) -> None:
-        """Make the runs of ``calls`` at ``times`` (in order) the window."""
-        self._kwin_t_arr, self._kwin_k_arr = times, calls
-        self._kwin_t, self._kwin_k = times.tolist(), calls.tolist()
+        self._kwin_t_arr, self._kwin_k_arr = ordered, chosen[order]
+        self._kwin_t, self._kwin_k = ordered.tolist(), self._kwin_k_arr.tolist()
 
     def _next_recurring(self) -> tuple[float, int, int] | None:
         """The next live recurring run as (time, insertion number, call), or None."""
