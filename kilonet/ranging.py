@@ -251,7 +251,8 @@ def estimate_distance_array(
     """
     high = np.asarray(high, dtype=np.int64)
     low = np.asarray(low, dtype=np.int64)
-    return _blend(high, _table_mm_array(high, irhigh, None), _table_mm_array(low, irlow, 90))
+    dist_high = np.where(high < 900, _table_mm_array(high, irhigh, None), 255)
+    return _blend(high, dist_high, _table_mm_array(low, irlow, 90))
 
 
 class TableLookup:
@@ -281,8 +282,12 @@ class TableLookup:
 
     def __init__(self, irhigh: np.ndarray, irlow: np.ndarray) -> None:
         every = np.arange(1024, dtype=np.int64)[:, None]  # (1024, 1): every 10-bit reading
+        #: (N, 1024): robot k's high-gain distance of reading v (255 from 900 on: unused).
         self.high_mm = self._rows(every, np.asarray(irhigh), None)
+        self.high_mm[:, 900:] = 255
+        #: (N, 1024): robot k's low-gain distance of reading v.
         self.low_mm = self._rows(every, np.asarray(irlow), 90)
+        self._high_flat, self._low_flat = self.high_mm.ravel(), self.low_mm.ravel()
 
     @classmethod
     def _rows(cls, every: np.ndarray, tables: np.ndarray, beyond: int | None) -> np.ndarray:
@@ -301,21 +306,25 @@ class TableLookup:
         0-1023), column ``k`` on the tables of robot ``receivers[k]``."""
         high = np.asarray(high, dtype=np.intp)
         low = np.asarray(low, dtype=np.intp)
-        return _blend(high, self.high_mm[receivers, high], self.low_mm[receivers, low])
+        row = receivers * 1024  # where each receiver's row starts in the flat tables
+        return _blend(high, self._high_flat.take(high + row), self._low_flat.take(low + row))
 
 
-def _blend(high: np.ndarray, table_high: np.ndarray, table_low: np.ndarray) -> np.ndarray:
+def _blend(high: np.ndarray, dist_high: np.ndarray, table_low: np.ndarray) -> np.ndarray:
     """kilolib's choice and blend of the two tables' distances (mm between the bodies) by the
-    high-gain reading; the centre-to-centre estimate, mm (int, 0-255)."""
-    dist_high = np.where(high < 900, table_high, 255)
+    high-gain reading ``high``: ``dist_high`` is the high-gain table's (255 where ``high`` is
+    900 or more), ``table_low`` the low-gain table's; the centre-to-centre estimate, mm (int,
+    0-255)."""
     dist_low = np.where(high > 700, table_low, 255)
-    blended = np.trunc(33 + (dist_high * (900.0 - high) + dist_low * (high - 700.0)) / 200.0)
+    blended = (dist_high * (900.0 - high) + dist_low * (high - 700.0)) / 200.0
+    blended += 33
     out = np.where(
         dist_low != 255,
-        np.where(dist_high != 255, blended.astype(np.int64), 33 + dist_low),
-        33 + dist_high,
+        np.where(dist_high != 255, np.trunc(blended).astype(np.int64), dist_low + 33),
+        dist_high + 33,
     )
-    return out & 0xFF
+    out &= 0xFF
+    return out
 
 
 def _reading(table: tuple[int, ...], gap_mm: float) -> float:
