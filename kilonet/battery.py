@@ -15,13 +15,19 @@ At ``cutoff_v`` the robot stops. Degradation is re-evaluated every ``update_s`` 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
 from simpy.events import Timeout
 
 if TYPE_CHECKING:
-    from kilonet.simulation import Simulation
+    import simpy
+
+    from kilonet.medium import InfraredMedium
+    from kilonet.params import BatteryParams
+    from kilonet.simulation import World
+    from kilonet.trace import Trace
 
 __all__ = ["Battery", "degradation"]
 
@@ -38,12 +44,38 @@ def degradation(voltage_v: np.ndarray, degrade_v: float, cutoff_v: float) -> np.
 
 
 class Battery:
-    """The batteries of all robots of a simulation (one vectorised model)."""
+    """The batteries of all robots of a simulation (one vectorised model).
 
-    def __init__(self, sim: Simulation) -> None:
-        self.sim = sim
-        self.params = sim.params.battery
-        n = sim.n_robots
+    Parameters
+    ----------
+    params : BatteryParams
+        The run's ``battery`` section.
+    env : simpy.Environment
+        The run's clock and queue.
+    world : World
+        Which robots run (a flat battery stops only running robots; the model stops
+        re-evaluating once none runs).
+    medium : InfraredMedium
+        Where a low battery shortens the transmit range and loses receptions.
+    trace : Trace
+        Where each change of a robot's degradation is recorded.
+    stop : callable
+        ``stop(robot, "battery")`` stops a robot whose battery is flat.
+    """
+
+    def __init__(
+        self,
+        params: BatteryParams,
+        env: simpy.Environment,
+        world: World,
+        medium: InfraredMedium,
+        trace: Trace,
+        *,
+        stop: Callable[[int, str], None],
+    ) -> None:
+        self.params, self.env, self._world = params, env, world
+        self._medium, self._trace, self._stop = medium, trace, stop
+        n = len(world.running)
         self.initial_v = np.full(n, self.params.initial_v)
         self.motor_s = np.zeros(n)  # motor-seconds used so far (two motors count twice)
         self.level = np.zeros(n)  # degradation level applied last
@@ -60,7 +92,7 @@ class Battery:
         if not self.params.enabled:
             return self.initial_v.copy()
         p = self.params
-        hours = self.sim.env.now / 3600.0
+        hours = self.env.now / 3600.0
         motor_h = self.motor_s / 3600.0
         return self.initial_v - p.idle_drain_v_per_h * hours - p.motor_drain_v_per_h * motor_h
 
@@ -69,7 +101,7 @@ class Battery:
         if not self.params.enabled:
             return float(self.initial_v[robot])
         p = self.params
-        hours = self.sim.env.now / 3600.0
+        hours = self.env.now / 3600.0
         return float(
             self.initial_v[robot]
             - p.idle_drain_v_per_h * hours
@@ -81,7 +113,7 @@ class Battery:
         volts = self.voltages()
         level = degradation(volts, p.degrade_v, p.cutoff_v)
         changed = np.flatnonzero(level != self.level)
-        medium = self.sim.medium
+        medium = self._medium
         for r in changed.tolist():
             f = float(level[r])
             medium.set_extra_loss(r, battery=f * p.loss_at_cutoff)
@@ -89,11 +121,11 @@ class Battery:
         self.level = level
         self.motor_factor = 1.0 - level * (1.0 - p.motor_factor_at_cutoff)
         self.led_factor = 1.0 - level * (1.0 - p.led_factor_at_cutoff)
-        now = self.sim.env.now
+        now = self.env.now
         for r in changed.tolist():
-            self.sim.trace.battery(now, r, volts[r], level[r], self.led_factor[r])
-        world = self.sim.world
+            self._trace.battery(now, r, volts[r], level[r], self.led_factor[r])
+        world = self._world
         for r in np.flatnonzero((volts <= p.cutoff_v) & world.running).tolist():
-            self.sim.stop_robot(r, "battery")
+            self._stop(r, "battery")
         if world.running.any():
-            Timeout(self.sim.env, p.update_s).callbacks.append(self._update)
+            Timeout(self.env, p.update_s).callbacks.append(self._update)

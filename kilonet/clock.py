@@ -151,8 +151,11 @@ class Timer:
         ValueError
             If ``delay_s`` is negative.
         """
+        if not delay_s >= 0:
+            self._env.schedule(self, NORMAL, delay_s)  # raises
         self.callbacks = self._callbacks
-        self._env.schedule(self, NORMAL, delay_s)
+        env = self._env
+        heappush(env._kqueue, (env._kt + delay_s, NORMAL, next(env._kids), self))
 
 
 class KernelEnvironment(simpy.Environment):

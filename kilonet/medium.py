@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import operator
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from itertools import repeat
 from typing import TYPE_CHECKING
 
@@ -49,21 +49,18 @@ from kilonet.counters import LOSS_CAUSES, MediumCounters
 from kilonet.mac import Channel
 from kilonet.message import LIMITS, Message, PayloadLimit
 from kilonet.radio import MIN_RECEPTION, reception_probability
-from kilonet.reception import (
-    CAUSES,
-    RANDOM,
-    LossShares,
-    ModelContext,
-    ReceptionModel,
-    reception_model,
-)
+from kilonet.reception import CAUSES, RANDOM, LossShares, ReceptionModel
 from kilonet.robot import Kilobot
 from kilonet.visibility import LinkModel
 
 if TYPE_CHECKING:
     import networkx as nx
 
-    from kilonet.simulation import Simulation
+    from kilonet.clock import KernelEnvironment, RobotClocks
+    from kilonet.params import MediumParams, RobotParams
+    from kilonet.radio import Transceivers
+    from kilonet.simulation import World
+    from kilonet.trace import Trace
 
 __all__ = ["LOSS_CAUSES", "InfraredMedium", "RandomBlock"]
 
@@ -155,44 +152,62 @@ class InfraredMedium:
 
     Parameters
     ----------
-    sim : Simulation
-        The simulation; the medium reads its environment, world, robot clocks, parameters,
-        robots and the ``medium`` and ``ranging`` random streams.
+    params : MediumParams
+        The run's ``medium`` section.
+    robot : RobotParams
+        The run's ``robot`` section (transmit period, jitter and retry, the tick rate).
+    env : KernelEnvironment
+        The run's clock and queue.
+    world : World
+        Where the robots are and which run (the links follow them).
+    clocks : RobotClocks
+        Each robot's oscillator (its transmit timing runs on it).
+    radio : Transceivers
+        Each robot's emitter strength and receiver sensitivity.
+    programs : sequence of Kilobot
+        The robots' programs, whose ``message_tx`` and ``message_tx_success`` it calls.
+    reception : ReceptionModel
+        Distance estimates and losses of the receptions.
+    rng : numpy.random.Generator
+        The run's ``medium`` stream: transmit phases and back-offs.
+    trace : Trace
+        Where messages are recorded with ``trace.messages``.
     links : LinkModel, optional
-        Range and occlusion (default: from ``medium.*`` parameters).
-    reception : ReceptionModel, optional
-        Distance estimates and losses (default: :class:`~kilonet.reception.GaussianRanging`).
+        Range and occlusion (default: from ``params``).
+    trace_messages : bool
+        Record every transmission in ``trace`` (``trace.messages``).
     """
 
     def __init__(
         self,
-        sim: Simulation,
+        params: MediumParams,
+        robot: RobotParams,
+        env: KernelEnvironment,
+        world: World,
+        clocks: RobotClocks,
+        radio: Transceivers,
+        programs: Sequence[Kilobot],
+        reception: ReceptionModel,
+        rng: np.random.Generator,
+        trace: Trace,
         *,
         links: LinkModel | None = None,
-        reception: ReceptionModel | None = None,
+        trace_messages: bool = False,
     ) -> None:
-        self.sim = sim
-        self.env = sim.env
-        p = sim.params.medium
+        self.env = env
+        p = params
         self.params = p
-        n = sim.n_robots
+        self._robot_params = robot
+        self._world = world
+        self._trace = trace
+        n = len(programs)
         self.n = n
-        self.radio = sim.transceivers
+        self.radio = radio
         self._edge_mm = self.radio.reach.edge_mm
         self.link_model = links or LinkModel.from_params(
-            p, sim.world.radius_mm, range_mm=self.radio.max_distance_mm
+            p, world.radius_mm, range_mm=self.radio.max_distance_mm
         )
-        self._medium_rng = sim.stream("medium")
-        self.reception = reception or reception_model(
-            ModelContext(
-                sim.params,
-                n,
-                sim.stream("ranging"),
-                self._medium_rng,
-                sim.calibration_tables,
-                self.radio,
-            )
-        )
+        self.reception = reception
         # One channel slot per robot and one more, the last, for senders outside the swarm
         # (a test's scripted messages, see arrive()): it is a sender's slot only, never
         # a receiver's.
@@ -206,8 +221,8 @@ class InfraredMedium:
         self.airtime_s = p.airtime_s or self.limit.air_bytes * 8 / p.bitrate_bps + p.preamble_s
 
         # Timing per robot in true seconds: each robot's clock runs at its own rate.
-        rp = sim.params.robot
-        factor = self._factor = sim.clocks.factor.tolist()
+        rp = robot
+        factor = self._factor = clocks.factor.tolist()
         self._period = [rp.tx_period_s / f for f in factor]
         self._jitter = [rp.tx_jitter_s / f for f in factor]
         # never below kilolib's least wait (parameters forced past validation): a back-off
@@ -216,15 +231,15 @@ class InfraredMedium:
         self._tick = [1.0 / (rp.ticks_per_s * f) for f in factor]
         self._retry_tick = rp.tx_retry == "tick"
         self._csma = p.csma
-        self._uniform = RandomBlock(self._medium_rng.random)
+        self._uniform = RandomBlock(rng.random)
         self._ids = list(range(n))  # one int object per robot, shared by every list
 
         # Receiver-side loss shares (battery, fault), per robot.
         self._loss_battery = np.zeros(n)
         self._loss_fault = np.zeros(n)
-        self._trace_messages = sim.params.trace.messages
+        self._trace_messages = trace_messages
         self._running = [True] * n
-        robots = sim.robots
+        robots = programs
         self._message_tx = [r.message_tx for r in robots]
         # An empty message_tx_success() has no effect; not calling it saves a call per message.
         self._tx_success = [
@@ -243,7 +258,7 @@ class InfraredMedium:
         self._sink: deque = deque(maxlen=0)
         # One reusable queue entry per robot for its next transmit opportunity (a robot has at
         # most one pending), and one shared callback list for ends of airtime.
-        self._offer_timers = [Timer(sim.env, self._offer, i) for i in range(n)]
+        self._offer_timers = [Timer(env, self._offer, i) for i in range(n)]
         self._end_callbacks = [self._end_of_airtime]
 
         # Per-sender links at full range (receiver, distance, reach, occlusion loss), and the
@@ -265,12 +280,15 @@ class InfraredMedium:
         self._row_next = [0] * n
         self._row_count = [0] * n
         self._refill_rows = [4] * n
+        # Each sender's loss shares while its receiver list and their shares stand (the
+        # reception model may keep what it derives from them while they are the same object).
+        self._shares: list[LossShares | None] = [None] * n
         self.rebuild_topology()
 
     # -- topology ----------------------------------------------------------------------------
     def rebuild_topology(self) -> None:
         """Recompute who hears whom from the world's present positions and running robots."""
-        world = self.sim.world
+        world = self._world
         links = self.link_model.links(world.positions_mm, world.present)
         sender = np.concatenate([links.i, links.j])
         receiver = np.concatenate([links.j, links.i])
@@ -309,6 +327,7 @@ class InfraredMedium:
         self._rx_r[s] = [ids[k] for k in r.tolist()]
         self._rx_h[s] = [self._handlers[k] for k in self._rx_r[s]]
         self._row_count[s] = self._row_next[s] = 0  # rows drawn for the old lists are void
+        self._shares[s] = None
 
     def _senders_reaching(self, robot: int) -> list[int]:
         """Senders whose receiver lists may contain ``robot`` (links are symmetric)."""
@@ -352,6 +371,7 @@ class InfraredMedium:
             self._loss_fault[robot] = fault
         for s in self._senders_reaching(robot):
             self._row_count[s] = self._row_next[s] = 0  # redraw with the new loss shares
+            self._shares[s] = None
 
     def tx_period_own_s(self, robot: int) -> float:
         """``robot``'s transmit period in seconds of its own clock."""
@@ -367,7 +387,7 @@ class InfraredMedium:
             If ``period_s`` is not above ``robot.tx_jitter_s`` (an offer would fall before the
             one it follows).
         """
-        jitter_s = self.sim.params.robot.tx_jitter_s
+        jitter_s = self._robot_params.tx_jitter_s
         if not period_s > jitter_s:
             raise ValueError(
                 f"robot {robot}: a transmit period of {period_s} s must exceed "
@@ -410,13 +430,15 @@ class InfraredMedium:
         # Draw few rows for a sender's first messages and more as it keeps sending, so short
         # runs do not draw what they never use.
         n_rows = self._refill_rows[s] = min(2 * self._refill_rows[s], _MAX_ROWS_PER_REFILL)
-        shares = LossShares(
-            self.params.loss_prob,
-            self._rx_loss[s],
-            self._loss_battery[receivers],
-            self._loss_fault[receivers],
-            self._rx_signal[s],
-        )
+        shares = self._shares[s]
+        if shares is None:
+            shares = self._shares[s] = LossShares(
+                self.params.loss_prob,
+                self._rx_loss[s],
+                self._loss_battery[receivers],
+                self._loss_fault[receivers],
+                self._rx_signal[s],
+            )
         outcomes = self.reception.draw(s, receivers, self._rx_d[s], shares, n_rows)
         self._estimates[s] = outcomes.estimates.tobytes()
         if outcomes.losses is None:
@@ -440,7 +462,7 @@ class InfraredMedium:
         s = timer.value
         if not self._running[s]:
             return
-        now = self.env.now
+        now = self.env._kt  # the kernel's clock (KernelEnvironment.now without the call)
         if self._csma and self._busy_until[s] > now >= self._sensed_from[s]:
             self.counts.backoffs[s] += 1
             delay = self._uniform.next() * self._backoff[s]
@@ -510,17 +532,24 @@ class InfraredMedium:
             counters.clean_delivery(tx.sender)
             if self._trace_messages:
                 n = len(tx.receivers)
-                self.sim.trace.message(self.env.now, tx.sender, n, n)
+                self._trace.message(self.env.now, tx.sender, n, n)
             return
         # Some receptions fail: deliver the others in one comprehension, count the
         # transmission as clean and take the failed receptions back out of `received`.
         receivers = tx.receivers
         if losses is None:
-            [
-                h(message, e)
-                for r, h, e in zip(receivers, tx.handlers, tx.estimates, strict=True)
-                if r not in corrupted
-            ]
+            # The receptions between the corrupted ones, in receiver order, run by run.
+            handlers, estimates, sink, start = tx.handlers, tx.estimates, self._sink, 0
+            for at in sorted(map(receivers.index, corrupted)):
+                if at > start:
+                    sink.extend(
+                        map(operator.call, handlers[start:at], repeat(message), estimates[start:at])
+                    )
+                start = at + 1
+            if start < len(handlers):
+                sink.extend(
+                    map(operator.call, handlers[start:], repeat(message), estimates[start:])
+                )
             failed = [(r, 0) for r in corrupted]
         else:
             corrupted = corrupted or ()
@@ -548,7 +577,7 @@ class InfraredMedium:
                 lost_by_code[loss][r] += 1
         if self._trace_messages:
             n = len(receivers)
-            self.sim.trace.message(self.env.now, tx.sender, n, n - len(failed))
+            self._trace.message(self.env.now, tx.sender, n, n - len(failed))
 
     def _deliver_carefully(self, tx: _Transmission) -> None:
         """End of airtime of a message whose receiver lists changed while it was on the air,
@@ -577,7 +606,7 @@ class InfraredMedium:
                 delivered += 1
                 handler(message, estimate)
         if self._trace_messages:
-            self.sim.trace.message(self.env.now, tx.sender, len(tx.receivers), delivered)
+            self._trace.message(self.env.now, tx.sender, len(tx.receivers), delivered)
 
     def arrive(
         self,

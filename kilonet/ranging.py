@@ -35,6 +35,7 @@ import numpy as np
 __all__ = [
     "CalibrationTables",
     "DistanceMeasurement",
+    "TableLookup",
     "calibration_tables",
     "estimate_distance",
     "estimate_distance_array",
@@ -213,9 +214,14 @@ def estimate_distance(d: DistanceMeasurement | int, tables: CalibrationTables) -
 def _table_mm_array(reading: np.ndarray, table: np.ndarray, beyond: int | None) -> np.ndarray:
     """:func:`_table_mm` on arrays: ``reading`` (..., R) on tables (R, 14), one per column."""
     table = table.astype(np.int64)
-    above = reading[..., None] > table[:, 1:]  # (..., R, 13)
-    found = above.any(axis=-1)
-    index = np.where(found, above.argmax(axis=-1) + 1, 13)
+    # The first k in 1..13 with reading > table[k] (13 if none): from the last down, each
+    # match overwrites, so the first one stays.
+    index = np.full(np.broadcast_shapes(np.shape(reading), table.shape[:1]), 13)
+    found = np.zeros(index.shape, dtype=bool)
+    for k in range(13, 0, -1):
+        above = reading > table[:, k]
+        index[above] = k
+        found |= above
     cols = np.broadcast_to(np.arange(table.shape[0]), index.shape)
     t_hi, t_lo = table[cols, index], table[cols, index - 1]
     slope = (t_hi - t_lo) / 0.5
@@ -246,14 +252,79 @@ def estimate_distance_array(
     high = np.asarray(high, dtype=np.int64)
     low = np.asarray(low, dtype=np.int64)
     dist_high = np.where(high < 900, _table_mm_array(high, irhigh, None), 255)
-    dist_low = np.where(high > 700, _table_mm_array(low, irlow, 90), 255)
-    blended = np.trunc(33 + (dist_high * (900.0 - high) + dist_low * (high - 700.0)) / 200.0)
+    return _blend(high, dist_high, _table_mm_array(low, irlow, 90))
+
+
+class TableLookup:
+    """:func:`estimate_distance_array` for a swarm's tables, by table look-up: each robot's
+    interpolation (``_table_mm``) on its high- and low-gain tables is computed once for every
+    10-bit reading, so an estimate costs two look-ups and the blend. The result is the same,
+    bit for bit (the interpolation of one reading depends on that reading and one table only).
+
+    Parameters
+    ----------
+    irhigh, irlow : (N, 14) int arrays
+        Each robot's ``kilo_irhigh`` and ``kilo_irlow``.
+
+    Examples
+    --------
+    >>> t = calibration_tables(2, np.random.default_rng(1))
+    >>> irh = np.array([x.irhigh for x in t]); irl = np.array([x.irlow for x in t])
+    >>> high = np.array([[400, 800], [100, 950]]); low = np.array([[300, 300], [60, 500]])
+    >>> lookup = TableLookup(irh, irl)
+    >>> bool((lookup.estimates(high, low, np.array([0, 1])) ==
+    ...       estimate_distance_array(high, low, irh, irl)).all())
+    True
+    """
+
+    #: Chunk of robots whose look-up rows are computed at once (bounds the temporary arrays).
+    _CHUNK = 256
+
+    def __init__(self, irhigh: np.ndarray, irlow: np.ndarray) -> None:
+        every = np.arange(1024, dtype=np.int64)[:, None]  # (1024, 1): every 10-bit reading
+        #: (N, 1024): robot k's high-gain distance of reading v (255 from 900 on: unused).
+        self.high_mm = self._rows(every, np.asarray(irhigh), None)
+        self.high_mm[:, 900:] = 255
+        #: (N, 1024): robot k's low-gain distance of reading v.
+        self.low_mm = self._rows(every, np.asarray(irlow), 90)
+        self._high_flat, self._low_flat = self.high_mm.ravel(), self.low_mm.ravel()
+
+    @classmethod
+    def _rows(cls, every: np.ndarray, tables: np.ndarray, beyond: int | None) -> np.ndarray:
+        """(N, 1024) int16: ``_table_mm`` of every reading on each robot's table."""
+        rows = [
+            _table_mm_array(every, tables[k : k + cls._CHUNK], beyond).T
+            for k in range(0, len(tables), cls._CHUNK)
+        ]
+        out = np.concatenate(rows) if rows else np.empty((0, 1024), dtype=np.int64)
+        if len(out) and (out.min() < -(1 << 15) or out.max() >= 1 << 15):
+            return out
+        return out.astype(np.int16)
+
+    def estimates(self, high: np.ndarray, low: np.ndarray, receivers: np.ndarray) -> np.ndarray:
+        """Estimates in mm (int, 0-255) of integer readings ``high`` and ``low`` (..., R, each
+        0-1023), column ``k`` on the tables of robot ``receivers[k]``."""
+        high = np.asarray(high, dtype=np.intp)
+        low = np.asarray(low, dtype=np.intp)
+        row = receivers * 1024  # where each receiver's row starts in the flat tables
+        return _blend(high, self._high_flat.take(high + row), self._low_flat.take(low + row))
+
+
+def _blend(high: np.ndarray, dist_high: np.ndarray, table_low: np.ndarray) -> np.ndarray:
+    """kilolib's choice and blend of the two tables' distances (mm between the bodies) by the
+    high-gain reading ``high``: ``dist_high`` is the high-gain table's (255 where ``high`` is
+    900 or more), ``table_low`` the low-gain table's; the centre-to-centre estimate, mm (int,
+    0-255)."""
+    dist_low = np.where(high > 700, table_low, 255)
+    blended = (dist_high * (900.0 - high) + dist_low * (high - 700.0)) / 200.0
+    blended += 33
     out = np.where(
         dist_low != 255,
-        np.where(dist_high != 255, blended.astype(np.int64), 33 + dist_low),
-        33 + dist_high,
+        np.where(dist_high != 255, np.trunc(blended).astype(np.int64), dist_low + 33),
+        dist_high + 33,
     )
-    return out & 0xFF
+    out &= 0xFF
+    return out
 
 
 def _reading(table: tuple[int, ...], gap_mm: float) -> float:

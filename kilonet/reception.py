@@ -45,7 +45,7 @@ import numpy as np
 if TYPE_CHECKING:
     from kilonet.params import Params
     from kilonet.radio import Transceivers
-    from kilonet.ranging import CalibrationTables
+    from kilonet.ranging import CalibrationTables, TableLookup
 
 __all__ = [
     "CAUSES",
@@ -175,6 +175,8 @@ class GaussianRanging(ReceptionModel):
         sigma = self.ranging.bias_sigma_mm
         #: Each robot's ranging bias as a receiver, mm.
         self.bias_mm = ranging_rng.normal(0.0, sigma, n_robots) if sigma else np.zeros(n_robots)
+        # sender -> (shares, distances, thresholds or None) as last computed
+        self._loss_cache: dict[int, tuple[LossShares, np.ndarray, np.ndarray | None]] = {}
 
     @classmethod
     def from_context(cls, context: ModelContext) -> GaussianRanging:
@@ -223,6 +225,21 @@ class GaussianRanging(ReceptionModel):
             [random, shares.occlusion, shares.battery, shares.fault, shares.signal], axis=0
         )
 
+    def _thresholds(
+        self, sender: int, shares: LossShares, distance_mm: np.ndarray
+    ) -> np.ndarray | None:
+        """:meth:`loss_probability` of ``sender``'s links, or ``None`` if nothing can be lost;
+        computed again only when the medium passes other shares or distances (it passes the
+        same objects while a sender's receiver list and loss shares stand)."""
+        cached = self._loss_cache.get(sender)
+        if cached is not None and cached[0] is shares and cached[1] is distance_mm:
+            return cached[2]
+        thresholds = self.loss_probability(shares, distance_mm)
+        if not thresholds.any():
+            thresholds = None
+        self._loss_cache[sender] = (shares, distance_mm, thresholds)
+        return thresholds
+
     def draw(
         self,
         sender: int,
@@ -232,8 +249,8 @@ class GaussianRanging(ReceptionModel):
         rows: int,
     ) -> Outcomes:
         estimates = self.estimates(sender, receivers, distance_mm, rows)
-        thresholds = self.loss_probability(shares, distance_mm)
-        if not thresholds.any():
+        thresholds = self._thresholds(sender, shares, distance_mm)
+        if thresholds is None:
             return Outcomes(estimates, None)
         u = self._loss_rng.random((rows, len(receivers)))
         codes = np.zeros(u.shape, dtype=np.uint8)
@@ -269,6 +286,9 @@ class TableRanging(GaussianRanging):
         super().__init__(params, n_robots, ranging_rng, loss_rng)
         self._irhigh = np.array([t.irhigh for t in tables], dtype=np.int64)
         self._irlow = np.array([t.irlow for t in tables], dtype=np.int64)
+        self._lookup: TableLookup | None = None  # built at the first draw
+        # sender -> (receivers, distances, mean intensity per link) as last computed
+        self._mean_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._gain = np.array([t.gain for t in tables])
         self._strength = np.asarray(strength, dtype=float)
         self._strength_sd = params.medium.tx_strength_sd
@@ -287,18 +307,24 @@ class TableRanging(GaussianRanging):
     def estimates(
         self, sender: int, receivers: np.ndarray, distance_mm: np.ndarray, rows: int
     ) -> np.ndarray:
-        from kilonet.ranging import estimate_distance_array, intensity, readings
+        from kilonet.ranging import TableLookup, intensity, readings
 
+        if self._lookup is None:
+            self._lookup = TableLookup(self._irhigh, self._irlow)
         rg = self.ranging
-        strength = 1.0 if sender < 0 else self._strength[sender]
-        mean = strength * self._gain[receivers] * intensity(np.maximum(distance_mm - 33.0, 0.0))
+        cached = self._mean_cache.get(sender)
+        if cached is not None and cached[0] is receivers and cached[1] is distance_mm:
+            mean = cached[2]
+        else:
+            strength = 1.0 if sender < 0 else self._strength[sender]
+            gap = np.maximum(distance_mm - 33.0, 0.0)
+            mean = strength * self._gain[receivers] * intensity(gap)
+            self._mean_cache[sender] = (receivers, distance_mm, mean)
         noise = self._ranging_rng.standard_normal((rows, len(receivers)))
         noise *= rg.intensity_noise
         noise += 1.0
         high, low = readings(np.maximum(noise * mean, 0.0))
-        est = estimate_distance_array(
-            np.rint(high), np.rint(low), self._irhigh[receivers], self._irlow[receivers]
-        )
+        est = self._lookup.estimates(np.rint(high), np.rint(low), receivers)
         return np.clip(est, rg.min_mm, rg.max_mm).astype(np.uint8)
 
     def systematic_mm(self, sender: int, receiver: int, distance_mm: float) -> float:

@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import inspect
 from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -44,7 +46,13 @@ from kilonet.ranging import CalibrationTables, DistanceMeasurement, estimate_dis
 if TYPE_CHECKING:
     from simpy.events import Timeout
 
+    from kilonet.clock import KernelEnvironment, RobotClocks
+    from kilonet.medium import InfraredMedium
+    from kilonet.motion import Motion
+    from kilonet.params import RobotParams
+    from kilonet.sensors import Sensors
     from kilonet.simulation import Simulation
+    from kilonet.trace import Trace
 
 __all__ = [
     "ADC_CONVERSION_S",
@@ -53,6 +61,7 @@ __all__ = [
     "TICKS_PER_SEC",
     "TIMER_COUNTS_PER_S",
     "Kilobot",
+    "RobotServices",
     "RobotStopped",
     "check_program_class",
 ]
@@ -89,6 +98,44 @@ def RGB(r: int, g: int, b: int) -> int:
 
 #: Attribute names the kernel keeps in every robot start with this; a program must not use it.
 RESERVED_PREFIX = "_k"
+
+
+@dataclass(frozen=True)
+class RobotServices:
+    """What the kernel gives the robots of a run: the parts a program reaches through the
+    kilolib API, and nothing else (no world, no other robot). The simulation wires it once.
+
+    Attributes
+    ----------
+    env : KernelEnvironment
+        The run's clock (``kilo_ticks``, ``delay``).
+    params : RobotParams
+        The run's ``robot`` section.
+    clocks : RobotClocks
+        Each robot's oscillator.
+    calibration_tables : sequence of CalibrationTables
+        Each robot's ``kilo_irhigh``/``kilo_irlow`` (``estimate_distance``).
+    uids : sequence of int or None
+        Each robot's hardware UID, or ``None`` without ``robot.hardware_uids``.
+    trace : Trace
+        Where the LED and protocol events are recorded.
+    medium : InfraredMedium
+        The robot's transceiver: its transmit period, carrier sense.
+    motion : Motion
+        Its motors and their calibration.
+    sensors : Sensors
+        Its ADC readings (light, battery, temperature).
+    """
+
+    env: KernelEnvironment
+    params: RobotParams
+    clocks: RobotClocks
+    calibration_tables: Sequence[CalibrationTables]
+    uids: Sequence[int] | None
+    trace: Trace
+    medium: InfraredMedium
+    motion: Motion
+    sensors: Sensors
 
 
 class RobotStopped(RuntimeError):
@@ -133,10 +180,12 @@ class Kilobot:
         "_kprocess",
         "_krate",
         "_krx",
+        "_kservices",
         "_ksim",
         "_ksoft",
         "_ktables",
         "_ktheta",
+        "_ktrace",
         "_ktx_period",
         "_kuid",
         "kilo_straight_left",
@@ -147,6 +196,7 @@ class Kilobot:
     )
 
     _ksim: Simulation
+    _kservices: RobotServices
     _kindex: int
     rand: np.random.Generator
 
@@ -187,23 +237,28 @@ class Kilobot:
 
     # -- attachment (the simulation calls this) ----------------------------------------------
     def _attach(self, sim: Simulation, index: int, rng: np.random.Generator) -> None:
+        """Make this program robot ``index`` of ``sim``, drawing from ``rng``. The API below
+        reaches only ``sim.robot_services``; ``_ksim`` is for kernel extensions that model a
+        robot's hardware (:mod:`kilonet.testing`, a maze's wall sensors)."""
         self._ksim = sim
-        self._kenv = sim.env
+        services = self._kservices = sim.robot_services
+        self._kenv = services.env
+        self._ktrace = services.trace
         self._kindex = index
-        clocks = sim.clocks
+        clocks = services.clocks
         self._krate = clocks.rate_hz(index)
         self._ktheta = float(clocks.phase[index])
         self.rand = rng
-        self._krx: deque[tuple[Message, int]] = deque(maxlen=sim.params.robot.rx_buffer)
+        self._krx: deque[tuple[Message, int]] = deque(maxlen=services.params.rx_buffer)
         self._kcolor = (0, 0, 0)
-        self._kuid = sim.uids[index] if sim.uids is not None else None
+        self._kuid = services.uids[index] if services.uids is not None else None
         self._ksoft = [0xAA, 0]  # rand_soft's seed and accumulator, as kilolib starts them
         self._kdelay = None  # the delay a generator program has not yielded yet
         self._kadc = None  # (callback time, end) of the last ADC reading
         self._kprocess = False  # runs as a SimPy process (a generator setup or loop)
         self._ktx_period: int | None = None  # kilo_tx_period as the program last set it
-        self._ktables: CalibrationTables = sim.calibration_tables[index]
-        cal = sim.motion.calibrations[index]
+        self._ktables: CalibrationTables = services.calibration_tables[index]
+        cal = services.motion.calibrations[index]
         self.kilo_turn_left, self.kilo_turn_right = cal.turn_left, cal.turn_right
         self.kilo_straight_left, self.kilo_straight_right = cal.straight_left, cal.straight_right
 
@@ -217,13 +272,13 @@ class Kilobot:
     def ticks_per_s(self) -> float:
         """kilolib's ``TICKS_PER_SEC`` (31): the nominal rate; this robot's true rate differs
         by its clock error."""
-        return self._ksim.params.robot.ticks_per_s
+        return self._kservices.params.ticks_per_s
 
     @property
     def TICKS_PER_SEC(self) -> int:
         """kilolib's ``TICKS_PER_SEC`` as an integer: 31, or ``robot.ticks_per_s`` rounded
         when a run sets another nominal rate (Kilombo's 32)."""
-        return round(self._ksim.params.robot.ticks_per_s)
+        return round(self._kservices.params.ticks_per_s)
 
     def delay(self, ms: float) -> Timeout:
         """kilolib's ``delay(ms)``: in a generator ``setup`` or ``loop``, ``yield
@@ -247,7 +302,7 @@ class Kilobot:
             raise RuntimeError(f"robot {self._kindex}: delay() was called without `yield`")
         if ms < 0:
             raise ValueError(f"delay(ms) needs ms >= 0, got {ms}")
-        self._kdelay = self._kenv.timeout(self._ksim.clocks.true_s(self._kindex, ms / 1000.0))
+        self._kdelay = self._kenv.timeout(self._kservices.clocks.true_s(self._kindex, ms / 1000.0))
         return self._kdelay
 
     @property
@@ -257,7 +312,7 @@ class Kilobot:
         ``kilo_tx_period // 255 + 1`` ticks (3906: 16 ticks, 0.524 s of this robot's clock)."""
         if self._ktx_period is not None:
             return self._ktx_period
-        own_s = self._ksim.medium.tx_period_own_s(self._kindex)
+        own_s = self._kservices.medium.tx_period_own_s(self._kindex)
         ticks = own_s * TIMER_COUNTS_PER_S / 256
         if abs(ticks - 16) < 1e-9:
             return 3906
@@ -269,7 +324,7 @@ class Kilobot:
             raise ValueError(f"kilo_tx_period is a uint16 of timer counts > 0, got {counts}")
         self._ktx_period = int(counts)
         ticks = counts // 255 + 1
-        self._ksim.medium.set_tx_period(self._kindex, ticks * 256 / TIMER_COUNTS_PER_S)
+        self._kservices.medium.set_tx_period(self._kindex, ticks * 256 / TIMER_COUNTS_PER_S)
 
     # -- identity and randomness -------------------------------------------------------------
     @property
@@ -332,15 +387,13 @@ class Kilobot:
         ValueError
             If a channel is not an integer in 0–3, or a packed colour not one of 0–63.
         """
-        if (
-            r.__class__ is int
-            and g.__class__ is int
-            and b.__class__ is int
-            and 0 <= r <= 3
-            and 0 <= g <= 3
-            and 0 <= b <= 3
-        ):
-            color = (r, g, b)  # the common case, checked without a call (loops set it often)
+        color = (r, g, b)
+        if r.__class__ is int and g.__class__ is int and b.__class__ is int:
+            # the common case, checked without a call (loops set it often)
+            if color == self._kcolor:
+                return  # the colour it has: valid already
+            if not (0 <= r <= 3 and 0 <= g <= 3 and 0 <= b <= 3):
+                raise ValueError(f"set_color channels must be integers 0-3, got {color}")
         else:
             if g is None and b is None:
                 if not isinstance(r, int | np.integer) or not 0 <= r <= 63:
@@ -352,7 +405,7 @@ class Kilobot:
             color = (int(r), int(g), int(b))
         if color != self._kcolor:
             self._kcolor = color
-            self._ksim.trace.led(self._kenv.now, self._kindex, color)
+            self._ktrace.led(self._kenv.now, self._kindex, color)
 
     @property
     def color(self) -> tuple[int, int, int]:
@@ -375,13 +428,13 @@ class Kilobot:
         for value in (left, right):
             if not isinstance(value, int | np.integer) or not 0 <= value <= 255:
                 raise ValueError(f"motor values must be integers 0-255, got ({left}, {right})")
-        self._ksim.motion.set_motors(self._kindex, int(left), int(right))
+        self._kservices.motion.set_motors(self._kindex, int(left), int(right))
 
     def spinup_motors(self) -> None:
         """kilolib's ``spinup_motors()``: both motors at full duty, which starts a motor at
         rest. (kilolib then waits 15 ms; here the next ``set_motors`` follows at once, so the
         burst moves the robot by nothing instead of about 0.3 mm.)"""
-        self._ksim.motion.set_motors(self._kindex, 255, 255)
+        self._kservices.motion.set_motors(self._kindex, 255, 255)
 
     # -- messages and receptions -------------------------------------------------------------
     @staticmethod
@@ -417,27 +470,24 @@ class Kilobot:
     def get_ambientlight(self) -> int:
         """kilolib's ``get_ambientlight()``: a 10-bit reading of the light where the robot
         stands, or -1 while a message is arriving (the ADC is busy measuring it)."""
-        sim = self._ksim
         if self._kadc_busy():
             return -1
-        return sim.sensors.ambient_light(self._kindex)
+        return self._kservices.sensors.ambient_light(self._kindex)
 
     def get_voltage(self) -> int:
         """kilolib's ``get_voltage()``: a 10-bit reading of the battery (about ``169 * V +
         6``: 547 at 3.2 V, 716 at 4.2 V), or -1 while a message is arriving."""
-        sim = self._ksim
         if self._kadc_busy():
             return -1
-        return sim.sensors.voltage_reading(self._kindex)
+        return self._kservices.sensors.voltage_reading(self._kindex)
 
     def get_temperature(self) -> int:
         """kilolib's ``get_temperature()``: a 10-bit reading of the ATmega328P's temperature
         sensor against its 1.1 V reference (about 292 at 25 °C), or -1 while a message is
         arriving."""
-        sim = self._ksim
         if self._kadc_busy():
             return -1
-        return sim.sensors.temperature_reading(self._kindex)
+        return self._kservices.sensors.temperature_reading(self._kindex)
 
     def _kadc_busy(self) -> bool:
         """Whether this ADC reading finds a message arriving. Each reading takes
@@ -449,18 +499,18 @@ class Kilobot:
         last = self._kadc
         at = last[1] + ADC_CONVERSION_S if last is not None and last[0] == now else now
         self._kadc = (now, at)
-        return self._ksim.medium.channel.busy(self._kindex, at)  # a carrier at `at`
+        return self._kservices.medium.channel.busy(self._kindex, at)  # a carrier at `at`
 
     # -- the run's record --------------------------------------------------------------------
     def log(self, event: str, **fields: Any) -> None:
         """Record a protocol event (name and fields) in the run's trace."""
-        self._ksim.trace.event(self._kenv.now, self._kindex, event, fields)
+        self._ktrace.event(self._kenv.now, self._kindex, event, fields)
 
     @property
     def polled(self) -> bool:
         """Whether receptions wait in the polled buffer (the thesis's library) rather than
         arriving through ``message_rx``; fixed for a run, like a kilolib build option."""
-        return self._ksim.params.robot.rx_mode == "polled"
+        return self._kservices.params.rx_mode == "polled"
 
 
 def check_program_class(cls: type[Kilobot]) -> None:

@@ -36,7 +36,8 @@ from kilonet.params import Params
 from kilonet.placement import ROBOT_DIAMETER_MM, validate_positions
 from kilonet.radio import Transceivers, reach_of
 from kilonet.ranging import calibration_tables, measurement_for, read_calibration
-from kilonet.robot import Kilobot, check_kernel_names, check_program_class
+from kilonet.reception import ModelContext, reception_model
+from kilonet.robot import Kilobot, RobotServices, check_kernel_names, check_program_class
 from kilonet.sensors import Sensors
 from kilonet.trace import Trace
 
@@ -187,12 +188,41 @@ class Simulation:
             if type(robot) not in checked:
                 check_program_class(type(robot))
                 checked.add(type(robot))
-            robot._attach(self, i, robot_rngs[i])
             self.robots.append(robot)
-        self.medium = InfraredMedium(self, links=links, reception=reception)
-        self.battery = Battery(self)
+        # The wiring: each component gets the parts of the run it uses, built in this order.
+        self.reception = reception or reception_model(
+            ModelContext(
+                self.params,
+                n,
+                self.stream("ranging"),
+                self.stream("medium"),
+                self.calibration_tables,
+                self.transceivers,
+            )
+        )
+        self.medium = InfraredMedium(
+            self.params.medium,
+            rp,
+            self.env,
+            self.world,
+            self.clocks,
+            self.transceivers,
+            self.robots,
+            self.reception,
+            self.stream("medium"),
+            self.trace,
+            links=links,
+            trace_messages=self.params.trace.messages,
+        )
+        self.battery = Battery(
+            self.params.battery,
+            self.env,
+            self.world,
+            self.medium,
+            self.trace,
+            stop=self.stop_robot,
+        )
         self.motion.connect(self.battery, self.medium.rebuild_topology)
-        rp = self.params.robot
         self.sensors = Sensors(
             self.params.light,
             rp.temperature_c,
@@ -209,6 +239,19 @@ class Simulation:
             medium=self.medium,
             deliver=self.deliver,
         )
+        self.robot_services = RobotServices(
+            self.env,
+            rp,
+            self.clocks,
+            self.calibration_tables,
+            self.uids,
+            self.trace,
+            self.medium,
+            self.motion,
+            self.sensors,
+        )
+        for i, robot in enumerate(self.robots):
+            robot._attach(self, i, robot_rngs[i])
         self.stop_causes: dict[int, str] = {}
         self._loops: dict[int, int] = {}  # robot -> its loop's handle in the environment
         self.wall_time_s = 0.0

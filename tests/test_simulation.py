@@ -545,3 +545,57 @@ def test_a_plain_loop_calling_a_generator_parent_loop_is_refused():
         TypeError, match=r"Child\.loop is a plain function but calls super\(\)\.loop"
     ):
         Simulation([[0, 0]], Child, quiet_params())
+
+
+# --------------------------------------------------------------------- the wiring
+
+
+def test_no_component_holds_the_simulation():
+    sim = Simulation(hex_lattice(7, spacing_mm=40.0), Hops, quiet_params())
+    for part in (sim.medium, sim.battery, sim.motion, sim.sensors, sim.faults):
+        held = [name for name, value in vars(part).items() if value is sim]
+        assert held == [], f"{type(part).__name__} holds the simulation in {held}"
+    assert sim.robots[0]._kservices is sim.robot_services
+
+
+class _Everything(Kilobot):
+    """Every part of the robot API a plain program can reach."""
+
+    def setup(self) -> None:
+        self.kilo_tx_period = 3000
+        self.readings = (self.get_ambientlight(), self.get_voltage(), self.get_temperature())
+        self.rates = (self.ticks_per_s, self.TICKS_PER_SEC, self.polled, self.kilo_tx_period)
+        self.set_motors(self.kilo_straight_left, self.kilo_straight_right)
+
+    def loop(self) -> None:
+        self.set_color(self.kilo_ticks % 4, 0, 0)
+        if self.kilo_ticks > 20:
+            self.spinup_motors()
+            self.set_motors(0, 0)
+
+    def message_tx(self) -> Message:
+        return Message(bytes([self.kilo_uid]))
+
+    def message_rx(self, message: Message, distance: int) -> None:
+        self.log("heard", distance=self.estimate_distance(distance))
+
+
+class _NoSimulation:
+    def __getattr__(self, name: str) -> None:
+        raise AssertionError(f"the robot API reached for the simulation's {name!r}")
+
+
+def test_the_robot_api_runs_on_its_services_alone():
+    def run(cut_off: bool) -> pd.DataFrame:
+        sim = Simulation(hex_lattice(4, spacing_mm=40.0), _Everything, quiet_params())
+        if cut_off:
+            for robot in sim.robots:
+                robot._ksim = _NoSimulation()
+        sim.run(2.0)
+        assert all(r.rates == (30.517578125, 31, False, 3000) for r in sim.robots)
+        assert all(r.readings[1] == 716 for r in sim.robots)  # 4.2 V
+        return sim.trace.events_frame()
+
+    events = run(cut_off=True)
+    assert len(events) > 0
+    pd.testing.assert_frame_equal(events, run(cut_off=False))
