@@ -598,7 +598,7 @@ class Spread:
             if fix.ok:
                 self.place(fix.x_mm, fix.y_mm, "anchors", len(anchors))
                 return
-        if pairs:
+        if pairs and r.params.max_candidate_neighbours:
             # The pairs farthest apart discriminate best.
             pairs.sort(key=lambda n: -_separation(n.candidates[1]))
             pairs = pairs[: r.params.max_candidate_neighbours]
