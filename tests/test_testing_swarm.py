@@ -105,8 +105,8 @@ def test_swarm_misuse_is_refused():
         run_swarm(hops, "hex")
     with pytest.raises(ScriptError, match="robots=3 but the placement has 2 robots"):
         run_swarm(hops, [[0, 0], [40, 0]], robots=3)
-    with pytest.raises(ValueError, match="unknown layout 'ring'"):
-        run_swarm(hops, "ring", robots=3)
+    with pytest.raises(ValueError, match="unknown layout 'spiral'"):
+        run_swarm(hops, "spiral", robots=3)
     result = run_swarm(hops, "line", robots=2, until_s=0.1)
     with pytest.raises(ScriptError, match=r"robot 5 is not in this swarm of 2 robots \(0-1\)"):
         result.program(5)
