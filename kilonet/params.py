@@ -307,14 +307,25 @@ class TraceParams:
 class PlacementParams:
     """Where robots stand when no placement file is given."""
 
-    kind: Literal["scenario", "hex", "random", "line"] = param(
-        "scenario", doc="placement generator; 'scenario' uses the scenario's own"
+    kind: Literal["scenario", "hex", "random", "line", "corridor", "c_shape", "ring"] = param(
+        "scenario",
+        doc="placement generator; 'scenario' uses the scenario's own; corridor, c_shape and "
+        "ring (a disc with a hole) place robots at random in their shape",
     )
     robots: int = param(0, lo=0, hi=1_000_000, doc="number of robots; 0 = scenario default")
     spacing_mm: float = param(40.0, lo=33.0, hi=10_000.0, doc="hex/line lattice spacing")
     jitter_mm: float = param(2.0, lo=0.0, hi=1000.0, doc="hex lattice jitter radius")
     density_per_m2: float = param(400.0, lo=1.0, hi=1e4, doc="random placement density")
     area: Literal["rect", "disc"] = param("disc", doc="random placement region shape")
+    length_mm: float = param(5000.0, lo=33.0, hi=1e6, doc="corridor length (along x)")
+    width_mm: float = param(200.0, lo=33.0, hi=1e6, doc="corridor width (along y)")
+    outer_radius_mm: float = param(700.0, lo=33.0, hi=1e6, doc="c_shape and ring outer radius")
+    inner_radius_mm: float = param(
+        450.0, lo=0.0, hi=1e6, doc="c_shape and ring inner radius (the hole's)"
+    )
+    opening_deg: float = param(
+        90.0, lo=0.0, hi=359.0, doc="c_shape opening, degrees, centred on the +x axis"
+    )
 
 
 @dataclass(frozen=True)
@@ -350,6 +361,13 @@ class Params:
             raise ParamError(
                 f"robot.tx_jitter_s ({r.tx_jitter_s}) must be below robot.tx_period_s "
                 f"({r.tx_period_s}): an offer would fall before the one it follows"
+            )
+        pl = self.placement
+        if pl.kind in ("c_shape", "ring") and not pl.inner_radius_mm < pl.outer_radius_mm:
+            raise ParamError(
+                f"placement.inner_radius_mm ({pl.inner_radius_mm}) must be below "
+                f"placement.outer_radius_mm ({pl.outer_radius_mm}) for placement.kind = "
+                f"{pl.kind!r}"
             )
         model = self.ranging.model
         if model not in ("tables", "gaussian") and not _is_import_path(model):

@@ -33,6 +33,7 @@ __all__ = [
     "c_shape",
     "corridor",
     "generate",
+    "generate_from",
     "hex_lattice",
     "line",
     "load_csv",
@@ -441,7 +442,7 @@ def c_shape(
 
 
 #: Names of the generated placements :func:`generate` knows.
-LAYOUTS = ("hex", "line", "random")
+LAYOUTS = ("hex", "line", "random", "corridor", "c_shape", "ring")
 
 
 def generate(
@@ -453,11 +454,19 @@ def generate(
     jitter_mm: float = 0.0,
     density_per_m2: float = 400.0,
     area: str = "disc",
+    length_mm: float = 5000.0,
+    width_mm: float = 200.0,
+    outer_radius_mm: float = 700.0,
+    inner_radius_mm: float = 450.0,
+    opening_deg: float = 90.0,
     diameter_mm: float = ROBOT_DIAMETER_MM,
 ) -> np.ndarray:
-    """A generated placement by name: ``"hex"`` (:func:`hex_lattice` with ``spacing_mm`` and
-    ``jitter_mm``), ``"line"`` (:func:`line`) or ``"random"`` (:func:`random_uniform` at
-    ``density_per_m2`` in a region of shape ``area``), as ``placement.kind`` names them.
+    """A generated placement by name, as ``placement.kind`` names them: ``"hex"``
+    (:func:`hex_lattice` with ``spacing_mm`` and ``jitter_mm``), ``"line"`` (:func:`line`),
+    ``"random"`` (:func:`random_uniform` at ``density_per_m2`` in a region of shape ``area``),
+    ``"corridor"`` (:func:`corridor`, ``length_mm`` × ``width_mm``), ``"c_shape"``
+    (:func:`c_shape` between the two radii, open by ``opening_deg``) or ``"ring"`` (a disc
+    with a hole: the C shape without an opening). Sizes in mm.
 
     Raises
     ------
@@ -470,10 +479,15 @@ def generate(
     [0.0, 50.0, 100.0]
     >>> generate("hex", 7).shape
     (7, 2)
-    >>> generate("ring", 3)
+    >>> xy = generate("ring", 50, rng=np.random.default_rng(1), outer_radius_mm=400.0,
+    ...               inner_radius_mm=300.0)
+    >>> r = np.hypot(*xy.T)
+    >>> bool(r.min() >= 300.0 and r.max() <= 400.0)
+    True
+    >>> generate("spiral", 3)
     Traceback (most recent call last):
     ...
-    ValueError: unknown layout 'ring'; layouts are: hex, line, random
+    ValueError: unknown layout 'spiral'; layouts are: hex, line, random, corridor, c_shape, ring
     """
     if kind == "hex":
         return hex_lattice(
@@ -485,7 +499,38 @@ def generate(
         return random_uniform(
             n, density_per_m2=density_per_m2, area=area, rng=rng, diameter_mm=diameter_mm
         )
+    if kind == "corridor":
+        return corridor(n, length_mm=length_mm, width_mm=width_mm, rng=rng, diameter_mm=diameter_mm)
+    if kind in ("c_shape", "ring"):
+        return c_shape(
+            n,
+            outer_radius_mm=outer_radius_mm,
+            inner_radius_mm=inner_radius_mm,
+            opening_deg=opening_deg if kind == "c_shape" else 0.0,
+            rng=rng,
+            diameter_mm=diameter_mm,
+        )
     raise ValueError(f"unknown layout {kind!r}; layouts are: {', '.join(LAYOUTS)}")
+
+
+def generate_from(placement, kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
+    """:func:`generate` of layout ``kind`` with the sizes of a ``placement`` parameter
+    section (:class:`kilonet.params.PlacementParams`: its spacing, jitter, density, area,
+    corridor and C-shape fields)."""
+    return generate(
+        kind,
+        n,
+        rng=rng,
+        spacing_mm=placement.spacing_mm,
+        jitter_mm=placement.jitter_mm,
+        density_per_m2=placement.density_per_m2,
+        area=placement.area,
+        length_mm=placement.length_mm,
+        width_mm=placement.width_mm,
+        outer_radius_mm=placement.outer_radius_mm,
+        inner_radius_mm=placement.inner_radius_mm,
+        opening_deg=placement.opening_deg,
+    )
 
 
 def load_csv(path: str | os.PathLike, *, diameter_mm: float = ROBOT_DIAMETER_MM) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 
 from kilonet.errors import UserError
 from kilonet.params import ParamError, Params
-from kilonet.placement import PlacementError, generate, load_csv, read_placement
+from kilonet.placement import PlacementError, generate_from, load_csv, read_placement
 from kilonet.robot import Kilobot
 from scenarios.output_dir import OutputDir
 from scenarios.progress import RunProgress
@@ -200,15 +200,7 @@ def place(
     try:
         if p.kind == "scenario" and scenario.placement is not None:
             return scenario.placement(params, n, rng)
-        return generate(
-            "hex" if p.kind == "scenario" else p.kind,
-            n,
-            rng=rng,
-            spacing_mm=p.spacing_mm,
-            jitter_mm=p.jitter_mm,
-            density_per_m2=p.density_per_m2,
-            area=p.area,
-        )
+        return generate_from(p, "hex" if p.kind == "scenario" else p.kind, n, rng)
     except ValueError as exc:  # a generator refusing its parameters is the user's to fix
         raise ParamError(f"placement ({p.kind}, {n} robots): {exc}") from None
 

@@ -8,7 +8,8 @@ never saw:
 
 * ``frames``, ``localized_fraction``, ``largest_frame_fraction``: robots grouped by the root
   (election key) their frame grew from; ``rmse_mm`` after the best rigid alignment of each
-  frame (reflection allowed), pooled over located robots; ``within_5mm_fraction``;
+  frame (reflection allowed), pooled over located robots; ``within_5mm_fraction``, and
+  ``within_5mm_over_central``, that over the share the centralized solver places within 5 mm;
 * the bound and the optimum beside them (:mod:`scenarios.reference`, as ``gcs`` reports them):
   ``crlb_rmse_mm`` and ``rmse_over_crlb``, ``crlb_received_rmse_mm`` and
   ``rmse_over_crlb_received``, ``central_rmse_mm``, ``central_localized_fraction`` and
@@ -191,6 +192,10 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
             largest_frame=int(sizes.max()) if len(sizes) else 0,
         )
     )
+    central = out.get("central_localized_fraction")
+    if central:
+        # The same test on both sides: a folded frame places robots, but not within 5 mm.
+        out["within_5mm_over_central"] = out["within_5mm_fraction"] / central
     hop_diameter = out["hop_diameter"]
     phases = _phase_times(sim)
     out["phase_times_s"] = phases

@@ -11,6 +11,7 @@ from experiments.studies.localization_study import (
     comparison,
     joined,
     lattice_table,
+    shapes_table,
     summary_table,
     targets_table,
 )
@@ -38,8 +39,9 @@ def _run(seed, frames, rmse, **changes):
         central_rmse_mm=0.1,
         central_localized_fraction=1.0,
         largest_frame_over_central=1.0 / frames,
+        within_5mm_over_central=0.9 / frames,
         done_over_hop_limit=10.0 * frames,
-        mean_neighbours=7.0 if changes.get("placement.density_per_m2", 400) >= 400 else 5.0,
+        mean_neighbours=7.0 if (changes.get("placement.density_per_m2") or 400) >= 400 else 5.0,
     )
     return row
 
@@ -118,3 +120,36 @@ def test_targets_table_judges_both_bounds(results):
     assert base["RMSE / CRLB received (max)"] == "4.00"
     assert base["targets met"] == "2 of 2"
     assert base["met, received bound"] == "0 of 2"
+
+
+def test_shapes_off_the_design_get_a_table_of_their_own(results):
+    gcs, localize = results
+    corridor = {"placement.kind": "corridor", "placement.length_mm": 3400.0}
+    corridor["placement.width_mm"], corridor["placement.density_per_m2"] = 200.0, None
+    shapes = pd.DataFrame(
+        [
+            _run(1, 1, 0.5, **{**corridor, "placement.robots": 400}),
+            _run(2, 2, 0.7, **{**corridor, "placement.robots": 400}),
+            # two factors changed at once: the sparse swarm, off the one-at-a-time design
+            _run(1, 1, 0.4, **{"placement.density_per_m2": 350, "placement.robots": 400}),
+        ]
+    )
+    table = joined(gcs, pd.concat([localize, shapes], ignore_index=True))
+    rows = shapes_table(table)
+    localize_rows = rows[rows.variant == "localize"].set_index("shape")
+    assert list(localize_rows.index) == [
+        "corridor 400, 3.4 m × 200 mm",
+        "random 400, 350 per m²",
+    ]
+    corridor_row = localize_rows.loc["corridor 400, 3.4 m × 200 mm"]
+    assert corridor_row["runs"] == 2
+    assert corridor_row["one frame"] == "0.50"
+    assert corridor_row["largest frame / central (min)"] == "0.500"
+    assert corridor_row["within 5 mm / central (min)"] == "0.450"
+    assert corridor_row["RMSE / CRLB"] == "0.60"
+    assert set(rows.variant) == {"localize", "central"}  # gcs did not run the shapes
+    # The one-at-a-time tables do not see them.
+    means = comparison(table)
+    assert not (means.level == 350).any()
+    assert not ((means.factor == "placement.robots") & (means.level == 400)).any()
+    assert base_table(table).set_index("variant").loc["localize", "runs"] == 2

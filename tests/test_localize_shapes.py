@@ -232,11 +232,68 @@ def test_a_sparse_swarm_no_longer_stalls_at_its_edge():
 @pytest.mark.parametrize("seed", [1, 2, 3, 4])
 def test_sparse_swarms_reach_the_central_reference(seed, loss):
     s = scenarios.run(LOCALIZE, {**SPARSE, "medium.loss_prob": loss}, seed=seed).summary
-    assert 6.0 <= s["mean_neighbours"] <= 7.0
+    assert 6.0 <= s["mean_neighbours"] <= 7.5
     assert s["frames"] == 1
-    assert s["largest_frame_over_central"] >= 0.95
-    assert s["rmse_over_crlb"] <= 1.5
+    assert s["localized_fraction"] >= 0.95
+    # Not folded: near the solver's RMSE (which kilolib's per-link errors hold at 5-6 mm,
+    # with only 43-64 % of the robots within 5 mm: docs/localize.md, Limits).
+    assert s["rmse_mm"] <= 1.5 * s["central_rmse_mm"]
     _sound(s)
+
+
+def _spread_robot(max_candidate_neighbours: int) -> localize_module.LocalizeRobot:
+    """A robot with two placed neighbours and an unplaced one holding a candidate pair
+    that only one of its own mirror positions fits (rule 3's doctest, as neighbour records)."""
+    sim = scenarios.run(
+        LOCALIZE,
+        {"placement.robots": 5, "localize.max_candidate_neighbours": max_candidate_neighbours},
+        seed=1,
+    ).sim
+    robot = _robot(sim, 0)
+    truth = np.array([30.0, 20.0])
+    for uid, (x, y), pair in (
+        (11, (0.0, 0.0), None),
+        (12, (60.0, 0.0), None),
+        (13, (50.0, 60.0), [(50.0, 60.0), (70.0, 60.0)]),
+    ):
+        d = float(np.hypot(*(truth - (x, y))))
+        for _ in range(20):
+            n = robot.neighbours.heard(uid, d, 1)
+        if pair is None:
+            n.x_mm, n.y_mm = x, y
+        else:
+            n.candidates = (0, pair)
+    return robot
+
+
+def test_rule_3_is_off_unless_asked_for():
+    # On by parameter, the robot takes the one choice that fits; by default it holds its
+    # own two candidates and waits for rule 4's votes or three anchors.
+    on = _spread_robot(3)
+    on.spread.round(on.kilo_ticks, on.neighbours.fresh(1))
+    assert on.position == pytest.approx((30.0, 20.0), abs=0.5)
+    off = _spread_robot(0)
+    off.spread.round(off.kilo_ticks, off.neighbours.fresh(1))
+    assert off.position is None
+    assert off.spread.candidates is not None
+    assert sorted(np.round(off.spread.candidates[1], 1).tolist()) == [[30.0, -20.0], [30.0, 20.0]]
+
+
+@pytest.mark.slow
+def test_rule_3_folds_a_sparse_frame_on_kilolibs_ranging():
+    # 150 robots at 350 per m², seed 1 (6.6 mean neighbours): with neighbours' candidates
+    # the frame folds onto itself (50 mm RMSE, 2 % within 5 mm; measured), without them it
+    # stays near the solver (4.2 mm, 75 % within 5 mm; the solver 2.9 mm, 95 %).
+    small = {**SPARSE, "placement.robots": 150}
+    folded = scenarios.run(
+        LOCALIZE, {**small, "localize.max_candidate_neighbours": 3}, seed=1
+    ).summary
+    assert folded["rmse_mm"] > 5 * folded["central_rmse_mm"]
+    assert folded["within_5mm_over_central"] < 0.2
+    s = scenarios.run(LOCALIZE, small, seed=1).summary
+    assert s["localized_fraction"] >= 0.95
+    assert s["rmse_mm"] <= 1.5 * s["central_rmse_mm"]
+    assert s["within_5mm_over_central"] >= 0.7
 
 
 @pytest.mark.slow

@@ -445,3 +445,64 @@ def test_a_uid_that_is_not_a_uint16_is_refused_with_file_and_line(tmp_path, bad)
     path.write_text(f"x_mm,y_mm,uid\n0,0,1\n\n50,0,{bad}\n")
     with pytest.raises(PlacementError, match=r"bad.csv line 4: uid is not an integer 0-65535"):
         read_placement(path)
+
+
+# ------------------------------------------------- shapes selected by parameters (issue 33)
+
+
+def _placed(overrides: dict, seed: int = 1) -> np.ndarray:
+    import scenarios
+    from scenarios.base import build_params, place
+
+    localize = scenarios.get("localize")
+    return place(localize, build_params(localize, overrides, seed=seed))
+
+
+def test_a_corridor_c_shape_and_ring_come_from_parameters():
+    xy = _placed(
+        {
+            "placement.kind": "corridor",
+            "placement.robots": 120,
+            "placement.length_mm": 2000.0,
+            "placement.width_mm": 150.0,
+        }
+    )
+    assert xy.shape == (120, 2)
+    assert xy[:, 0].min() >= 0.0 and xy[:, 0].max() <= 2000.0 and xy[:, 0].max() > 1800.0
+    assert xy[:, 1].min() >= 0.0 and xy[:, 1].max() <= 150.0
+    assert pdist(xy).min() >= 33.0
+    c = {
+        "placement.robots": 80,
+        "placement.outer_radius_mm": 500.0,
+        "placement.inner_radius_mm": 350.0,
+    }
+    xy = _placed({**c, "placement.kind": "c_shape", "placement.opening_deg": 120.0})
+    r, angle = np.hypot(*xy.T), np.degrees(np.arctan2(xy[:, 1], xy[:, 0]))
+    assert r.min() >= 350.0 and r.max() <= 500.0
+    assert np.abs(angle).min() >= 60.0  # nothing in the opening about +x
+    ring = _placed({**c, "placement.kind": "ring", "placement.opening_deg": 120.0})
+    angle = np.degrees(np.arctan2(ring[:, 1], ring[:, 0]))
+    assert np.abs(angle).min() < 20.0  # a ring has no opening, whatever opening_deg says
+    assert np.hypot(*ring.T).min() >= 350.0
+
+
+def test_shape_parameters_are_checked_with_clear_errors():
+    from kilonet.params import ParamError, Params
+
+    with pytest.raises(ParamError, match=r"inner_radius_mm .* must be below"):
+        Params().with_overrides({"placement.kind": "ring", "placement.inner_radius_mm": 800.0})
+    # Only shapes with radii care about them.
+    Params().with_overrides({"placement.kind": "corridor", "placement.inner_radius_mm": 800.0})
+    with pytest.raises(ParamError, match="opening_deg"):
+        Params().with_overrides({"placement.opening_deg": 400.0})
+    with pytest.raises(ParamError, match=r"placement\.kind"):
+        Params().with_overrides({"placement.kind": "spiral"})
+    with pytest.raises(ParamError, match=r"placement \(corridor, 200 robots\): .*too high"):
+        _placed(
+            {
+                "placement.kind": "corridor",
+                "placement.robots": 200,
+                "placement.length_mm": 500.0,
+                "placement.width_mm": 100.0,
+            }
+        )

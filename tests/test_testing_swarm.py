@@ -105,8 +105,8 @@ def test_swarm_misuse_is_refused():
         run_swarm(hops, "hex")
     with pytest.raises(ScriptError, match="robots=3 but the placement has 2 robots"):
         run_swarm(hops, [[0, 0], [40, 0]], robots=3)
-    with pytest.raises(ValueError, match="unknown layout 'ring'"):
-        run_swarm(hops, "ring", robots=3)
+    with pytest.raises(ValueError, match="unknown layout 'spiral'"):
+        run_swarm(hops, "spiral", robots=3)
     for bad in (0.0, -1.0, float("nan")):
         with pytest.raises(ScriptError, match="until_s must be a positive number of seconds"):
             run_swarm(hops, "line", robots=2, until_s=bad)

@@ -27,6 +27,7 @@ writes the report; or, with finished sweep directories::
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 import matplotlib
@@ -45,6 +46,8 @@ __all__ = [
     "comparison",
     "joined",
     "lattice_table",
+    "off_design",
+    "shapes_table",
     "summary_table",
     "targets_table",
     "write_report",
@@ -79,6 +82,7 @@ _NUMERIC = (
     "done_over_hop_limit",
     "mean_neighbours",
     "largest_frame_over_central",
+    "within_5mm_over_central",
 )
 
 
@@ -87,16 +91,41 @@ def _ok(results: pd.DataFrame) -> pd.DataFrame:
     kind = runs["placement.kind"] if "placement.kind" in runs else pd.Series(index=runs.index)
     runs["placement"] = kind.fillna("random")
     for column in _NUMERIC:
-        runs[column] = pd.to_numeric(runs[column], errors="coerce")
+        # Results from before a key existed lack it: NaN.
+        runs[column] = pd.to_numeric(runs.get(column), errors="coerce")
+    runs["shape"] = [_shape(run) for _, run in runs.iterrows()]
     return runs
+
+
+def _shape(run: pd.Series) -> str:
+    """How the shapes table names a run's placement: its kind, size and dimensions."""
+
+    def value(key: str) -> float:
+        return float(run[key]) if key in run and pd.notna(run[key]) else math.nan
+
+    robots, kind = int(value("placement.robots")), run["placement"]
+    if kind == "corridor":
+        size = f"{value('placement.length_mm') / 1000:g} m × {value('placement.width_mm'):g} mm"
+    elif kind in ("c_shape", "ring"):
+        inner, outer = value("placement.inner_radius_mm"), value("placement.outer_radius_mm")
+        size = f"radii {inner:g}–{outer:g} mm"
+        if kind == "c_shape":
+            size += f", open {value('placement.opening_deg'):g}°"
+    elif kind == "random":
+        size = f"{value('placement.density_per_m2'):g} per m²"
+    else:
+        size = kind
+    return f"{kind} {robots}, {size}"
 
 
 def joined(gcs: pd.DataFrame, localize: pd.DataFrame) -> pd.DataFrame:
     """One row per run and variant: the factors, ``placement`` (``random`` or ``hex``), ``seed``,
     ``variant``, ``mean_neighbours``, the figures of merit of :data:`MEASURES` and ``localized``,
-    ``rmse_mm``, ``crlb_rmse_mm``, ``crlb_received_rmse_mm`` (NaN where a variant has none: the
-    centralized solver builds no frame of its own and takes no time)."""
-    factors = [*FACTORS, "placement"]
+    ``rmse_mm``, ``crlb_rmse_mm``, ``crlb_received_rmse_mm``, ``shape`` (:func:`shapes_table`'s
+    name of the placement), ``over_central`` and ``within_over_central``
+    (``largest_frame_over_central``, ``within_5mm_over_central``) (NaN where a
+    variant has none: the centralized solver builds no frame of its own and takes no time)."""
+    factors = [*FACTORS, "placement", "shape"]
     parts = []
     gcs = _ok(gcs)
     refine = gcs["gcs.refine"].astype(str).str.lower() == "true"
@@ -106,7 +135,7 @@ def joined(gcs: pd.DataFrame, localize: pd.DataFrame) -> pd.DataFrame:
     parts.append(_measures(localize, "localize"))
     central = localize[[*factors, "seed", "mean_neighbours"]].copy()
     central["variant"] = "central"
-    central["one_frame"] = np.nan
+    central["one_frame"] = central["over_central"] = central["within_over_central"] = np.nan
     central["covered"] = central["localized"] = localize["central_localized_fraction"]
     central["rmse_mm"] = localize["central_rmse_mm"]
     for bound in ("crlb_rmse_mm", "crlb_received_rmse_mm"):
@@ -121,8 +150,10 @@ def joined(gcs: pd.DataFrame, localize: pd.DataFrame) -> pd.DataFrame:
 
 
 def _measures(runs: pd.DataFrame, variant: str) -> pd.DataFrame:
-    out = runs[[*FACTORS, "placement", "seed", "mean_neighbours"]].copy()
+    out = runs[[*FACTORS, "placement", "shape", "seed", "mean_neighbours"]].copy()
     out["variant"] = variant
+    out["over_central"] = runs["largest_frame_over_central"]
+    out["within_over_central"] = runs["within_5mm_over_central"]
     out["one_frame"] = (runs["frames"] == 1).astype(float)
     out["covered"] = runs["largest_frame_fraction"]
     out["localized"] = runs["localized_fraction"]
@@ -203,6 +234,47 @@ def lattice_table(table: pd.DataFrame) -> pd.DataFrame:
                 "done / hop limit": _cell(runs.done_over_hop_limit.mean(), 1),
             }
         )
+    return pd.DataFrame(rows)
+
+
+def off_design(table: pd.DataFrame) -> pd.Series:
+    """Which rows of :func:`joined`'s table lie off the one-at-a-time design around the
+    random base case: other placements than ``random`` and ``hex``, and random cases with more
+    than one factor changed (the sparse swarm: fewer robots per m², more robots)."""
+    random = table.placement == "random"
+    base = _base(table[random])
+    changed = sum((table[f] != base[f]).astype(int) for f in FACTORS)
+    return (~random & (table.placement != "hex")) | (random & (changed > 1))
+
+
+def shapes_table(table: pd.DataFrame) -> pd.DataFrame:
+    """The shapes off the design (:func:`off_design`: corridors, C shapes, rings, sparse
+    swarms), a row per shape, loss and variant: the runs, their mean neighbour count, P(one
+    frame), the mean localized fraction, the largest frame and the robots within 5 mm of the
+    truth over the robots the centralized solver places within 5 mm (least over the seeds; a
+    folded frame is large but not within 5 mm), mean RMSE / CRLB and time to done."""
+    shapes = table[off_design(table)]
+    rows = []
+    for (shape, loss), group in shapes.groupby(["shape", "medium.loss_prob"], sort=True):
+        for variant in VARIANTS:
+            runs = group[group.variant == variant]
+            if not len(runs):
+                continue
+            rows.append(
+                {
+                    "shape": shape,
+                    "loss": f"{loss:g}",
+                    "variant": variant,
+                    "runs": len(runs),
+                    "mean neighbours": _cell(runs.mean_neighbours.mean(), 1),
+                    "one frame": _cell(runs.one_frame.mean()),
+                    "localized": _cell(runs.localized.mean(), 3),
+                    "largest frame / central (min)": _cell(runs.over_central.min(), 3),
+                    "within 5 mm / central (min)": _cell(runs.within_over_central.min(), 3),
+                    "RMSE / CRLB": _cell(runs.rmse_over_crlb.mean()),
+                    "done / hop limit": _cell(runs.done_over_hop_limit.mean(), 1),
+                }
+            )
     return pd.DataFrame(rows)
 
 
@@ -323,6 +395,17 @@ def write_report(
         *_markdown_table(lattice_table(table)),
         "",
     ]
+    shapes = shapes_table(table)
+    if len(shapes):
+        lines += [
+            "## Shapes",
+            "",
+            "Placements off the one-at-a-time design: sparse random swarms, corridors, C shapes "
+            "(`placement.kind`, docs/localize.md).",
+            "",
+            *_markdown_table(shapes),
+            "",
+        ]
     for measure, title in MEASURES.items():
         figure = f"localization_files/{measure}.png"
         _figure(means, measure, out / figure)

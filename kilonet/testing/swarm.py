@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from kilonet.params import Params
-from kilonet.placement import LAYOUTS, generate
+from kilonet.placement import LAYOUTS, generate_from
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation, stream_for
 from kilonet.testing.errors import ScriptError
@@ -309,16 +309,7 @@ def run_swarm(
                 f"run_swarm(): layout {placement!r} needs a size: robots=N "
                 f"(layouts: {', '.join(LAYOUTS)})"
             )
-        pp = p.placement
-        positions = generate(
-            placement,
-            n,
-            rng=stream_for(p.seed, "placement"),
-            spacing_mm=pp.spacing_mm,
-            jitter_mm=pp.jitter_mm,
-            density_per_m2=pp.density_per_m2,
-            area=pp.area,
-        )
+        positions = generate_from(p.placement, placement, n, stream_for(p.seed, "placement"))
     else:
         positions = np.asarray(placement, dtype=float)
         if robots is not None and robots != len(positions):

@@ -154,7 +154,11 @@ class LocalizeParams:
         4.0, lo=0.1, hi=1000.0, doc="reject fixes whose residual RMS exceeds this many sigmas"
     )
     max_candidate_neighbours: int = param(
-        3, lo=1, hi=6, doc="neighbours' candidate pairs combined in one fix at most"
+        0,
+        lo=0,
+        hi=6,
+        doc="neighbours' candidate pairs combined in one fix at most (rule 3; 0: off, since "
+        "kilolib's per-link errors make it pick mirror images that fold the frame)",
     )
     overlap_mm: float = param(
         28.0, lo=0.0, hi=200.0, doc="a candidate nearer than this to a located robot is impossible"

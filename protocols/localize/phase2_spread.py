@@ -28,7 +28,10 @@ have one (their announced positions, the distances both ends agree on):
 2. *Two anchors*: two candidate positions, mirror images across the anchors' line
    (:func:`circle_candidates`). The robot announces both (CAND messages) unless they lie
    closer than ``2 · min_height_mm``.
-3. *Anchors and neighbours' candidates*: a robot combines its anchors with the candidate pairs
+3. *Anchors and neighbours' candidates* (off unless ``localize.max_candidate_neighbours`` is
+   set: a candidate from two anchors carries their errors magnified, and on kilolib's ranging,
+   with a systematic error on every link, the rule chose mirror images that folded sparse
+   frames; docs/localize.md): a robot combines its anchors with the candidate pairs
    of up to ``localize.max_candidate_neighbours`` neighbours and tries every choice of one
    candidate each (:func:`fix_with_candidates`); a pair mirrored across (nearly) the robot's
    own anchor line tells the robot's two mirror positions apart no better than its anchors
@@ -598,7 +601,7 @@ class Spread:
             if fix.ok:
                 self.place(fix.x_mm, fix.y_mm, "anchors", len(anchors))
                 return
-        if pairs:
+        if pairs and r.params.max_candidate_neighbours:
             # The pairs farthest apart discriminate best.
             pairs.sort(key=lambda n: -_separation(n.candidates[1]))
             pairs = pairs[: r.params.max_candidate_neighbours]
