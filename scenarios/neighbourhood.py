@@ -5,7 +5,8 @@ Real Kilobots hear each other farther than they can range
 estimate is above its ``neighbour_max_mm``. The
 truth a scenario judges such a protocol by is then not every link of the medium but the links
 whose estimates fall within that limit: :func:`trusted_links`, from each link's noise-free
-estimate (its systematic error included).
+estimate (its systematic error included), and those estimates by link:
+:func:`trusted_estimates_mm`.
 """
 
 from __future__ import annotations
@@ -20,7 +21,12 @@ if TYPE_CHECKING:
     from kilonet.params import MediumParams
     from kilonet.simulation import Simulation
 
-__all__ = ["neighbourhood_mm", "noise_free_estimate_mm", "trusted_links"]
+__all__ = [
+    "neighbourhood_mm",
+    "noise_free_estimate_mm",
+    "trusted_estimates_mm",
+    "trusted_links",
+]
 
 
 def neighbourhood_mm(medium: MediumParams, max_mm: float) -> float:
@@ -57,7 +63,8 @@ def noise_free_estimate_mm(
 def trusted_links(sim: Simulation, max_mm: float, margin_mm: float = 0.0) -> nx.DiGraph:
     """The medium's links now, sender to receiver, whose noise-free estimate is at most
     ``max_mm - margin_mm`` (mm; a positive margin keeps only links that every reception's
-    noise leaves within ``max_mm``), with their true ``distance_mm``; every robot is a node."""
+    noise leaves within ``max_mm``), with their true ``distance_mm`` and noise-free
+    ``estimate_mm``; every robot is a node."""
     import networkx as nx
 
     pos = sim.world.positions_mm
@@ -66,6 +73,17 @@ def trusted_links(sim: Simulation, max_mm: float, margin_mm: float = 0.0) -> nx.
     for s in range(sim.n_robots):
         for r in sim.medium.receivers_of(s):
             d = float(np.hypot(*(pos[s] - pos[r])))
-            if noise_free_estimate_mm(sim, s, r, d) <= max_mm - margin_mm:
-                graph.add_edge(s, r, distance_mm=d)
+            estimate = noise_free_estimate_mm(sim, s, r, d)
+            if estimate <= max_mm - margin_mm:
+                graph.add_edge(s, r, distance_mm=d, estimate_mm=estimate)
     return graph
+
+
+def trusted_estimates_mm(sim: Simulation, max_mm: float) -> np.ndarray:
+    """The noise-free estimates of :func:`trusted_links` as an ``(n, n)`` matrix, mm:
+    ``[sender, receiver]`` is the receiver's estimate of the sender, NaN where the receiver
+    does not hear the sender or ignores it (estimate above ``max_mm``) and on the diagonal."""
+    estimates = np.full((sim.n_robots, sim.n_robots), np.nan)
+    for s, r, estimate in trusted_links(sim, max_mm).edges(data="estimate_mm"):
+        estimates[s, r] = estimate
+    return estimates
