@@ -37,7 +37,7 @@ def predict(
     Returns the failure cases (robot indices), the rigidity facts, the seeds and the
     predicted frames per robot.
     """
-    from scenarios.neighbourhood import trusted_estimates_mm
+    from scenarios.neighbourhood import held_estimates_mm
     from scenarios.prediction import predict_from_seeds
 
     result = scenarios.run(
@@ -48,7 +48,7 @@ def predict(
     )
     sim = result.sim
     seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
-    estimates = trusted_estimates_mm(sim, sim.params.scenario.neighbour_max_mm)
+    estimates = held_estimates_mm(sim, sim.params.scenario.neighbour_max_mm)
     return predict_from_seeds(estimates, sim.params, seeds)
 
 
