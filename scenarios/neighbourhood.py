@@ -88,18 +88,44 @@ def trusted_links(sim: Simulation, max_mm: float, margin_mm: float = 0.0) -> nx.
 RECEPTION_NOISE_MM = 2.0
 
 
+#: Standard normal quantiles a link's receptions are averaged over (:func:`held_estimates_mm`).
+_QUANTILES = (
+    -1.53,
+    -1.15,
+    -0.89,
+    -0.67,
+    -0.49,
+    -0.32,
+    -0.16,
+    0.0,
+    0.16,
+    0.32,
+    0.49,
+    0.67,
+    0.89,
+    1.15,
+    1.53,
+)
+
+
 def held_estimates_mm(sim: Simulation, max_mm: float) -> np.ndarray:
     """The distances the robots' neighbour tables will hold, as an ``(n, n)`` matrix, mm:
     ``[sender, receiver]`` is the receiver's estimate of the sender, NaN where it will not
     hold one and on the diagonal.
 
-    A protocol that ignores estimates above ``max_mm`` still holds a link whose noise-free
-    estimate lies up to :data:`RECEPTION_NOISE_MM` beyond: the receptions the noise brings
-    within the limit. Its table then averages only those, so it holds about ``max_mm``; a
-    link within the limit is held at its noise-free estimate (the noise averages out over
-    the receptions its entry is the mean of)."""
+    A table entry is the mean of a link's receptions within ``max_mm``. Kilolib's estimates
+    come in whole millimetres, but the intensity noise dithers them, so that mean lies between
+    the noise-free estimate's steps: it is taken here as the mean of the noise-free estimates
+    at the distances the noise is worth (quantiles of a spread ``(25 mm + gap) / 2 *
+    ranging.intensity_noise``, the inverse square law's sensitivity, as
+    :meth:`kilonet.reception.TableRanging.effective_sigma_mm` has it) that are within the
+    limit. A link whose noise-free estimate lies up to :data:`RECEPTION_NOISE_MM` beyond the
+    limit is held too, at about the limit: the receptions the noise brings within it."""
     estimates = np.full((sim.n_robots, sim.n_robots), np.nan)
-    links = trusted_links(sim, max_mm, -RECEPTION_NOISE_MM)
-    for s, r, estimate in links.edges(data="estimate_mm"):
-        estimates[s, r] = min(estimate, max_mm)
+    spread = 0.5 * sim.params.ranging.intensity_noise
+    for s, r, d in trusted_links(sim, max_mm, -RECEPTION_NOISE_MM).edges(data="distance_mm"):
+        sd = spread * (25.0 + max(d - 33.0, 0.0))
+        readings = [noise_free_estimate_mm(sim, s, r, d + sd * z) for z in _QUANTILES]
+        within = [e for e in readings if e <= max_mm]
+        estimates[s, r] = float(np.mean(within)) if within else max_mm
     return estimates
