@@ -16,18 +16,19 @@ The estimates are what the robots' tables will hold
 (:func:`scenarios.neighbourhood.held_estimates_mm`): each link's noise-free estimate, directed,
 since the receiver's calibration tables and the sender's emitter set a real Kilobot link's
 systematic error (several mm, more toward the tables' saturation) and so differ between the two
-directions of a link; the noise left on top averages out over the receptions a table entry is
-the mean of, but lets links up to 2 mm beyond ``gcs.neighbour_max_mm`` into the tables, at
-about the limit. True distances no longer predict: on the topology sweep's real-Kilobot medium
-they matched the observed number of final frames in 30 % of the runs, because a link of true
-length within the limit may be estimated beyond it (or the reverse), and because a few
-millimetres of systematic error decide both which thin triangle a seed takes as its references
-and whether a fix passes its mirror test. What is left unpredicted is mostly which seeds find
-a merging group (in the runs checked, the unlocalizable robots matched and isolated seeds
-differed), presumably because ``gcs.min_group_width_mm`` is then decided on noisy positions in
-the frames, or phase 4 is not complete when phase 5 starts.
+directions of a link. The noise on top averages out over the receptions a table entry is the
+mean of, but dithers that mean between kilolib's whole-mm steps, and lets links up to 2 mm
+beyond ``gcs.neighbour_max_mm`` into the tables, at about the limit. True distances no longer
+predict: on the topology sweep's real-Kilobot medium they matched the observed number of final
+frames in 30 % of the runs, because a link of true length within the limit may be estimated
+beyond it (or the reverse), and because a few millimetres of systematic error decide both which
+thin triangle a seed takes as its references and whether a fix passes its mirror test. What is
+left unpredicted is mostly which seeds find a merging group (in the runs checked, the
+unlocalizable robots matched and isolated seeds differed), presumably because
+``gcs.min_group_width_mm`` is then decided on noisy positions in the frames, or phase 4 is not
+complete when phase 5 starts.
 
-|BC| reaches the seed as the mean of B's and C's table entries, each the noise-free estimate
+|BC| reaches the seed as the mean of B's and C's table entries, each B's (C's) held estimate
 in whole millimetres (phase 3's TABLE carries ``d:uint8``), the pair accepted only if the two
 agree as phase 3 requires (:func:`protocols.gcs.phase3_local_frames.reference_candidates`).
 That matters for nearly collinear references, which the thesis's largest-angle rule picks once
