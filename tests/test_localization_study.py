@@ -19,7 +19,7 @@ from experiments.studies.localization_study import (
 BASE = {
     "placement.kind": "random",
     "placement.density_per_m2": 400,
-    "ranging.sigma_mm": 1.0,
+    "ranging.intensity_noise": 0.015,
     "medium.loss_prob": 0.0,
     "placement.robots": 150,
 }

@@ -56,7 +56,7 @@ __all__ = [
 #: The factors varied one at a time, with how the report names them.
 FACTORS = {
     "placement.density_per_m2": "density (robots per m²)",
-    "ranging.sigma_mm": "ranging noise σ (mm)",
+    "ranging.intensity_noise": "ranging intensity noise (relative sd)",
     "medium.loss_prob": "loss",
     "placement.robots": "robots",
 }
