@@ -13,7 +13,7 @@ north-west corner, as the seed's grid printout shows them::
 
 Wall directions are always listed in the seed's order **W, N, E, S** (:data:`DIRECTIONS`).
 
-Hardware models (they read ground truth the way a sensor does and return noisy readings):
+Hardware models (pure functions of the true state they are given, returning noisy readings):
 
 * :class:`RangeSensor` — the seed's camera, ranging to coloured landmark cylinders: true
   distance + ``N(0, sigma_mm)``, nothing beyond ``range_mm``, and each reading independently
@@ -22,7 +22,9 @@ Hardware models (they read ground truth the way a sensor does and return noisy r
   ``p(z=1 | s=1) = p_wall`` when there is one, and no wall with ``p(z=0 | s=0) = p_open``
   (0.7 in the seed) when there is none; the four sides err independently.
 * :class:`MazeKilobot` — a :class:`~kilonet.robot.Kilobot` with that hardware and a drive that
-  moves it from one cell centre to the neighbouring one.
+  moves it from one cell centre to the neighbouring one. It is the robot side only: its
+  ``"maze"`` part, which holds the world's ground truth, the run's streams and the motion
+  service, is :class:`scenarios.maze_hardware.MazeBody`, fitted by whoever builds the run.
 
 Why moves are discrete, cell centre to cell centre: the seed's robot moves cell to cell under
 its own wall-following controller, and the filter it runs reasons over cells. The kernel's
