@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import inspect
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -176,12 +176,12 @@ class Kilobot:
         "_kcolor",
         "_kdelay",
         "_kenv",
+        "_khardware",
         "_kindex",
         "_kprocess",
         "_krate",
         "_krx",
         "_kservices",
-        "_ksim",
         "_ksoft",
         "_ktables",
         "_ktheta",
@@ -195,8 +195,8 @@ class Kilobot:
         "rand",
     )
 
-    _ksim: Simulation
     _kservices: RobotServices
+    _khardware: Mapping[str, Any]
     _kindex: int
     rand: np.random.Generator
 
@@ -236,11 +236,17 @@ class Kilobot:
         return None
 
     # -- attachment (the simulation calls this) ----------------------------------------------
-    def _attach(self, sim: Simulation, index: int, rng: np.random.Generator) -> None:
-        """Make this program robot ``index`` of ``sim``, drawing from ``rng``. The API below
-        reaches only ``sim.robot_services``; ``_ksim`` is for kernel extensions that model a
-        robot's hardware (:mod:`kilonet.testing`, a maze's wall sensors)."""
-        self._ksim = sim
+    def _attach(
+        self,
+        sim: Simulation,
+        index: int,
+        rng: np.random.Generator,
+        hardware: Mapping[str, Any] | None = None,
+    ) -> None:
+        """Make this program robot ``index`` of ``sim``, drawing from ``rng``, carrying the
+        extra ``hardware`` parts (name -> this robot's part; see :meth:`hardware`). The robot
+        keeps ``sim.robot_services`` and its parts, not the simulation."""
+        self._khardware = hardware or {}
         services = self._kservices = sim.robot_services
         self._kenv = services.env
         self._ktrace = services.trace
@@ -500,6 +506,25 @@ class Kilobot:
         at = last[1] + ADC_CONVERSION_S if last is not None and last[0] == now else now
         self._kadc = (now, at)
         return self._kservices.medium.channel.busy(self._kindex, at)  # a carrier at `at`
+
+    # -- extra hardware ----------------------------------------------------------------------
+    def hardware(self, name: str) -> Any:
+        """The extra hardware ``name`` this robot carries (a maze robot's camera, wall sensor
+        and cell drive): the part that whoever built the run fitted to it
+        (``Simulation(hardware=...)``), which reads the world the way a sensor does.
+
+        Raises
+        ------
+        LookupError
+            If this robot carries no such hardware.
+        """
+        part = self._khardware.get(name)
+        if part is None:
+            raise LookupError(
+                f"robot {self._kindex} carries no {name!r} hardware; the run fits it with "
+                "Simulation(hardware={...})"
+            )
+        return part
 
     # -- the run's record --------------------------------------------------------------------
     def log(self, event: str, **fields: Any) -> None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import inspect
 import math
 import time
-from collections.abc import Callable, Generator, Sequence
+from collections.abc import Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -125,6 +125,12 @@ class Simulation:
         Range and occlusion of the medium (default: from ``params.medium``).
     reception : kilonet.reception.ReceptionModel, optional
         The medium's reception model (default: Gaussian ranging, independent losses).
+    hardware : mapping of str to callable, optional
+        Extra hardware the robots carry, beyond a Kilobot's (a maze robot's camera, wall sensor
+        and cell drive): ``name -> fit``, where ``fit(sim, index)`` returns robot ``index``'s
+        part, or ``None`` if it carries none. A part is a sensor and actuator model: ``fit``
+        hands it the ground truth, streams and services it uses, once the run is wired, and a
+        program reaches it through :meth:`~kilonet.robot.Kilobot.hardware`.
 
     Raises
     ------
@@ -145,6 +151,7 @@ class Simulation:
         uids: Sequence[int] | None = None,
         links: LinkModel | None = None,
         reception: ReceptionModel | None = None,
+        hardware: Mapping[str, Callable[[Simulation, int], Any]] | None = None,
     ) -> None:
         self.params = params or Params()
         positions = validate_positions(positions_mm, source="positions", min_robots=1)
@@ -250,8 +257,11 @@ class Simulation:
             self.motion,
             self.sensors,
         )
+        fits = dict(hardware or {})
         for i, robot in enumerate(self.robots):
-            robot._attach(self, i, robot_rngs[i])
+            parts = {name: fit(self, i) for name, fit in fits.items()}
+            parts = {name: part for name, part in parts.items() if part is not None}
+            robot._attach(self, i, robot_rngs[i], parts)
         self.stop_causes: dict[int, str] = {}
         self._loops: dict[int, int] = {}  # robot -> its loop's handle in the environment
         self.wall_time_s = 0.0

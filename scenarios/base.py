@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -104,6 +104,10 @@ class Scenario:
     progress_note : callable, optional
         ``progress_note(sim) -> str``: where the run is (the current phase), for the progress
         display.
+    hardware : callable, optional
+        ``hardware(params, positions_mm) -> {name: fit}``: extra hardware the robots carry
+        (a maze robot's camera, wall sensor and drive), the ``hardware`` argument of
+        :class:`~kilonet.simulation.Simulation`; called after ``program``.
     supports : dict
         Parameters whose values its programs are written for, each with those values
         (dotted key -> tuple); any other value is refused when the parameters are built. E.g.
@@ -127,6 +131,9 @@ class Scenario:
     expected_end_s: Callable[[Params], float | None] | None = None
     ends_when: str = ""
     progress_note: Callable[[Simulation], str] | None = None
+    hardware: (
+        Callable[[Params, np.ndarray], Mapping[str, Callable[[Simulation, int], Any]]] | None
+    ) = None
     supports: dict[str, tuple[Any, ...]] = field(default_factory=dict)
 
 
@@ -289,7 +296,9 @@ def run(
             bar.stage("placing robots")
             positions = place(scenario, params)
         bar.stage(f"building {len(positions):,} robots")
-        sim = Simulation(positions, scenario.program(params, positions), params, uids=uids)
+        program = scenario.program(params, positions)
+        hardware = scenario.hardware(params, positions) if scenario.hardware else None
+        sim = Simulation(positions, program, params, uids=uids, hardware=hardware)
         bar.stage("starting")
         sim.start()  # every robot's setup(), also for a run of zero seconds
         bar.stage("running")

@@ -30,7 +30,7 @@ maximum is the true cell, per step, for several wall-sensor noise levels).
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -41,7 +41,6 @@ from kilonet.placement import ROBOT_DIAMETER_MM
 from kilonet.simulation import Simulation, stream_for
 from protocols.maze.hardware import (
     Maze,
-    MazeHardware,
     RangeSensor,
     WallSensor,
     corner_landmarks,
@@ -50,6 +49,7 @@ from protocols.maze.hardware import (
 )
 from protocols.maze.program import LANDMARK_COLORS, LandmarkBeacon, MazeParams, MazeRobot, MazeStage
 from scenarios.base import RunResult, Scenario, run
+from scenarios.maze_hardware import MazeBody, MazeHardware, fit_maze_hardware
 
 if TYPE_CHECKING:  # pandas and matplotlib are imported where used: listing scenarios is fast
     import pandas as pd
@@ -128,21 +128,30 @@ def _program(params: Params, positions: np.ndarray):
             )
     if m.landmarks == "infrared":
         _check_infrared_reach(params, maze, landmarks_mm)
-    hardware = MazeHardware(
-        maze,
+
+    def build(i: int):
+        if i == _ROBOT:
+            return MazeRobot(m, maze, landmarks_mm)
+        position = (float(positions[i, 0]), float(positions[i, 1]))
+        return LandmarkBeacon(i - 1, position, broadcast=m.landmarks == "infrared")
+
+    return build
+
+
+def _hardware(
+    params: Params, _positions: np.ndarray
+) -> dict[str, Callable[[Simulation, int], MazeBody | None]]:
+    """The maze robot's camera, wall sensor and drive in the true maze (the landmarks carry
+    none)."""
+    m = params.scenario
+    spec = MazeHardware(
+        maze_for(params),
         RangeSensor(m.sigma_mm, m.camera_range_mm, m.dropout_prob),
         WallSensor(m.wall_p_open, m.wall_p_wall),
         landmark_robots=_LANDMARKS,
         slip_prob=m.slip_prob,
     )
-
-    def build(i: int):
-        if i == _ROBOT:
-            return MazeRobot(hardware, m, maze, landmarks_mm)
-        position = (float(positions[i, 0]), float(positions[i, 1]))
-        return LandmarkBeacon(i - 1, position, broadcast=m.landmarks == "infrared")
-
-    return build
+    return fit_maze_hardware(spec, robots=[_ROBOT])
 
 
 def _stop_when(sim: Simulation) -> bool:
@@ -356,6 +365,7 @@ SCENARIO = Scenario(
     supports={"robot.rx_distance": ("estimate",)},
     summary="a robot trilaterates, covers a grid maze and localizes from walls (lab seed)",
     program=_program,
+    hardware=_hardware,
     section=MazeParams,
     robots=1 + len(_LANDMARKS),
     defaults={"duration_s": 20_000.0},

@@ -43,7 +43,7 @@ class Meter(Kilobot):
         self.send = send
 
     def loop(self) -> None:
-        self.journal.append(("volts", self.kilo_uid, self._ksim.env.now, self.get_voltage()))
+        self.journal.append(("volts", self.kilo_uid, self._kenv.now, self.get_voltage()))
 
     # kilolib's get_voltage() is a raw ADC reading: about 169 counts per volt.
 
@@ -51,10 +51,10 @@ class Meter(Kilobot):
         return Message(b"\x01") if self.send else None
 
     def message_tx_success(self) -> None:
-        self.journal.append(("tx", self.kilo_uid, self._ksim.env.now))
+        self.journal.append(("tx", self.kilo_uid, self._kenv.now))
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        self.journal.append(("rx", self.kilo_uid, self._ksim.env.now))
+        self.journal.append(("rx", self.kilo_uid, self._kenv.now))
 
 
 def test_degradation_level():

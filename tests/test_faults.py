@@ -37,7 +37,7 @@ class Numbered(Kilobot):
 
     @property
     def now(self) -> float:
-        return self._ksim.env.now
+        return self._kenv.now
 
     def message_tx(self) -> Message | None:
         return Message(self.seq.to_bytes(2, "little")) if self.send else None

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from kilonet.robot import RESERVED_PREFIX
+
 ROOT = Path(__file__).resolve().parents[1]
 LAYERS = ("kilonet", "protocols", "scenarios", "presentation", "experiments")
 
@@ -276,3 +278,39 @@ def test_protocol_math_imports_no_robot_part():
             if broken:
                 found.append(f"{path.relative_to(ROOT)}:{line}: imports {imported}")
     assert not found, "math modules import robot parts:\n" + "\n".join(found)
+
+
+# -- protocols keep out of the kernel's handles -----------------------------------------------
+def kernel_names_in(source: str) -> list[tuple[int, str]]:
+    """``(line, name)`` for every attribute or ``getattr``/``setattr`` name in ``source`` that
+    starts with the kernel's reserved prefix ``_k`` (the simulation's
+    handles in a robot, ``robot._kservices``, the clock's ``env._kt``)."""
+    tree = ast.parse(source)
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr.startswith(RESERVED_PREFIX):
+            found.append((node.lineno, node.attr))
+        elif (
+            isinstance(node, ast.Call)
+            and getattr(node.func, "id", "") in ("getattr", "setattr", "hasattr", "delattr")
+            and len(node.args) > 1
+            and isinstance(node.args[1], ast.Constant)
+            and str(node.args[1].value).startswith(RESERVED_PREFIX)
+        ):
+            found.append((node.lineno, node.args[1].value))
+    return sorted(found)
+
+
+def test_protocols_never_touch_the_kernels_handles():
+    found = [
+        f"{path.relative_to(ROOT)}:{line}: {name}"
+        for path in sorted((ROOT / "protocols").rglob("*.py"))
+        for line, name in kernel_names_in(path.read_text())
+    ]
+    assert not found, "protocols reach into the kernel's handles:\n" + "\n".join(found)
+    assert kernel_names_in("x = self._ksim.world\ngetattr(r, '_kindex')\ny = self._known") == [
+        (1, "_ksim"),
+        (2, "_kindex"),
+        (3, "_known"),
+    ]
+    assert kernel_names_in("self._index = self.kilo_uid") == []

@@ -16,7 +16,6 @@ from protocols.maze.hardware import (
     DIRECTIONS,
     Maze,
     MazeError,
-    MazeHardware,
     MazeKilobot,
     RangeSensor,
     WallSensor,
@@ -41,6 +40,7 @@ from scenarios.maze import (
     maze_for,
     step_table,
 )
+from scenarios.maze_hardware import MazeHardware, fit_maze_hardware
 
 TWO_CELLS = """
 +---+---+
@@ -158,9 +158,10 @@ def _drive_sim(slip_prob=0.0, other_mm=(-100.0, 0.0)):
     )
     sim = Simulation(
         [[50.0, 50.0], list(other_mm)],
-        lambda i: _Bumper(hardware) if i == 0 else _Still(hardware),
+        lambda i: _Bumper() if i == 0 else _Still(),
         params,
         headings_rad=[np.pi, 0.0],  # facing west: the first move needs no turn
+        hardware=fit_maze_hardware(hardware),
     )
     sim.run()
     return sim
@@ -423,8 +424,14 @@ def test_the_filter_can_assume_another_wall_sensor_than_the_true_one():
     mismatch = {**base, "maze.filter_p_open": 0.9}
     params = build_params(SCENARIO, mismatch, seed=3)
     positions = place(SCENARIO, params)
-    robot = SCENARIO.program(params, positions)(0)
-    assert robot._hardware.wall_sensor == WallSensor(p_open=0.6, p_wall=0.95)  # the truth
+    sim = Simulation(
+        positions,
+        SCENARIO.program(params, positions),
+        params,
+        hardware=SCENARIO.hardware(params, positions),
+    )
+    robot = sim.robots[0]
+    assert robot.hardware("maze").spec.wall_sensor == WallSensor(p_open=0.6, p_wall=0.95)
     assert robot.params.filter_table == (0.9, 0.95)  # what the filter assumes
     same = step_table(run(SCENARIO, base, seed=3).sim)
     other = step_table(run(SCENARIO, mismatch, seed=3).sim)

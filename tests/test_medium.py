@@ -2,7 +2,7 @@
 
 The style is SimPy's own: tiny robot programs log ``(name, robot, t_s, values)`` into a shared
 list and the tests assert on exact times and counts. Programs read the true clock
-(``self._ksim.env.now``) only to log it; what they send and when is fixed by the test.
+(``self._kenv.now``) only to log it; what they send and when is fixed by the test.
 
 Controlling when a robot transmits: with ``robot.tx_period_s`` tiny (1 ms) and no jitter, a
 robot gets a transmit opportunity every millisecond, so a program that offers its message only
@@ -84,7 +84,7 @@ class Radio(Kilobot):
 
     @property
     def now(self) -> float:
-        return self._ksim.env.now
+        return self._kenv.now
 
     def setup(self) -> None:
         self.seq = 0

@@ -277,10 +277,10 @@ class Talker(Kilobot):
         return None if self.kilo_uid == 0 else Message(b"\x01")
 
     def message_tx_success(self) -> None:
-        self.journal.append(("tx", self.kilo_uid, self._ksim.env.now))
+        self.journal.append(("tx", self.kilo_uid, self._kenv.now))
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        self.journal.append(("rx", self.kilo_uid, self._ksim.env.now, distance_mm))
+        self.journal.append(("rx", self.kilo_uid, self._kenv.now, distance_mm))
 
 
 def test_robot_driving_out_of_range_stops_being_heard():

@@ -150,10 +150,10 @@ class Clock(Kilobot):
         self.journal = log
 
     def setup(self) -> None:
-        self.journal.append(("setup", self.kilo_uid, self._ksim.env.now))
+        self.journal.append(("setup", self.kilo_uid, self._kenv.now))
 
     def loop(self) -> None:
-        self.journal.append(("loop", self.kilo_uid, self._ksim.env.now, self.kilo_ticks))
+        self.journal.append(("loop", self.kilo_uid, self._kenv.now, self.kilo_ticks))
 
 
 @pytest.mark.parametrize("loop_ticks", [1, 8])
@@ -445,7 +445,7 @@ def test_offers_never_run_the_clock_backwards_at_the_largest_jitter():
 
     class Stamp(Kilobot):
         def message_tx(self):
-            times.append(self._ksim.env.now)
+            times.append(self._kenv.now)
             return None
 
     params = quiet_params(
@@ -550,12 +550,55 @@ def test_a_plain_loop_calling_a_generator_parent_loop_is_refused():
 # --------------------------------------------------------------------- the wiring
 
 
+def _held_by_robot(robot: Kilobot) -> dict[str, object]:
+    """Every attribute a robot holds: its kernel slots and its program's own."""
+    slots = [name for name in Kilobot.__slots__ if not name.startswith("__")]
+    return {**{n: getattr(robot, n) for n in slots if hasattr(robot, n)}, **vars(robot)}
+
+
 def test_no_component_holds_the_simulation():
     sim = Simulation(hex_lattice(7, spacing_mm=40.0), Hops, quiet_params())
     for part in (sim.medium, sim.battery, sim.motion, sim.sensors, sim.faults):
         held = [name for name, value in vars(part).items() if value is sim]
         assert held == [], f"{type(part).__name__} holds the simulation in {held}"
+    sim.run(1.0)
+    for robot in sim.robots:
+        held = [name for name, value in _held_by_robot(robot).items() if value is sim]
+        assert held == [], f"robot {robot.kilo_uid} holds the simulation in {held}"
     assert sim.robots[0]._kservices is sim.robot_services
+
+
+class _Carrying(Kilobot):
+    """Reads the extra hardware it was fitted with, or notes that it has none."""
+
+    def setup(self) -> None:
+        try:
+            self.reading = self.hardware("probe")()
+        except LookupError as error:
+            self.reading = str(error)
+
+
+def test_extra_hardware_is_fitted_per_robot_and_reached_by_name():
+    fitted = []
+
+    def fit(sim: Simulation, index: int):
+        fitted.append(index)
+        if index == 1:
+            return None  # robot 1 carries none
+        world = sim.world
+        return lambda: float(world.positions_mm[index, 0])  # a sensor reading the truth
+
+    sim = Simulation(
+        [[0, 0], [50, 0], [100, 0]], _Carrying, quiet_params(), hardware={"probe": fit}
+    )
+    sim.start()
+    assert fitted == [0, 1, 2]
+    assert sim.robots[0].reading == 0.0
+    assert sim.robots[2].reading == 100.0
+    assert "robot 1 carries no 'probe' hardware" in sim.robots[1].reading
+    bare = Simulation([[0, 0]], _Carrying, quiet_params())
+    bare.start()
+    assert "carries no 'probe' hardware" in bare.robots[0].reading
 
 
 class _Everything(Kilobot):
@@ -580,22 +623,11 @@ class _Everything(Kilobot):
         self.log("heard", distance=self.estimate_distance(distance))
 
 
-class _NoSimulation:
-    def __getattr__(self, name: str) -> None:
-        raise AssertionError(f"the robot API reached for the simulation's {name!r}")
-
-
 def test_the_robot_api_runs_on_its_services_alone():
-    def run(cut_off: bool) -> pd.DataFrame:
-        sim = Simulation(hex_lattice(4, spacing_mm=40.0), _Everything, quiet_params())
-        if cut_off:
-            for robot in sim.robots:
-                robot._ksim = _NoSimulation()
-        sim.run(2.0)
-        assert all(r.rates == (30.517578125, 31, False, 3000) for r in sim.robots)
-        assert all(r.readings[1] == 716 for r in sim.robots)  # 4.2 V
-        return sim.trace.events_frame()
-
-    events = run(cut_off=True)
-    assert len(events) > 0
-    pd.testing.assert_frame_equal(events, run(cut_off=False))
+    sim = Simulation(hex_lattice(4, spacing_mm=40.0), _Everything, quiet_params())
+    sim.run(2.0)
+    assert all(r.rates == (30.517578125, 31, False, 3000) for r in sim.robots)
+    assert all(r.readings[1] == 716 for r in sim.robots)  # 4.2 V
+    assert len(sim.trace.events_frame()) > 0
+    for robot in sim.robots:  # what it reached it reached through its services
+        assert not any(value is sim for value in _held_by_robot(robot).values())

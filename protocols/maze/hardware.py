@@ -13,7 +13,7 @@ north-west corner, as the seed's grid printout shows them::
 
 Wall directions are always listed in the seed's order **W, N, E, S** (:data:`DIRECTIONS`).
 
-Hardware models (they read ground truth the way a sensor does and return noisy readings):
+Hardware models (pure functions of the true state they are given, returning noisy readings):
 
 * :class:`RangeSensor` — the seed's camera, ranging to coloured landmark cylinders: true
   distance + ``N(0, sigma_mm)``, nothing beyond ``range_mm``, and each reading independently
@@ -22,7 +22,9 @@ Hardware models (they read ground truth the way a sensor does and return noisy r
   ``p(z=1 | s=1) = p_wall`` when there is one, and no wall with ``p(z=0 | s=0) = p_open``
   (0.7 in the seed) when there is none; the four sides err independently.
 * :class:`MazeKilobot` — a :class:`~kilonet.robot.Kilobot` with that hardware and a drive that
-  moves it from one cell centre to the neighbouring one.
+  moves it from one cell centre to the neighbouring one. It is the robot side only: its
+  ``"maze"`` part, which holds the world's ground truth, the run's streams and the motion
+  service, is :class:`scenarios.maze_hardware.MazeBody`, fitted by whoever builds the run.
 
 Why moves are discrete, cell centre to cell centre: the seed's robot moves cell to cell under
 its own wall-following controller, and the filter it runs reasons over cells. The kernel's
@@ -61,7 +63,6 @@ __all__ = [
     "HEADING_RAD",
     "Maze",
     "MazeError",
-    "MazeHardware",
     "MazeKilobot",
     "RangeSensor",
     "WallSensor",
@@ -519,46 +520,16 @@ class WallSensor:
         return tuple(bool(z) for z in reading)
 
 
-@dataclass(frozen=True)
-class MazeHardware:
-    """What a maze robot is built with and where it runs.
-
-    Parameters
-    ----------
-    maze : Maze
-        The true maze it stands in.
-    range_sensor : RangeSensor
-        Its landmark camera.
-    wall_sensor : WallSensor
-        Its wall sensor.
-    landmark_robots : tuple of int
-        Indices of the robots that are the landmarks, in the order the camera reports them (it
-        tells landmarks apart by colour).
-    slip_prob : float
-        Probability that a commanded move leaves the robot in its cell (motor stall).
-    """
-
-    maze: Maze
-    range_sensor: RangeSensor = field(default_factory=RangeSensor)
-    wall_sensor: WallSensor = field(default_factory=WallSensor)
-    landmark_robots: tuple[int, ...] = ()
-    slip_prob: float = 0.0
-
-
 class MazeKilobot(Kilobot):
     """A Kilobot carrying maze hardware: a landmark camera, a wall sensor and a cell drive.
 
     Programs subclass it and call :meth:`sense_landmark_ranges`, :meth:`sense_walls` and
-    :meth:`drive`; like every :class:`Kilobot` they never see the world itself.
-
-    Parameters
-    ----------
-    hardware : MazeHardware
-        The robot's sensors and the maze it stands in.
+    :meth:`drive`; like every :class:`Kilobot` they never see the world itself. The hardware is
+    the robot's ``"maze"`` part (:meth:`~kilonet.robot.Kilobot.hardware`), which the run that
+    builds the maze fits to it (:func:`scenarios.maze_hardware.fit_maze_hardware`).
     """
 
-    def __init__(self, hardware: MazeHardware) -> None:
-        self._hardware = hardware
+    def __init__(self) -> None:
         self._driving = False
 
     @property
@@ -571,15 +542,7 @@ class MazeKilobot(Kilobot):
 
         Landmarks lifted off the table are never found.
         """
-        hw, world = self._hardware, self._ksim.world
-        marks = list(hw.landmark_robots)
-        ranges = hw.range_sensor.read(
-            world.positions_mm[self._kindex],
-            world.positions_mm[marks],
-            self._ksim.stream("ranging"),
-        )
-        ranges[~world.present[marks]] = np.nan
-        return ranges
+        return self.hardware("maze").landmark_ranges()
 
     def sense_walls(self) -> tuple[bool, bool, bool, bool]:
         """One wall reading of the robot's cell, (W, N, E, S), True = "wall".
@@ -589,9 +552,7 @@ class MazeKilobot(Kilobot):
         MazeError
             If the robot is not standing in the maze.
         """
-        return self._hardware.wall_sensor.read(
-            self._hardware.maze.walls_of(self._true_cell()), self._ksim.stream("ranging")
-        )
+        return self.hardware("maze").walls()
 
     def drive(self, direction: str) -> None:
         """Turn to compass ``direction`` (W, N, E, S) and drive one cell that way.
@@ -610,24 +571,8 @@ class MazeKilobot(Kilobot):
         heading = HEADING_RAD[DIRECTIONS[_index(direction)]]
         if self._driving:
             raise RuntimeError("drive() called while the previous move is still under way")
-        sim, i = self._ksim, self._kindex
-        if not sim.world.running[i]:
-            return
-        maze = self._hardware.maze
-        cell = self._true_cell()
-        slipped = bool(sim.stream("motion").random() < self._hardware.slip_prob)
-        # A wall in the way or a slip: the robot turns, bumps and stays in its cell.
-        target = cell if slipped else maze.neighbour(cell, direction)
-        self._driving = True
-        sim.motion.move_to(i, heading, maze.centre_mm(target), self._arrived, drive_mm=maze.cell_mm)
+        if self.hardware("maze").drive(direction, heading, self._arrived):
+            self._driving = True
 
     def _arrived(self, _moved: bool) -> None:
         self._driving = False
-
-    def _true_cell(self) -> int:
-        # The hardware's own contact with the world: which cell's walls the sensor faces.
-        x, y = self._ksim.world.positions_mm[self._kindex]
-        cell = self._hardware.maze.cell_at(x, y)
-        if cell is None:
-            raise MazeError(f"robot {self._kindex} at ({x:.1f}, {y:.1f}) mm is outside the maze")
-        return cell

@@ -58,7 +58,6 @@ from protocols.maze.hardware import (
     DIRECTIONS,
     Maze,
     MazeError,
-    MazeHardware,
     MazeKilobot,
     parse_size,
 )
@@ -403,8 +402,6 @@ class MazeRobot(MazeKilobot):
 
     Parameters
     ----------
-    hardware : MazeHardware
-        Its sensors and drive.
     params : MazeParams
         Its settings (the scenario's section).
     maze : Maze
@@ -421,10 +418,8 @@ class MazeRobot(MazeKilobot):
         ((3, 0, 0), "step limit reached"),
     )
 
-    def __init__(
-        self, hardware: MazeHardware, params: MazeParams, maze: Maze, landmarks_mm: np.ndarray
-    ) -> None:
-        super().__init__(hardware)
+    def __init__(self, params: MazeParams, maze: Maze, landmarks_mm: np.ndarray) -> None:
+        super().__init__()
         self.params = params
         self.map = maze
         self.landmarks_mm = np.asarray(landmarks_mm, dtype=float)
