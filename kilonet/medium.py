@@ -337,6 +337,16 @@ class InfraredMedium:
         """Robots that currently hear ``sender`` (range, occlusion, battery range)."""
         return list(self._rx_r[sender])
 
+    def link_delivery(self, sender: int) -> tuple[np.ndarray, np.ndarray]:
+        """The robots that hear ``sender`` now (indices, as :meth:`receivers_of`) and the share
+        of its messages each link delivers, collisions and the independent
+        ``medium.loss_prob`` apart: the soft edge of the sender's reach (shrunk by its
+        battery), bodies on the line of sight, and the receiver's own battery and faults."""
+        receivers = self._rx_idx[sender]
+        share = (1.0 - self._rx_signal[sender]) * (1.0 - self._rx_loss[sender])
+        share = share * (1.0 - self._loss_battery[receivers]) * (1.0 - self._loss_fault[receivers])
+        return receivers.copy(), share
+
     def graph(self) -> nx.Graph:
         """The medium's own communication graph now: an edge between every two robots that
         hear each other (both directions: battery range can make a link one-way, then the

@@ -36,28 +36,21 @@ class GradientParams:
 def hop_distances(sim: Simulation, source: int, min_probability: float = 0.5) -> dict[int, int]:
     """Hops from ``source`` over the medium's own links among the running robots, each link
     from its sender to the robots that hear it (:meth:`~kilonet.medium.InfraredMedium.
-    receivers_of`) within its reach, where it delivers at least ``min_probability`` of its
-    messages (:func:`kilonet.radio.reception_probability`; by default half: the links a robot
-    hears reliably): a robot adopts one more than the smallest gradient it hears, so a one-way
-    link counts in its own direction (real robots' links reach per sender,
-    :mod:`kilonet.radio`)."""
+    receivers_of`), where it delivers at least ``min_probability`` of its messages apart from
+    collisions and random loss (:meth:`~kilonet.medium.InfraredMedium.link_delivery`: the soft
+    edge of the sender's battery-shrunk reach, occlusion, the receiver's battery and faults; by
+    default half, the links a robot hears reliably): a robot adopts one more than the smallest
+    gradient it hears, so a one-way link counts in its own direction (real robots' links reach
+    per sender, :mod:`kilonet.radio`)."""
     import networkx as nx
 
-    from kilonet.radio import reception_probability
-
     running = sim.world.running
-    pos = sim.world.positions_mm
-    radio = sim.transceivers
     graph = nx.DiGraph()
     graph.add_nodes_from(np.flatnonzero(running).tolist())
     for sender in list(graph):
-        heard = np.array([r for r in sim.medium.receivers_of(sender) if running[r]], dtype=int)
-        if not len(heard):
-            continue
-        d = np.hypot(*(pos[heard] - pos[sender]).T)
-        reach = radio.link_reach_mm(np.full(len(heard), sender), heard)
-        p = reception_probability(d, reach, radio.reach.edge_mm)
-        graph.add_edges_from((sender, int(r)) for r in heard[p >= min_probability])
+        heard, share = sim.medium.link_delivery(sender)
+        keep = (share >= min_probability) & running[heard]
+        graph.add_edges_from((sender, int(r)) for r in heard[keep])
     if source not in graph:
         return {}
     return nx.single_source_shortest_path_length(graph, source)

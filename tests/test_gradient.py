@@ -51,3 +51,17 @@ def test_drifting_clocks_end_the_hidden_terminal_collisions_that_identical_clock
     assert perfect["gradient_correct_fraction"] <= 0.9  # 0.9 exactly at seed 1
     assert drifting["gradient_correct_fraction"] == 1.0
     assert drifting["lost_collision"] < 0.5 * perfect["lost_collision"]
+
+
+def test_hop_counts_follow_the_reach_a_low_battery_leaves():
+    # Below 3.6 V a robot's reach shrinks and it loses more receptions: the hop counts the
+    # gradient is judged by come from the medium's links as they are now
+    # (InfraredMedium.link_delivery), not from the full-battery reach (0.73 at seed 1 then).
+    result = _run(100, seed=1, **{"battery.initial_v": 3.3})
+    sim = result.sim
+    full = _run(100, seed=1).sim
+    shrunk = [len(sim.medium.receivers_of(s)) for s in range(sim.n_robots)]
+    assert sum(shrunk) < sum(len(full.medium.receivers_of(s)) for s in range(full.n_robots))
+    receivers, share = sim.medium.link_delivery(0)
+    assert list(receivers) == sim.medium.receivers_of(0) and ((share > 0) & (share <= 1)).all()
+    assert result.summary["gradient_correct_fraction"] >= 0.95
