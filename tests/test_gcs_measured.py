@@ -8,6 +8,13 @@ from experiments.studies.gcs_measured import THIN_DEG, gcs_run
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue-29 medium: 6 of the 7 isolated seeds (seed 1) have references >= THIN_DEG; "
+    "robot 16's read 169.0 deg from its estimates, a lattice triple bent by per-link "
+    "systematic error (the idealised medium gives 7 of 11): THIN_DEG on estimated angles "
+    "needs the model's error",
+)
 def test_isolated_seeds_on_a_40_robot_lattice_are_thin_frames_of_seed_and_references():
     """docs/gcs.md, "On the robot model": without occlusion the thesis's rule leaves seeds whose
     references are nearly collinear with them and whose frames hold nobody else, and those are

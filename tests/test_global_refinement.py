@@ -239,7 +239,12 @@ def test_refinement_on_100_robots_reaches_the_bound():
     s = scenarios.run(GCS, {"placement.robots": 100, "gcs.refine": True}, seed=1).summary
     assert s["frames"] == 1
     assert s["rmse_over_crlb"] <= 1.5
-    assert s["rmse_mm"] < s["merge_rmse_mm"] / 10
+    # Refinement ends at the centralized optimum on the same receptions and well under what
+    # merging left. Measured on 100 robots, seeds 1-3: rmse / central_rmse_mm 1.11, 0.94, 1.13;
+    # merge_rmse_mm / rmse 5.3, 14.3, 3.7 (merging's error is each link's systematic error
+    # compounded along its chain of frames, which varies by seed; the old iid medium gave > 10).
+    assert s["rmse_mm"] <= 1.25 * s["central_rmse_mm"]
+    assert s["rmse_mm"] < s["merge_rmse_mm"] / 3
 
 
 @pytest.mark.slow

