@@ -25,6 +25,9 @@ never saw:
 * ``unplaced_why``: the unplaced running robots counted by why they stayed so
   (:func:`why_unplaced`; ``why_unplaced`` in ``robots.csv``), and ``unplaced_robots``, the
   first 50 of them by index;
+* ``misplaced_fixes`` and ``first_misplaced``: the fixes that were wrong given the anchors
+  they used (:mod:`scenarios.placement_audit`), per rule, and the earliest of them — where a
+  folded frame began;
 * ``unsendable_messages`` (messages a robot could not pack, sent as nothing) and
   ``out_of_frame_robots`` (robots that refused a position beyond the coordinates messages
   carry, :data:`protocols.localize_base.MAX_COORDINATE_MM`, 49 m from the root).
@@ -212,11 +215,43 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
     counts = left.why_unplaced.value_counts().sort_index()
     out["unplaced_why"] = {k: int(v) for k, v in counts.items()}
     out["unplaced_robots"] = [int(i) for i in left.robot[:_LISTED_UNPLACED]]
+    out.update(_misplacements(events, est, truth, labels))
     out["unsendable_messages"] = int(sum(r.unsendable for r in sim.robots))
     out["out_of_frame_robots"] = (
         int(events.robot[events.event == "out_of_frame"].nunique()) if len(events) else 0
     )
     return out
+
+
+def _misplacements(
+    events: pd.DataFrame, est: pd.DataFrame, truth: np.ndarray, labels: np.ndarray
+) -> dict[str, Any]:
+    """``misplaced_fixes`` (per rule, the fixes more than
+    :data:`~scenarios.placement_audit.MISPLACED_MM` from where their references' truth puts
+    them) and ``first_misplaced`` (the earliest: robot, rule, anchors, time, error; None if
+    none), from :func:`~scenarios.placement_audit.placement_errors`."""
+    from scenarios.placement_audit import MISPLACED_MM, frame_handedness, placement_errors
+
+    positions = est[["est_x_mm", "est_y_mm"]].to_numpy()
+    handedness = np.ones(len(truth), dtype=int)
+    for label in np.unique(labels[labels >= 0]):
+        members = labels == label
+        if members.sum() >= 3:
+            handedness[members] = frame_handedness(positions[members], truth[members])
+    fixes = placement_errors(events, est.uid.to_numpy(), truth, handedness)
+    wrong = fixes[fixes.error_mm > MISPLACED_MM]
+    first = None
+    if len(wrong):
+        row = wrong.iloc[0]
+        first = {
+            "robot": int(row.robot),
+            "rule": row.rule,
+            "anchors": int(row.anchors),
+            "t_s": round(float(row.t_s), 3),
+            "error_mm": round(float(row.error_mm), 1),
+        }
+    counts = wrong.rule.value_counts().sort_index()
+    return {"misplaced_fixes": {k: int(v) for k, v in counts.items()}, "first_misplaced": first}
 
 
 def _outputs(result: RunResult, out_dir: Path) -> None:

@@ -392,6 +392,8 @@ def test_small_lattice_ends_in_one_frame_near_the_optimum():
     # The swarm stopped by itself: every robot is done well before the time limit.
     assert s["sim_time_s"] < 60
     assert set(s["phase_times_s"]) == {"elected", "last_located", "root_done", "all_done"}
+    # Every fix was right given its anchors: nothing to audit.
+    assert s["misplaced_fixes"] == {} and s["first_misplaced"] is None
     robots = result.sim.robots
     assert sum(r.is_root for r in robots) == 1
     assert len({r.root_key for r in robots}) == 1

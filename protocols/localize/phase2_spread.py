@@ -252,6 +252,34 @@ def circle_candidates(
     return circle_pair(a, range_a_mm, b, range_b_mm, tolerance_mm=0.5)
 
 
+def side_is_clear(fix: Fix, sigma_mm: float, *, sigmas: float = MIRROR_SIGMAS) -> bool:
+    """Whether a fix's side of its anchors' line is beyond doubt, on the fix's own evidence.
+
+    :func:`~kilonet.geometry.multilaterate` rejects a fix whose mirror image fits within
+    ``(sigmas · sigma_mm)²`` of its sum of squared residuals. That margin trusts the anchors'
+    positions to the ranging noise; but residuals larger than the noise say the anchors are
+    off by more (positions not yet refined, kilolib's per-link errors on long links), and
+    the mirror fit's excess is then no better evidence than the residuals themselves. So the
+    margin here scales with the larger of ``sigma_mm`` and the fix's residual RMS
+    (``fix.rmse_mm``), mm. A fix without a distinct mirror fit is clear.
+
+    Examples
+    --------
+    Three anchors whose best fit leaves 5.5 mm of residual RMS and whose mirror fit 7.0 mm: by
+    the noise alone (σ = 2.2 mm) the side looks certain, by the residuals not:
+
+    >>> from dataclasses import replace
+    >>> fix = Fix(0.0, 0.0, 5.5, 1.2, 7.0, 3, True, "")
+    >>> side_is_clear(fix, 2.2), side_is_clear(replace(fix, rmse_mm=1.0, mirror_rmse_mm=6.0), 2.2)
+    (False, True)
+    """
+    if not math.isfinite(fix.mirror_rmse_mm):
+        return True
+    scale = max(sigma_mm, fix.rmse_mm)
+    excess = fix.anchors * (fix.mirror_rmse_mm**2 - fix.rmse_mm**2)
+    return excess >= (sigmas * scale) ** 2
+
+
 def fix_with_candidates(
     anchors: Sequence[Point],
     ranges_mm: Sequence[float],
@@ -598,8 +626,8 @@ class Spread:
                 max_rmse_mm=max_rmse,
                 min_anchor_width_mm=r.params.min_height_mm,
             )
-            if fix.ok:
-                self.place(fix.x_mm, fix.y_mm, "anchors", len(anchors))
+            if fix.ok and side_is_clear(fix, sigma):
+                self.place(fix.x_mm, fix.y_mm, "anchors", len(anchors), anchors)
                 return
         if pairs and r.params.max_candidate_neighbours:
             # The pairs farthest apart discriminate best.
@@ -615,19 +643,19 @@ class Spread:
                 min_width_mm=r.params.min_height_mm,
             )
             if fix is not None:
-                self.place(fix.x_mm, fix.y_mm, "candidates", len(anchors) + len(pairs))
+                self.place(fix.x_mm, fix.y_mm, "candidates", len(anchors) + len(pairs), anchors)
                 return
         self._update_candidates(anchors)
-        self._take_vote(len(anchors))
+        self._take_vote(anchors)
 
-    def _take_vote(self, anchors: int) -> None:
+    def _take_vote(self, anchors: list[Neighbour]) -> None:
         """Rule 4: take the candidate the votes allow, if they allow exactly one."""
         if self.candidates is None or self.votes_version != self.candidates[0]:
             return
         allowed = [k for k in (0, 1) if self.votes_in.get(k)]
         if len(allowed) == 1:
             x, y = self.candidates[1][allowed[0]]
-            self.place(x, y, "vote", anchors)
+            self.place(x, y, "vote", len(anchors), anchors)
 
     def _start_frame(self, fresh: list[Neighbour]) -> None:
         """Place the axis robot on +x, or the third robot above it."""
@@ -666,16 +694,27 @@ class Spread:
         self.candidate_anchors = pair
         self.candidates = (version, [found[0], found[1]])
 
-    def place(self, x_mm: float, y_mm: float, rule: str, anchors: int) -> None:
+    def place(
+        self,
+        x_mm: float,
+        y_mm: float,
+        rule: str,
+        anchors: int,
+        references: Sequence[Neighbour] = (),
+    ) -> None:
         """Take the position (x, y) in the frame, mm, found by ``rule`` from ``anchors``
-        placed points (both go to the event log); one beyond the messages' coordinate range
-        is refused."""
+        placed points; one beyond the messages' coordinate range is refused.
+
+        The ``located`` event logs the rule, the count and ``references``: the placed
+        neighbours the fix used, ``[uid, x_mm, y_mm]`` each as this robot held them (0.1 mm),
+        so that a run's analysis can tell a wrong fix from a right fix on wrong anchors."""
         if abs(x_mm) > MAX_COORDINATE_MM or abs(y_mm) > MAX_COORDINATE_MM:
             self.robot.log("out_of_frame", x_mm=x_mm, y_mm=y_mm)
             return
         self.candidates = None
         self.robot.locate(x_mm, y_mm)
-        self.robot.log("located", rule=rule, anchors=anchors, x_mm=x_mm, y_mm=y_mm)
+        held = [[n.uid, round(n.x_mm, 1), round(n.y_mm, 1)] for n in references]
+        self.robot.log("located", rule=rule, anchors=anchors, x_mm=x_mm, y_mm=y_mm, references=held)
 
 
 def _separation(points: list[Point]) -> float:
