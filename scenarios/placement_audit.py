@@ -27,10 +27,10 @@ if TYPE_CHECKING:
 __all__ = ["MISPLACED_MM", "frame_handedness", "placement_errors"]
 
 #: A fix farther than this from where its references' truth puts it counts as misplaced, mm.
-#: Mirror images of a robot two anchors place lie twice its height above their line apart
-#: (at least 2 · ``localize.min_height_mm``, 20 mm); a right fix is off by its anchors' own
-#: relative errors, a few millimetres.
-MISPLACED_MM = 20.0
+#: A right fix is off by its anchors' own relative errors: a few millimetres, up to about
+#: 25 mm from three anchors placed moments before and not yet refined. A mirror image lies
+#: twice the robot's height above its anchors' line from the right place.
+MISPLACED_MM = 30.0
 
 
 def frame_handedness(estimates_mm: np.ndarray, truth_mm: np.ndarray) -> int:
