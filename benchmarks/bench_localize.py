@@ -42,6 +42,7 @@ FIELDS = (
     "central_rmse_mm",
     "central_localized_fraction",
     "largest_frame_over_central",
+    "at_optimum_over_central",
     "hop_diameter",
     "done_s",
     "done_over_hop_limit",
@@ -92,9 +93,11 @@ def main() -> None:
 
 
 def meets_targets(figures: dict, ratio: str = "rmse_over_crlb") -> bool:
-    """Issue 20's targets for one run, the RMSE judged by ``figures[ratio]``."""
+    """Issue 20's targets for one run, the RMSE judged by ``figures[ratio]``; the frame must
+    place at the optimum 95 % of the robots the centralized solver localizes (a folded frame's
+    robots do not count)."""
     return (
-        (figures["largest_frame_over_central"] or 0) >= 0.95
+        (figures["at_optimum_over_central"] or 0) >= 0.95
         and (figures[ratio] or float("inf")) <= 1.5
         and (figures["done_over_hop_limit"] or float("inf")) <= 20
     )

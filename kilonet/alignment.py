@@ -16,7 +16,8 @@ lays the common plane flat again.
 - Reading a tilted plane: :func:`level_matrix`.
 - Messages: :func:`pack_quaternion`, :func:`unpack_quaternion`, :func:`words_matrix` (three
   int16 words).
-- Metrics: :func:`procrustes_rmse`.
+- Metrics: :func:`rigid_fit` (the best rigid map of one point set onto another) and
+  :func:`procrustes_rmse`.
 
 Robots call the first three on every query, transform heard and message, so they are written
 on plain floats; the tests check them against scipy's ``Rotation``, ``Slerp`` and
@@ -38,6 +39,7 @@ __all__ = [
     "level_matrix",
     "pack_quaternion",
     "procrustes_rmse",
+    "rigid_fit",
     "unpack_quaternion",
     "words_matrix",
 ]
@@ -211,14 +213,57 @@ def half_map(
     return Rotation.from_quat([*quat[1:], quat[0]]), shift, disagreement
 
 
+def rigid_fit(
+    source_mm: np.ndarray, target_mm: np.ndarray, *, handedness: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """The orthogonal map Q and shift t that best map ``source_mm`` rows onto ``target_mm``'s
+    (Kabsch): they minimise ``Σ |Q sᵢ + t − tᵢ|²``; no scaling, since distances fix the scale.
+
+    Parameters
+    ----------
+    source_mm, target_mm : (N, 2) arrays
+        The same points in two frames, mm (N ≥ 1; with N = 1 Q is the identity or, for
+        ``handedness = -1``, the reflection across the x axis).
+    handedness : int
+        0: Q is a rotation or a reflection, whichever fits better; +1: a rotation only;
+        -1: a reflection only (a frame known to be the mirror image of the other).
+
+    Returns
+    -------
+    q : (2, 2) array
+        The map; ``source @ q.T + t`` is the source moved onto the target.
+    t : (2,) array
+        The shift, mm.
+
+    Examples
+    --------
+    >>> target = np.array([[0.0, 0.0], [40.0, 0.0], [0.0, 30.0]])
+    >>> source = target * [1.0, -1.0] + 5.0
+    >>> q, t = rigid_fit(source, target)
+    >>> np.round(source @ q.T + t, 9).tolist() == target.tolist(), round(np.linalg.det(q))
+    (True, -1)
+    >>> q, t = rigid_fit(source, target, handedness=1)
+    >>> round(float(np.linalg.det(q)))
+    1
+    """
+    if handedness not in (-1, 0, 1):
+        raise ValueError(f"handedness must be -1, 0 or 1; got {handedness!r}")
+    centre_s, centre_t = source_mm.mean(axis=0), target_mm.mean(axis=0)
+    u, _, vt = np.linalg.svd((target_mm - centre_t).T @ (source_mm - centre_s))
+    sign = 1.0 if np.linalg.det(u @ vt) >= 0 else -1.0
+    if handedness and sign != handedness:
+        u[:, -1] = -u[:, -1]
+    q = u @ vt
+    return q, centre_t - centre_s @ q.T
+
+
 def procrustes_rmse(
     estimated_mm: np.ndarray, true_mm: np.ndarray, *, allow_reflection: bool = True
 ) -> tuple[float, float, np.ndarray]:
     """Position error after the best rigid alignment of estimated positions onto the truth.
 
     Finds the orthogonal map Q (a rotation, or also a reflection when allowed) and shift t
-    minimising ``Σ |Q eᵢ + t − pᵢ|²`` (no scaling: distances are measured, so scale is
-    known), then reports the residual distances.
+    minimising ``Σ |Q eᵢ + t − pᵢ|²`` (:func:`rigid_fit`), then reports the residual distances.
 
     Parameters
     ----------
@@ -262,13 +307,8 @@ def procrustes_rmse(
         )
     if not (np.isfinite(est).all() and np.isfinite(true).all()):
         raise ValueError("estimated_mm and true_mm must be finite")
-    centre_e, centre_t = est.mean(axis=0), true.mean(axis=0)
-    e, t = est - centre_e, true - centre_t
-    u, _, vt = np.linalg.svd(t.T @ e)
-    if not allow_reflection and np.linalg.det(u @ vt) < 0:
-        u[:, -1] = -u[:, -1]
-    q = u @ vt  # maps centred estimates onto centred truth
-    aligned = e @ q.T + centre_t
+    q, t = rigid_fit(est, true, handedness=0 if allow_reflection else 1)
+    aligned = est @ q.T + t
     dist = np.sqrt(((aligned - true) ** 2).sum(axis=1))
     return float(np.sqrt((dist**2).mean())), float(dist.max()), aligned
 

@@ -410,17 +410,19 @@ def _reference_metrics(run: _Run, out: dict[str, Any]) -> None:
     """The bound and the optimum beside the swarm's result (:mod:`scenarios.reference`; no two
     robots in range: nothing is measured, ``crlb_rmse_mm`` is null), and when the swarm was
     done: the last seed done merging, or the last robot done refining."""
-    from scenarios.reference import reference_metrics
+    import pandas as pd
+
+    from scenarios.reference import largest_frame_mm, reference_metrics
 
     sim, est = run.sim, run.outcomes.estimates
-    sizes = est[est.localized].groupby("frame").size()
+    labels = np.where(est.localized, pd.factorize(est.frame)[0], -1)
     out.update(
         reference_metrics(
             sim,
             [r.table for r in sim.robots],
             (run.i, run.j),
             rmse_mm=out["rmse_mm"],
-            largest_frame=int(sizes.max()) if len(sizes) else 0,
+            frame_mm=largest_frame_mm(est[["est_x_mm", "est_y_mm"]].to_numpy(), labels),
         )
     )
     events = sim.trace.events_frame()

@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from kilonet.alignment import rigid_fit
+
 if TYPE_CHECKING:
     import pandas as pd
 
@@ -41,20 +43,8 @@ def frame_handedness(estimates_mm: np.ndarray, truth_mm: np.ndarray) -> int:
     >>> frame_handedness(truth + 5.0, truth), frame_handedness(truth * [1.0, -1.0], truth)
     (1, -1)
     """
-    e = estimates_mm - estimates_mm.mean(axis=0)
-    t = truth_mm - truth_mm.mean(axis=0)
-    u, _, vt = np.linalg.svd(e.T @ t)
-    return 1 if np.linalg.det(u @ vt) >= 0 else -1
-
-
-def _rotation_onto(source: np.ndarray, target: np.ndarray):
-    """The proper rigid motion (no reflection) that best maps ``source`` rows onto
-    ``target``'s, as a function of points."""
-    sc, tc = source.mean(axis=0), target.mean(axis=0)
-    u, _, vt = np.linalg.svd((source - sc).T @ (target - tc))
-    d = np.diag([1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
-    rotation = u @ d @ vt
-    return lambda p: (np.asarray(p) - sc) @ rotation + tc
+    q, _ = rigid_fit(estimates_mm, truth_mm)
+    return 1 if np.linalg.det(q) >= 0 else -1
 
 
 def placement_errors(
@@ -118,10 +108,9 @@ def placement_errors(
             index.append(same[np.argmin(np.hypot(*(truth_mm[same] - near).T))] if len(same) else -1)
         if min(index) < 0:
             continue
-        flip = np.array([1.0, float(handedness[robot])])
-        held = np.array([[x, y] for _, x, y in references]) * flip
-        onto = _rotation_onto(held, truth_mm[index])
-        placed = onto(np.array([fix["x_mm"], fix["y_mm"]]) * flip)
+        held = np.array([[x, y] for _, x, y in references])
+        q, shift = rigid_fit(held, truth_mm[index], handedness=int(handedness[robot]))
+        placed = np.array([fix["x_mm"], fix["y_mm"]]) @ q.T + shift
         error = float(np.hypot(*(placed - near)))
         rows.append((float(t_s), int(robot), fix["rule"], int(fix["anchors"]), error))
     return pd.DataFrame(rows, columns=columns).sort_values("t_s", kind="stable")

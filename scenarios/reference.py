@@ -11,9 +11,17 @@ A localization run (``gcs``, ``localize``) reports, next to its own RMSE:
   (each ordered pair with its number of samples: averaging shrinks the noise, not the
   systematic error), and ``rmse_over_crlb_received``;
 * ``central_rmse_mm``, ``central_localized_fraction``: the centralized solver
-  (:func:`kilonet.central.central_reference`) on the run's own measured distances, and
-  ``largest_frame_over_central``, the largest frame's size over the number of robots the solver
-  localizes;
+  (:func:`kilonet.central.central_reference`) on the run's own measured distances; a robot
+  counts as localized by it when the solver places it right among its neighbours
+  (within :data:`kilonet.central.WITHIN_MM`);
+* ``largest_frame_over_central``: the largest frame's size over the number of robots the
+  solver localizes (a folded frame counts whole);
+* ``at_optimum_over_central``: of the robots the solver localizes, the share the largest
+  frame places at the optimum (:func:`kilonet.central.optimum_agreement_mm` within
+  ``WITHIN_MM``: the frame's estimates, polished to the nearest least-squares minimum, where
+  the optimum of the same measurements puts them; a folded or bent part lies tens of
+  millimetres off), and ``off_optimum_robots``, the frame's robots it does not place there
+  (the first :data:`LISTED_ROBOTS` by index);
 * ``hop_diameter`` of the communication graph: ``hop_diameter × robot.tx_period_s`` is the
   time information needs to cross the swarm.
 
@@ -35,7 +43,17 @@ import numpy as np
 if TYPE_CHECKING:
     from kilonet.simulation import Simulation
 
-__all__ = ["NeighbourRecords", "hop_diameter", "measured_distances", "reference_metrics"]
+__all__ = [
+    "LISTED_ROBOTS",
+    "NeighbourRecords",
+    "hop_diameter",
+    "largest_frame_mm",
+    "measured_distances",
+    "reference_metrics",
+]
+
+#: Robots a summary lists by index where it names those a metric left out (the first ones).
+LISTED_ROBOTS = 50
 
 
 class _Record(Protocol):
@@ -101,20 +119,38 @@ def hop_diameter(n: int, i: np.ndarray, j: np.ndarray) -> int:
     return int(finite.max()) if len(finite) else 0
 
 
+def largest_frame_mm(positions_mm: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """The estimates of the largest frame: ``positions_mm`` (n, 2) where ``labels`` (n,) names
+    the frame with the most robots (label ``-1``: no frame; ties: the smallest label), NaN
+    elsewhere.
+
+    >>> largest_frame_mm(np.arange(8.0).reshape(4, 2), np.array([1, 0, 1, -1])).tolist()
+    [[0.0, 1.0], [nan, nan], [4.0, 5.0], [nan, nan]]
+    """
+    out = np.full(np.shape(positions_mm), np.nan)
+    framed = labels[labels >= 0]
+    if len(framed):
+        values, counts = np.unique(framed, return_counts=True)
+        members = labels == values[np.argmax(counts)]
+        out[members] = np.asarray(positions_mm)[members]
+    return out
+
+
 def reference_metrics(
     sim: Simulation,
     tables: Sequence[NeighbourRecords],
     links: tuple[np.ndarray, np.ndarray],
     *,
     rmse_mm: float,
-    largest_frame: int,
+    frame_mm: np.ndarray,
 ) -> dict[str, Any]:
-    """The keys of the module docstring for a run whose swarm ended at ``rmse_mm`` with
-    ``largest_frame`` robots in its largest frame; ``links`` are the communication graph's
-    pairs ``(i, j)``. Keys whose inputs are missing (no link, no measurement, no noise) are
-    left out, except ``crlb_rmse_mm`` (None without a link: the bound is infinite)."""
+    """The keys of the module docstring for a run whose swarm ended at ``rmse_mm``;
+    ``frame_mm`` (n, 2) holds the estimates of its largest frame (NaN for robots outside it),
+    ``links`` the communication graph's pairs ``(i, j)``. Keys whose inputs are missing (no
+    link, no measurement, no noise) are left out, except ``crlb_rmse_mm`` (None without a
+    link: the bound is infinite)."""
     from kilonet.bounds import crlb_rmse_mm
-    from kilonet.central import central_reference
+    from kilonet.central import WITHIN_MM, central_reference, optimum_agreement_mm
 
     truth = sim.world.positions_mm
     i, j = links
@@ -139,5 +175,11 @@ def reference_metrics(
         out["central_rmse_mm"] = central.rmse_mm
         out["central_localized_fraction"] = central.localized_fraction
         located = int(central.localized.sum())
-        out["largest_frame_over_central"] = largest_frame / located if located else 0.0
+        in_frame = np.isfinite(frame_mm).all(axis=1)
+        agreement = optimum_agreement_mm(frame_mm, central.aligned_mm, pairs, means, samples)
+        off = central.localized & in_frame & ~(agreement <= WITHIN_MM)
+        at = central.localized & in_frame & ~off
+        out["largest_frame_over_central"] = int(in_frame.sum()) / located if located else 0.0
+        out["at_optimum_over_central"] = int(at.sum()) / located if located else 0.0
+        out["off_optimum_robots"] = np.flatnonzero(off)[:LISTED_ROBOTS].tolist()
     return out

@@ -9,7 +9,7 @@ import pytest
 
 from kilonet.alignment import procrustes_rmse
 from kilonet.bounds import crlb_rmse_mm
-from kilonet.central import central_reference, solve_positions
+from kilonet.central import central_reference, optimum_agreement_mm, solve_positions
 from kilonet.placement import c_shape, corridor, hex_lattice, random_uniform
 from kilonet.visibility import pairs_in_range
 
@@ -75,15 +75,71 @@ def test_noisy_lattice_error_is_near_the_cramer_rao_bound():
     assert ref.localized_fraction == 1.0
 
 
-def test_a_robot_farther_than_within_mm_is_not_localized():
+def test_a_robot_farther_than_within_mm_of_its_neighbours_is_not_localized():
     square = np.array([[0.0, 0.0], [50.0, 0.0], [50.0, 50.0], [0.0, 50.0]])
     pairs = np.array([(0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3)])
     d = _measured(square, pairs[:, 0], pairs[:, 1])
     ref = central_reference(square, pairs, d, within_mm=5.0)
     assert ref.localized.all()
+    assert np.nanmax(ref.local_error_mm) < 1e-6
+    # Both diagonals measured 30 mm long: no shape fits, and no robot sits where its
+    # neighbours' truth puts it.
     ref = central_reference(square, pairs, d + np.array([0, 0, 0, 0, 30.0, 30.0]), within_mm=5.0)
-    assert ref.rmse_mm > 5.0
-    assert not ref.localized.all()
+    assert (ref.local_error_mm > 5.0).all()
+    assert not ref.localized.any()
+
+
+def test_a_shape_its_measurements_bend_is_localized_where_the_optimum_puts_it():
+    # A 2 m row of robots two wide, measured as if it lay on an arc of 2 m radius (a bias
+    # that grows along a long shape): the optimum is the arc, tens of millimetres from the
+    # truth at the ends after the best alignment, but every robot is right among its
+    # neighbours, and counts as localized; within 5 mm of the truth, a third would.
+    k = np.arange(50)
+    row = np.concatenate(
+        [
+            np.column_stack([40.0 * k, np.zeros(50)]),
+            np.column_stack([40.0 * k + 20.0, np.full(50, 35.0)]),
+        ]
+    )
+    angle = row[:, 0] / 2000.0
+    radius = 2000.0 - row[:, 1]
+    arc = np.column_stack([radius * np.sin(angle), 2000.0 - radius * np.cos(angle)])
+    i, j, _ = pairs_in_range(row, 85.0)
+    pairs = np.column_stack([i, j])
+    ref = central_reference(row, pairs, _measured(arc, i, j))
+    assert ref.rmse_mm > 20.0
+    assert np.mean(np.hypot(*(ref.aligned_mm - row).T) <= 5.0) < 0.5
+    assert ref.localized_fraction == 1.0
+    assert np.nanmax(ref.local_error_mm) < 2.0
+
+
+def test_a_frame_in_the_optimums_basin_agrees_with_it_and_a_folded_part_does_not():
+    rng = np.random.default_rng(6)
+    pos = hex_lattice(61, spacing_mm=40.0, jitter_mm=2.0, rng=rng)
+    pairs, d = _noisy_measurements(pos, rng, sigma_mm=1.0)
+    optimum = solve_positions(len(pos), pairs, d)
+    # A frame short of the optimum by a few millimetres, turned and shifted: in its basin.
+    near = (optimum + rng.normal(0.0, 3.0, optimum.shape)) @ np.array([[0.0, -1.0], [1.0, 0.0]])
+    assert np.nanmax(optimum_agreement_mm(near + 500.0, optimum, pairs, d)) < 0.01
+    # A flap beyond x = 60 mm tied to the rest through two robots only: mirrored across
+    # their line, it fits every measurement as well, and stays there.
+    flap = pos[:, 0] > 60.0
+    hinge = np.flatnonzero(~flap)[np.argsort(-pos[~flap, 0])[:2]]
+    i, j, true_d = pairs_in_range(pos, 85.0)
+    crossing = flap[i] != flap[j]
+    keep = ~crossing | np.isin(np.where(flap[i], j, i), hinge)
+    pairs, d = np.column_stack([i, j])[keep], true_d[keep]
+    (ax, ay), (bx, by) = pos[hinge]
+    u = np.array([bx - ax, by - ay]) / math.dist(pos[hinge[0]], pos[hinge[1]])
+    folded = pos.copy()
+    rel = folded[flap] - pos[hinge[0]]
+    folded[flap] = pos[hinge[0]] + 2 * (rel @ u)[:, None] * u - rel
+    agreement = optimum_agreement_mm(folded, pos, pairs, d)
+    assert np.nanmax(agreement[~flap]) < 0.5  # flap robots near the line agree too
+    assert np.mean(agreement[flap] > 5.0) > 0.8
+    # Robots without an estimate have no agreement.
+    folded[0] = np.nan
+    assert np.isnan(optimum_agreement_mm(folded, pos, pairs, d)[0])
 
 
 @pytest.mark.parametrize(
@@ -126,8 +182,12 @@ def test_a_c_shape_is_solved_at_its_optimum_not_bent(seed):
     pairs, d = _noisy_measurements(pos, rng)
     ref = central_reference(pos, pairs, d)
     assert ref.localized_fraction >= 0.98
-    # The optimum fits the measurements at least as well as the truth does.
+    # The optimum fits the measurements at least as well as the truth does, and it is the
+    # minimum that least squares from the truth ends in: no other lies nearer the truth.
     assert _stress(ref.aligned_mm, pairs, d) <= _stress(pos, pairs, d)
+    # (Least squares stops within a millimetre of a minimum along a long shape's slow modes.)
+    assert np.nanmax(optimum_agreement_mm(pos, ref.aligned_mm, pairs, d)) < 1.0
+    assert ref.rmse_mm < 5.0
 
 
 def test_a_long_corridor_is_solved_at_its_optimum():
@@ -139,3 +199,5 @@ def test_a_long_corridor_is_solved_at_its_optimum():
     ref = central_reference(pos, pairs, d)
     assert ref.localized_fraction >= 0.98
     assert _stress(ref.aligned_mm, pairs, d) <= _stress(pos, pairs, d)
+    assert np.nanmax(optimum_agreement_mm(pos, ref.aligned_mm, pairs, d)) < 1.0
+    assert ref.rmse_mm < 5.0

@@ -199,12 +199,26 @@ SPARSE = {
 
 def _sound(s):
     """What every run must say, whatever the swarm: no value it could not send, every robot
-    done, and a reference that places nearly every robot (its RMSE is no test: a robot with
-    two neighbours lands on either side of its mirror, tens of millimetres off)."""
+    done, and a reference that places nearly every robot right among its neighbours."""
     assert s["unsendable_messages"] == 0
     assert s["out_of_frame_robots"] == 0
     assert s["done_fraction"] == 1.0
     assert s["central_localized_fraction"] >= 0.95
+
+
+def _reference_is_the_optimum(result):
+    """The solver's positions are the minimum that least squares from the truth ends in, on
+    the run's own measurements (kilolib's ranging, each link with its systematic error)."""
+    from kilonet.central import central_reference, optimum_agreement_mm
+    from scenarios.reference import measured_distances
+
+    sim = result.sim
+    truth = sim.world.positions_mm
+    pairs, means, samples = measured_distances(sim, [r.neighbours for r in sim.robots])
+    ref = central_reference(truth, pairs, means, samples)
+    assert ref.rmse_mm == pytest.approx(result.summary["central_rmse_mm"])
+    agreement = optimum_agreement_mm(truth, ref.aligned_mm, pairs, means, samples)
+    assert np.nanmax(agreement) < 1.0
 
 
 @pytest.mark.slow
@@ -234,9 +248,9 @@ def test_sparse_swarms_reach_the_central_reference(seed, loss):
     s = scenarios.run(LOCALIZE, {**SPARSE, "medium.loss_prob": loss}, seed=seed).summary
     assert 6.0 <= s["mean_neighbours"] <= 7.5
     assert s["frames"] == 1
-    assert s["localized_fraction"] >= 0.95
-    # Not folded: near the solver's RMSE (which kilolib's per-link errors hold at 5-6 mm,
-    # with only 43-64 % of the robots within 5 mm: docs/localize.md, Limits).
+    # The issue's measure: the largest frame places at the optimum at least 95 % of the
+    # robots the solver localizes (a folded or bent part is not at the optimum).
+    assert s["at_optimum_over_central"] >= 0.95
     assert s["rmse_mm"] <= 1.5 * s["central_rmse_mm"]
     _sound(s)
 
@@ -336,8 +350,9 @@ def test_a_c_shape_localizes_and_its_reference_is_the_optimum(seed):
     positions = c_shape(
         300, outer_radius_mm=700.0, inner_radius_mm=450.0, rng=np.random.default_rng(33)
     )
-    s = scenarios.run(LOCALIZE, {}, seed=seed, placement=positions).summary
+    result = scenarios.run(LOCALIZE, {}, seed=seed, placement=positions)
+    s = result.summary
     _sound(s)
     assert s["central_localized_fraction"] >= 0.98
-    assert s["largest_frame_over_central"] >= 0.95
-    assert s["rmse_over_crlb"] <= 1.5
+    assert s["at_optimum_over_central"] >= 0.95
+    _reference_is_the_optimum(result)
