@@ -2,11 +2,11 @@
 
 The termination's convergecast climbs the tree of parents (:func:`toward_root`). In a 5 m
 corridor (seed 3) the root declared the swarm done at 42.4 s while the frame's front was 2.8 m
-from it and 131 robots beyond stayed unplaced: every robot more than about 1.4 m from the root
-hung below parent cycles, which no robot on the root's side waited for (the hop count rose
-and fell as neighbours went unheard), and once cycles were ruled out, below robots whose
-parent never heard them. The rules of :func:`toward_root` are tested here on their own, and
-the issue's corridors end to end (slow).
+from it and 131 robots beyond stayed unplaced: every robot from 1.25 m on hung below parent
+cycles, which no robot on the root's side waited for (the hop count rose and fell as
+neighbours went unheard), and once cycles were ruled out, below robots whose parent never
+heard them (docs/localize.md, the frame's tree). The rules of :func:`toward_root` are tested
+here on their own, and the issue's corridors end to end (slow).
 """
 
 from __future__ import annotations
