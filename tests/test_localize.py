@@ -640,8 +640,15 @@ def test_a_robot_tells_a_new_parent_in_elect_after_the_election():
     fresh.setup()
     position = {"x_mm": 40.0, "y_mm": 0.0, "hops": 1, "flags": LOCALIZED, "windings": 0}
     fresh.message_rx(POS.pack(sender=10, **position), 40)  # the frame exists: phase 2
+    # Robots 10 and 11 report their distances to it: they hear it, so either can be its parent.
+    for sender in (10, 11):
+        fresh.message_rx(NBR.pack(sender=sender, neighbour=fresh.uid, distance_mm=40.0), 40)
     fresh.loop()  # a round of work: 2 hops, parent 10
     assert (fresh.stage, fresh.hops, fresh.parent) == ("localize", 2, 10)
+    # It announces a new parent once the parent has lasted a round of work.
+    assert fresh.message_tx().type != ELECT.type
+    fresh._next_round = 0  # its next round is due
+    fresh.loop()
     sent = [fresh.message_tx() for _ in range(4)]
     elect = [ELECT.unpack(m) for m in sent if m.type == ELECT.type]
     assert [m.parent for m in elect] == [10, 10, 10]  # localize.parent_repeats
@@ -651,9 +658,11 @@ def test_a_robot_tells_a_new_parent_in_elect_after_the_election():
     assert [m.type for m in later].count(ELECT.type) == 2
     for _ in range(30):  # robot 11, also 1 hop out, is heard far more often
         fresh.message_rx(POS.pack(sender=11, **position), 45)
-    fresh._next_round = 0  # its next round is due
+    fresh._next_round = 0
     fresh.loop()
     assert fresh.parent == 11
+    fresh._next_round = 0
+    fresh.loop()
     assert ELECT.unpack(fresh.message_tx()).parent == 11
 
 

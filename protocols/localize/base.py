@@ -49,9 +49,11 @@ __all__ = [
     "DONE",
     "LOCALIZED",
     "MAX_COORDINATE_MM",
+    "MAX_HOPS",
     "NBR",
     "NO_ID",
     "SETTLED",
+    "UNKNOWN_HOPS",
     "LocalizeParams",
     "Neighbour",
     "Neighbours",
@@ -59,12 +61,18 @@ __all__ = [
     "children_complete",
     "choose_parent",
     "distance_report",
+    "toward_root",
     "unwrap_coordinate",
     "wrapped_position",
 ]
 
 #: No robot: an empty ID field (IDs are drawn from 0 .. 0xFFFE).
 NO_ID = 0xFFFF
+#: Hop counts saturate here (ELECT's hops byte keeps its top bit for the echo).
+MAX_HOPS = 126
+#: A neighbour's hop count as a robot records it before it has heard one that counts: never
+#: announced, or announced for another election key (:func:`toward_root`).
+UNKNOWN_HOPS = 255
 #: Coordinates travel as int16 tenths of a millimetre *modulo* this period, mm (2¹⁶ tenths):
 #: every message's x and y fields wrap, and a receiver unwraps them near a position it knows
 #: (:func:`unwrap_coordinate`). POS and CAND also carry the winding numbers, so a robot that
@@ -263,7 +271,7 @@ class Neighbour(common_neighbours.Neighbour):
         self.sent_round = -1
         self.x_mm: float | None = None
         self.y_mm: float | None = None
-        self.hops = 255
+        self.hops = UNKNOWN_HOPS
         self.parent = NO_ID
         self.flags = 0
         self.key: int | None = None  # election key (protocols.localize.phase1_election)
@@ -408,6 +416,60 @@ def choose_parent(current: int, hops: int, neighbours: Iterable[Neighbour]) -> i
     if kept is not None and 2 * kept.samples >= best.samples:
         return current
     return best.uid
+
+
+def toward_root(hops: int, parent: int, neighbours: Iterable[Neighbour]) -> tuple[int, int]:
+    """A robot's hop count to the root and its parent after a round of phases 2-3, from what
+    its ``neighbours`` (those heard recently) last announced in the frame's messages. Only a
+    neighbour that hears this robot counts — one that has reported its distance to it
+    (``reported_mm``, from NBR or DIST). The count only falls, to one more than the least
+    such a neighbour announces; the parent is :func:`choose_parent`'s choice among them, or
+    the current one while none of them is one hop nearer.
+
+    The convergecasts climb the parents, so they wait for every robot only if following
+    parents from any robot reaches the root, each parent counting its child. Two rules make
+    sure of it:
+
+    * *Every parent is nearer the root than its child.* Counts never rise, so a robot's
+      record of a neighbour's count is never below that neighbour's count now, and a
+      neighbour taken for a parent at ``hops - 1`` is at most that far: parents form no
+      cycle. When the count was recomputed every round it rose whenever a nearer neighbour
+      went unheard for ``stale_s``, robots took each other for parents from records older
+      than the rise, and a cycle and every robot below it were waited for by no robot on
+      the root's side.
+    * *A parent hears its child.* Near ``neighbour_max_mm`` one end of a link often ranges
+      the other beyond it and ignores it (:func:`~protocols.common.ranging_limit.trusted_range`),
+      and a parent that never hears its child cannot count it.
+
+    The root (0 hops) has no parent.
+
+    Examples
+    --------
+    A robot 5 hops out whose parent (4 hops) has fallen silent keeps both its count and its
+    parent, though a sibling (5 hops) would make it 6 — and the sibling may be its own child:
+
+    >>> parent, sibling = Neighbour(1), Neighbour(2)
+    >>> (parent.hops, parent.samples), (sibling.hops, sibling.samples) = (4, 10), (5, 40)
+    >>> parent.reported_mm = sibling.reported_mm = 60.0  # both hear it
+    >>> toward_root(5, 1, [sibling]), toward_root(5, 1, [parent, sibling])
+    ((5, 1), (5, 1))
+
+    A neighbour nearer the root lowers the count and becomes the parent, if it hears this
+    robot; the root stays put:
+
+    >>> sibling.hops = 3
+    >>> toward_root(5, 1, [parent, sibling]), toward_root(0, NO_ID, [parent, sibling])
+    ((4, 2), (0, 65535))
+    >>> sibling.reported_mm = None  # it has never reported hearing this robot
+    >>> toward_root(5, 1, [parent, sibling])
+    (5, 1)
+    """
+    if hops == 0:
+        return 0, NO_ID
+    hearing = [n for n in neighbours if n.reported_mm is not None]
+    hops = min(hops, MAX_HOPS, 1 + min((n.hops for n in hearing), default=MAX_HOPS))
+    nearer = choose_parent(parent, hops, hearing)
+    return hops, parent if nearer == NO_ID else nearer
 
 
 def children_complete(

@@ -38,7 +38,13 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 from kilonet.message import Layout, Message
-from protocols.localize.base import NO_ID, Neighbour, children_complete, choose_parent
+from protocols.localize.base import (
+    MAX_HOPS,
+    NO_ID,
+    Neighbour,
+    children_complete,
+    choose_parent,
+)
 
 if TYPE_CHECKING:
     from protocols.localize.program import LocalizeRobot
@@ -52,8 +58,6 @@ ELECT = Layout(
 )
 #: Neighbour counts above this all rank alike in the key.
 _MAX_COUNT = 255
-#: Hop counts saturate here (ELECT's hops byte keeps its top bit for the echo).
-MAX_HOPS = 126
 #: ELECT's hops byte: the echo flag in the top bit, the hop count below it.
 _ECHO_BIT = 0x80
 

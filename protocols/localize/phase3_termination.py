@@ -8,9 +8,10 @@ have not changed for ``localize.give_up_s`` and its located neighbours are all s
 with no located neighbour, a neighbour has given up; it counts as settled from then on, and
 takes a position after all if one turns up.
 
-Settledness climbs the election's tree of parents as a convergecast
-(:func:`subtree_complete`): a robot is *complete* when it is settled and every neighbour that
-names it parent reports complete. When the root has been complete for
+Settledness climbs the tree of parents as a convergecast (:func:`subtree_complete`): a robot
+is *complete* when it is settled and every neighbour that names it parent reports complete.
+The tree is the frame's (:func:`~protocols.localize.base.toward_root`): every parent hears its
+child and is nearer the root, so the root waits for every robot. When the root has been complete for
 ``localize.done_confirm_rounds`` rounds it declares the swarm *done*; DONE floods outward (a
 robot that hears the flag is done too), every robot freezes its estimate, sends
 ``localize.done_repeats`` more messages so its neighbours hear the flag, and falls silent. A

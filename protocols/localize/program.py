@@ -46,17 +46,19 @@ from protocols.localize.base import (
     DONE,
     LOCALIZED,
     MAX_COORDINATE_MM,
+    MAX_HOPS,
     NBR,
     NO_ID,
     SETTLED,
+    UNKNOWN_HOPS,
     LocalizeParams,
     Neighbour,
     Neighbours,
-    choose_parent,
     distance_report,
+    toward_root,
     unwrap_coordinate,
 )
-from protocols.localize.phase1_election import ELECT, MAX_HOPS, Election
+from protocols.localize.phase1_election import ELECT, Election
 from protocols.localize.phase2_spread import CAND, POS, ROOT, VOTE, Spread
 from protocols.localize.phase3_termination import Termination
 from protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR, Island
@@ -129,6 +131,7 @@ class LocalizeRobot(Kilobot):
         self.hops = 0
         self.parent = NO_ID  # the neighbour this robot reports to in the convergecasts
         self._parent_repeats = 0  # ELECT messages still owed after a change of parent
+        self._parent_round = 0  # the round of work that last changed the parent
         self.root_key = 0
         self.election = Election(self)
         self.spread = Spread(self)
@@ -208,14 +211,14 @@ class LocalizeRobot(Kilobot):
         else:
             if full:
                 if not self.is_root:
-                    # Keep the hop count a breadth-first distance to the root from what the
-                    # neighbours announce now (a robot that joined late, or whose neighbour
-                    # left, would otherwise keep a count the convergecast misreads).
-                    self.hops = min(MAX_HOPS, 1 + min((n.hops for n in fresh), default=MAX_HOPS))
-                    parent = choose_parent(self.parent, self.hops, fresh)
+                    # The hop count falls to what the neighbours that hear this robot announce
+                    # and never rises, so every parent hears its child and is nearer the root:
+                    # the convergecasts reach the root from every robot (toward_root).
+                    self.hops, parent = toward_root(self.hops, self.parent, fresh)
                     if parent != self.parent:
                         self.parent = parent
                         self._parent_repeats = self.params.parent_repeats
+                        self._parent_round = self._round
                 self.spread.round(tick, fresh)
                 if self.position is not None:
                     self._refine(fresh)
@@ -244,7 +247,11 @@ class LocalizeRobot(Kilobot):
         self._turn += 1
         # After the election, announce the parent after it changed, and now and then anyway: a
         # lost announcement would leave this robot out of its parent's convergecasts.
-        announce = self._parent_repeats or self._turn % self.params.parent_every == 0
+        # A new parent is announced once it has lasted a round of work: while the hop count
+        # still falls, round after round, announcing each parent on the way would waste the
+        # air (the parent before still counts this robot until it hears of the new one).
+        owed = self._parent_repeats and self._round > self._parent_round
+        announce = owed or self._turn % self.params.parent_every == 0
         if announce and self.stage == "localize" and not self.is_root:
             self._parent_repeats = max(0, self._parent_repeats - 1)
             return self.election.message_tx()
@@ -324,10 +331,17 @@ class LocalizeRobot(Kilobot):
         self.log("unlocated", cause=cause)
 
     def _enter_localize(self) -> None:
-        if not self.is_root:
-            self.reports = {}  # only the root's choice of frame robots needs them
         self.stage = LocalizeStage.LOCALIZE
         self.log("stage", name="localize", hops=self.hops, root=self.is_root)
+        if not self.is_root:
+            self.reports = {}  # only the root's choice of frame robots needs them
+            # The hop count starts over from the frame's own messages (POS, ROOT), and from
+            # here it only falls (toward_root). A count of the election would not do: it may be
+            # one to another key's robot (a neighbour last heard before it switched keys
+            # counts 0 hops to itself), or one over links whose other end does not hear.
+            self.hops = MAX_HOPS
+            for n in self.neighbours.known():
+                n.hops = UNKNOWN_HOPS
 
     def _island_work(self, tick: int, known: list[Neighbour]) -> None:
         """A round after DONE, for an island: the spread's rules and the island's solve while
@@ -404,7 +418,12 @@ class LocalizeRobot(Kilobot):
     def _elect_rx(self, n: Neighbour, message: Message) -> bool:
         if self.stage == "election":
             return self.election.message_rx(n, message)
-        return Election.record(n, message)  # a neighbour announcing its parent
+        # A neighbour announcing its parent. Its hop count here may be the election's, which
+        # can be lower than the one it takes in the frame: POS and ROOT carry that one.
+        hops = n.hops
+        news = Election.record(n, message)
+        n.hops = hops
+        return news
 
     def _phase2(self) -> None:
         """A phase-2 message: the root has won; an electing robot moves on."""
