@@ -6,7 +6,8 @@ from it and 131 robots beyond stayed unplaced: every robot from 1.25 m on hung b
 cycles, which no robot on the root's side waited for (the hop count rose and fell as
 neighbours went unheard), and once cycles were ruled out, below robots whose parent never
 heard them (docs/localize.md, the frame's tree). The rules of :func:`toward_root` are tested
-here on their own, and the issue's corridors end to end (slow).
+here on their own; the issue's corridors run end to end in tests/test_localize_shapes.py
+(slow).
 """
 
 from __future__ import annotations
@@ -150,53 +151,3 @@ def test_entering_the_frame_forgets_the_elections_hop_counts():
 
 
 # ------------------------------------------------------------------------ the issue's runs
-
-
-def _reaches_the_root(sim) -> float:
-    """Share of robots whose parents (each ID resolved to the nearest robot holding it) lead
-    to the root, read when the run ends (the tree as it stood when each robot was done)."""
-    robots = sim.robots
-    xy = sim.initial_positions_mm  # localize robots do not move
-    by_uid: dict[int, list[int]] = {}
-    for i, r in enumerate(robots):
-        by_uid.setdefault(r.uid, []).append(i)
-    reached = 0
-    for start in range(len(robots)):
-        seen, i = set(), start
-        while not robots[i].is_root and i not in seen:
-            seen.add(i)
-            holders = by_uid.get(robots[i].parent, [])
-            if not holders:
-                break
-            i = min(holders, key=lambda j, i=i: np.hypot(*(xy[j] - xy[i])))
-        reached += robots[i].is_root
-    return reached / len(robots)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", [1, 2, 3])
-def test_the_5m_corridor_is_placed_to_its_far_end(seed):
-    # 600 robots, 5 m x 0.2 m (the issue's corridor): seed 3 ended with 131 robots unplaced
-    # (localized 0.78, DONE at 42.4 s while the front was 2.8 m out).
-    from kilonet.placement import corridor
-
-    positions = corridor(600, length_mm=5000.0, width_mm=200.0, rng=np.random.default_rng(5))
-    result = scenarios.run(LOCALIZE, {}, seed=seed, placement=positions)
-    s = result.summary
-    assert s["frames"] == 1
-    assert s["localized_fraction"] >= 0.95
-    assert _reaches_the_root(result.sim) >= 0.95
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", [1, 2, 3])
-def test_the_studys_corridor_is_placed_to_its_far_end(seed):
-    overrides = {
-        "placement.kind": "corridor",
-        "placement.length_mm": 3400.0,
-        "placement.width_mm": 200.0,
-        "placement.robots": 400,
-    }
-    s = scenarios.run(LOCALIZE, overrides, seed=seed).summary
-    assert s["frames"] == 1
-    assert s["localized_fraction"] >= 0.95

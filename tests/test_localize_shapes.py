@@ -310,36 +310,78 @@ def test_rule_3_folds_a_sparse_frame_on_kilolibs_ranging():
     assert s["within_5mm_over_central"] >= 0.7
 
 
+def _reaches_the_root(sim) -> float:
+    """Share of robots whose parents (each ID resolved to the nearest robot holding it) lead
+    to the root, read when the run ends (the tree as it stood when each robot was done)."""
+    robots = sim.robots
+    xy = sim.initial_positions_mm  # localize robots do not move
+    by_uid: dict[int, list[int]] = {}
+    for i, r in enumerate(robots):
+        by_uid.setdefault(r.uid, []).append(i)
+    reached = 0
+    for start in range(len(robots)):
+        seen, i = set(), start
+        while not robots[i].is_root and i not in seen:
+            seen.add(i)
+            holders = by_uid.get(robots[i].parent, [])
+            if not holders:
+                break
+            i = min(holders, key=lambda j, i=i: np.hypot(*(xy[j] - xy[i])))
+        reached += robots[i].is_root
+    return reached / len(robots)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_the_issues_corridor_runs_to_the_end_in_one_frame(seed):
-    # 600 robots, 5 m x 0.2 m: the corridor whose runs ended in a PayloadError. (The frame
-    # does not always reach the far end: docs/localize.md, Limits.)
+    # 600 robots, 5 m x 0.2 m: the corridor whose runs ended in a PayloadError. Seed 3 then
+    # ended with 131 robots unplaced (localized 0.78, DONE at 42.4 s while the front was
+    # 2.8 m out: robots hung below parent cycles; test_localize_corridor.py).
     from kilonet.placement import corridor
 
     positions = corridor(600, length_mm=5000.0, width_mm=200.0, rng=np.random.default_rng(5))
-    s = scenarios.run(LOCALIZE, {}, seed=seed, placement=positions).summary
+    result = scenarios.run(LOCALIZE, {}, seed=seed, placement=positions)
+    s = result.summary
     _sound(s)
     assert s["frames"] == 1
-    assert s["localized_fraction"] >= 0.5
-    assert s["rmse_over_crlb"] <= 1.5
+    assert s["localized_fraction"] >= 0.95
+    assert s["at_optimum_over_central"] >= 0.95
+    assert _reaches_the_root(result.sim) >= 0.95
     assert sum(s["unplaced_why"].values()) == round(600 * (1 - s["localized_fraction"]))
+    _reference_is_the_optimum(result)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_studys_corridor_is_placed_to_its_far_end(seed):
+    overrides = {
+        "placement.kind": "corridor",
+        "placement.length_mm": 3400.0,
+        "placement.width_mm": 200.0,
+        "placement.robots": 400,
+    }
+    s = scenarios.run(LOCALIZE, overrides, seed=seed).summary
+    _sound(s)
+    assert s["frames"] == 1
+    assert s["localized_fraction"] >= 0.95
+    assert s["at_optimum_over_central"] >= 0.95
 
 
 @pytest.mark.slow
 def test_a_frame_grows_past_one_coordinate_field():
     # 7 m: the frame reaches beyond one int16 field of tenths (±3,276.7 mm) from its root
-    # and its messages still pack. (It stops short of the far end: robots ahead of a slow
-    # front give up before it arrives; docs/localize.md, Limits.)
+    # and its messages still pack.
     from kilonet.placement import corridor
 
     positions = corridor(600, length_mm=7000.0, width_mm=160.0, rng=np.random.default_rng(7))
     result = scenarios.run(LOCALIZE, {}, seed=1, placement=positions)
-    _sound(result.summary)
+    s = result.summary
+    _sound(s)
     table = estimates_frame(result.sim)
     located = table[table.localized]
     assert np.abs(located[["est_x_mm", "est_y_mm"]].to_numpy()).max() > 3276.8
-    assert located.error_mm.max() < 5.0
+    assert s["localized_fraction"] >= 0.95
+    assert s["at_optimum_over_central"] >= 0.95
 
 
 @pytest.mark.slow
