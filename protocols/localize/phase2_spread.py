@@ -68,6 +68,7 @@ Messages::
     CAND (84)  sender:uint16  x:int16  y:int16 (0.1 mm)  index:uint8  version:uint8
                windings:uint8                                                    9 bytes
                one of a robot's two candidates; the version changes with its anchors
+               and after the candidates lapsed (never back to an earlier one)
 
 x and y travel modulo 6,553.6 mm, with both winding numbers in ``windings``
 (:func:`~protocols.localize_base.wrapped_position`): a frame up to 49 m from its root fits.
@@ -115,6 +116,7 @@ __all__ = [
     "ROOT",
     "VOTE",
     "Spread",
+    "candidate_version",
     "choose_frame",
     "circle_candidates",
     "fix_with_candidates",
@@ -250,6 +252,38 @@ def circle_candidates(
     [40.0, 30.0, 40.0, -30.0, 30.0]
     """
     return circle_pair(a, range_a_mm, b, range_b_mm, tolerance_mm=0.5)
+
+
+def candidate_version(
+    last_version: int, held_pair: tuple[int, ...] | None, pair: tuple[int, ...]
+) -> int:
+    """The version a robot announces its candidate pair with (CAND's ``version``), and rule 4's
+    votes name.
+
+    A vote's index means a side of one anchor pair's line: index 0 lies left of the line from
+    the first anchor to the second (:func:`circle_candidates`). So the version stays
+    ``last_version`` only while the robot holds candidates from the same ordered ``pair``
+    without a break (``held_pair``: the pair of the candidates it holds now, None when it holds
+    none), and otherwise moves on from the last version it ever announced (``last_version``,
+    -1 for none), modulo 256 — never back to a number that named another pair's sides. Before,
+    a robot whose candidates lapsed (a third anchor for a moment, one anchor gone stale) began
+    again at 0, and votes cast for an earlier pair's version 0 chose a side of the new pair's
+    line: the vote that folded a sparse swarm and a C (docs/localize.md, rule 4).
+
+    Examples
+    --------
+    >>> candidate_version(-1, None, (7, 9))  # the first candidates
+    0
+    >>> candidate_version(0, (7, 9), (7, 9))  # the same pair, held throughout
+    0
+    >>> candidate_version(0, (7, 9), (7, 4)), candidate_version(0, None, (7, 9))
+    (1, 1)
+    >>> candidate_version(255, (7, 9), (9, 7))
+    0
+    """
+    if held_pair is not None and pair == held_pair:
+        return last_version
+    return (last_version + 1) % 256
 
 
 def side_is_clear(fix: Fix, sigma_mm: float, *, sigmas: float = MIRROR_SIGMAS) -> bool:
@@ -451,6 +485,7 @@ class Spread:
         # This robot's candidates: (version, [p0, p1]) or None, and the anchors they use.
         self.candidates: tuple[int, list[Point]] | None = None
         self.candidate_anchors: tuple[int, int] | None = None
+        self.candidate_version = -1  # the last version announced (-1: none yet)
         self.cand_turn = 0
         # The frame's start, as the root named it (on every robot that heard ROOT).
         self.axis = NO_ID
@@ -460,11 +495,10 @@ class Spread:
         self.excluded: set[int] = set()  # the root's frame robots that stayed silent
         self.frame_started = False  # on the root: its axis robot has placed itself
         # Rule 4: votes to send, (target, index, version); votes sent, by (target, version);
-        # votes received for this robot's candidates, {index: set of voters}, and their version.
+        # votes received for this robot's current candidates, {index: set of voters}.
         self.votes_out: list[tuple[int, int, int]] = []
         self.voted: dict[tuple[int, int], float] = {}
         self.votes_in: dict[int, set[int]] = {}
-        self.votes_version = -1
 
     # -- messages ------------------------------------------------------------------------------
     def message_tx(self) -> Message:
@@ -526,8 +560,10 @@ class Spread:
         m = VOTE.unpack(message)
         if m.target != self.robot.uid:
             return
-        if m.version != self.votes_version:
-            self.votes_in, self.votes_version = {}, m.version
+        # A vote is about one version of the candidates: an index means a side of one anchor
+        # pair's line, and of another pair's it means nothing.
+        if self.candidates is None or m.version != self.candidates[0]:
+            return
         self.votes_in.setdefault(m.index, set()).add(m.sender)
 
     # -- rounds --------------------------------------------------------------------------------
@@ -650,7 +686,7 @@ class Spread:
 
     def _take_vote(self, anchors: list[Neighbour]) -> None:
         """Rule 4: take the candidate the votes allow, if they allow exactly one."""
-        if self.candidates is None or self.votes_version != self.candidates[0]:
+        if self.candidates is None:
             return
         allowed = [k for k in (0, 1) if self.votes_in.get(k)]
         if len(allowed) == 1:
@@ -687,10 +723,10 @@ class Spread:
             self.candidate_anchors = None
             return
         pair = (anchors[0].uid, anchors[1].uid)
-        if pair != self.candidate_anchors or self.candidates is None:
-            version = 0 if self.candidates is None else (self.candidates[0] + 1) % 256
-        else:
-            version = self.candidates[0]
+        version = candidate_version(self.candidate_version, self.candidate_anchors, pair)
+        if version != self.candidate_version:
+            self.votes_in = {}  # votes about other candidates
+        self.candidate_version = version
         self.candidate_anchors = pair
         self.candidates = (version, [found[0], found[1]])
 
