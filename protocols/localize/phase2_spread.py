@@ -25,9 +25,12 @@ have one (their announced positions, the distances both ends agree on):
    too large (``localize.max_residual_sigmas`` noise deviations), the geometry is poor, or the
    mirror image across the anchors' line fits nearly as well — the flip that a noisy
    near-collinear triple allows (Savvides et al. 2001; Moore et al. 2004).
-2. *Two anchors*: two candidate positions, mirror images across the anchors' line
-   (:func:`circle_candidates`). The robot announces both (CAND messages) unless they lie
-   closer than ``2 · min_height_mm``.
+2. *Two anchors*, or three or more that fix all but the side (refused by rule 1 as one line
+   or for a mirror image that fits as well): two candidate positions, mirror images across
+   the anchors' line (:func:`circle_candidates`, :func:`mirror_candidates`). The robot
+   announces both (CAND messages) unless they lie closer than ``2 · min_height_mm``; their
+   version (:func:`candidate_version`) names the anchors they come from, and changes
+   whenever those do or the candidates lapse.
 3. *Anchors and neighbours' candidates* (off unless ``localize.max_candidate_neighbours`` is
    set: a candidate from two anchors carries their errors magnified, and on kilolib's ranging,
    with a systematic error on every link, the rule chose mirror images that folded sparse
@@ -46,8 +49,9 @@ have one (their announced positions, the distances both ends agree on):
    than ``localize.overlap_mm`` to one of them would put two Kilobots (33 mm across) on top of
    each other, so it is impossible; when exactly one candidate is, the located robot sends a
    VOTE for the other (:func:`overlap_vote`), and a robot that holds votes for one of its
-   candidates and none for the other takes it. *Nor is a robot deaf*: a candidate closer than
-   ``localize.heard_mm`` to a settled robot (other than the two anchors) is impossible too,
+   current candidates (their version) and none for the other takes it. *Nor is a robot
+   deaf*: a candidate closer than ``localize.heard_mm`` to a settled robot (other than the
+   two anchors) is impossible too,
    since the robot there would hear it and hold three anchors. The mirror image of a robot at
    the frame's edge usually points back into the frame, among robots it does not hear. This
    breaks the mirror ambiguity of robots that only two anchors reach — at the swarm's edge,
@@ -97,6 +101,7 @@ from kilonet.geometry import (
     robust_height,
 )
 from kilonet.message import Layout, Message
+from protocols.common.refinement import gauss_newton_step
 from protocols.localize.base import (
     LOCALIZED,
     MAX_COORDINATE_MM,
@@ -120,6 +125,7 @@ __all__ = [
     "choose_frame",
     "circle_candidates",
     "fix_with_candidates",
+    "mirror_candidates",
     "overlap_vote",
     "robust_height",
 ]
@@ -284,6 +290,71 @@ def candidate_version(
     if held_pair is not None and pair == held_pair:
         return last_version
     return (last_version + 1) % 256
+
+
+def mirror_candidates(
+    anchors: Sequence[Point],
+    ranges_mm: Sequence[float],
+    *,
+    max_rmse_mm: float = math.inf,
+    iterations: int = 20,
+) -> tuple[Point, Point, float, tuple[int, int]] | None:
+    """Rule 2's two candidates from three or more anchors that leave the side in doubt.
+
+    Anchors nearly on one line (or whose fit's mirror image fits about as well) fix a robot's
+    distance from their line but not its side, as two anchors do. The candidates are the
+    least-squares fits on either side: each of the two circle intersections of the two anchors
+    farthest apart (``pair``, indices ``i < j``), refined by Gauss–Newton steps
+    (:func:`~protocols.common.refinement.gauss_newton_step`, no down-weighting) against every
+    anchor. Index 0 lies left of the line from anchor ``i`` to anchor ``j``, as
+    :func:`circle_candidates` orders two anchors' candidates.
+
+    Returns
+    -------
+    (p0, p1, height, pair) : the candidates (mm), the smaller of their distances from the line
+    through the pair (mm), and the pair's indices; None if the pair's circles do not meet, the
+    refined candidates no longer lie on opposite sides of that line, or either fits the
+    anchors with a residual RMS above ``max_rmse_mm`` (rule 1's bound: anchors that disagree
+    give no candidates worth a vote).
+
+    Examples
+    --------
+    Three anchors on the x axis, the truth at (30, 40):
+
+    >>> anchors = [(0.0, 0.0), (45.0, 0.0), (60.0, 0.0)]
+    >>> ranges = [math.dist((30.0, 40.0), a) for a in anchors]
+    >>> p0, p1, height, pair = mirror_candidates(anchors, ranges)
+    >>> [round(v, 6) for v in (*p0, *p1, height)], pair
+    ([30.0, 40.0, 30.0, -40.0, 40.0], (0, 2))
+    """
+    k = len(anchors)
+    if k < 2:
+        return None
+    i, j = max(
+        itertools.combinations(range(k), 2),
+        key=lambda ij: math.dist(anchors[ij[0]], anchors[ij[1]]),
+    )
+    found = circle_candidates(anchors[i], anchors[j], ranges_mm[i], ranges_mm[j])
+    if found is None:
+        return None
+    links = [(a[0], a[1], r) for a, r in zip(anchors, ranges_mm, strict=True)]
+    refined = []
+    for x, y in found[:2]:
+        for _ in range(iterations):
+            x, y, _ = gauss_newton_step(x, y, links, huber_mm=math.inf, max_step_mm=math.inf)
+        rms = math.sqrt(
+            sum((math.dist((x, y), a) - r) ** 2 for a, r in zip(anchors, ranges_mm, strict=True))
+            / k
+        )
+        if rms > max_rmse_mm:
+            return None
+        refined.append((x, y))
+    (ax, ay), (bx, by) = anchors[i], anchors[j]
+    length = math.dist(anchors[i], anchors[j])
+    side = [((bx - ax) * (y - ay) - (by - ay) * (x - ax)) / length for x, y in refined]
+    if not (side[0] > 0.0 > side[1]):
+        return None
+    return refined[0], refined[1], min(side[0], -side[1]), (i, j)
 
 
 def side_is_clear(fix: Fix, sigma_mm: float, *, sigmas: float = MIRROR_SIGMAS) -> bool:
@@ -484,7 +555,7 @@ class Spread:
         self.news_tick = robot.kilo_ticks  # last change of anchors or candidates
         # This robot's candidates: (version, [p0, p1]) or None, and the anchors they use.
         self.candidates: tuple[int, list[Point]] | None = None
-        self.candidate_anchors: tuple[int, int] | None = None
+        self.candidate_anchors: tuple[int, ...] | None = None
         self.candidate_version = -1  # the last version announced (-1: none yet)
         self.cand_turn = 0
         # The frame's start, as the root named it (on every robot that heard ROOT).
@@ -654,6 +725,7 @@ class Spread:
         ranges = [n.range_mm for n in anchors]
         sigma = r.sigma_mm
         max_rmse = r.params.max_residual_sigmas * sigma
+        side_in_doubt = False
         if len(anchors) >= 3:
             fix = multilaterate(
                 np.array(points),
@@ -665,6 +737,11 @@ class Spread:
             if fix.ok and side_is_clear(fix, sigma):
                 self.place(fix.x_mm, fix.y_mm, "anchors", len(anchors), anchors)
                 return
+            # Anchors that fix all but the side (one line, or a mirror image that fits within
+            # the noise): the two sides are candidates, as with two anchors. Not a fix whose
+            # side only its large residuals put in doubt: its anchors disagree, and candidates
+            # from them would be no better.
+            side_in_doubt = fix.reason in ("collinear_anchors", "mirror_ambiguity")
         if pairs and r.params.max_candidate_neighbours:
             # The pairs farthest apart discriminate best.
             pairs.sort(key=lambda n: -_separation(n.candidates[1]))
@@ -681,7 +758,7 @@ class Spread:
             if fix is not None:
                 self.place(fix.x_mm, fix.y_mm, "candidates", len(anchors) + len(pairs), anchors)
                 return
-        self._update_candidates(anchors)
+        self._update_candidates(anchors, side_in_doubt)
         self._take_vote(anchors)
 
     def _take_vote(self, anchors: list[Neighbour]) -> None:
@@ -712,22 +789,35 @@ class Spread:
             return
         self.place(x, y, "third", 2)
 
-    def _update_candidates(self, anchors: list[Neighbour]) -> None:
-        """With exactly two anchors, hold (and announce) the two candidate positions."""
+    def _update_candidates(self, anchors: list[Neighbour], side_in_doubt: bool = False) -> None:
+        """With exactly two anchors, or three or more that fix all but the side
+        (``side_in_doubt``: rule 1 refused them as one line or for a mirror image that fits as
+        well), hold (and announce) the two candidate positions (:func:`mirror_candidates`)."""
         found = None
         if len(anchors) == 2:
             a, b = anchors
             found = circle_candidates((a.x_mm, a.y_mm), (b.x_mm, b.y_mm), a.range_mm, b.range_mm)
+            key = (a.uid, b.uid)
+        elif side_in_doubt and len(anchors) >= 3:
+            got = mirror_candidates(
+                [(n.x_mm, n.y_mm) for n in anchors],
+                [n.range_mm for n in anchors],
+                max_rmse_mm=self.robot.params.max_residual_sigmas * self.robot.sigma_mm,
+            )
+            if got is not None:
+                found = got[:3]
+                i, j = got[3]
+                # The pair orients the indices: a new pair is a new version.
+                key = (*(n.uid for n in anchors), anchors[i].uid, anchors[j].uid)
         if found is None or found[2] < self.robot.params.min_height_mm:
             self.candidates = None
             self.candidate_anchors = None
             return
-        pair = (anchors[0].uid, anchors[1].uid)
-        version = candidate_version(self.candidate_version, self.candidate_anchors, pair)
+        version = candidate_version(self.candidate_version, self.candidate_anchors, key)
         if version != self.candidate_version:
             self.votes_in = {}  # votes about other candidates
         self.candidate_version = version
-        self.candidate_anchors = pair
+        self.candidate_anchors = key
         self.candidates = (version, [found[0], found[1]])
 
     def place(
