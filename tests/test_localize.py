@@ -56,6 +56,7 @@ from protocols.localize.phase2_spread import (
     candidate_version,
     choose_frame,
     circle_candidates,
+    consistent_subset_fix,
     fix_with_candidates,
     mirror_candidates,
     overlap_vote,
@@ -374,6 +375,63 @@ def test_a_vote_for_a_lapsed_candidate_pair_is_not_taken_for_the_next_one():
     assert robot.position == pytest.approx((30.0, 40.0))
 
 
+SEAM_TRUTH = (30.0, 20.0)
+#: Four anchors where they should be and a fifth from across a seam, 30 mm off its distance.
+SEAM_ANCHORS = [(0.0, 0.0), (60.0, 0.0), (10.0, 60.0), (-20.0, 50.0), (80.0, 50.0)]
+
+
+def _seam_ranges(offset_mm=30.0):
+    ranges = [math.dist(SEAM_TRUTH, a) for a in SEAM_ANCHORS]
+    ranges[4] += offset_mm
+    return ranges
+
+
+def test_a_seam_robot_takes_the_fix_of_the_anchors_that_agree():
+    ranges = _seam_ranges()
+    fix, kept = consistent_subset_fix(
+        SEAM_ANCHORS, ranges, sigma_mm=2.0, max_rmse_mm=8.0, min_width_mm=10.0
+    )
+    assert kept == (0, 1, 2, 3)
+    assert (fix.x_mm, fix.y_mm) == pytest.approx(SEAM_TRUTH, abs=1e-6)
+    assert fix.rmse_mm == pytest.approx(0.0, abs=1e-6)
+    # Anchors that all agree are rule 1's, not this rule's: every subset is smaller.
+    exact = [math.dist(SEAM_TRUTH, a) for a in SEAM_ANCHORS]
+    fix, kept = consistent_subset_fix(
+        SEAM_ANCHORS, exact, sigma_mm=2.0, max_rmse_mm=8.0, min_width_mm=10.0
+    )
+    assert len(kept) == 4
+    # Three that agree are not enough (one distance to check them), and so is no budget.
+    assert (
+        consistent_subset_fix(
+            SEAM_ANCHORS[1:], ranges[1:], sigma_mm=2.0, max_rmse_mm=8.0, min_width_mm=10.0
+        )
+        is None
+    )
+    assert (
+        consistent_subset_fix(
+            SEAM_ANCHORS, ranges, sigma_mm=2.0, max_rmse_mm=8.0, min_width_mm=10.0, max_fits=0
+        )
+        is None
+    )
+    # Two anchors off: the largest agreeing subset is left, if it keeps four.
+    two_off = [*SEAM_ANCHORS, (40.0, 70.0)]
+    r = [*ranges, math.dist(SEAM_TRUTH, (40.0, 70.0)) - 25.0]
+    fix, kept = consistent_subset_fix(two_off, r, sigma_mm=2.0, max_rmse_mm=8.0, min_width_mm=10.0)
+    assert kept == (0, 1, 2, 3)
+
+
+def test_a_subset_whose_side_is_in_doubt_is_not_taken():
+    # Four agreeing anchors nearly on one line (within min_width_mm) and one off: no subset
+    # of four passes (one line), and the one-line subset is never taken.
+    anchors = [(0.0, 0.0), (30.0, 1.0), (60.0, 0.0), (90.0, 2.0), (40.0, 60.0)]
+    ranges = [math.dist(SEAM_TRUTH, a) for a in anchors]
+    ranges[4] += 30.0
+    assert (
+        consistent_subset_fix(anchors, ranges, sigma_mm=1.0, max_rmse_mm=4.0, min_width_mm=10.0)
+        is None
+    )
+
+
 def test_mirror_candidates_of_anchors_on_one_line_are_its_two_sides():
     anchors = [(0.0, 0.0), (45.0, 0.0), (60.0, 0.0)]
     truth = (30.0, 40.0)
@@ -430,6 +488,20 @@ def test_three_anchors_on_one_line_give_candidates_that_a_vote_resolves():
     robot.message_rx(VOTE.pack(sender=12, target=robot.uid, index=0, version=version), 45)
     _attempt(robot)
     assert robot.position == pytest.approx(truth, abs=0.1)
+
+
+def test_a_seam_robot_places_itself_from_the_anchors_that_agree_and_logs_them():
+    robot = _spread_robot()
+    logged = []
+    robot.log = lambda event, **fields: logged.append((event, fields))
+    for uid, a, r in zip(range(11, 16), SEAM_ANCHORS, _seam_ranges(), strict=True):
+        _heard(robot, uid, r, a)
+    _attempt(robot)
+    assert robot.position == pytest.approx(SEAM_TRUTH, abs=0.1)
+    ((_, fields),) = [e for e in logged if e[0] == "located"]
+    assert fields["rule"] == "subset" and fields["anchors"] == 4
+    assert [u for u, _, _ in fields["references"]] == [11, 12, 13, 14]
+    assert fields["dropped"] == [[15, pytest.approx(-30.0, abs=0.2)]]
 
 
 def test_gauss_newton_converges_on_exact_distances():
