@@ -58,6 +58,7 @@ from protocols.localize.phase2_spread import (
     circle_candidates,
     consistent_subset_fix,
     fix_with_candidates,
+    line_same_mm,
     mirror_candidates,
     overlap_vote,
 )
@@ -454,12 +455,19 @@ def test_mirror_candidates_of_anchors_on_one_line_are_its_two_sides():
     assert mirror_candidates(anchors, off, max_rmse_mm=4.0) is None
     assert mirror_candidates(anchors, off) is not None
     assert mirror_candidates(anchors, [10.0, 10.0, 10.0]) is None  # the circles never meet
+    # An anchor far off the line is much nearer one candidate than the other: a voter could
+    # not tell it from a robot the holder does not hear, so no candidates beyond line_same_mm.
+    wide = [(0.0, 0.0), (30.0, 12.0), (60.0, 0.0)]  # 12.1 mm nearer the truth than its mirror
+    r = [math.dist(truth, a) for a in wide]
+    assert line_same_mm(10.0) == 25.0
+    assert mirror_candidates(wide, r, max_skew_mm=line_same_mm(10.0)) is not None
+    assert mirror_candidates(wide, r, max_skew_mm=10.0) is None
 
 
-def _spread_robot():
+def _spread_robot(seed=5):
     sim = run(5).sim
     robot = localize_module.LocalizeRobot(sim.robots[0].params)
-    robot._attach(sim, 0, np.random.default_rng(5))
+    robot._attach(sim, 0, np.random.default_rng(seed))
     robot.setup()
     robot.stage = "localize"
     return robot
@@ -483,8 +491,16 @@ def test_three_anchors_on_one_line_give_candidates_that_a_vote_resolves():
     version, points = robot.spread.candidates
     assert robot.spread.candidate_anchors == (11, 12, 13, 11, 13)
     assert np.round(points, 1).tolist() == [[30.0, 40.0], [30.0, -40.0]]
+    # Announced as candidates from a line: index + FROM_LINE, so that voters know an anchor
+    # may be up to line_same_mm nearer one candidate than the other.
     sent = [robot.spread.message_tx() for _ in range(3)]
-    assert sorted(CAND.unpack(m).index for m in sent if m.type == CAND.type) == [0, 1]
+    assert sorted(CAND.unpack(m).index for m in sent if m.type == CAND.type) == [2, 3]
+    voter = _spread_robot(seed=6)
+    for m in sent:
+        voter.message_rx(m, 60)
+    record = voter.neighbours[robot.uid]
+    assert record.candidates_from_line
+    assert np.round(record.candidates[1], 1).tolist() == [[30.0, 40.0], [30.0, -40.0]]
     robot.message_rx(VOTE.pack(sender=12, target=robot.uid, index=0, version=version), 45)
     _attempt(robot)
     assert robot.position == pytest.approx(truth, abs=0.1)

@@ -122,6 +122,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CAND",
+    "FROM_LINE",
     "POS",
     "ROOT",
     "VOTE",
@@ -131,6 +132,7 @@ __all__ = [
     "circle_candidates",
     "consistent_subset_fix",
     "fix_with_candidates",
+    "line_same_mm",
     "mirror_candidates",
     "overlap_vote",
     "robust_height",
@@ -172,6 +174,10 @@ VOTE = Layout(
 )
 
 Point = tuple[float, float]
+
+#: CAND's ``index`` plus this: the candidates come from three or more anchors on (nearly) one
+#: line, each within :func:`line_same_mm` of as far from both candidates (rule 2).
+FROM_LINE = 2
 
 
 def choose_frame(
@@ -396,6 +402,20 @@ def consistent_subset_fix(
     return None
 
 
+def line_same_mm(min_height_mm: float) -> float:
+    """How much nearer one of a robot's two candidates may be to one of its anchors than the
+    other is, when the candidates come from three or more anchors (mm): rule 2 announces them
+    only within it, and rule 4's hearing test then treats any settled robot within it as one
+    of the anchors. Two anchors lie on the candidates' mirror line, exactly as far from both;
+    an anchor ``min_height_mm`` off that line is up to twice that nearer one, and 5 mm more
+    allows for the fits' residuals.
+
+    >>> line_same_mm(10.0)
+    25.0
+    """
+    return 2.0 * min_height_mm + 5.0
+
+
 def _every_anchor_checked(points: np.ndarray, min_width_mm: float) -> bool:
     """Whether the anchors less any one of them still span more than one line: no single
     anchor decides the side (an anchor off its distance, the others on one line, would)."""
@@ -410,6 +430,7 @@ def mirror_candidates(
     ranges_mm: Sequence[float],
     *,
     max_rmse_mm: float = math.inf,
+    max_skew_mm: float = math.inf,
     iterations: int = 20,
 ) -> tuple[Point, Point, float, tuple[int, int]] | None:
     """Rule 2's two candidates from three or more anchors that leave the side in doubt.
@@ -426,9 +447,11 @@ def mirror_candidates(
     -------
     (p0, p1, height, pair) : the candidates (mm), the smaller of their distances from the line
     through the pair (mm), and the pair's indices; None if the pair's circles do not meet, the
-    refined candidates no longer lie on opposite sides of that line, or either fits the
-    anchors with a residual RMS above ``max_rmse_mm`` (rule 1's bound: anchors that disagree
-    give no candidates worth a vote).
+    refined candidates no longer lie on opposite sides of that line, either fits the anchors
+    with a residual RMS above ``max_rmse_mm`` (rule 1's bound: anchors that disagree give no
+    candidates worth a vote), or an anchor is nearer one candidate than the other by more than
+    ``max_skew_mm`` (rule 4's voters could not tell it from a robot the candidate's holder
+    does not hear: :func:`line_same_mm`).
 
     Examples
     --------
@@ -467,7 +490,10 @@ def mirror_candidates(
     side = [((bx - ax) * (y - ay) - (by - ay) * (x - ax)) / length for x, y in refined]
     if not (side[0] > 0.0 > side[1]):
         return None
-    return refined[0], refined[1], min(side[0], -side[1]), (i, j)
+    p0, p1 = refined
+    if any(abs(math.dist(p0, a) - math.dist(p1, a)) > max_skew_mm for a in anchors):
+        return None
+    return p0, p1, min(side[0], -side[1]), (i, j)
 
 
 def side_is_clear(fix: Fix, sigma_mm: float, *, sigmas: float = MIRROR_SIGMAS) -> bool:
@@ -670,6 +696,7 @@ class Spread:
         self.candidates: tuple[int, list[Point]] | None = None
         self.candidate_anchors: tuple[int, ...] | None = None
         self.candidate_version = -1  # the last version announced (-1: none yet)
+        self.candidates_from_line = False  # from three or more anchors (CAND index + FROM_LINE)
         self.cand_turn = 0
         # The frame's start, as the root named it (on every robot that heard ROOT).
         self.axis = NO_ID
@@ -701,7 +728,7 @@ class Spread:
                     sender=r.uid,
                     x_mm=x,
                     y_mm=y,
-                    index=self.cand_turn,
+                    index=self.cand_turn + (FROM_LINE if self.candidates_from_line else 0),
                     version=version,
                     windings=windings,
                 )
@@ -737,7 +764,8 @@ class Spread:
         m = CAND.unpack(message)
         if n.candidates is None or n.candidates[0] != m.version:
             n.candidates = (m.version, [None, None])
-        n.candidates[1][m.index] = absolute_position(m.x_mm, m.y_mm, m.windings)
+        n.candidates_from_line = m.index >= FROM_LINE
+        n.candidates[1][m.index % FROM_LINE] = absolute_position(m.x_mm, m.y_mm, m.windings)
         n.x_mm = n.y_mm = None
 
     def vote_rx(self, n: Neighbour, message: Message) -> None:
@@ -779,7 +807,12 @@ class Spread:
                 ]
             p = self.robot.params
             index = overlap_vote(
-                tuple(held[1]), others, p.overlap_mm, settled=settled, heard_mm=p.heard_mm
+                tuple(held[1]),
+                others,
+                p.overlap_mm,
+                settled=settled,
+                heard_mm=p.heard_mm,
+                same_mm=line_same_mm(p.min_height_mm) if n.candidates_from_line else 5.0,
             )
             if index is not None:
                 self.votes_out.append((n.uid, index, held[0]))
@@ -935,10 +968,12 @@ class Spread:
             found = circle_candidates((a.x_mm, a.y_mm), (b.x_mm, b.y_mm), a.range_mm, b.range_mm)
             key = (a.uid, b.uid)
         elif side_in_doubt and len(anchors) >= 3:
+            p = self.robot.params
             got = mirror_candidates(
                 [(n.x_mm, n.y_mm) for n in anchors],
                 [n.range_mm for n in anchors],
-                max_rmse_mm=self.robot.params.max_residual_sigmas * self.robot.sigma_mm,
+                max_rmse_mm=p.max_residual_sigmas * self.robot.sigma_mm,
+                max_skew_mm=line_same_mm(p.min_height_mm),
             )
             if got is not None:
                 found = got[:3]
@@ -955,6 +990,7 @@ class Spread:
         self.candidate_version = version
         self.candidate_anchors = key
         self.candidates = (version, [found[0], found[1]])
+        self.candidates_from_line = len(anchors) > 2
 
     def place(
         self,
