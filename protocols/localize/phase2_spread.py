@@ -75,8 +75,9 @@ Messages::
                every other robot; x, y are 0 while the LOCALIZED flag is clear
     CAND (84)  sender:uint16  x:int16  y:int16 (0.1 mm)  index:uint8  version:uint8
                windings:uint8                                                    9 bytes
-               one of a robot's two candidates; the version changes with its anchors
-               and after the candidates lapsed (never back to an earlier one)
+               one of a robot's two candidates (index + FROM_LINE when they come from
+               three or more anchors); the version changes with its anchors and after
+               the candidates lapsed (never back to an earlier one)
 
 x and y travel modulo 6,553.6 mm, with both winding numbers in ``windings``
 (:func:`~protocols.localize_base.wrapped_position`): a frame up to 49 m from its root fits.
