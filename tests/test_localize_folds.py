@@ -79,8 +79,8 @@ def test_a_sparse_swarm_ends_near_the_optimum_in_one_frame(seed, loss):
 
 @pytest.mark.slow
 def test_a_seam_is_closed_by_robots_placed_from_the_anchors_that_agree():
-    # Seed 2: 16 robots anchors_rejected before, every robot placed now, 15 of them (and more)
-    # by the largest agreeing subset of their anchors.
+    # Seed 2: 16 robots anchors_rejected before; now every robot is placed, 12 of them by
+    # the largest agreeing subset of their anchors.
     result = scenarios.run(LOCALIZE, SPARSE, seed=2)
     s = result.summary
     assert s["localized_fraction"] == 1.0
