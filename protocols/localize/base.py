@@ -251,6 +251,7 @@ class Neighbour(common_neighbours.Neighbour):
 
     __slots__ = (
         "candidates",
+        "candidates_from_line",
         "echo",
         "flags",
         "hops",
@@ -276,8 +277,10 @@ class Neighbour(common_neighbours.Neighbour):
         self.flags = 0
         self.key: int | None = None  # election key (protocols.localize.phase1_election)
         self.echo = False
-        # Two candidate positions (protocols.localize.phase2_spread): (version, [p0, p1]) or None.
+        # Two candidate positions (protocols.localize.phase2_spread): (version, [p0, p1]) or None,
+        # and whether they come from three or more anchors on one line (CAND's FROM_LINE).
         self.candidates: tuple[int, list] | None = None
+        self.candidates_from_line = False
         self.near: set[int] = set()  # the IDs this neighbour's NBR reports were about
 
     @property

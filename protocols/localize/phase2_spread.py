@@ -24,10 +24,17 @@ have one (their announced positions, the distances both ends agree on):
    carry errors of their own, which the mirror test below does not see), the residuals are
    too large (``localize.max_residual_sigmas`` noise deviations), the geometry is poor, or the
    mirror image across the anchors' line fits nearly as well — the flip that a noisy
-   near-collinear triple allows (Savvides et al. 2001; Moore et al. 2004).
-2. *Two anchors*: two candidate positions, mirror images across the anchors' line
-   (:func:`circle_candidates`). The robot announces both (CAND messages) unless they lie
-   closer than ``2 · min_height_mm``.
+   near-collinear triple allows (Savvides et al. 2001; Moore et al. 2004). Anchors refused
+   for their residuals may still place the robot from the largest subset of four or more of
+   them that passes every check (:func:`consistent_subset_fix`, rule ``subset``): at a seam,
+   where a frame grown round a gap meets itself, so that the refinement gets the links
+   across it.
+2. *Two anchors*, or three or more that fix all but the side (refused by rule 1 as one line
+   or for a mirror image that fits as well): two candidate positions, mirror images across
+   the anchors' line (:func:`circle_candidates`, :func:`mirror_candidates`). The robot
+   announces both (CAND messages) unless they lie closer than ``2 · min_height_mm``; their
+   version (:func:`candidate_version`) names the anchors they come from, and changes
+   whenever those do or the candidates lapse.
 3. *Anchors and neighbours' candidates* (off unless ``localize.max_candidate_neighbours`` is
    set: a candidate from two anchors carries their errors magnified, and on kilolib's ranging,
    with a systematic error on every link, the rule chose mirror images that folded sparse
@@ -46,8 +53,9 @@ have one (their announced positions, the distances both ends agree on):
    than ``localize.overlap_mm`` to one of them would put two Kilobots (33 mm across) on top of
    each other, so it is impossible; when exactly one candidate is, the located robot sends a
    VOTE for the other (:func:`overlap_vote`), and a robot that holds votes for one of its
-   candidates and none for the other takes it. *Nor is a robot deaf*: a candidate closer than
-   ``localize.heard_mm`` to a settled robot (other than the two anchors) is impossible too,
+   current candidates (their version) and none for the other takes it. *Nor is a robot
+   deaf*: a candidate closer than ``localize.heard_mm`` to a settled robot (other than the
+   two anchors) is impossible too,
    since the robot there would hear it and hold three anchors. The mirror image of a robot at
    the frame's edge usually points back into the frame, among robots it does not hear. This
    breaks the mirror ambiguity of robots that only two anchors reach — at the swarm's edge,
@@ -67,7 +75,9 @@ Messages::
                every other robot; x, y are 0 while the LOCALIZED flag is clear
     CAND (84)  sender:uint16  x:int16  y:int16 (0.1 mm)  index:uint8  version:uint8
                windings:uint8                                                    9 bytes
-               one of a robot's two candidates; the version changes with its anchors
+               one of a robot's two candidates (index + FROM_LINE when they come from
+               three or more anchors); the version changes with its anchors and after
+               the candidates lapsed (never back to an earlier one)
 
 x and y travel modulo 6,553.6 mm, with both winding numbers in ``windings``
 (:func:`~protocols.localize_base.wrapped_position`): a frame up to 49 m from its root fits.
@@ -91,11 +101,13 @@ from kilonet.geometry import (
     Fix,
     GeometryError,
     circle_pair,
+    collinear,
     multilaterate,
     place_references,
     robust_height,
 )
 from kilonet.message import Layout, Message
+from protocols.common.refinement import gauss_newton_step
 from protocols.localize.base import (
     LOCALIZED,
     MAX_COORDINATE_MM,
@@ -111,13 +123,18 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CAND",
+    "FROM_LINE",
     "POS",
     "ROOT",
     "VOTE",
     "Spread",
+    "candidate_version",
     "choose_frame",
     "circle_candidates",
+    "consistent_subset_fix",
     "fix_with_candidates",
+    "line_same_mm",
+    "mirror_candidates",
     "overlap_vote",
     "robust_height",
 ]
@@ -158,6 +175,10 @@ VOTE = Layout(
 )
 
 Point = tuple[float, float]
+
+#: CAND's ``index`` plus this: the candidates come from three or more anchors on (nearly) one
+#: line, each within :func:`line_same_mm` of as far from both candidates (rule 2).
+FROM_LINE = 2
 
 
 def choose_frame(
@@ -250,6 +271,230 @@ def circle_candidates(
     [40.0, 30.0, 40.0, -30.0, 30.0]
     """
     return circle_pair(a, range_a_mm, b, range_b_mm, tolerance_mm=0.5)
+
+
+def candidate_version(
+    last_version: int, held_pair: tuple[int, ...] | None, pair: tuple[int, ...]
+) -> int:
+    """The version a robot announces its candidate pair with (CAND's ``version``), and rule 4's
+    votes name.
+
+    A vote's index means a side of one anchor pair's line: index 0 lies left of the line from
+    the first anchor to the second (:func:`circle_candidates`). So the version stays
+    ``last_version`` only while the robot holds candidates from the same ordered ``pair``
+    without a break (``held_pair``: the pair of the candidates it holds now, None when it holds
+    none), and otherwise moves on from the last version it ever announced (``last_version``,
+    -1 for none), modulo 256 — never back to a number that named another pair's sides. Before,
+    a robot whose candidates lapsed (a third anchor for a moment, one anchor gone stale) began
+    again at 0, and votes cast for an earlier pair's version 0 chose a side of the new pair's
+    line: the vote that folded a sparse swarm and a C (docs/localize.md, rule 4).
+
+    Examples
+    --------
+    >>> candidate_version(-1, None, (7, 9))  # the first candidates
+    0
+    >>> candidate_version(0, (7, 9), (7, 9))  # the same pair, held throughout
+    0
+    >>> candidate_version(0, (7, 9), (7, 4)), candidate_version(0, None, (7, 9))
+    (1, 1)
+    >>> candidate_version(255, (7, 9), (9, 7))
+    0
+    """
+    if held_pair is not None and pair == held_pair:
+        return last_version
+    return (last_version + 1) % 256
+
+
+def consistent_subset_fix(
+    anchors: Sequence[Point],
+    ranges_mm: Sequence[float],
+    *,
+    sigma_mm: float,
+    max_rmse_mm: float,
+    min_width_mm: float,
+    min_anchors: int = 4,
+    max_fits: int = 64,
+) -> tuple[Fix, tuple[int, ...]] | None:
+    """Rule 1's fix from the largest subset of the anchors that agree, when all of them do not.
+
+    Where a frame grown round a gap meets itself, the two sides disagree by tens of
+    millimetres (each grew from anchors not yet refined), and a robot at the seam holds anchors
+    of both: no point fits them all, rule 1 refuses the fix for its residuals, and without the
+    robots of the seam no link ties the two sides together, so the refinement cannot pull them
+    into one frame. A subset of at least ``min_anchors`` anchors that does pass every check of
+    rule 1 (:func:`~kilonet.geometry.multilaterate`'s, and :func:`side_is_clear`), and in
+    which no anchor alone decides the side (the others, less any one, do not lie within
+    ``min_width_mm`` of one line: an anchor off its distance beside three on one line would
+    otherwise fit the mirror image), places the robot right relative to those anchors; its
+    links to the others then carry the seam's stress into the refinement, which closes it
+    (docs/localize.md, rule 1). Three anchors are not enough: they leave one distance to
+    check the fit, and three anchors of a seam can meet near a wrong point within the
+    residual bound (measured: subsets of three folded the sparse swarm of 400 robots with
+    20 % loss, seed 1).
+
+    Subsets are tried from the largest (one anchor left out) down to ``min_anchors``, at most
+    ``max_fits`` multilaterations in all; of the largest size with a passing fix, the one of
+    least residual RMS is returned with the indices of its anchors (ascending). None when no
+    subset passes (always with fewer than ``min_anchors + 1`` anchors).
+
+    Parameters
+    ----------
+    anchors : sequence of (x, y)
+        The placed neighbours' positions, mm.
+    ranges_mm : sequence of float
+        The distances to them, mm.
+    sigma_mm : float
+        The robot's ranging noise, mm (the checks' scale).
+    max_rmse_mm : float
+        Largest residual RMS a fix may have, mm.
+    min_width_mm : float
+        Anchors within this distance of one line are refused, mm.
+    min_anchors : int
+        Fewest anchors a subset may keep.
+    max_fits : int
+        Multilaterations allowed (the robot's budget per attempt).
+
+    Examples
+    --------
+    The truth is (30, 20); anchors 0-3 are where they should be, anchor 4 stands 30 mm from
+    where its distance puts it (the far side of a seam):
+
+    >>> anchors = [(0.0, 0.0), (60.0, 0.0), (10.0, 60.0), (-20.0, 50.0), (80.0, 50.0)]
+    >>> ranges = [math.dist((30.0, 20.0), a) for a in anchors]
+    >>> ranges[4] += 30.0
+    >>> multilaterate(np.array(anchors), np.array(ranges), sigma_mm=2.0, max_rmse_mm=8.0,
+    ...               min_anchor_width_mm=10.0).reason
+    'large_residual'
+    >>> fix, kept = consistent_subset_fix(anchors, ranges, sigma_mm=2.0, max_rmse_mm=8.0,
+    ...                                   min_width_mm=10.0)
+    >>> round(fix.x_mm, 6), round(fix.y_mm, 6), kept
+    (30.0, 20.0, (0, 1, 2, 3))
+    >>> consistent_subset_fix(anchors[1:], ranges[1:], sigma_mm=2.0, max_rmse_mm=8.0,
+    ...                       min_width_mm=10.0) is None  # three agree: not enough
+    True
+    """
+    k = len(anchors)
+    points = np.asarray(anchors, dtype=float)
+    ranges = np.asarray(ranges_mm, dtype=float)
+    fits = 0
+    for size in range(k - 1, max(min_anchors, 3) - 1, -1):
+        best: tuple[Fix, tuple[int, ...]] | None = None
+        for subset in itertools.combinations(range(k), size):
+            if fits >= max_fits:
+                return best
+            fits += 1
+            index = list(subset)
+            fix = multilaterate(
+                points[index],
+                ranges[index],
+                sigma_mm=sigma_mm,
+                max_rmse_mm=max_rmse_mm,
+                min_anchor_width_mm=min_width_mm,
+            )
+            good = (
+                fix.ok
+                and side_is_clear(fix, sigma_mm)
+                and _every_anchor_checked(points[index], min_width_mm)
+            )
+            if good and (best is None or fix.rmse_mm < best[0].rmse_mm):
+                best = (fix, subset)
+        if best is not None:
+            return best
+    return None
+
+
+def line_same_mm(min_height_mm: float) -> float:
+    """How much nearer one of a robot's two candidates may be to one of its anchors than the
+    other is, when the candidates come from three or more anchors (mm): rule 2 announces them
+    only within it, and rule 4's hearing test then treats any settled robot within it as one
+    of the anchors. Two anchors lie on the candidates' mirror line, exactly as far from both;
+    an anchor ``min_height_mm`` off that line is up to twice that nearer one, and 5 mm more
+    allows for the fits' residuals.
+
+    >>> line_same_mm(10.0)
+    25.0
+    """
+    return 2.0 * min_height_mm + 5.0
+
+
+def _every_anchor_checked(points: np.ndarray, min_width_mm: float) -> bool:
+    """Whether the anchors less any one of them still span more than one line: no single
+    anchor decides the side (an anchor off its distance, the others on one line, would)."""
+    return not any(
+        collinear(np.delete(points, k, axis=0), min_width_mm=min_width_mm)
+        for k in range(len(points))
+    )
+
+
+def mirror_candidates(
+    anchors: Sequence[Point],
+    ranges_mm: Sequence[float],
+    *,
+    max_rmse_mm: float = math.inf,
+    max_skew_mm: float = math.inf,
+    iterations: int = 20,
+) -> tuple[Point, Point, float, tuple[int, int]] | None:
+    """Rule 2's two candidates from three or more anchors that leave the side in doubt.
+
+    Anchors nearly on one line (or whose fit's mirror image fits about as well) fix a robot's
+    distance from their line but not its side, as two anchors do. The candidates are the
+    least-squares fits on either side: each of the two circle intersections of the two anchors
+    farthest apart (``pair``, indices ``i < j``), refined by Gauss–Newton steps
+    (:func:`~protocols.common.refinement.gauss_newton_step`, no down-weighting) against every
+    anchor. Index 0 lies left of the line from anchor ``i`` to anchor ``j``, as
+    :func:`circle_candidates` orders two anchors' candidates.
+
+    Returns
+    -------
+    (p0, p1, height, pair) : the candidates (mm), the smaller of their distances from the line
+    through the pair (mm), and the pair's indices; None if the pair's circles do not meet, the
+    refined candidates no longer lie on opposite sides of that line, either fits the anchors
+    with a residual RMS above ``max_rmse_mm`` (rule 1's bound: anchors that disagree give no
+    candidates worth a vote), or an anchor is nearer one candidate than the other by more than
+    ``max_skew_mm`` (rule 4's voters could not tell it from a robot the candidate's holder
+    does not hear: :func:`line_same_mm`).
+
+    Examples
+    --------
+    Three anchors on the x axis, the truth at (30, 40):
+
+    >>> anchors = [(0.0, 0.0), (45.0, 0.0), (60.0, 0.0)]
+    >>> ranges = [math.dist((30.0, 40.0), a) for a in anchors]
+    >>> p0, p1, height, pair = mirror_candidates(anchors, ranges)
+    >>> [round(v, 6) for v in (*p0, *p1, height)], pair
+    ([30.0, 40.0, 30.0, -40.0, 40.0], (0, 2))
+    """
+    k = len(anchors)
+    if k < 2:
+        return None
+    i, j = max(
+        itertools.combinations(range(k), 2),
+        key=lambda ij: math.dist(anchors[ij[0]], anchors[ij[1]]),
+    )
+    found = circle_candidates(anchors[i], anchors[j], ranges_mm[i], ranges_mm[j])
+    if found is None:
+        return None
+    links = [(a[0], a[1], r) for a, r in zip(anchors, ranges_mm, strict=True)]
+    refined = []
+    for x, y in found[:2]:
+        for _ in range(iterations):
+            x, y, _ = gauss_newton_step(x, y, links, huber_mm=math.inf, max_step_mm=math.inf)
+        rms = math.sqrt(
+            sum((math.dist((x, y), a) - r) ** 2 for a, r in zip(anchors, ranges_mm, strict=True))
+            / k
+        )
+        if rms > max_rmse_mm:
+            return None
+        refined.append((x, y))
+    (ax, ay), (bx, by) = anchors[i], anchors[j]
+    length = math.dist(anchors[i], anchors[j])
+    side = [((bx - ax) * (y - ay) - (by - ay) * (x - ax)) / length for x, y in refined]
+    if not (side[0] > 0.0 > side[1]):
+        return None
+    p0, p1 = refined
+    if any(abs(math.dist(p0, a) - math.dist(p1, a)) > max_skew_mm for a in anchors):
+        return None
+    return p0, p1, min(side[0], -side[1]), (i, j)
 
 
 def side_is_clear(fix: Fix, sigma_mm: float, *, sigmas: float = MIRROR_SIGMAS) -> bool:
@@ -450,7 +695,9 @@ class Spread:
         self.news_tick = robot.kilo_ticks  # last change of anchors or candidates
         # This robot's candidates: (version, [p0, p1]) or None, and the anchors they use.
         self.candidates: tuple[int, list[Point]] | None = None
-        self.candidate_anchors: tuple[int, int] | None = None
+        self.candidate_anchors: tuple[int, ...] | None = None
+        self.candidate_version = -1  # the last version announced (-1: none yet)
+        self.candidates_from_line = False  # from three or more anchors (CAND index + FROM_LINE)
         self.cand_turn = 0
         # The frame's start, as the root named it (on every robot that heard ROOT).
         self.axis = NO_ID
@@ -460,11 +707,10 @@ class Spread:
         self.excluded: set[int] = set()  # the root's frame robots that stayed silent
         self.frame_started = False  # on the root: its axis robot has placed itself
         # Rule 4: votes to send, (target, index, version); votes sent, by (target, version);
-        # votes received for this robot's candidates, {index: set of voters}, and their version.
+        # votes received for this robot's current candidates, {index: set of voters}.
         self.votes_out: list[tuple[int, int, int]] = []
         self.voted: dict[tuple[int, int], float] = {}
         self.votes_in: dict[int, set[int]] = {}
-        self.votes_version = -1
 
     # -- messages ------------------------------------------------------------------------------
     def message_tx(self) -> Message:
@@ -483,7 +729,7 @@ class Spread:
                     sender=r.uid,
                     x_mm=x,
                     y_mm=y,
-                    index=self.cand_turn,
+                    index=self.cand_turn + (FROM_LINE if self.candidates_from_line else 0),
                     version=version,
                     windings=windings,
                 )
@@ -519,15 +765,18 @@ class Spread:
         m = CAND.unpack(message)
         if n.candidates is None or n.candidates[0] != m.version:
             n.candidates = (m.version, [None, None])
-        n.candidates[1][m.index] = absolute_position(m.x_mm, m.y_mm, m.windings)
+        n.candidates_from_line = m.index >= FROM_LINE
+        n.candidates[1][m.index % FROM_LINE] = absolute_position(m.x_mm, m.y_mm, m.windings)
         n.x_mm = n.y_mm = None
 
     def vote_rx(self, n: Neighbour, message: Message) -> None:
         m = VOTE.unpack(message)
         if m.target != self.robot.uid:
             return
-        if m.version != self.votes_version:
-            self.votes_in, self.votes_version = {}, m.version
+        # A vote is about one version of the candidates: an index means a side of one anchor
+        # pair's line, and of another pair's it means nothing.
+        if self.candidates is None or m.version != self.candidates[0]:
+            return
         self.votes_in.setdefault(m.index, set()).add(m.sender)
 
     # -- rounds --------------------------------------------------------------------------------
@@ -559,7 +808,12 @@ class Spread:
                 ]
             p = self.robot.params
             index = overlap_vote(
-                tuple(held[1]), others, p.overlap_mm, settled=settled, heard_mm=p.heard_mm
+                tuple(held[1]),
+                others,
+                p.overlap_mm,
+                settled=settled,
+                heard_mm=p.heard_mm,
+                same_mm=line_same_mm(p.min_height_mm) if n.candidates_from_line else 5.0,
             )
             if index is not None:
                 self.votes_out.append((n.uid, index, held[0]))
@@ -618,6 +872,7 @@ class Spread:
         ranges = [n.range_mm for n in anchors]
         sigma = r.sigma_mm
         max_rmse = r.params.max_residual_sigmas * sigma
+        side_in_doubt = False
         if len(anchors) >= 3:
             fix = multilaterate(
                 np.array(points),
@@ -629,6 +884,34 @@ class Spread:
             if fix.ok and side_is_clear(fix, sigma):
                 self.place(fix.x_mm, fix.y_mm, "anchors", len(anchors), anchors)
                 return
+            if fix.reason == "large_residual":
+                found = consistent_subset_fix(
+                    points,
+                    ranges,
+                    sigma_mm=sigma,
+                    max_rmse_mm=max_rmse,
+                    min_width_mm=r.params.min_height_mm,
+                )
+                if found is not None:
+                    fix, kept = found
+                    used = [anchors[k] for k in kept]
+                    dropped = [
+                        [
+                            n.uid,
+                            round(
+                                math.dist((fix.x_mm, fix.y_mm), (n.x_mm, n.y_mm)) - n.range_mm, 1
+                            ),
+                        ]
+                        for k, n in enumerate(anchors)
+                        if k not in kept
+                    ]
+                    self.place(fix.x_mm, fix.y_mm, "subset", len(used), used, dropped=dropped)
+                    return
+            # Anchors that fix all but the side (one line, or a mirror image that fits within
+            # the noise): the two sides are candidates, as with two anchors. Not a fix whose
+            # side only its large residuals put in doubt: its anchors disagree, and candidates
+            # from them would be no better.
+            side_in_doubt = fix.reason in ("collinear_anchors", "mirror_ambiguity")
         if pairs and r.params.max_candidate_neighbours:
             # The pairs farthest apart discriminate best.
             pairs.sort(key=lambda n: -_separation(n.candidates[1]))
@@ -645,12 +928,12 @@ class Spread:
             if fix is not None:
                 self.place(fix.x_mm, fix.y_mm, "candidates", len(anchors) + len(pairs), anchors)
                 return
-        self._update_candidates(anchors)
+        self._update_candidates(anchors, side_in_doubt)
         self._take_vote(anchors)
 
     def _take_vote(self, anchors: list[Neighbour]) -> None:
         """Rule 4: take the candidate the votes allow, if they allow exactly one."""
-        if self.candidates is None or self.votes_version != self.candidates[0]:
+        if self.candidates is None:
             return
         allowed = [k for k in (0, 1) if self.votes_in.get(k)]
         if len(allowed) == 1:
@@ -676,23 +959,39 @@ class Spread:
             return
         self.place(x, y, "third", 2)
 
-    def _update_candidates(self, anchors: list[Neighbour]) -> None:
-        """With exactly two anchors, hold (and announce) the two candidate positions."""
+    def _update_candidates(self, anchors: list[Neighbour], side_in_doubt: bool = False) -> None:
+        """With exactly two anchors, or three or more that fix all but the side
+        (``side_in_doubt``: rule 1 refused them as one line or for a mirror image that fits as
+        well), hold (and announce) the two candidate positions (:func:`mirror_candidates`)."""
         found = None
         if len(anchors) == 2:
             a, b = anchors
             found = circle_candidates((a.x_mm, a.y_mm), (b.x_mm, b.y_mm), a.range_mm, b.range_mm)
+            key = (a.uid, b.uid)
+        elif side_in_doubt and len(anchors) >= 3:
+            p = self.robot.params
+            got = mirror_candidates(
+                [(n.x_mm, n.y_mm) for n in anchors],
+                [n.range_mm for n in anchors],
+                max_rmse_mm=p.max_residual_sigmas * self.robot.sigma_mm,
+                max_skew_mm=line_same_mm(p.min_height_mm),
+            )
+            if got is not None:
+                found = got[:3]
+                i, j = got[3]
+                # The pair orients the indices: a new pair is a new version.
+                key = (*(n.uid for n in anchors), anchors[i].uid, anchors[j].uid)
         if found is None or found[2] < self.robot.params.min_height_mm:
             self.candidates = None
             self.candidate_anchors = None
             return
-        pair = (anchors[0].uid, anchors[1].uid)
-        if pair != self.candidate_anchors or self.candidates is None:
-            version = 0 if self.candidates is None else (self.candidates[0] + 1) % 256
-        else:
-            version = self.candidates[0]
-        self.candidate_anchors = pair
+        version = candidate_version(self.candidate_version, self.candidate_anchors, key)
+        if version != self.candidate_version:
+            self.votes_in = {}  # votes about other candidates
+        self.candidate_version = version
+        self.candidate_anchors = key
         self.candidates = (version, [found[0], found[1]])
+        self.candidates_from_line = len(anchors) > 2
 
     def place(
         self,
@@ -701,6 +1000,7 @@ class Spread:
         rule: str,
         anchors: int,
         references: Sequence[Neighbour] = (),
+        **extra: object,
     ) -> None:
         """Take the position (x, y) in the frame, mm, found by ``rule`` from ``anchors``
         placed points; one beyond the messages' coordinate range is refused.
@@ -714,7 +1014,9 @@ class Spread:
         self.candidates = None
         self.robot.locate(x_mm, y_mm)
         held = [[n.uid, round(n.x_mm, 1), round(n.y_mm, 1)] for n in references]
-        self.robot.log("located", rule=rule, anchors=anchors, x_mm=x_mm, y_mm=y_mm, references=held)
+        self.robot.log(
+            "located", rule=rule, anchors=anchors, x_mm=x_mm, y_mm=y_mm, references=held, **extra
+        )
 
 
 def _separation(points: list[Point]) -> float:

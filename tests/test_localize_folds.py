@@ -1,0 +1,137 @@
+"""Folds and bends of ``localize``'s frame (issue 33), end to end: the sparse 400-robot swarm,
+the C of 300 and the 150-robot discs. Each run takes 20-90 s, so all are marked slow
+(``pytest -m slow``); the decision rules they exercise have fast tests in
+``tests/test_localize.py`` (``candidate_version``, ``consistent_subset_fix``,
+``mirror_candidates``, ``line_same_mm``, and the robots that use them).
+
+Every number in a comment was measured (docs/localize.md, rules 1, 2 and 4, and Limits);
+"before" is commit 4c628af.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+import scenarios
+
+LOCALIZE = scenarios.get("localize")
+
+#: 400 robots at 350 per m²: about 7 neighbours each.
+SPARSE = {"placement.kind": "random", "placement.density_per_m2": 350, "placement.robots": 400}
+#: The C of the issue: a ring 450-700 mm less 90 degrees about +x, 300 robots.
+C_SHAPE = {
+    "placement.kind": "c_shape",
+    "placement.outer_radius_mm": 700,
+    "placement.inner_radius_mm": 450,
+    "placement.opening_deg": 90,
+    "placement.robots": 300,
+}
+#: The localization study's 150 random robots in a disc.
+DISC = {
+    "placement.kind": "random",
+    "placement.area": "disc",
+    "placement.robots": 150,
+    "placement.density_per_m2": 400,
+}
+
+#: Seed 3 without loss folds where a three-anchor fix joined the two fronts of a seam
+#: (robot 129 at 36.7 s; robot 248 took its mirror image at 39.4 s): 35.7 mm, the solver
+#: 5.1 mm (6.8 mm before, by another course of the spread). docs/localize.md, Limits.
+SEAM_TRIANGLE = pytest.mark.xfail(
+    strict=True, reason="a three-anchor fix across a seam folds seed 3 (docs/localize.md, Limits)"
+)
+#: The C of seed 3 curls at its tips: 53.2 mm, the solver 23.5 mm (44.2 mm before), no fix
+#: misplaced; least squares from the swarm's positions reaches the optimum, the refinement
+#: hardly moves that mode. docs/localize.md, Limits.
+C_CURL = pytest.mark.xfail(
+    strict=True, reason="the refinement leaves the C of seed 3 curled (docs/localize.md, Limits)"
+)
+
+
+def _run(overrides, seed):
+    return scenarios.run(LOCALIZE, overrides, seed=seed).summary
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("seed", "loss"),
+    [
+        (1, 0.0),
+        (2, 0.0),
+        pytest.param(3, 0.0, marks=SEAM_TRIANGLE),
+        (4, 0.0),
+        (1, 0.2),
+        (2, 0.2),
+        (3, 0.2),
+        (4, 0.2),
+    ],
+)
+def test_a_sparse_swarm_ends_near_the_optimum_in_one_frame(seed, loss):
+    # Before: seed 2 ended at 21.4 and 18.7 mm (the solver 6.1 mm), the two sides grown round a
+    # gap never joined (16 robots anchors_rejected at the seam); seed 1 with loss at 108.8 mm,
+    # folded by a vote cast for another anchor pair's candidates. Now 8.7, 9.2 and 7.6 mm.
+    s = _run({**SPARSE, "medium.loss_prob": loss}, seed)
+    assert s["frames"] == 1
+    assert s["done_fraction"] == 1.0
+    assert s["localized_fraction"] >= 0.95
+    assert s["rmse_mm"] <= 1.5 * s["central_rmse_mm"]
+
+
+@pytest.mark.slow
+def test_a_seam_is_closed_by_robots_placed_from_the_anchors_that_agree():
+    # Seed 2: 16 robots anchors_rejected before; now every robot is placed, 12 of them by
+    # the largest agreeing subset of their anchors.
+    result = scenarios.run(LOCALIZE, SPARSE, seed=2)
+    s = result.summary
+    assert s["localized_fraction"] == 1.0
+    events = result.sim.trace.events_frame()
+    located = events[events.event == "located"]
+    assert located.data.str.contains('"rule": "subset"').sum() >= 10
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2, pytest.param(3, marks=C_CURL)])
+def test_a_c_shape_does_not_fold(seed):
+    # Before, seed 2 folded at 413 mm (robot 199 took a vote meant for its earlier candidates,
+    # at 54.4 s); with only that fixed, its spread stopped at 34.3 % placed, three collinear
+    # anchors holding the front. Now 8.5 and 9.9 mm. The solver's own RMSE here is 18-24 mm:
+    # robots with two neighbours land on either side of their mirror.
+    s = _run(C_SHAPE, seed)
+    assert s["frames"] == 1
+    assert s["localized_fraction"] >= 0.95
+    assert s["rmse_mm"] <= 1.5 * s["central_rmse_mm"]
+
+
+#: Disc, 400 per m², 10 % loss, seed 2: 4.39 mm before the side_is_clear change (commit
+#: 7a0def7), 6.36 mm after it and 6.44 mm now (the solver 4.2 mm); no fix misplaced. Not
+#: looked into. docs/localize.md, Limits.
+SIDE_IS_CLEAR_BEND = pytest.mark.xfail(
+    strict=True, reason="the side_is_clear regression of this disc is not undone"
+)
+
+
+@pytest.mark.slow
+def test_the_sparse_disc_of_150_places_more_and_bends_less():
+    # 300 per m², seed 3: 11.12 mm with 92.7 % placed before (7.53 mm before side_is_clear),
+    # 8.82 mm with 96.0 % now (the solver 5.7 mm).
+    s = _run({**DISC, "placement.density_per_m2": 300}, 3)
+    assert s["frames"] == 1
+    assert s["localized_fraction"] >= 0.95
+    assert s["rmse_mm"] <= 1.6 * s["central_rmse_mm"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("overrides", "seed"),
+    [
+        ({"placement.density_per_m2": 400}, 2),  # 6.37 mm before, 4.43 now (the solver 4.19)
+        ({"ranging.intensity_noise": 0.03}, 2),
+        ({"medium.loss_prob": 0.3}, 2),
+        pytest.param({"medium.loss_prob": 0.1}, 2, marks=SIDE_IS_CLEAR_BEND),
+    ],
+)
+def test_the_150_robot_discs_stay_near_the_optimum(overrides, seed):
+    s = _run({**DISC, **overrides}, seed)
+    assert s["frames"] == 1
+    assert s["localized_fraction"] >= 0.95
+    assert s["rmse_mm"] <= 1.5 * s["central_rmse_mm"]
