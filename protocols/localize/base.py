@@ -201,6 +201,13 @@ class LocalizeParams:
         0.5, lo=0.0, hi=100.0, doc="settled: moved less than this over settle_rounds rounds"
     )
     settle_rounds: int = param(10, lo=1, hi=10_000, doc="rounds the settle test looks back")
+    unsettle_mm: float = param(
+        1.5,
+        lo=0.0,
+        hi=100.0,
+        doc="a settled robot stays settled until it is this far from where it settled, mm "
+        "(0: only while the settle test holds)",
+    )
     settle_timeout_s: float = param(
         120.0, lo=1.0, hi=3600.0, doc="a localized robot counts as settled after this anyway"
     )

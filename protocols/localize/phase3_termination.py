@@ -24,6 +24,7 @@ The flags travel in POS and ROOT messages (:mod:`protocols.localize.phase2_sprea
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -32,7 +33,36 @@ from protocols.localize.base import COMPLETE, SETTLED, Neighbour, children_compl
 if TYPE_CHECKING:
     from protocols.localize.program import LocalizeRobot
 
-__all__ = ["Termination", "gives_up", "subtree_complete"]
+__all__ = ["Termination", "gives_up", "settled_at", "subtree_complete"]
+
+
+def settled_at(
+    anchor: tuple[float, float] | None,
+    position: tuple[float, float],
+    window_settled: bool,
+    unsettle_mm: float,
+) -> tuple[float, float] | None:
+    """Where a robot counts as settled, or None while it does not: settledness with
+    hysteresis. It settles where the settle test (``window_settled``) first holds, and stays
+    settled, whatever the test says, until it is ``unsettle_mm`` or farther from there.
+
+    The settled wave needs every robot of a subtree settled at once. On kilolib's ranging the
+    distances a robot fits keep changing by tenths of a millimetre (new samples, new reports
+    of the far end's mean), and a robot that has converged still creeps past ``settle_mm``
+    over a window now and then: each such moment broke the wave, and a swarm placed in
+    20 s ran until ``settle_timeout_s`` (120 s).
+
+    Examples
+    --------
+    >>> a = settled_at(None, (10.0, 0.0), True, 1.5)
+    >>> a, settled_at(a, (11.0, 0.0), False, 1.5), settled_at(a, (11.6, 0.0), False, 1.5)
+    ((10.0, 0.0), (10.0, 0.0), None)
+    >>> settled_at(None, (12.0, 0.0), False, 1.5), settled_at(a, (11.0, 0.0), False, 0.0)
+    (None, None)
+    """
+    if anchor is not None and math.dist(anchor, position) < unsettle_mm:
+        return anchor
+    return position if window_settled else None
 
 
 def subtree_complete(settled: bool, uid: int, neighbours: Sequence[Neighbour]) -> bool:
@@ -98,6 +128,7 @@ class Termination:
         self.settle_ticks = p.settle_timeout_s * tps
         self.run_timeout_tick = p.run_timeout_s * tps
         self.settled = False
+        self.settled_at: tuple[float, float] | None = None
         self.complete = False
         self.done = False
         self.confirmed_rounds = 0
@@ -111,7 +142,12 @@ class Termination:
             self.complete = subtree_complete(self.settled, r.uid, fresh)
             return
         if r.position is not None:
-            self.settled = r.refiner.settled or tick - r.located_tick >= self.settle_ticks
+            self.settled_at = settled_at(
+                self.settled_at, r.position, r.refiner.settled, r.params.unsettle_mm
+            )
+            self.settled = (
+                self.settled_at is not None or tick - r.located_tick >= self.settle_ticks
+            )
         else:
             quiet = tick - r.spread.news_tick >= self.give_up_ticks
             self.settled = gives_up(fresh, quiet)
