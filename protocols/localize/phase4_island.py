@@ -204,10 +204,20 @@ class Island:
 
     def wake(self, tick: int, fresh: list[Neighbour]) -> bool:
         """At DONE: whether this robot stays awake for an island (it is unplaced, and so is a
-        neighbour); it joins at once if two unplaced neighbours hear each other."""
+        neighbour); it joins at once if two unplaced neighbours hear each other. A robot
+        placed moments before DONE reached it, and not yet settled, stays awake too and
+        finishes as a placed member does (:meth:`finished`): a robot placed after the root's
+        DONE, from an island's new positions, heard DONE a round later and froze two
+        refinement steps after its fix, 14 mm from where its four neighbours put it."""
         r = self.robot
         self.unplaced_near = any(n.x_mm is None for n in fresh)
-        if self.reports.capacity == 0 or r.position is not None or not self.unplaced_near:
+        if self.reports.capacity == 0:
+            return False
+        if r.position is not None and not r.termination.settled:
+            self.awake, self.awake_tick, self.changed_tick = True, tick, tick
+            self._join()
+            return True
+        if r.position is not None or not self.unplaced_near:
             return False
         self.awake, self.awake_tick, self.changed_tick = True, tick, tick
         if in_unplaced_triangle(fresh):
