@@ -145,9 +145,7 @@ class Termination:
             self.settled_at = settled_at(
                 self.settled_at, r.position, r.refiner.settled, r.params.unsettle_mm
             )
-            self.settled = (
-                self.settled_at is not None or tick - r.located_tick >= self.settle_ticks
-            )
+            self.settled = self.settled_at is not None or tick - r.located_tick >= self.settle_ticks
         else:
             quiet = tick - r.spread.news_tick >= self.give_up_ticks
             self.settled = gives_up(fresh, quiet)
