@@ -409,6 +409,12 @@ def _localize_random(joined, localize):
     return targets_table(localize)
 
 
+def _localize_shapes(joined, localize):
+    from experiments.studies.localization_study import shape_runs_table
+
+    return shape_runs_table(joined, localize)
+
+
 def _localize_compared(joined, localize):
     import pandas as pd
 
@@ -449,6 +455,7 @@ BLOCKS: dict[str, Block] = {
     "localize-lattice": Block("docs/localize.md", _localization_block(_localize_lattice)),
     "localize-random": Block("docs/localize.md", _localization_block(_localize_random)),
     "localize-compared": Block("docs/localize.md", _localization_block(_localize_compared)),
+    "localize-shapes": Block("docs/localize.md", _localization_block(_localize_shapes)),
     # docs/follower.md: experiments/studies/follower_measured.py
     "follower-success": Block(
         "docs/follower.md", lambda _context: follower_measured.success_block()

@@ -11,6 +11,7 @@ from experiments.studies.localization_study import (
     comparison,
     joined,
     lattice_table,
+    shape_runs_table,
     shapes_table,
     summary_table,
     targets_table,
@@ -153,3 +154,25 @@ def test_shapes_off_the_design_get_a_table_of_their_own(results):
     assert not (means.level == 350).any()
     assert not ((means.factor == "placement.robots") & (means.level == 400)).any()
     assert base_table(table).set_index("variant").loc["localize", "runs"] == 2
+
+
+#: The study's corridor: a placement off the one-at-a-time design.
+SHAPE = {
+    "placement.kind": "corridor",
+    "placement.length_mm": 3400.0,
+    "placement.width_mm": 200.0,
+    "placement.density_per_m2": None,
+    "placement.robots": 400,
+}
+
+
+def test_shape_runs_table_lists_each_shape_run_with_its_optimum_share():
+    folded = {**_run(1, 1, 2.0, **SHAPE), "at_optimum_over_central": 0.5, "done_s": 61.0}
+    # The base case (the last row) lies on the design: not listed.
+    localize = pd.DataFrame([folded, _run(2, 1, 3.0, **SHAPE), _run(1, 1, 2.0)])
+    table = joined(pd.DataFrame([_run(1, 1, 2.0, **{"gcs.refine": False})]), localize)
+    rows = shape_runs_table(table, localize)
+    assert rows["seed"].tolist() == [1, 2]
+    assert rows["at optimum / central"].tolist() == ["0.500", "0.960"]
+    assert rows["done s"].tolist() == ["61", "–"]
+    assert set(rows["shape"]) == {"corridor 400, 3.4 m × 200 mm"}

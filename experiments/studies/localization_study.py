@@ -47,6 +47,7 @@ __all__ = [
     "joined",
     "lattice_table",
     "off_design",
+    "shape_runs_table",
     "shapes_table",
     "summary_table",
     "targets_table",
@@ -83,6 +84,7 @@ _NUMERIC = (
     "mean_neighbours",
     "largest_frame_over_central",
     "at_optimum_over_central",
+    "done_s",
 )
 
 
@@ -276,6 +278,28 @@ def shapes_table(table: pd.DataFrame) -> pd.DataFrame:
                 }
             )
     return pd.DataFrame(rows)
+
+
+def shape_runs_table(joined_table: pd.DataFrame, localize: pd.DataFrame) -> pd.DataFrame:
+    """``localize``'s runs on the shapes off the design (:func:`off_design`), a row each, by
+    shape and seed: the localized fraction, the largest frame's robots at the optimum over the
+    robots the centralized solver localizes (below 0.95: a folded or twisted frame), the RMSE
+    beside the solver's, and when the run was done (s)."""
+    runs = _ok(localize)
+    shapes = set(joined_table.loc[off_design(joined_table), "shape"])
+    runs = runs[runs["shape"].isin(shapes)].sort_values(["shape", "medium.loss_prob", "seed"])
+    return pd.DataFrame(
+        {
+            "shape": runs["shape"],
+            "loss": [f"{v:g}" for v in runs["medium.loss_prob"]],
+            "seed": runs["seed"].astype(int),
+            "localized": [_cell(v, 3) for v in runs.localized_fraction],
+            "at optimum / central": [_cell(v, 3) for v in runs.at_optimum_over_central],
+            "RMSE mm": [_cell(v, 1) for v in runs.rmse_mm],
+            "central RMSE mm": [_cell(v, 1) for v in runs.central_rmse_mm],
+            "done s": [_cell(v, 0) for v in runs.done_s],
+        }
+    ).reset_index(drop=True)
 
 
 def targets_table(localize: pd.DataFrame, *, min_neighbours: float = 6.0) -> pd.DataFrame:
