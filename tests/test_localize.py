@@ -326,10 +326,12 @@ def test_candidate_version_names_one_anchor_pair_and_never_comes_back():
 
 
 def _heard(robot, uid, distance_mm, position=None):
-    """Robot ``uid`` heard 20 times at ``distance_mm``, placed at ``position`` (mm) or not."""
+    """Robot ``uid`` heard 20 times at ``distance_mm``, placed (long ago) at ``position`` (mm)
+    or not."""
     for _ in range(20):
         n = robot.neighbours.heard(uid, distance_mm, 1)
     n.x_mm, n.y_mm = position if position is not None else (None, None)
+    n.placed_tick = -math.inf if position is not None else None
     return n
 
 
@@ -504,6 +506,52 @@ def test_three_anchors_on_one_line_give_candidates_that_a_vote_resolves():
     robot.message_rx(VOTE.pack(sender=12, target=robot.uid, index=0, version=version), 45)
     _attempt(robot)
     assert robot.position == pytest.approx(truth, abs=0.1)
+
+
+def test_rule_1_waits_until_its_three_anchors_were_placed_a_moment_ago():
+    # The 5 m corridor of seed 2 twisted at robot 85's fix from three anchors, one of them
+    # placed 0.16 s before and about 20 mm off (docs/localize.md, rule 1).
+    robot = _spread_robot()
+    truth = (30.0, 20.0)
+    anchors = {11: (0.0, 0.0), 12: (60.0, 0.0), 13: (10.0, 70.0), 14: (70.0, 50.0)}
+    position = {"hops": 1, "flags": LOCALIZED, "windings": 0}
+
+    def placed(uid):
+        a, d = anchors[uid], math.dist(truth, anchors[uid])
+        _heard(robot, uid, d)
+        robot.message_rx(POS.pack(sender=uid, x_mm=a[0], y_mm=a[1], **position), d)
+        return robot.neighbours[uid]
+
+    records = [placed(uid) for uid in (11, 12, 13)]
+    assert [n.placed_tick for n in records] == [robot.kilo_ticks] * 3  # heard placed now
+    _attempt(robot)
+    assert robot.position is None
+    wait = robot.params.fresh_anchor_s * robot.ticks_per_s
+    assert wait > 0
+    records[0].placed_tick -= wait
+    records[1].placed_tick -= wait
+    _attempt(robot)
+    assert robot.position is None  # anchor 13 is still fresh
+    records[2].placed_tick -= wait - 1
+    _attempt(robot)
+    assert robot.position is None  # one tick short
+    records[2].placed_tick -= 1
+    _attempt(robot)
+    assert robot.position == pytest.approx(truth, abs=0.5)
+    # A robot that hears an anchor's candidates again forgets when it was placed.
+    robot.message_rx(CAND.pack(sender=13, version=0, index=0, x_mm=1.0, y_mm=2.0, windings=0), 50)
+    assert records[2].x_mm is None and records[2].placed_tick is None
+
+
+def test_four_anchors_do_not_wait_for_a_fresh_one():
+    robot = _spread_robot()
+    truth = (30.0, 20.0)
+    anchors = {11: (0.0, 0.0), 12: (60.0, 0.0), 13: (10.0, 70.0), 14: (70.0, 50.0)}
+    for uid, a in anchors.items():
+        _heard(robot, uid, math.dist(truth, a), a)
+    robot.neighbours[14].placed_tick = robot.kilo_ticks
+    _attempt(robot)
+    assert robot.position == pytest.approx(truth, abs=0.5)
 
 
 def test_a_seam_robot_places_itself_from_the_anchors_that_agree_and_logs_them():

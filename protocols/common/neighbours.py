@@ -197,10 +197,10 @@ class NeighbourTable(Generic[R]):
         low, high = (math.sqrt(max(v, 0.0)) for v in variances[middle - 1 : middle + 1])
         return 0.5 * (low + high)
 
-    def fresh(self, stamp: int) -> list[R]:
-        """Unambiguous records heard within the last ``stale_rounds`` rounds before round
-        ``stamp``, by ID."""
-        oldest = stamp - self.stale_rounds
+    def fresh(self, stamp: int, rounds: int | None = None) -> list[R]:
+        """Unambiguous records heard within the last ``rounds`` (default ``stale_rounds``)
+        rounds before round ``stamp``, by ID."""
+        oldest = stamp - (self.stale_rounds if rounds is None else rounds)
         return [n for n in self._in_id_order if n.heard_round >= oldest and not n.ambiguous]
 
     def known(self) -> list[R]:

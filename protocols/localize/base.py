@@ -143,6 +143,12 @@ class LocalizeParams:
         6.0, lo=2.0, hi=1000.0, doc="a sample this many sigmas off its ID's mean: two robots"
     )
     stale_s: float = param(3.0, lo=0.2, hi=600.0, doc="a neighbour silent this long is ignored")
+    child_stale_s: float = param(
+        10.0,
+        lo=0.2,
+        hi=600.0,
+        doc="a child not complete holds up its parent's settled wave until silent this long, s",
+    )
     listen_s: float = param(
         1.0, lo=0.0, hi=600.0, doc="election key follows the neighbour count until then"
     )
@@ -177,6 +183,13 @@ class LocalizeParams:
         hi=1000.0,
         doc="a candidate nearer than this to a settled robot it does not hear is impossible "
         "(0: off)",
+    )
+    fresh_anchor_s: float = param(
+        1.0,
+        lo=0.0,
+        hi=60.0,
+        doc="rule 1 takes no fix from exactly three anchors while one of them was placed less "
+        "than this long ago, s (0: off)",
     )
     retry_s: float = param(
         2.0, lo=0.2, hi=600.0, doc="an unlocalized robot retries an unchanged fix this often"
@@ -265,6 +278,7 @@ class Neighbour(common_neighbours.Neighbour):
         "key",
         "near",
         "parent",
+        "placed_tick",
         "reported_mm",
         "sent_mm",
         "sent_round",
@@ -279,6 +293,7 @@ class Neighbour(common_neighbours.Neighbour):
         self.sent_round = -1
         self.x_mm: float | None = None
         self.y_mm: float | None = None
+        self.placed_tick: int | None = None  # this robot's clock when it first heard a position
         self.hops = UNKNOWN_HOPS
         self.parent = NO_ID
         self.flags = 0

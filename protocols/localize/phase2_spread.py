@@ -28,7 +28,11 @@ have one (their announced positions, the distances both ends agree on):
    for their residuals may still place the robot from the largest subset of four or more of
    them that passes every check (:func:`consistent_subset_fix`, rule ``subset``): at a seam,
    where a frame grown round a gap meets itself, so that the refinement gets the links
-   across it.
+   across it. A robot waits with a fix from exactly three anchors until each of them has
+   been placed for ``localize.fresh_anchor_s`` (:func:`anchors_fresh`): an anchor placed
+   moments before has not been refined against its own neighbours and may lie tens of
+   millimetres off, which three anchors leave no residual to show, and a fix from it lands
+   farther off still. With four or more the residuals tell.
 2. *Two anchors*, or three or more that fix all but the side (refused by rule 1 as one line
    or for a mirror image that fits as well): two candidate positions, mirror images across
    the anchors' line (:func:`circle_candidates`, :func:`mirror_candidates`). The robot
@@ -128,6 +132,7 @@ __all__ = [
     "ROOT",
     "VOTE",
     "Spread",
+    "anchors_fresh",
     "candidate_version",
     "choose_frame",
     "circle_candidates",
@@ -271,6 +276,23 @@ def circle_candidates(
     [40.0, 30.0, 40.0, -30.0, 30.0]
     """
     return circle_pair(a, range_a_mm, b, range_b_mm, tolerance_mm=0.5)
+
+
+def anchors_fresh(placed_ticks: Sequence[float | None], tick: float, fresh_ticks: float) -> bool:
+    """Rule 1's patience: True when a fix must wait because it has exactly three anchors and
+    one of them was heard placed less than ``fresh_ticks`` before ``tick`` (None: its
+    placement not yet heard). Ticks are the robot's own clock (``kilo_ticks``).
+
+    Examples
+    --------
+    >>> anchors_fresh([100, 200, 250], tick=300, fresh_ticks=31)
+    False
+    >>> anchors_fresh([100, 200, 290], tick=300, fresh_ticks=31)
+    True
+    >>> anchors_fresh([100, 200, 290, 295], tick=300, fresh_ticks=31)  # four: residuals tell
+    False
+    """
+    return len(placed_ticks) == 3 and any(t is None or tick - t < fresh_ticks for t in placed_ticks)
 
 
 def candidate_version(
@@ -690,6 +712,7 @@ class Spread:
         tps = robot.ticks_per_s
         self.retry_ticks = p.retry_s * tps
         self.bootstrap_ticks = p.bootstrap_timeout_s * tps
+        self.fresh_anchor_ticks = p.fresh_anchor_s * tps
         self.attempt: tuple = ()  # what the last attempt used
         self.next_retry = 0.0
         self.news_tick = robot.kilo_ticks  # last change of anchors or candidates
@@ -746,6 +769,7 @@ class Spread:
     def root_rx(self, n: Neighbour, message: Message) -> None:
         m = ROOT.unpack(message)
         n.x_mm, n.y_mm, n.hops, n.flags = 0.0, 0.0, 0, m.flags | LOCALIZED
+        n.placed_tick = -math.inf  # the origin by definition: never fresh
         r = self.robot
         named, renamed = (self.axis, self.third), (m.axis, m.third)
         if r.position is not None and r.uid in named and r.uid not in renamed:
@@ -756,10 +780,13 @@ class Spread:
         m = POS.unpack(message)
         n.hops, n.flags = m.hops, m.flags
         if m.flags & LOCALIZED:
+            if n.x_mm is None:
+                n.placed_tick = self.robot.kilo_ticks
             n.x_mm, n.y_mm = absolute_position(m.x_mm, m.y_mm, m.windings)
             n.candidates = None
         else:
             n.x_mm = n.y_mm = None
+            n.placed_tick = None
 
     def cand_rx(self, n: Neighbour, message: Message) -> None:
         m = CAND.unpack(message)
@@ -768,6 +795,7 @@ class Spread:
         n.candidates_from_line = m.index >= FROM_LINE
         n.candidates[1][m.index % FROM_LINE] = absolute_position(m.x_mm, m.y_mm, m.windings)
         n.x_mm = n.y_mm = None
+        n.placed_tick = None
 
     def vote_rx(self, n: Neighbour, message: Message) -> None:
         m = VOTE.unpack(message)
@@ -853,6 +881,9 @@ class Spread:
             if r.position is not None:
                 return
         anchors = [n for n in fresh if n.x_mm is not None]
+        if anchors_fresh([n.placed_tick for n in anchors], tick, self.fresh_anchor_ticks):
+            self.news_tick = tick  # an anchor placed moments before is news: not quiet
+            return
         pairs = [
             n
             for n in fresh

@@ -127,6 +127,7 @@ class Termination:
         self.give_up_ticks = p.give_up_s * tps
         self.settle_ticks = p.settle_timeout_s * tps
         self.run_timeout_tick = p.run_timeout_s * tps
+        self.child_rounds = math.ceil(p.child_stale_s / p.round_s)
         self.settled = False
         self.settled_at: tuple[float, float] | None = None
         self.complete = False
@@ -138,8 +139,11 @@ class Termination:
         """Update settled (in a ``full`` round) and complete; on the root, decide done (it
         counts only full rounds as confirming)."""
         r = self.robot
+        # A child unheard for a few rounds in a crowded band is still a child: the wave waits
+        # for it longer than the spread trusts a silent neighbour's record.
+        children = r.neighbours.fresh(r.round_index, self.child_rounds)
         if not full:
-            self.complete = subtree_complete(self.settled, r.uid, fresh)
+            self.complete = subtree_complete(self.settled, r.uid, children)
             return
         if r.position is not None:
             self.settled_at = settled_at(
@@ -149,7 +153,7 @@ class Termination:
         else:
             quiet = tick - r.spread.news_tick >= self.give_up_ticks
             self.settled = gives_up(fresh, quiet)
-        self.complete = subtree_complete(self.settled, r.uid, fresh)
+        self.complete = subtree_complete(self.settled, r.uid, children)
         if r.is_root:
             self.confirmed_rounds = self.confirmed_rounds + 1 if self.complete else 0
             if self.confirmed_rounds >= r.params.done_confirm_rounds:

@@ -288,6 +288,11 @@ class LocalizeRobot(Kilobot):
 
     # -- state ---------------------------------------------------------------------------------
     @property
+    def round_index(self) -> int:
+        """Rounds of work done: the time stamps of the neighbour records."""
+        return self._round
+
+    @property
     def in_frame(self) -> bool:
         """Whether this robot holds a position in a frame: a located robot, or a root whose
         axis robot has placed itself (a lone root's origin is no frame)."""
@@ -400,6 +405,8 @@ class LocalizeRobot(Kilobot):
     def _dist_rx(self, n: Neighbour, message: Message) -> None:
         m = DIST.unpack(message)
         near_x, near_y = self.reference_position(n)
+        if n.x_mm is None:
+            n.placed_tick = self.kilo_ticks
         n.x_mm = unwrap_coordinate(m.x_mm, near_x)
         n.y_mm = unwrap_coordinate(m.y_mm, near_y)
         if m.neighbour == self.uid:
