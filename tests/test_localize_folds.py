@@ -20,14 +20,6 @@ LOCALIZE = scenarios.get("localize")
 
 #: 400 robots at 350 per m²: about 7 neighbours each.
 SPARSE = {"placement.kind": "random", "placement.density_per_m2": 350, "placement.robots": 400}
-#: The C of the issue: a ring 450-700 mm less 90 degrees about +x, 300 robots.
-C_SHAPE = {
-    "placement.kind": "c_shape",
-    "placement.outer_radius_mm": 700,
-    "placement.inner_radius_mm": 450,
-    "placement.opening_deg": 90,
-    "placement.robots": 300,
-}
 #: The localization study's 150 random robots in a disc.
 DISC = {
     "placement.kind": "random",
