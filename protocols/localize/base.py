@@ -293,7 +293,7 @@ class Neighbour(common_neighbours.Neighbour):
         self.sent_round = -1
         self.x_mm: float | None = None
         self.y_mm: float | None = None
-        self.placed_tick: int | None = None  # this robot's clock when it first heard a position
+        self.placed_tick: float | None = None  # its clock when this robot first heard a position
         self.hops = UNKNOWN_HOPS
         self.parent = NO_ID
         self.flags = 0
