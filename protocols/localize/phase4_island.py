@@ -213,14 +213,11 @@ class Island:
         self.unplaced_near = any(n.x_mm is None for n in fresh)
         if self.reports.capacity == 0:
             return False
-        if r.position is not None and not r.termination.settled:
-            self.awake, self.awake_tick, self.changed_tick = True, tick, tick
-            self._join()
-            return True
-        if r.position is not None or not self.unplaced_near:
+        refining = r.position is not None and not r.termination.settled
+        if not refining and (r.position is not None or not self.unplaced_near):
             return False
         self.awake, self.awake_tick, self.changed_tick = True, tick, tick
-        if in_unplaced_triangle(fresh):
+        if refining or in_unplaced_triangle(fresh):
             self._join()
         return True
 
