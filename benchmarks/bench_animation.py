@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from kilonet.viz.animation import animate_run, frame_times, load_run
 
 from kilonet.placement import hex_lattice
-from presentation.animation import animate_run, frame_times, load_run
 
 
 def synthetic_run(
@@ -40,7 +40,8 @@ def synthetic_run(
     messages: bool = False,
     seed: int = 1,
 ) -> dict[str, int]:
-    """Write a run directory shaped like ``scenarios.write_outputs``; returns table sizes."""
+    """Write a run directory shaped like ``kilonet.scenarios.write_outputs``; returns table
+    sizes."""
     rng = np.random.default_rng(seed)
     pos = hex_lattice(robots, spacing_mm=40.0, jitter_mm=2.0, rng=rng)
     start = pos.copy()

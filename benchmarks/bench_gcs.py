@@ -10,8 +10,8 @@ simulated time whose robots do only what every robot of the gcs program must do,
 one thing to the previous: ``medium`` (the robots offer a message at the share of transmit
 opportunities the gcs run used and count what they hear), ``loop`` (plus an empty ``loop()``
 at the scenario's loop period) and ``table`` (plus reading the sender's ID from every
-reception into a :class:`~protocols.common.neighbours.NeighbourTable`, as ``GcsRobot`` does). The
-gcs run's CPU time beyond ``table`` is what the six phases' logic costs.
+reception into a :class:`~kilonet.protocols.common.neighbours.NeighbourTable`, as ``GcsRobot``
+does). The gcs run's CPU time beyond ``table`` is what the six phases' logic costs.
 
     python benchmarks/bench_gcs.py [--sizes 100 1000] [--seed 1] [--set key=value ...] [--floor]
 """
@@ -24,11 +24,11 @@ import json
 import os
 import time
 
-import scenarios
-from kilonet import Kilobot, Message
-from protocols.common.neighbours import NeighbourTable
-from protocols.gcs.base import gcs_layout, sender_of
-from scenarios.base import build_params
+from kilonet.protocols.common.neighbours import NeighbourTable
+from kilonet.protocols.gcs.base import gcs_layout, sender_of
+from kilonet.scenarios.base import build_params
+
+from kilonet import Kilobot, Message, scenarios
 
 FIELDS = (
     "robots",

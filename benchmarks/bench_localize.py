@@ -24,9 +24,10 @@ import json
 import os
 import time
 
-import scenarios
+from kilonet.scenarios.base import build_params, place
+
+from kilonet import scenarios
 from kilonet.simulation import Simulation
-from scenarios.base import build_params, place
 
 FIELDS = (
     "robots",

@@ -2,7 +2,7 @@
 
 The sweep: the gradient scenario, 100 robots, 30 simulated seconds, message loss 0, 0.1, 0.2,
 0.3 × seeds 1–10 (about 0.8 s of one core per run). Each measurement runs the whole sweep into a
-fresh directory through :func:`experiments.runner.run_sweep`, the function behind
+fresh directory through :func:`kilonet.experiments.runner.run_sweep`, the function behind
 ``kilonet sweep``, with the worker pool started, the runs stored and the pool shut down inside
 the timing. The forkserver the pool forks from is started once before the first measurement (a
 one-off cost per ``kilonet sweep`` command, printed separately).
@@ -26,9 +26,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from experiments.runner import execute_run, run_sweep
-from experiments.store import ResultStore
-from experiments.sweep import parse_sweep
+from kilonet.experiments.runner import execute_run, run_sweep
+from kilonet.experiments.store import ResultStore
+from kilonet.experiments.sweep import parse_sweep
 
 SWEEP = """
 name = "bench"

@@ -8,8 +8,8 @@ waits; one barely longer risks cutting the phase short on another placement or c
 
     python benchmarks/gcs_windows.py [--sizes 100 300] [--seeds 1 2 3] [--set key=value ...]
 
-docs/gcs.md's table of the same is made by ``python -m experiments.publish docs --block
-gcs-windows`` (:func:`experiments.studies.gcs_measured.windows_block`).
+docs/gcs.md's table of the same is made by ``python -m kilonet.experiments.publish docs --block
+gcs-windows`` (:func:`kilonet.experiments.studies.gcs_measured.windows_block`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from experiments.studies.gcs_measured import last_events
+from kilonet.experiments.studies.gcs_measured import last_events
 
 
 def main() -> None:

@@ -90,9 +90,10 @@ def register_report(subparsers: Any) -> None:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from experiments.runner import SweepAborted, run_sweep
-    from experiments.store import ResultStore, StoreError, is_sweep_dir
-    from experiments.sweep import SweepError, load_sweep
+    from kilonet.experiments.runner import SweepAborted, run_sweep
+    from kilonet.experiments.store import ResultStore, StoreError, is_sweep_dir
+    from kilonet.experiments.sweep import SweepError, load_sweep
+
     from kilonet.cli import UsageError
 
     if args.workers is not None and args.workers < 1:
@@ -155,7 +156,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _stored(out: Path) -> int:
-    from experiments.store import ResultStore, StoreError
+    from kilonet.experiments.store import ResultStore, StoreError
 
     try:
         with ResultStore.open(out) as store:
@@ -165,8 +166,9 @@ def _stored(out: Path) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from experiments.report import ReportError, write_report
-    from experiments.store import StoreError
+    from kilonet.experiments.report import ReportError, write_report
+    from kilonet.experiments.store import StoreError
+
     from kilonet.cli import UsageError
 
     if not 0 < args.confidence < 1:

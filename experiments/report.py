@@ -2,7 +2,7 @@
 
 From a notebook::
 
-    from experiments import report
+    from kilonet.experiments import report
     sweep, results = report.load("runs/loss")          # one row per stored run
     table = report.aggregate(results, sweep.swept, ["last_change_s"])
     fig = report.plot(table, "medium.loss_prob", "last_change_s")
@@ -29,12 +29,11 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from kilonet.experiments.store import META_COLUMNS, ResultStore, write_atomically
+from kilonet.experiments.sweep import Sweep
 from matplotlib.figure import Figure
 from matplotlib.ticker import NullLocator
 from scipy import stats
-
-from experiments.store import META_COLUMNS, ResultStore, write_atomically
-from experiments.sweep import Sweep
 
 __all__ = [
     "ReportError",
@@ -58,11 +57,11 @@ _NOT_METRICS = frozenset({"scenario", "sim_time_s"})
 
 def load(directory: str | Path) -> tuple[Sweep, pd.DataFrame]:
     """The sweep stored in ``directory`` and its results, one row per stored run (see
-    :meth:`experiments.store.ResultStore.frame` for the columns).
+    :meth:`kilonet.experiments.store.ResultStore.frame` for the columns).
 
     Raises
     ------
-    experiments.store.StoreError
+    kilonet.experiments.store.StoreError
         If ``directory`` holds no sweep results.
     """
     with ResultStore.open(directory) as store:
@@ -268,11 +267,11 @@ def write_report(
     file; ``.md``: Markdown with the figures in ``<stem>_files/``). Returns the paths written.
 
     ``stamp`` is the report's last line (default: the command that makes it from the results;
-    :func:`experiments.publish.stamp` adds date, machine and versions).
+    :func:`kilonet.experiments.publish.stamp` adds date, machine and versions).
 
     Raises
     ------
-    experiments.store.StoreError
+    kilonet.experiments.store.StoreError
         If ``directory`` holds no sweep results.
     ReportError
         If ``out`` is neither ``.html`` nor ``.md``, ``x`` is not a swept parameter, or a metric

@@ -3,8 +3,8 @@
 The same loop drives a local process pool (the default) and a Dask ``distributed`` cluster
 (``scheduler="tcp://host:8786"``): both are :class:`concurrent.futures.Executor` s, every run is
 one :func:`execute_run` task, and the parent process writes each result to the
-:class:`~experiments.store.ResultStore` the moment it arrives, so an interrupted sweep loses at
-most the runs in flight. Running the same sweep into the same directory again runs only the
+:class:`~kilonet.experiments.store.ResultStore` the moment it arrives, so an interrupted sweep loses
+at most the runs in flight. Running the same sweep into the same directory again runs only the
 runs that are not stored.
 
 A run that raises is stored as failed with its error and the sweep goes on. A progress bar on
@@ -43,10 +43,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from kilonet.experiments.store import ResultStore, RunRecord, StoreError, lock_directory
+from kilonet.experiments.sweep import Run, Sweep
 from tqdm import tqdm
-
-from experiments.store import ResultStore, RunRecord, StoreError, lock_directory
-from experiments.sweep import Run, Sweep
 
 __all__ = [
     "SweepAborted",
@@ -99,7 +98,7 @@ def execute_run(run: Run) -> RunRecord:
 
     This is the task a worker process (local or Dask) executes.
     """
-    import scenarios
+    from kilonet import scenarios
 
     started = time.perf_counter()
     summary: dict[str, Any] | None = None
@@ -187,7 +186,7 @@ def run_sweep(
 
     Raises
     ------
-    experiments.store.StoreError
+    kilonet.experiments.store.StoreError
         If ``directory`` holds another sweep or is in use.
     SweepAborted
         If a local worker process died or could not start, the scheduler is unreachable or
@@ -378,7 +377,7 @@ def _local_executor(workers: int) -> Iterator[cf.Executor]:
     # forkserver: workers start from a clean process with the scenarios already imported (the
     # parent may hold threads and open files, which fork would copy), and start fast.
     context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["scenarios", "experiments.runner"])
+    context.set_forkserver_preload(["scenarios", "kilonet.experiments.runner"])
     _start_forkserver()
     executor = cf.ProcessPoolExecutor(
         max_workers=workers,

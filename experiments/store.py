@@ -51,8 +51,7 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
-
-from experiments.sweep import Sweep
+from kilonet.experiments.sweep import Sweep
 
 __all__ = [
     "DB_NAME",
@@ -102,7 +101,7 @@ class RunRecord:
     Attributes
     ----------
     run_id, cell, seed
-        The run (see :class:`experiments.sweep.Run`).
+        The run (see :class:`kilonet.experiments.sweep.Run`).
     status : str
         ``"ok"`` or ``"failed"``.
     error : str or None

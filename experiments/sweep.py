@@ -46,7 +46,7 @@ Examples
 >>> parse_sweep('scenario = "gradient"\\n[grid]\\n"medium.loss_prob" = [0.5, 2.0]', name="bad")
 Traceback (most recent call last):
 ...
-experiments.sweep.SweepError: bad: [grid] medium.loss_prob = 2.0 is out of range [0.0, 1.0]
+kilonet.experiments.sweep.SweepError: bad: [grid] medium.loss_prob = 2.0 is out of range [0.0, 1.0]
 """
 
 from __future__ import annotations
@@ -313,7 +313,7 @@ class _Validator:
         return value
 
     def scenario(self, data: dict[str, Any]) -> Any:
-        import scenarios
+        from kilonet import scenarios
 
         if "scenario" not in data:
             raise self.fail(f"missing key 'scenario'; one of: {', '.join(scenarios.names())}")
@@ -449,8 +449,9 @@ class _Validator:
     ) -> None:
         """Build the parameters of every value on its own, then of every cell, so an error
         names the first offending key and value."""
+        from kilonet.scenarios.base import build_params
+
         from kilonet.params import ParamError
-        from scenarios.base import build_params
 
         def check(section: str, overrides: dict[str, Any]) -> None:
             try:

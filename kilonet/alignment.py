@@ -1,6 +1,6 @@
 """Rigid transforms between robot frames: the merging step, levelling, packing, Procrustes.
 
-The math of phase 6 (frame merging, :mod:`protocols.gcs.phase6_merging`) and of the position
+The math of phase 6 (frame merging, :mod:`kilonet.protocols.gcs.phase6_merging`) and of the position
 metrics. A frame transform acts as ``x_global = R x_local + v`` on points of the table
 embedded at z = 0, with R a 3-D rotation (a :class:`scipy.spatial.transform.Rotation` where a
 rotation is handed over) and v a shift of 3 millimetres. The thesis writes a seed's transform

@@ -1,7 +1,7 @@
 """The Cramér–Rao bound of a measured distance graph: how well any unbiased estimator could
 place a swarm from its ranges, up to a rigid motion (anchor-free), mm.
 
-Split from :mod:`kilonet.geometry`, whose fixes it bounds; ``scenarios.reference`` puts it
+Split from :mod:`kilonet.geometry`, whose fixes it bounds; ``kilonet.scenarios.reference`` puts it
 in every gcs and localize summary.
 """
 

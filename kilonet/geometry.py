@@ -243,7 +243,7 @@ def linear_position(anchors_mm: np.ndarray, ranges_mm: np.ndarray) -> tuple[np.n
     ``2 (aᵢ − ā) · p = |aᵢ|² − mean|a|² − (rᵢ² − mean r²)`` (the ``|p|²`` term cancels); their
     least-squares solution is exact with exact ranges, and with noisy ones a start for the
     fit of the range residuals (:func:`multilaterate`). It also serves the island solve's
-    rigid motions (:mod:`protocols.localize.island_solve`), whose shift is such a point.
+    rigid motions (:mod:`kilonet.protocols.localize.island_solve`), whose shift is such a point.
 
     Parameters
     ----------
@@ -840,7 +840,7 @@ def _refine_position(
     The 2×2 normal equations are solved in closed form: this runs once or twice per fix
     and per robot, so numpy's per-call overhead would dominate.
     (The island solve's fit of a rigid motion, three unknowns, is its own:
-    :mod:`protocols.localize.island_solve`.)
+    :mod:`kilonet.protocols.localize.island_solve`.)
     """
     x, y = float(start[0]), float(start[1])
     dx, dy, dist, res, ssr = _range_residuals(anchors, ranges, x, y)

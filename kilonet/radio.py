@@ -73,7 +73,7 @@ class Reach:
     per_robot: bool = True
 
 
-#: Reach fitted to the ARGoS validation data (``python -m experiments.publish validation``
+#: Reach fitted to the ARGoS validation data (``python -m kilonet.experiments.publish validation``
 #: re-checks each against the data): ``argos``, the 40 runs of its two majority series;
 #: ``argos-long``, the 10 runs of the long-reach series (same robots, another session).
 REACH_PRESETS: dict[str, Reach] = {

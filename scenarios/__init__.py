@@ -3,15 +3,15 @@
 A scenario registers itself as an entry point of the group ``kilonet.scenarios``
 (``[project.entry-points."kilonet.scenarios"]`` in ``pyproject.toml``; a package of your own
 can add scenarios the same way): the entry's name is the scenario's name, its value the
-:class:`Scenario` object (``"scenarios.gcs:SCENARIO"``). A scenario's module is imported only
-when the scenario is asked for.
+:class:`Scenario` object (``"kilonet.scenarios.gcs:SCENARIO"``). A scenario's module is imported
+only when the scenario is asked for.
 """
 
 from __future__ import annotations
 
 from importlib.metadata import entry_points
 
-from scenarios.base import RunResult, Scenario, ScenarioError, run, write_outputs
+from kilonet.scenarios.base import RunResult, Scenario, ScenarioError, run, write_outputs
 
 __all__ = [
     "DEFAULT",

@@ -2,8 +2,8 @@
 
 Runs phases 1–2 (IDs and seed election) on the placement, then predicts phases 3–5 from the
 distances the robots will hold (each link's noise-free estimate, within
-``gcs.neighbour_max_mm``: :mod:`scenarios.prediction`): each seed takes the reference pair its
-rule would choose from them; robots join a seed's frame when they see the seed and at least two
+``gcs.neighbour_max_mm``: :mod:`kilonet.scenarios.prediction`): each seed takes the reference pair
+its rule would choose from them; robots join a seed's frame when they see the seed and at least two
 robots already in that frame and their fix passes (repeated until nothing changes, as
 localization spreads); merging groups are found as the robots would find them. The frame
 graph's components are the global frames merging can reach.
@@ -22,9 +22,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS
 
-import scenarios
-from scenarios.thesis_placements import NAMED_PLACEMENTS
+from kilonet import scenarios
 
 __all__ = ["predict", "register"]
 
@@ -37,8 +37,8 @@ def predict(
     Returns the failure cases (robot indices), the rigidity facts, the seeds and the
     predicted frames per robot.
     """
-    from scenarios.neighbourhood import held_estimates_mm
-    from scenarios.prediction import predict_from_seeds
+    from kilonet.scenarios.neighbourhood import held_estimates_mm
+    from kilonet.scenarios.prediction import predict_from_seeds
 
     result = scenarios.run(
         scenarios.get("gcs"),

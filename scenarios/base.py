@@ -17,14 +17,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from kilonet.scenarios.output_dir import OutputDir
+from kilonet.scenarios.progress import RunProgress
+from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS, PREMISE
 
 from kilonet.errors import UserError
 from kilonet.params import ParamError, Params
 from kilonet.placement import PlacementError, generate_from, load_csv, read_placement
 from kilonet.robot import Kilobot
-from scenarios.output_dir import OutputDir
-from scenarios.progress import RunProgress
-from scenarios.thesis_placements import NAMED_PLACEMENTS, PREMISE
 
 if TYPE_CHECKING:
     from kilonet.simulation import Simulation
@@ -178,8 +178,8 @@ def place(
 ) -> np.ndarray:
     """The robots' start positions (mm): a named placement, file or array if given, else a
     generator. A string that names a placement of
-    :data:`scenarios.thesis_placements.NAMED_PLACEMENTS` (``"thesis-7.1a"``) is that placement,
-    whether or not a file of that name exists.
+    :data:`kilonet.scenarios.thesis_placements.NAMED_PLACEMENTS` (``"thesis-7.1a"``) is that
+    placement, whether or not a file of that name exists.
 
     Raises
     ------
@@ -273,8 +273,8 @@ def run(
         Start positions in mm instead of the scenario's generator.
     progress : bool or str
         Show on stderr what the set-up is doing, then the run's progress in simulated seconds
-        (:class:`scenarios.progress.RunProgress`): a mode of
-        :data:`scenarios.progress.MODES`, ``True`` for the bar, ``False`` for nothing.
+        (:class:`kilonet.scenarios.progress.RunProgress`): a mode of
+        :data:`kilonet.scenarios.progress.MODES`, ``True`` for the bar, ``False`` for nothing.
     """
     from kilonet.simulation import Simulation
 
@@ -397,7 +397,7 @@ def write_outputs(
     result: RunResult, out_dir: str | Path, *, fmt: str = "csv", replace: bool = False
 ) -> list[Path]:
     """Write a run directory whole (:func:`write_run_files` into a staging directory that
-    :class:`scenarios.output_dir.OutputDir` then puts in place): a failure leaves nothing
+    :class:`kilonet.scenarios.output_dir.OutputDir` then puts in place): a failure leaves nothing
     behind, and an existing directory is never merged into.
 
     Returns the paths written.
@@ -406,7 +406,7 @@ def write_outputs(
     ------
     ScenarioError
         If ``fmt`` is not ``csv`` or ``parquet``.
-    scenarios.output_dir.OutputDirError
+    kilonet.scenarios.output_dir.OutputDirError
         If ``out_dir`` exists and is not empty (without ``replace``), is not a directory, or
         cannot be created or written.
     """

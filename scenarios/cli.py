@@ -31,12 +31,13 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
-import scenarios
+from kilonet.scenarios.base import Scenario, ScenarioOption, build_params, json_safe
+from kilonet.scenarios.progress import MODES
+
+from kilonet import scenarios
 from kilonet.cli import UsageError
 from kilonet.params import ParamError, Params, describe
 from kilonet.watchdog import BUSY_CALL_S
-from scenarios.base import Scenario, ScenarioOption, build_params, json_safe
-from scenarios.progress import MODES
 
 __all__ = ["register_params", "register_run", "register_scenarios", "run_file_overrides"]
 
@@ -265,7 +266,7 @@ def _resolve(args: argparse.Namespace) -> tuple[Scenario, dict[str, Any], Path |
     """The scenario to run, the run file's overrides, and the run file (if any)."""
     target = args.target
     if args.program is not None:
-        from scenarios.program import program_scenario
+        from kilonet.scenarios.program import program_scenario
 
         if target is not None and not target.endswith(".toml"):
             raise UsageError(
@@ -312,7 +313,7 @@ def _check_placement(args: argparse.Namespace) -> None:
             "the placement has its own robots (leave out --robots)"
         )
     if not Path(args.placement).exists():
-        from scenarios.thesis_placements import NAMED_PLACEMENTS
+        from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS
 
         if args.placement not in NAMED_PLACEMENTS:
             raise UsageError(
@@ -351,8 +352,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run_command(args: argparse.Namespace) -> int:
-    from scenarios.base import write_run_files
-    from scenarios.output_dir import OutputDir
+    from kilonet.scenarios.base import write_run_files
+    from kilonet.scenarios.output_dir import OutputDir
 
     scenario, file_overrides, run_file = _resolve(args)
     if run_file is not None:
@@ -405,9 +406,9 @@ def _run_command(args: argparse.Namespace) -> int:
 
 
 def _animator():
-    """``kilonet run --animate``'s animator (``presentation.cli.animate_after_run``): the
-    ``gif`` entry point of ``kilonet.animators``. The presentation layer sits above the
-    scenarios, so the run command finds it there instead of importing it."""
+    """``kilonet run --animate``'s animator (``kilonet.viz.cli.animate_after_run``): the
+    ``gif`` entry point of ``kilonet.animators``. The pictures' layer (``kilonet.viz``) sits
+    above the scenarios, so the run command finds it there instead of importing it."""
     from importlib.metadata import entry_points
 
     found = list(entry_points(group="kilonet.animators", name="gif"))
@@ -417,14 +418,15 @@ def _animator():
 
 
 def _guarded(args: argparse.Namespace):
-    """``scenarios.base.run`` under the busy-call watchdog (``--watchdog``), with ``print()``
-    of a program sent to stderr under ``--json``, a Ctrl-C naming the robot and callback it
-    stopped, and a user program's exceptions reported as one-line errors."""
+    """``kilonet.scenarios.base.run`` under the busy-call watchdog (``--watchdog``), with
+    ``print()`` of a program sent to stderr under ``--json``, a Ctrl-C naming the robot and callback
+    it stopped, and a user program's exceptions reported as one-line errors."""
     from contextlib import ExitStack, redirect_stdout
 
+    from kilonet.scenarios.base import run
+    from kilonet.scenarios.program import parse_spec, reported_as_user_errors
+
     from kilonet.watchdog import busy_watchdog, describe_call, robot_frame
-    from scenarios.base import run
-    from scenarios.program import parse_spec, reported_as_user_errors
 
     def guarded(*a: Any, **k: Any):
         with ExitStack() as stack:

@@ -3,8 +3,8 @@
 :func:`frames_figure` draws a swarm's estimates against the truth: every robot as a body at its
 true position, and for every robot of a frame that can be aligned (three robots or more) an
 error vector from its true position towards its aligned estimate (``robots.csv``'s
-``aligned_x_mm``, ``aligned_y_mm``: :func:`scenarios.estimates.with_alignment`), magnified by
-the factor :func:`error_magnification` picks and the legend states, since errors of a
+``aligned_x_mm``, ``aligned_y_mm``: :func:`kilonet.scenarios.estimates.with_alignment`), magnified
+by the factor :func:`error_magnification` picks and the legend states, since errors of a
 millimetre would not show at the scale of a swarm. One colour per frame, frames numbered by size
 (frame 1 is the largest) and named by their root robot. The figure takes the swarm's aspect
 ratio and the legend sits below the axes, so it never covers a robot.
@@ -106,7 +106,7 @@ def frames_figure(
     estimates : DataFrame
         One row per robot: ``robot``, ``frame`` (label), ``root_robot``, ``localized`` (bool),
         ``aligned_x_mm``, ``aligned_y_mm``, ``error_mm`` (as
-        :func:`scenarios.estimates.with_alignment` adds them).
+        :func:`kilonet.scenarios.estimates.with_alignment` adds them).
     marked : array of int
         Robots to mark with a cross (seeds, roots).
     marked_label, title : str

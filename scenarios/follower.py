@@ -41,12 +41,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-
-from kilonet.params import BatteryParams, MotionParams, ParamError, Params, RobotParams
-from kilonet.placement import ROBOT_DIAMETER_MM
-from kilonet.simulation import Simulation, stream_for
-from kilonet.visibility import LinkModel
-from protocols.follower.follower import (
+from kilonet.protocols.follower.follower import (
     Follower,
     FollowerParams,
     Origin,
@@ -54,8 +49,13 @@ from protocols.follower.follower import (
     XAxisRobot,
     reachable_goal,
 )
-from protocols.follower.turn_calibration import TimedTurns, TurnCalibration
-from scenarios.base import RunResult, Scenario, ScenarioError, run
+from kilonet.protocols.follower.turn_calibration import TimedTurns, TurnCalibration
+from kilonet.scenarios.base import RunResult, Scenario, ScenarioError, run
+
+from kilonet.params import BatteryParams, MotionParams, ParamError, Params, RobotParams
+from kilonet.placement import ROBOT_DIAMETER_MM
+from kilonet.simulation import Simulation, stream_for
+from kilonet.visibility import LinkModel
 
 if TYPE_CHECKING:  # pandas and matplotlib are imported where used: listing scenarios is fast
     import pandas as pd
@@ -290,13 +290,13 @@ def ranging_mm(params: Params) -> float:
 
     Examples
     --------
-    >>> from scenarios.base import build_params
+    >>> from kilonet.scenarios.base import build_params
     >>> ranging_mm(build_params(SCENARIO))
     100.0
     >>> ranging_mm(build_params(SCENARIO, {"medium.reach": "disc"}))
     85.0
     """
-    from scenarios.neighbourhood import neighbourhood_mm
+    from kilonet.scenarios.neighbourhood import neighbourhood_mm
 
     return neighbourhood_mm(params.medium, params.scenario.neighbour_max_mm)
 
@@ -406,7 +406,7 @@ def _follower_poses(sim: Simulation) -> pd.DataFrame:
     poses = poses[poses["robot"] == FOLLOWER_INDEX].drop(columns="robot")
     # The start heading is not traced (nothing moved yet). Without a record of it on the
     # simulation, it is the first draw of the run's motion stream, where Simulation takes its
-    # headings from when none are given (as in scenarios.run).
+    # headings from when none are given (as in kilonet.scenarios.run).
     heading0 = getattr(sim, "initial_headings_rad", None)
     if heading0 is None:
         heading0 = stream_for(sim.params.seed, "motion").uniform(0, 2 * np.pi, sim.n_robots)

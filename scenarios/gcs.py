@@ -1,7 +1,7 @@
 """``gcs``: Rubenstein's global coordinate system, phases 1–6, on a swarm without UIDs.
 
-Runs :class:`protocols.gcs.program.GcsRobot` on every robot (``robot.hardware_uids = false``: the
-robots build their own IDs) and measures each phase against ground truth:
+Runs :class:`kilonet.protocols.gcs.program.GcsRobot` on every robot (``robot.hardware_uids =
+false``: the robots build their own IDs) and measures each phase against ground truth:
 
 * ids — duplicate IDs left among neighbours (in the line-of-sight graph);
 * seeds — seeds elected, robots whose seed condition failed;
@@ -11,24 +11,24 @@ robots build their own IDs) and measures each phase against ground truth:
 * groups — merging groups;
 * merge — final global frames (robots grouped by the root their estimate is in), localized
   share, RMSE of the global estimates after aligning each final frame to the truth, pooled
-  over robots; beside it the bound and the optimum (:mod:`scenarios.reference`: the
+  over robots; beside it the bound and the optimum (:mod:`kilonet.scenarios.reference`: the
   anchor-free Cramér–Rao bound for the same graph and noise, ``rmse_over_crlb``, the bound for
   the receptions averaged, the centralized solver on the run's measured distances) and
   ``done_s``, when the last seed was done merging (``done_over_hop_limit``: over
   ``hop_diameter × robot.tx_period_s``);
-* refine (``gcs.refine = true``, :mod:`protocols.gcs.phase7_refinement`) — the summary's estimates,
-  ``rmse_mm`` and the figures are the refined ones; ``merge_rmse_mm`` keeps the RMSE the merged
-  estimates had, ``refined_fraction`` the share of robots that refined, and ``done_s`` is when
-  the last robot stopped refining;
+* refine (``gcs.refine = true``, :mod:`kilonet.protocols.gcs.phase7_refinement`) — the summary's
+  estimates, ``rmse_mm`` and the figures are the refined ones; ``merge_rmse_mm`` keeps the RMSE the
+  merged estimates had, ``refined_fraction`` the share of robots that refined, and ``done_s`` is
+  when the last robot stopped refining;
 * failures (thesis §7) — ``failures``: what the run built (unlocalizable robots, isolated seeds,
   the frame graph's components, robots next to another final frame); ``predicted``: what the
-  geometry and phase 2's election predicted (:mod:`scenarios.prediction`); ``detected``: what
-  the swarm flagged itself (:mod:`protocols.gcs.split_detection`); ``recoveries`` and
-  ``edge_seeds`` (:mod:`protocols.gcs.recovery`). ``robots.csv`` carries the same per robot.
+  geometry and phase 2's election predicted (:mod:`kilonet.scenarios.prediction`); ``detected``:
+  what the swarm flagged itself (:mod:`kilonet.protocols.gcs.split_detection`); ``recoveries`` and
+  ``edge_seeds`` (:mod:`kilonet.protocols.gcs.recovery`). ``robots.csv`` carries the same per robot.
 
-Every figure comes from one read of each robot's :meth:`~protocols.gcs.program.GcsRobot.outcome` at
-the end of the run (:func:`run_outcomes`), shared by the summary, ``robots.csv``'s columns and
-the figure.
+Every figure comes from one read of each robot's
+:meth:`~kilonet.protocols.gcs.program.GcsRobot.outcome` at the end of the run
+(:func:`run_outcomes`), shared by the summary, ``robots.csv``'s columns and the figure.
 
 The run ends when every seed is done merging, no recovery is pending, and the robots have had
 a few seconds to check their neighbours without finding a split boundary that a recovery
@@ -45,17 +45,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-
-from protocols.gcs.base import PHASES, GcsParams
-from scenarios.base import RunResult, Scenario, ScenarioOption
+from kilonet.protocols.gcs.base import PHASES, GcsParams
+from kilonet.scenarios.base import RunResult, Scenario, ScenarioOption
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
     import pandas as pd
+    from kilonet.protocols.gcs.frame_keys import FrameKey
+    from kilonet.protocols.gcs.program import GcsRobot, RobotOutcome
 
     from kilonet.params import Params
     from kilonet.simulation import Simulation
-    from protocols.gcs.frame_keys import FrameKey
-    from protocols.gcs.program import GcsRobot, RobotOutcome
 
 __all__ = [
     "SCENARIO",
@@ -68,7 +67,7 @@ __all__ = [
 
 
 def _program(params: Any, positions: np.ndarray):
-    from protocols.gcs.program import GcsRobot
+    from kilonet.protocols.gcs.program import GcsRobot
 
     return lambda _i: GcsRobot(params.scenario)
 
@@ -79,7 +78,7 @@ _CHECK_S = 5.0
 
 
 def _stop_when(sim: Simulation) -> bool:
-    from protocols.gcs.program import OPEN_ENDED, phase_windows_s
+    from kilonet.protocols.gcs.program import OPEN_ENDED, phase_windows_s
 
     windows = phase_windows_s(sim.params.scenario)
     name, _, end = windows[-1]
@@ -102,7 +101,7 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
     robot still merging is about to refine (its estimate settled, :meth:`FrameMerging.finished`
     counting) or is a seed not done, all merge in one epoch, and no recovery is announced or
     awaited."""
-    from protocols.gcs.program import OPEN_ENDED
+    from kilonet.protocols.gcs.program import OPEN_ENDED
 
     if len({r.epoch for r in robots}) > 1 or any(r.awaiting_recovery() for r in robots):
         return False
@@ -124,7 +123,7 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
 def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
     """Nothing more will happen: every seed is done, every robot merges in the same epoch, and
     no recovery is announced or about to be (the robots then get :data:`_CHECK_S` to check
-    their neighbours, :mod:`protocols.gcs.split_detection`)."""
+    their neighbours, :mod:`kilonet.protocols.gcs.split_detection`)."""
     if not seeds or not all(r.merge_done for r in seeds):
         return False
     if len({r.epoch for r in robots}) > 1:
@@ -134,7 +133,7 @@ def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
 
 def _expected_end_s(params: Params) -> float | None:
     """Where :func:`_stop_when` ends a run that stops before merging; merging has no known end."""
-    from protocols.gcs.program import phase_windows_s
+    from kilonet.protocols.gcs.program import phase_windows_s
 
     end = phase_windows_s(params.scenario)[-1][2]
     return end + 1.0 if math.isfinite(end) else None
@@ -142,7 +141,7 @@ def _expected_end_s(params: Params) -> float | None:
 
 def _phase_note(sim: Simulation) -> str:
     """The phase the run is in, for the progress display: ``phase 3/6 frames (to 41 s)``."""
-    from protocols.gcs.program import phase_windows_s
+    from kilonet.protocols.gcs.program import phase_windows_s
 
     windows = phase_windows_s(sim.params.scenario)
     now = sim.env.now
@@ -180,8 +179,8 @@ _READ: weakref.WeakKeyDictionary[Simulation, tuple[float, RunOutcomes]] = (
 
 
 def run_outcomes(sim: Simulation) -> RunOutcomes:
-    """Every robot's :meth:`~protocols.gcs.program.GcsRobot.outcome`, read once per simulated
-    moment: the summary, ``robots.csv`` and the figure of a run all use the same read."""
+    """Every robot's :meth:`~kilonet.protocols.gcs.program.GcsRobot.outcome`, read once per
+    simulated moment: the summary, ``robots.csv`` and the figure of a run all use the same read."""
     read = _READ.get(sim)
     if read is not None and read[0] == sim.env.now:
         return read[1]
@@ -197,8 +196,7 @@ def _estimates(
     robots: list[RobotOutcome], seed_robot: dict[FrameKey, int], truth_mm: np.ndarray
 ) -> pd.DataFrame:
     import pandas as pd
-
-    from scenarios.estimates import with_alignment
+    from kilonet.scenarios.estimates import with_alignment
 
     rows = []
     for i, o in enumerate(robots):
@@ -228,9 +226,10 @@ def _estimates(
 
 def estimates_frame(sim: Simulation) -> pd.DataFrame:
     """Per robot: role, ID, frames held, global estimate, final frame label
-    (:attr:`protocols.gcs.frame_keys.Root.label`) and the robot that seeded that root's frame
-    (``root_robot``), the estimate aligned to the truth and its error
-    (:func:`scenarios.estimates.with_alignment`), failure flags: ``robots.csv``'s columns."""
+    (:attr:`kilonet.protocols.gcs.frame_keys.Root.label`) and the robot that seeded that root's
+    frame (``root_robot``), the estimate aligned to the truth and its error
+    (:func:`kilonet.scenarios.estimates.with_alignment`), failure flags: ``robots.csv``'s
+    columns."""
     return run_outcomes(sim).estimates
 
 
@@ -287,7 +286,7 @@ def own_components(components: list[list[int]], located: dict[int, list[int]]) -
 def _failures(sim: Simulation, outcomes: RunOutcomes) -> dict[str, Any]:
     """The thesis's failure cases as this run produced them (robot indices), with the
     communication graph's rigidity facts that explain them."""
-    from scenarios.topology import failure_cases, rigidity_facts
+    from kilonet.scenarios.topology import failure_cases, rigidity_facts
 
     seeds = outcomes.seed_robot
     robots = outcomes.robots
@@ -319,10 +318,10 @@ def _duplicate_ids(uids: np.ndarray, i: np.ndarray, j: np.ndarray) -> int:
 
 
 def _prediction(sim: Simulation, robots: list[RobotOutcome]) -> dict[str, Any]:
-    """What the geometry and phase 2's election predicted (scenarios.prediction), to report
+    """What the geometry and phase 2's election predicted (kilonet.scenarios.prediction), to report
     next to what happened: the topology sweep compares the two."""
-    from scenarios.neighbourhood import held_estimates_mm
-    from scenarios.prediction import predict_from_seeds
+    from kilonet.scenarios.neighbourhood import held_estimates_mm
+    from kilonet.scenarios.prediction import predict_from_seeds
 
     elected = [k for k, o in enumerate(robots) if o.is_seed and not o.edge_seed]
     keys = {k: robots[k].own_key for k in elected}
@@ -407,12 +406,11 @@ def _merge_metrics(run: _Run, out: dict[str, Any]) -> None:
 
 
 def _reference_metrics(run: _Run, out: dict[str, Any]) -> None:
-    """The bound and the optimum beside the swarm's result (:mod:`scenarios.reference`; no two
-    robots in range: nothing is measured, ``crlb_rmse_mm`` is null), and when the swarm was
+    """The bound and the optimum beside the swarm's result (:mod:`kilonet.scenarios.reference`; no
+    two robots in range: nothing is measured, ``crlb_rmse_mm`` is null), and when the swarm was
     done: the last seed done merging, or the last robot done refining."""
     import pandas as pd
-
-    from scenarios.reference import largest_frame_mm, reference_metrics
+    from kilonet.scenarios.reference import largest_frame_mm, reference_metrics
 
     sim, est = run.sim, run.outcomes.estimates
     labels = np.where(est.localized, pd.factorize(est.frame)[0], -1)
@@ -471,11 +469,12 @@ def _boundary(est: pd.DataFrame, i: np.ndarray, j: np.ndarray) -> list[int]:
 
 
 def _metrics(sim: Simulation) -> dict[str, Any]:
+    from kilonet.protocols.gcs.program import phase_windows_s
+
     from kilonet.visibility import LinkModel
-    from protocols.gcs.program import phase_windows_s
 
     events = sim.trace.events_frame()
-    from scenarios.neighbourhood import neighbourhood_mm
+    from kilonet.scenarios.neighbourhood import neighbourhood_mm
 
     p = sim.params
     # The protocol's neighbours: robots it hears, within gcs.neighbour_max_mm.
@@ -506,7 +505,7 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
 
 
 def _outputs(result: RunResult, out_dir: Path) -> None:
-    from scenarios.figures import frames_figure
+    from kilonet.scenarios.figures import frames_figure
 
     sim, summary = result.sim, result.summary
     local_frames_frame(sim).to_csv(out_dir / "local_frames.csv", index=False)

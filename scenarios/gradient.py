@@ -13,10 +13,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from kilonet.protocols.gradient import UNKNOWN, Gradient
+from kilonet.scenarios.base import RunResult, Scenario
 
 from kilonet.params import ParamError, param
-from protocols.gradient import UNKNOWN, Gradient
-from scenarios.base import RunResult, Scenario
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
     from kilonet.simulation import Simulation
@@ -62,7 +62,7 @@ def gradient_consistent(value: int, hops_every_link: int, hops_reliable: int) ->
     then, and the robot keeps the smallest value it hears) and at most its hop count over the
     links that deliver at least half their messages (a robot above that has not heard a
     neighbour it hears reliably: lost to collisions, as behind hidden terminals, or not yet
-    settled). Unreachable is :data:`protocols.gradient.UNKNOWN` on either side.
+    settled). Unreachable is :data:`kilonet.protocols.gradient.UNKNOWN` on either side.
 
     Examples
     --------

@@ -1,17 +1,17 @@
 """``localize``: one global frame at the Cramér–Rao bound, by the swarm alone.
 
-Runs :class:`protocols.localize.program.LocalizeRobot` on every robot (``robot.hardware_uids =
-false``: the robots draw their own IDs; ``robot.tx_period_s = 0.2``, the thesis library's
+Runs :class:`kilonet.protocols.localize.program.LocalizeRobot` on every robot (``robot.hardware_uids
+= false``: the robots draw their own IDs; ``robot.tx_period_s = 0.2``, the thesis library's
 period, as in ``gcs``) until every running robot is done (the swarm decides: see
-:mod:`protocols.localize.phase3_termination`), and scores the result against the truth the robots
-never saw:
+:mod:`kilonet.protocols.localize.phase3_termination`), and scores the result against the truth the
+robots never saw:
 
 * ``frames``, ``localized_fraction``, ``largest_frame_fraction``: robots grouped by the root
   (election key) their frame grew from; ``rmse_mm`` after the best rigid alignment of each
   frame (reflection allowed), pooled over located robots; ``within_5mm_fraction`` (after that
   one alignment of the whole frame: a long shape's own measurement errors bend it by more);
-* the bound and the optimum beside them (:mod:`scenarios.reference`, as ``gcs`` reports them):
-  ``crlb_rmse_mm`` and ``rmse_over_crlb``, ``crlb_received_rmse_mm`` and
+* the bound and the optimum beside them (:mod:`kilonet.scenarios.reference`, as ``gcs`` reports
+  them): ``crlb_rmse_mm`` and ``rmse_over_crlb``, ``crlb_received_rmse_mm`` and
   ``rmse_over_crlb_received``, ``central_rmse_mm``, ``central_localized_fraction``,
   ``largest_frame_over_central``, ``at_optimum_over_central`` (the share of what the solver
   localizes that the largest frame places at the optimum: a folded frame's robots are not)
@@ -19,8 +19,8 @@ never saw:
   reception of every message type counts; records marked ambiguous are left out);
 * ``phase_times_s``: when the root was elected, when the last robot was located, when the root
   declared done and when the last robot was done (``done_s``: a robot that stays awake after
-  DONE for an island, :mod:`protocols.localize.phase4_island`, when its island work is over; NaN
-  unless every running robot did; ``done_fraction`` is the share of running robots that heard
+  DONE for an island, :mod:`kilonet.protocols.localize.phase4_island`, when its island work is over;
+  NaN unless every running robot did; ``done_fraction`` is the share of running robots that heard
   DONE or declared it);
   ``hop_diameter`` of the communication graph, and ``done_over_hop_limit``, ``done_s`` over
   ``hop_diameter × robot.tx_period_s`` (the time information needs to cross the swarm);
@@ -28,11 +28,11 @@ never saw:
   (:func:`why_unplaced`; ``why_unplaced`` in ``robots.csv``), and ``unplaced_robots``, the
   first 50 of them by index;
 * ``misplaced_fixes`` and ``first_misplaced``: the fixes that were wrong given the anchors
-  they used (:mod:`scenarios.placement_audit`), per rule, and the earliest of them — where a
+  they used (:mod:`kilonet.scenarios.placement_audit`), per rule, and the earliest of them — where a
   folded frame began;
 * ``unsendable_messages`` (messages a robot could not pack, sent as nothing) and
   ``out_of_frame_robots`` (robots that refused a position beyond the coordinates messages
-  carry, :data:`protocols.localize_base.MAX_COORDINATE_MM`, 49 m from the root).
+  carry, :data:`kilonet.protocols.localize_base.MAX_COORDINATE_MM`, 49 m from the root).
 """
 
 from __future__ import annotations
@@ -42,11 +42,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-
-from protocols.localize.base import LocalizeParams
-from scenarios.base import RunResult, Scenario
-from scenarios.neighbourhood import trusted_links
-from scenarios.reference import LISTED_ROBOTS
+from kilonet.protocols.localize.base import LocalizeParams
+from kilonet.scenarios.base import RunResult, Scenario
+from kilonet.scenarios.neighbourhood import trusted_links
+from kilonet.scenarios.reference import LISTED_ROBOTS
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
     import pandas as pd
@@ -57,7 +56,7 @@ __all__ = ["SCENARIO", "WHY_UNPLACED", "estimates_frame", "why_unplaced"]
 
 
 def _program(params: Any, positions: np.ndarray):
-    from protocols.localize.program import LocalizeRobot
+    from kilonet.protocols.localize.program import LocalizeRobot
 
     return lambda _i: LocalizeRobot(params.scenario)
 
@@ -68,7 +67,7 @@ def _stop_when(sim: Simulation) -> bool:
 
 
 #: Why a robot ended unplaced, by the placed neighbours (anchors) it knew at the end: the
-#: rule of :mod:`protocols.localize_spread` that could not place it.
+#: rule of :mod:`kilonet.protocols.localize_spread` that could not place it.
 WHY_UNPLACED = {
     "no_anchor": "no placed neighbour: every rule needs two or more",
     "one_anchor": "one placed neighbour: rules 1-3 need two or more",
@@ -95,10 +94,9 @@ def why_unplaced(anchors: int, *, island_closed: bool = False) -> str:
 def estimates_frame(sim: Simulation) -> pd.DataFrame:
     """Per robot: its ID, role, hop count, estimate, frame label, the robot that is its
     frame's root (``root_robot``), the estimate aligned to the truth and its error
-    (:func:`scenarios.estimates.with_alignment`) and its state at the end."""
+    (:func:`kilonet.scenarios.estimates.with_alignment`) and its state at the end."""
     import pandas as pd
-
-    from scenarios.estimates import with_alignment
+    from kilonet.scenarios.estimates import with_alignment
 
     roots = {r.root_key: i for i, r in enumerate(sim.robots) if r.is_root}
     rows = []
@@ -154,8 +152,9 @@ def _phase_times(sim: Simulation) -> dict[str, float]:
 
 
 def _metrics(sim: Simulation) -> dict[str, Any]:
+    from kilonet.scenarios.reference import largest_frame_mm, reference_metrics
+
     from kilonet.central import pooled_aligned_rmse
-    from scenarios.reference import largest_frame_mm, reference_metrics
 
     truth = sim.world.positions_mm
     n = sim.n_robots
@@ -222,10 +221,10 @@ def _misplacements(
     events: pd.DataFrame, est: pd.DataFrame, truth: np.ndarray, labels: np.ndarray
 ) -> dict[str, Any]:
     """``misplaced_fixes`` (per rule, the fixes more than
-    :data:`~scenarios.placement_audit.MISPLACED_MM` from where their references' truth puts
+    :data:`~kilonet.scenarios.placement_audit.MISPLACED_MM` from where their references' truth puts
     them) and ``first_misplaced`` (the earliest: robot, rule, anchors, time, error; None if
-    none), from :func:`~scenarios.placement_audit.placement_errors`."""
-    from scenarios.placement_audit import MISPLACED_MM, frame_handedness, placement_errors
+    none), from :func:`~kilonet.scenarios.placement_audit.placement_errors`."""
+    from kilonet.scenarios.placement_audit import MISPLACED_MM, frame_handedness, placement_errors
 
     positions = est[["est_x_mm", "est_y_mm"]].to_numpy()
     handedness = np.ones(len(truth), dtype=int)
@@ -250,7 +249,7 @@ def _misplacements(
 
 
 def _outputs(result: RunResult, out_dir: Path) -> None:
-    from scenarios.figures import frames_figure
+    from kilonet.scenarios.figures import frames_figure
 
     sim, summary = result.sim, result.summary
     est = estimates_frame(sim)

@@ -1,14 +1,15 @@
 """``maze``: one robot localizes itself in a grid maze and visits every cell (the lab seed).
 
-Robots: robot 0 is the maze robot (:class:`protocols.maze.program.MazeRobot`), robots 1–4 the
-landmarks at the maze corners SW, SE, NE, NW (:class:`protocols.maze.program.LandmarkBeacon`). The
-maze is drawn from the run's placement stream (a perfect maze, or with ``maze.loops`` > 0 one with
-loops), and so is the robot's start cell.
+Robots: robot 0 is the maze robot (:class:`kilonet.protocols.maze.program.MazeRobot`), robots 1–4
+the landmarks at the maze corners SW, SE, NE, NW
+(:class:`kilonet.protocols.maze.program.LandmarkBeacon`). The maze is drawn from the run's placement
+stream (a perfect maze, or with ``maze.loops`` > 0 one with loops), and so is the robot's start
+cell.
 
 ``maze.landmarks = camera`` (default) ranges the landmarks with the robot's camera model; with
 ``infrared`` the landmarks are Kilobots broadcasting their coordinates and the robot ranges only
 what it hears and ranges, so every cell centre must be within
-:func:`scenarios.neighbourhood.neighbourhood_mm` (a median link's reach, at most
+:func:`kilonet.scenarios.neighbourhood.neighbourhood_mm` (a median link's reach, at most
 ``maze.neighbour_max_mm``) of at least three landmarks — for example::
 
     kilonet run maze --set maze.landmarks=infrared --set maze.size=2x2 --set maze.cell_mm=50
@@ -35,11 +36,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-
-from kilonet.params import ParamError, Params
-from kilonet.placement import ROBOT_DIAMETER_MM
-from kilonet.simulation import Simulation, stream_for
-from protocols.maze.hardware import (
+from kilonet.protocols.maze.hardware import (
     Maze,
     RangeSensor,
     WallSensor,
@@ -47,9 +44,19 @@ from protocols.maze.hardware import (
     generate_maze,
     parse_size,
 )
-from protocols.maze.program import LANDMARK_COLORS, LandmarkBeacon, MazeParams, MazeRobot, MazeStage
-from scenarios.base import RunResult, Scenario, run
-from scenarios.maze_hardware import MazeBody, MazeHardware, fit_maze_hardware
+from kilonet.protocols.maze.program import (
+    LANDMARK_COLORS,
+    LandmarkBeacon,
+    MazeParams,
+    MazeRobot,
+    MazeStage,
+)
+from kilonet.scenarios.base import RunResult, Scenario, run
+from kilonet.scenarios.maze_hardware import MazeBody, MazeHardware, fit_maze_hardware
+
+from kilonet.params import ParamError, Params
+from kilonet.placement import ROBOT_DIAMETER_MM
+from kilonet.simulation import Simulation, stream_for
 
 if TYPE_CHECKING:  # pandas and matplotlib are imported where used: listing scenarios is fast
     import pandas as pd
@@ -92,7 +99,7 @@ def _placement(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def _check_infrared_reach(params: Params, maze: Maze, landmarks_mm: np.ndarray) -> None:
-    from scenarios.neighbourhood import neighbourhood_mm
+    from kilonet.scenarios.neighbourhood import neighbourhood_mm
 
     limit = min(params.scenario.neighbour_max_mm, float(params.ranging.max_mm))
     reach = neighbourhood_mm(params.medium, limit)

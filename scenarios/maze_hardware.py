@@ -1,7 +1,7 @@
 """The maze robot's hardware against the true world: what its camera, wall sensor and drive read
 and move.
 
-:class:`protocols.maze.hardware.MazeKilobot` is the robot side: its program calls
+:class:`kilonet.protocols.maze.hardware.MazeKilobot` is the robot side: its program calls
 ``sense_landmark_ranges()``, ``sense_walls()`` and ``drive()``, which reach the robot's ``"maze"``
 part (:meth:`kilonet.robot.Kilobot.hardware`). This module is the other side, a sensor and
 actuator model like :mod:`kilonet.sensors`: a :class:`MazeBody` is handed the ground truth it
@@ -20,8 +20,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-from protocols.maze.hardware import Maze, MazeError, RangeSensor, WallSensor
+from kilonet.protocols.maze.hardware import Maze, MazeError, RangeSensor, WallSensor
 
 if TYPE_CHECKING:
     from kilonet.motion import Motion

@@ -1,7 +1,7 @@
 """The neighbourhood a ranging protocol sees: the medium's links whose estimates it trusts.
 
 Real Kilobots hear each other farther than they can range
-(:mod:`protocols.common.ranging_limit`), so a protocol ignores receptions whose distance
+(:mod:`kilonet.protocols.common.ranging_limit`), so a protocol ignores receptions whose distance
 estimate is above its ``neighbour_max_mm``. The
 truth a scenario judges such a protocol by is then not every link of the medium but the links
 whose estimates fall within that limit: :func:`trusted_links`, from each link's noise-free

@@ -3,7 +3,7 @@
 A frame folds when one robot takes the wrong one of two mirror positions and the robots
 after it place themselves from it: by the end every robot of the folded part fits its own
 neighbours and nothing in the final estimates says where the fold began. Each ``located``
-event of :mod:`protocols.localize.phase2_spread` logs the neighbours the fix used
+event of :mod:`kilonet.protocols.localize.phase2_spread` logs the neighbours the fix used
 (``references``: uid and position as the robot held them). :func:`placement_errors` puts each
 fix where its references' *true* positions put it — the rigid motion (with the frame's
 handedness) that best maps the references as held onto their truth — and measures how far

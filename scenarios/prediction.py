@@ -8,13 +8,13 @@ will (:func:`_frame_members`); robots join a seed's frame when they see the seed
 robots already in that frame and the robots' own fix test, with their own estimates as ranges,
 accepts those anchors where the seed's frame puts them (repeated until nothing changes, as
 localization spreads); merging groups are found as the robots would find them, from the
-positions the frames give them (:func:`protocols.gcs.phase5_merging_groups.find_groups`). The
-frame graph's components (:func:`scenarios.topology.failure_cases`) are the global frames
-merging can reach.
+positions the frames give them (:func:`kilonet.protocols.gcs.phase5_merging_groups.find_groups`).
+The frame graph's components (:func:`kilonet.scenarios.topology.failure_cases`) are the global
+frames merging can reach.
 
 The estimates are what the robots' tables will hold
-(:func:`scenarios.neighbourhood.held_estimates_mm`): each link's noise-free estimate, directed,
-since the receiver's calibration tables and the sender's emitter set a real Kilobot link's
+(:func:`kilonet.scenarios.neighbourhood.held_estimates_mm`): each link's noise-free estimate,
+directed, since the receiver's calibration tables and the sender's emitter set a real Kilobot link's
 systematic error (several mm, more toward the tables' saturation) and so differ between the two
 directions of a link. The noise on top averages out over the receptions a table entry is the
 mean of, but dithers that mean between kilolib's whole-mm steps, and lets links up to 2 mm
@@ -30,7 +30,7 @@ complete when phase 5 starts.
 
 |BC| reaches the seed as the mean of B's and C's table entries, each B's (C's) held estimate
 in whole millimetres (phase 3's TABLE carries ``d:uint8``), the pair accepted only if the two
-agree as phase 3 requires (:func:`protocols.gcs.phase3_local_frames.reference_candidates`).
+agree as phase 3 requires (:func:`kilonet.protocols.gcs.phase3_local_frames.reference_candidates`).
 That matters for nearly collinear references, which the thesis's largest-angle rule picks once
 bodies no longer block the link between two robots on opposite sides of the seed: a few tenths
 of a millimetre then decide whether the triangle exists at all, and how wide the seed's frame
@@ -47,6 +47,11 @@ from typing import Any
 
 import networkx as nx
 import numpy as np
+from kilonet.protocols.gcs.base import GcsParams
+from kilonet.protocols.gcs.frame_keys import FrameKey
+from kilonet.protocols.gcs.phase3_local_frames import reference_candidates
+from kilonet.protocols.gcs.phase5_merging_groups import find_groups
+from kilonet.scenarios.topology import failure_cases, rigidity_facts
 
 from kilonet.geometry import (
     GeometryError,
@@ -56,11 +61,6 @@ from kilonet.geometry import (
     place_references,
 )
 from kilonet.params import Params
-from protocols.gcs.base import GcsParams
-from protocols.gcs.frame_keys import FrameKey
-from protocols.gcs.phase3_local_frames import reference_candidates
-from protocols.gcs.phase5_merging_groups import find_groups
-from scenarios.topology import failure_cases, rigidity_facts
 
 __all__ = ["predict_from_seeds"]
 
@@ -77,7 +77,7 @@ def predict_from_seeds(
     ----------
     estimates_mm : (n, n) array
         ``[sender, receiver]``: the receiver's estimate of its distance to the sender, mm
-        (noise-free, :func:`scenarios.neighbourhood.held_estimates_mm`); NaN where the
+        (noise-free, :func:`kilonet.scenarios.neighbourhood.held_estimates_mm`); NaN where the
         receiver does not hear the sender, and on the diagonal. Estimates above
         ``gcs.neighbour_max_mm`` are ignored, as the robots ignore them.
     params : Params
@@ -86,16 +86,16 @@ def predict_from_seeds(
     seeds : sequence of int
         Robot indices elected seeds in phase 2.
     frame_keys : mapping, optional
-        Seed index → its frame key (:class:`protocols.gcs.frame_keys.FrameKey`). A robot located in
-        frames of several components reports the one of the smallest key (the merged frame's
-        root, as :mod:`protocols.gcs.phase6_merging` ranks elected seeds), an isolated seed's only
-        if it has no other; without keys, the largest.
+        Seed index → its frame key (:class:`kilonet.protocols.gcs.frame_keys.FrameKey`). A robot
+        located in frames of several components reports the one of the smallest key (the merged
+        frame's root, as :mod:`kilonet.protocols.gcs.phase6_merging` ranks elected seeds), an
+        isolated seed's only if it has no other; without keys, the largest.
 
     Returns
     -------
     dict
         ``robots``, ``seeds``, ``located_in`` (robot → seeds whose frames it will be located
-        in), the cases of :func:`scenarios.topology.failure_cases` (``unlocalizable``,
+        in), the cases of :func:`kilonet.scenarios.topology.failure_cases` (``unlocalizable``,
         ``isolated_seeds``, ``frames``, ``split``) and the rigidity facts of the graph of links
         both ends trust; ``final_frame`` (robot → index into ``frames`` of the merged frame it
         will report, ``None`` if unlocalizable), ``final_frames`` (how many distinct ones
@@ -150,8 +150,8 @@ def _frame_members(
     ``estimates[sender, receiver]`` (mm, NaN if unheard or ignored) and ``hears[r]`` (the
     robots in r's table) are the robots' own. The seed asks the neighbours in its table that
     hear it, takes its own estimates of them and their tables (their estimates of their
-    neighbours in whole millimetres, :mod:`protocols.gcs.phase3_local_frames`); a fix
-    (:mod:`protocols.gcs.phase4_localization`) ranges with the robot's estimates of the seed
+    neighbours in whole millimetres, :mod:`kilonet.protocols.gcs.phase3_local_frames`); a fix
+    (:mod:`kilonet.protocols.gcs.phase4_localization`) ranges with the robot's estimates of the seed
     and of the anchors it hears, placed where the seed's frame puts them, so a frame the
     estimates have bent or widened admits the robots it will admit.
     """
@@ -178,8 +178,8 @@ def _frame_members(
             anchors = [seed, *(a for a in hears[robot] if a in inside and a != seed)]
             if robot in inside or len(anchors) < 3:
                 continue
-            # The robot's own test (protocols.gcs.phase4_localization): a fix from nearly collinear
-            # anchors, or one with a mirror image, is rejected there too.
+            # The robot's own test (kilonet.protocols.gcs.phase4_localization): a fix from nearly
+            # collinear anchors, or one with a mirror image, is rejected there too.
             fix = multilaterate(
                 np.array([inside[a] for a in anchors]),
                 estimates[anchors, robot],
@@ -200,7 +200,7 @@ def _groups(
 ) -> list[tuple[int, int]]:
     """The merging groups' frame pairs (seed indices), as the robots would find them: from
     their positions in the frames, the robots they hear, and as reach the farthest estimate
-    in their table (:mod:`protocols.gcs.phase5_merging_groups`)."""
+    in their table (:mod:`kilonet.protocols.gcs.phase5_merging_groups`)."""
     groups = []
     for i, near in enumerate(hears):
         own = {s: m[i] for s, m in members.items() if i in m}
@@ -221,7 +221,7 @@ def _final_frames(
     """Robot → index into ``frames`` (the frame graph's components) of the merged frame it will
     report: of the components its frames are in, the one whose smallest frame key is smallest
     (the root that wins), or without keys the first (largest); an ``isolated`` seed's frame
-    only if it has no other (its root ranks last, :mod:`protocols.gcs.phase6_merging`)."""
+    only if it has no other (its root ranks last, :mod:`kilonet.protocols.gcs.phase6_merging`)."""
     component_of = {s: c for c, seeds in enumerate(frames) for s in seeds}
     alone = {component_of[s] for s in isolated}
     if frame_keys is None:

@@ -30,11 +30,12 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from kilonet.scenarios.base import RunResult, Scenario, ScenarioError
+
 from kilonet.errors import read_text
 from kilonet.message import PayloadError
 from kilonet.robot import Kilobot
 from kilonet.watchdog import BusyCallError
-from scenarios.base import RunResult, Scenario, ScenarioError
 
 if TYPE_CHECKING:
     from kilonet.simulation import Simulation

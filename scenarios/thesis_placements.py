@@ -12,7 +12,7 @@ name::
 
     kilonet run gcs --placement thesis-7.1c --set gcs.until=groups --json
 
-or ``scenarios.run(scenarios.get("gcs"), {...}, placement="thesis-7.1c")``.
+or ``kilonet.scenarios.run(kilonet.scenarios.get("gcs"), {...}, placement="thesis-7.1c")``.
 
 Two facts of the algorithm carry the constructions (phases 3-5, :mod:`protocols`):
 

@@ -1,4 +1,4 @@
-"""Tests for presentation.animation and ``kilonet animate``: GIF and HTML of a real gradient run
+"""Tests for kilonet.viz.animation and ``kilonet animate``: GIF and HTML of a real gradient run
 (frame count, size, LED colours read back at the robots' centres), state sampled from event
 tables, overlays, and user errors."""
 
@@ -14,12 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from PIL import Image
-
-import kilonet.cli as cli
-import scenarios
-from kilonet.alignment import procrustes_rmse
-from presentation.animation import (
+from kilonet.viz.animation import (
     AnimationError,
     FrameRenderer,
     Replay,
@@ -27,6 +22,11 @@ from presentation.animation import (
     frame_times,
     load_run,
 )
+from PIL import Image
+
+import kilonet.cli as cli
+from kilonet import scenarios
+from kilonet.alignment import procrustes_rmse
 
 _PATH_COLOUR = (31, 119, 180)
 
@@ -66,7 +66,7 @@ def _write_run(
     messages: list[tuple] | None = None,
     duration_s: float = 4.0,
 ) -> Path:
-    """A hand-made run directory with the tables ``scenarios.write_outputs`` writes."""
+    """A hand-made run directory with the tables ``kilonet.scenarios.write_outputs`` writes."""
     path.mkdir(parents=True)
     robots.to_csv(path / "robots.csv", index=False)
     tables = {
@@ -564,7 +564,7 @@ def test_a_run_without_a_key_draws_none(tmp_path: Path):
 
 
 def test_the_replay_template_ships_with_the_package():
-    """CI installs non-editable: every file of ``presentation/`` that is not Python must be
+    """CI installs non-editable: every file of ``viz/`` that is not Python must be
     package data in pyproject.toml, or ``pip install .`` leaves it behind."""
     import fnmatch
     import tomllib
@@ -572,7 +572,7 @@ def test_the_replay_template_ships_with_the_package():
 
     root = Path(__file__).resolve().parents[1]
     config = tomllib.loads((root / "pyproject.toml").read_text())
-    globs = config["tool"]["setuptools"]["package-data"]["presentation"]
-    data = [p.name for p in (root / "presentation").iterdir() if p.is_file() and p.suffix != ".py"]
+    globs = config["tool"]["setuptools"]["package-data"]["kilonet.viz"]
+    data = [p.name for p in (root / "viz").iterdir() if p.is_file() and p.suffix != ".py"]
     assert "replay.html" in data
     assert all(any(fnmatch.fnmatch(name, g) for g in globs) for name in data), (data, globs)

@@ -17,10 +17,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from kilonet.protocols.localize.program import LocalizeRobot
 
 import kilonet.cli
-import scenarios
-from protocols.localize.program import LocalizeRobot
+from kilonet import scenarios
 
 pytestmark = pytest.mark.browser
 

@@ -13,12 +13,12 @@ from importlib.metadata import entry_points, version
 from pathlib import Path
 
 import pytest
+from kilonet.protocols.gcs.base import PHASES
 
-import scenarios
+from kilonet import scenarios
 from kilonet.cli import COMMANDS, main
 from kilonet.placement import save_csv
 from kilonet.simulation import Simulation
-from protocols.gcs.base import PHASES
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -272,7 +272,7 @@ def test_replace_swaps_the_whole_directory(files, tmp_path, capsys):
 
 
 def test_replace_without_atomic_exchange_moves_aside_then_in(files, monkeypatch, capsys):
-    import scenarios.output_dir as output_dir
+    import kilonet.scenarios.output_dir as output_dir
 
     monkeypatch.setattr(output_dir, "_exchange", lambda a, b: False)
     full = files["full"]
@@ -437,8 +437,8 @@ def test_gcs_progress_names_the_phase_and_ends_at_its_window(capsys):
 
 
 def test_expected_ends():
-    from scenarios.base import _expected_end_s, build_params
-    from scenarios.gcs import _expected_end_s as gcs_end
+    from kilonet.scenarios.base import _expected_end_s, build_params
+    from kilonet.scenarios.gcs import _expected_end_s as gcs_end
 
     def end(name, **overrides):
         scenario = scenarios.get(name)
@@ -472,8 +472,8 @@ def test_listing_commands_import_no_heavy_library(argv):
 
 def test_a_run_reaches_its_first_event_without_pandas_or_matplotlib():
     code = (
-        "import scenarios\n"
-        "from scenarios.base import build_params, place\n"
+        "from kilonet import scenarios\n"
+        "from kilonet.scenarios.base import build_params, place\n"
         "from kilonet.simulation import Simulation\n"
         "s = scenarios.get('gradient'); p = build_params(s); x = place(s, p)\n"
         "sim = Simulation(x, s.program(p, x), p); sim.start(); sim.env.step()"

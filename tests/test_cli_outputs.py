@@ -103,7 +103,7 @@ def test_quiet_leaves_only_the_summary(capsys):
 
 
 def test_the_phase_shows_before_what_the_run_waits_for(capsys):
-    import scenarios
+    from kilonet import scenarios
 
     scenarios.run(scenarios.get("gcs"), {"placement.robots": 12, "duration_s": 3}, progress="bar")
     last = capsys.readouterr().err.split("\r")[-1]

@@ -7,10 +7,10 @@ import re
 from pathlib import Path
 
 import pytest
+from kilonet.scenarios.base import RunResult, write_run_files
+from kilonet.scenarios.program import program_scenario
 
-import scenarios
-from scenarios.base import RunResult, write_run_files
-from scenarios.program import program_scenario
+from kilonet import scenarios
 
 OUTPUTS = Path(__file__).resolve().parents[1] / "docs" / "outputs.md"
 

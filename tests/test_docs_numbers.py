@@ -1,5 +1,5 @@
 """Numbers in docs prose that the code decides, re-derived from the code (the measured ones sit
-in ``python -m experiments.publish`` blocks)."""
+in ``python -m kilonet.experiments.publish`` blocks)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,10 @@ import math
 import re
 from pathlib import Path
 
-import scenarios
-from protocols.gcs.program import phase_windows_s
-from scenarios.base import build_params
+from kilonet.protocols.gcs.program import phase_windows_s
+from kilonet.scenarios.base import build_params
+
+from kilonet import scenarios
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -19,13 +19,8 @@ import dask
 import numpy as np
 import pandas as pd
 import pytest
-from matplotlib.figure import Figure
-from scipy import stats
-
-import kilonet.cli
-import scenarios
-from experiments import cli as experiments_cli
-from experiments.report import (
+from kilonet.experiments import cli as experiments_cli
+from kilonet.experiments.report import (
     ReportError,
     aggregate,
     failures,
@@ -34,9 +29,14 @@ from experiments.report import (
     plot,
     write_report,
 )
-from experiments.runner import _record_of, execute_run, run_sweep
-from experiments.store import DB_NAME, ResultStore, RunRecord, StoreError
-from experiments.sweep import SweepError, load_sweep, parse_sweep
+from kilonet.experiments.runner import _record_of, execute_run, run_sweep
+from kilonet.experiments.store import DB_NAME, ResultStore, RunRecord, StoreError
+from kilonet.experiments.sweep import SweepError, load_sweep, parse_sweep
+from matplotlib.figure import Figure
+from scipy import stats
+
+import kilonet.cli
+from kilonet import scenarios
 
 # Small and short runs: 20 robots, 5 simulated seconds (a few hundredths of a second each).
 SMALL = """

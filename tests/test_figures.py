@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from kilonet.scenarios.estimates import ALIGNED_COLUMNS, with_alignment
+from kilonet.scenarios.figures import MAX_LEGEND_FRAMES, error_magnification, frames_figure
 from matplotlib.collections import LineCollection
 from PIL import Image
 
-import scenarios
-from scenarios.estimates import ALIGNED_COLUMNS, with_alignment
-from scenarios.figures import MAX_LEGEND_FRAMES, error_magnification, frames_figure
+from kilonet import scenarios
 
 
 @pytest.fixture(scope="module", params=["gcs", "localize"])
@@ -147,7 +147,7 @@ def test_large_errors_are_drawn_at_true_scale_and_many_frames_share_an_entry(tmp
 
 @pytest.mark.parametrize("run_dir", ["gcs"], indirect=True)
 def test_gcs_records_no_global_estimate_before_merging(run_dir):
-    from protocols.gcs.program import phase_windows_s
+    from kilonet.protocols.gcs.program import phase_windows_s
 
     result, out = run_dir
     start = {name: start for name, start, _ in phase_windows_s(result.params.scenario)}

@@ -8,14 +8,7 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
-
-from kilonet.geometry import place_references, trilaterate_linear
-from kilonet.message import PayloadError
-from kilonet.params import ParamError
-from kilonet.placement import save_csv
-from kilonet.robot import Kilobot
-from kilonet.simulation import Simulation
-from protocols.follower.follower import (
+from kilonet.protocols.follower.follower import (
     FRAME_BYTE,
     FRAME_WIDE,
     FrameReport,
@@ -27,9 +20,22 @@ from protocols.follower.follower import (
     reachable_goal,
     turn_angle,
 )
-from protocols.follower.turn_calibration import TurnCalibration
-from scenarios.base import ScenarioError, build_params, run, write_outputs
-from scenarios.follower import SCENARIO, calibrate_turns, frame_to_floor, run_many, trajectory
+from kilonet.protocols.follower.turn_calibration import TurnCalibration
+from kilonet.scenarios.base import ScenarioError, build_params, run, write_outputs
+from kilonet.scenarios.follower import (
+    SCENARIO,
+    calibrate_turns,
+    frame_to_floor,
+    run_many,
+    trajectory,
+)
+
+from kilonet.geometry import place_references, trilaterate_linear
+from kilonet.message import PayloadError
+from kilonet.params import ParamError
+from kilonet.placement import save_csv
+from kilonet.robot import Kilobot
+from kilonet.simulation import Simulation
 
 #: An equilateral frame with 75 mm sides, robot 3 on the left of the 1→2 axis.
 FRAME = np.array([[0.0, 0.0], [75.0, 0.0], [37.5, 75.0 * math.sqrt(3) / 2]])
@@ -233,8 +239,8 @@ def test_generator_needs_four_robots():
 
 
 def test_generated_placements_respect_the_geometry():
-    from scenarios.base import place
-    from scenarios.follower import ranging_mm
+    from kilonet.scenarios.base import place
+    from kilonet.scenarios.follower import ranging_mm
 
     for seed in range(1, 6):
         params = build_params(SCENARIO, {"follower.handedness": "right"}, seed=seed)
@@ -369,7 +375,7 @@ def test_saturated_distances_walk_to_the_nearest_robot_first():
 
 def test_never_uses_readings_from_before_its_listening_window():
     params = build_params(SCENARIO, {"follower.start_min_mm": 20.0}, seed=1)
-    from scenarios.base import place
+    from kilonet.scenarios.base import place
 
     pos = place(SCENARIO, params)
     sim = Simulation(pos, SCENARIO.program(params, pos), params)
@@ -452,7 +458,7 @@ def test_real_medium_success_rate():
 
 @pytest.mark.slow
 def test_long_range_success_rate():
-    from experiments.studies.follower_measured import CONDITIONS
+    from kilonet.experiments.studies.follower_measured import CONDITIONS
 
     (what_if,) = (overrides for label, overrides in CONDITIONS if label.startswith("what-if"))
     table = run_many(range(1, 101), what_if)  # the 300 mm disc of docs/follower.md's table

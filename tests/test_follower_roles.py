@@ -1,17 +1,13 @@
-"""The trilateration frame robots (protocols.follower.follower's Origin, XAxisRobot, ThirdRobot) on
-the test kit: what each announces, when it flags its coordinates, the seed's LED colours; first
-hearing scripted reports, then beside the real frame robots in the real medium."""
+"""The trilateration frame robots (kilonet.protocols.follower.follower's Origin, XAxisRobot,
+ThirdRobot) on the test kit: what each announces, when it flags its coordinates, the seed's LED
+colours; first hearing scripted reports, then beside the real frame robots in the real medium."""
 
 from __future__ import annotations
 
 import math
 
 import pytest
-
-from kilonet.geometry import place_references
-from kilonet.message import LIMITS
-from kilonet.params import MediumParams
-from protocols.follower.follower import (
+from kilonet.protocols.follower.follower import (
     FRAME_BYTE,
     FRAME_WIDE,
     ORIGIN,
@@ -23,6 +19,10 @@ from protocols.follower.follower import (
     XAxisRobot,
     encode,
 )
+
+from kilonet.geometry import place_references
+from kilonet.message import LIMITS
+from kilonet.params import MediumParams
 
 _MEDIUM = MediumParams()
 #: One message's airtime on the default medium: its bytes at the bit rate, plus the preamble.

@@ -1,13 +1,12 @@
-"""Frame keys, roots and ranks (protocols.gcs.frame_keys): ordered exactly as the integers the
-protocol once packed them into, and carried by their message fields without loss."""
+"""Frame keys, roots and ranks (kilonet.protocols.gcs.frame_keys): ordered exactly as the integers
+the protocol once packed them into, and carried by their message fields without loss."""
 
 from __future__ import annotations
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-
-from protocols.gcs.frame_keys import EDGE_BIT, MAX_HOPS, FrameKey, Rank, Root
+from kilonet.protocols.gcs.frame_keys import EDGE_BIT, MAX_HOPS, FrameKey, Rank, Root
 
 uids = st.integers(0, (1 << 15) - 1)  # gcs.id_bits is at most 15
 salts = st.integers(0, 255)

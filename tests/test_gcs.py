@@ -12,15 +12,15 @@ import json
 import networkx as nx
 import numpy as np
 import pytest
+from kilonet.protocols.gcs.base import GcsParams
+from kilonet.protocols.gcs.phase1_unique_ids import ID
+from kilonet.protocols.gcs.phase6_merging import TF_ROT, quaternion_fields, rotation_from_fields
+from kilonet.protocols.gcs.program import phase_windows_s
+from kilonet.scenarios.neighbourhood import trusted_links
 from scipy.spatial.transform import Rotation
 
-import scenarios
+from kilonet import scenarios
 from kilonet.alignment import half_map, procrustes_rmse
-from protocols.gcs.base import GcsParams
-from protocols.gcs.phase1_unique_ids import ID
-from protocols.gcs.phase6_merging import TF_ROT, quaternion_fields, rotation_from_fields
-from protocols.gcs.program import phase_windows_s
-from scenarios.neighbourhood import trusted_links
 
 GCS = scenarios.get("gcs")
 #: The full-size runs check the pipeline's machinery, so they take well-conditioned references:
@@ -110,7 +110,7 @@ def test_phase2_reports_an_impossible_topology_and_still_ends():
         (40, 1),
         # IDs are unique only among neighbours: here a reference's table held another robot
         # with the other reference's ID (see
-        # protocols.gcs.phase3_local_frames.reference_candidates).
+        # kilonet.protocols.gcs.phase3_local_frames.reference_candidates).
         (100, 3),
     ],
 )
@@ -305,8 +305,9 @@ def test_an_isolated_seeds_root_ranks_last_so_it_wins_no_robot_of_a_merged_frame
     (docs/gcs.md, "On the robot model"). Their roots rank last, as edge seeds' do: a robot whose
     frames include one that can merge never takes an isolated seed's root (before, the smaller
     key won, and an isolated seed's references left the merged frame with it)."""
+    from kilonet.scenarios.base import build_params, place
+
     from kilonet import Simulation
-    from scenarios.base import build_params, place
 
     # Seed 4: isolated seeds with smaller keys than the frames their references share.
     params = build_params(GCS, {"placement.robots": 40}, seed=4)
@@ -333,8 +334,9 @@ def test_a_partner_that_never_answers_stops_holding_up_done():
     """A seed crashes just before merging, so no member ever holds its transform: rounds
     about it time out, and after gcs.merge_silent_rounds of them its partners are done
     without it (before, they ran rounds until gcs.merge_max_rounds and the run never ended)."""
+    from kilonet.scenarios.base import build_params, place
+
     from kilonet import Simulation
-    from scenarios.base import build_params, place
 
     # The thesis's premise (bodies block links) keeps every other seed's partners answering.
     settings = {"placement.robots": 40, "gcs.merge_max_rounds": 300, "medium.occlusion": "block"}
@@ -439,7 +441,8 @@ def test_failures_section_names_the_lone_robot_and_its_isolated_frame():
     assert 19 in failures["isolated_seeds"]
     assert [19] in failures["frame_components"]  # the lone seed's frame is a component
     # ... but no robot is located in it alone (not even the seed, which has no frame), so it
-    # splits no global frame: the thesis's case 2, not case 3 (scenarios.gcs.own_components).
+    # splits no global frame: the thesis's case 2, not case 3
+    # (kilonet.scenarios.gcs.own_components).
     assert failures["split_frames"] == 0
     assert 19 in failures["robots_with_fewer_than_3_neighbours"]
 
@@ -462,7 +465,7 @@ def test_analyze_predicts_the_lone_robot_before_a_full_run(tmp_path, capsys):
 
 
 def test_a_phase_class_without_a_window_is_refused_when_it_is_defined():
-    from protocols.gcs.base import Phase
+    from kilonet.protocols.gcs.base import Phase
 
     with pytest.raises(TypeError, match="phase Unbounded must define window_s"):
 

@@ -1,10 +1,9 @@
-"""Tests for experiments.studies.gcs_measured: what docs/gcs.md's blocks read from a run."""
+"""Tests for kilonet.experiments.studies.gcs_measured: what docs/gcs.md's blocks read from a run."""
 
 from __future__ import annotations
 
 import pytest
-
-from experiments.studies.gcs_measured import THIN_DEG, gcs_run
+from kilonet.experiments.studies.gcs_measured import THIN_DEG, gcs_run
 
 
 @pytest.mark.slow

@@ -7,17 +7,14 @@ import math
 import typing
 
 import pytest
-
-import scenarios
-from kilonet.message import PayloadError
-from protocols.common.layouts import discover
-from protocols.common.neighbours import NeighbourTable
-from protocols.gcs.base import LAYOUTS as GCS_LAYOUTS
-from protocols.gcs.base import PHASES, GcsParams, GcsStage, Phase, gcs_layout, sender_of
-from protocols.gcs.phase1_unique_ids import is_duplicate
-from protocols.gcs.phase2_seed_election import seed_condition_met
-from protocols.gcs.phase4_localization import fix_anchors, worth_a_fix
-from protocols.gcs.program import (
+from kilonet.protocols.common.layouts import discover
+from kilonet.protocols.common.neighbours import NeighbourTable
+from kilonet.protocols.gcs.base import LAYOUTS as GCS_LAYOUTS
+from kilonet.protocols.gcs.base import PHASES, GcsParams, GcsStage, Phase, gcs_layout, sender_of
+from kilonet.protocols.gcs.phase1_unique_ids import is_duplicate
+from kilonet.protocols.gcs.phase2_seed_election import seed_condition_met
+from kilonet.protocols.gcs.phase4_localization import fix_anchors, worth_a_fix
+from kilonet.protocols.gcs.program import (
     OPEN_ENDED,
     PHASE_SEQUENCE,
     RECOVERY_SEQUENCE,
@@ -25,9 +22,12 @@ from protocols.gcs.program import (
     led_colour,
     phase_windows_s,
 )
-from protocols.gcs.recovery import adopts_epoch
-from protocols.gcs.split_detection import distance_mismatch_mm
-from scenarios.gcs import estimates_frame, run_outcomes
+from kilonet.protocols.gcs.recovery import adopts_epoch
+from kilonet.protocols.gcs.split_detection import distance_mismatch_mm
+from kilonet.scenarios.gcs import estimates_frame, run_outcomes
+
+from kilonet import scenarios
+from kilonet.message import PayloadError
 
 #: Every layout of the protocol, as its modules register them (phase 7's GPOS types and the
 #: refinement's DIST included).
@@ -35,7 +35,7 @@ LAYOUTS = list(GCS_LAYOUTS)
 
 
 def test_every_layout_starts_with_the_sender_and_sender_of_reads_it():
-    assert list(discover("protocols.gcs")) == LAYOUTS  # nothing built outside gcs_layout
+    assert list(discover("kilonet.protocols.gcs")) == LAYOUTS  # nothing built outside gcs_layout
     assert len({layout.type for layout in LAYOUTS}) == len(LAYOUTS)
     for layout in LAYOUTS:
         names = layout.record._fields

@@ -1,15 +1,14 @@
-"""A robot's global estimate (protocols.gcs.global_estimate): derived from what it holds, never
-stale, changed only through its methods."""
+"""A robot's global estimate (kilonet.protocols.gcs.global_estimate): derived from what it holds,
+never stale, changed only through its methods."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from kilonet.protocols.gcs.frame_keys import FrameKey, Rank, Root
+from kilonet.protocols.gcs.global_estimate import GlobalEstimate
+from kilonet.protocols.gcs.transforms import Transform, version_byte
 from scipy.spatial.transform import Rotation
-
-from protocols.gcs.frame_keys import FrameKey, Rank, Root
-from protocols.gcs.global_estimate import GlobalEstimate
-from protocols.gcs.transforms import Transform, version_byte
 
 A, B, C = FrameKey(3, 1), FrameKey(5, 2), FrameKey(8, 0)
 ROOT_1 = Rank.own(FrameKey(1, 0), edge=False)

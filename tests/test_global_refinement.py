@@ -8,13 +8,10 @@ from collections import Counter
 
 import numpy as np
 import pytest
-
-import scenarios
-from kilonet.simulation import Simulation
-from protocols.gcs.base import GcsParams
-from protocols.gcs.frame_keys import FrameKey, Root
-from protocols.gcs.global_estimate import GlobalEstimate
-from protocols.gcs.phase7_refinement import (
+from kilonet.protocols.gcs.base import GcsParams
+from kilonet.protocols.gcs.frame_keys import FrameKey, Root
+from kilonet.protocols.gcs.global_estimate import GlobalEstimate
+from kilonet.protocols.gcs.phase7_refinement import (
     GPOS,
     GPOS_PLACED,
     GPOS_SETTLED,
@@ -23,8 +20,11 @@ from protocols.gcs.phase7_refinement import (
     frame_to_join,
     wave_reached,
 )
-from protocols.gcs.program import GcsRobot, phase_sequence
-from scenarios.base import build_params, place
+from kilonet.protocols.gcs.program import GcsRobot, phase_sequence
+from kilonet.scenarios.base import build_params, place
+
+from kilonet import scenarios
+from kilonet.simulation import Simulation
 
 GCS = scenarios.get("gcs")
 

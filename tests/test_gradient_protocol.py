@@ -1,4 +1,4 @@
-"""The hop-count gradient (protocols.gradient), on the test kit: one robot hearing scripted
+"""The hop-count gradient (kilonet.protocols.gradient), on the test kit: one robot hearing scripted
 gradients, both update rules, its LED and messages, and the whole protocol on drawn swarms."""
 
 from __future__ import annotations
@@ -6,12 +6,12 @@ from __future__ import annotations
 import networkx as nx
 import pytest
 from hypothesis import given, settings
+from kilonet.protocols.gradient import GRADIENT, UNKNOWN, Gradient
 
 from kilonet.message import LIMITS
 from kilonet.params import MediumParams
 from kilonet.testing.strategies import connected_placements, loss_settings
 from kilonet.visibility import LinkModel, communication_graph
-from protocols.gradient import GRADIENT, UNKNOWN, Gradient
 
 _MEDIUM = MediumParams()
 #: One message's airtime on the default medium: its bytes at the bit rate, plus the preamble.
@@ -105,7 +105,7 @@ def test_every_robot_ends_at_its_hop_distance_from_the_source(xy, lossy):
     from kilonet.testing import run_swarm
 
     # The placements' hop counts are over one 85 mm radius: the disc medium (real robots' links
-    # reach per sender, farther; scenarios.gradient.hop_distances counts over those).
+    # reach per sender, farther; kilonet.scenarios.gradient.hop_distances counts over those).
     hops = nx.single_source_shortest_path_length(communication_graph(xy, LinkModel(85.0)), 0)
     result = run_swarm(
         lambda i: Gradient(is_source=i == 0),

@@ -23,10 +23,10 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from kilonet.scenarios.base import build_params
 
 import kilonet.cli
-import scenarios
-from scenarios.base import build_params
+from kilonet import scenarios
 
 SCENARIOS = ("gradient", "localize", "follower", "gcs", "maze")
 
@@ -389,7 +389,7 @@ def sweep_file_cases(draw) -> tuple[list[str], dict[str, bytes]]:
 
 def _too_many_runs(files: dict[str, bytes]) -> bool:
     """Whether a sweep file would run more than 8 runs (step ranges can make many)."""
-    from experiments.sweep import SweepError, parse_sweep
+    from kilonet.experiments.sweep import SweepError, parse_sweep
 
     try:
         return len(parse_sweep(files["s.toml"].decode(), name="s").runs()) > 8

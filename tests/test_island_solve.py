@@ -1,5 +1,5 @@
-"""The island solve of ``localize`` (protocols.localize.island_solve): rigid bodies of unplaced
-robots aligned to the frame through their links, only where that is unique."""
+"""The island solve of ``localize`` (kilonet.protocols.localize.island_solve): rigid bodies of
+unplaced robots aligned to the frame through their links, only where that is unique."""
 
 from __future__ import annotations
 
@@ -9,9 +9,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from protocols.localize.island_solve import RigidMotion, Tolerances, align_body, solve_island
-from protocols.localize.phase4_island import IslandReports
+from kilonet.protocols.localize.island_solve import (
+    RigidMotion,
+    Tolerances,
+    align_body,
+    solve_island,
+)
+from kilonet.protocols.localize.phase4_island import IslandReports
 
 RANGE_MM = 85.0
 SHAPE = {"min_height_mm": 10.0, "overlap_mm": 28.0}

@@ -1,11 +1,14 @@
 """The house's one-way layers, checked on the source.
 
-``kilonet/`` (the kernel) imports no protocol, scenario or experiment; ``protocols/`` use only
-the robot API and pure math; ``scenarios/`` glue the two; ``experiments/`` and the command
-line's sub-commands sit on top. An import counts wherever it is written: at the top of a
-module, inside a function or a ``TYPE_CHECKING`` block, by name
-(``importlib.import_module("experiments.cli")``, ``__import__``), or as a string that names a
-module of the project (``"scenarios.analyze:register"``); docstrings do not count.
+One package, ``kilonet``; the repository's top-level folders are its layers (folder ``F/`` is
+``kilonet.F``; ``kilonet/`` itself is the kernel). The kernel imports no protocol, scenario,
+picture or experiment; ``kilonet.protocols`` use only the robot API and pure math;
+``kilonet.scenarios`` glue the two; ``kilonet.viz`` draws finished runs; ``kilonet.experiments``
+and the command line's sub-commands sit on top. An import counts wherever it is written: at the
+top of a module, inside a function or a ``TYPE_CHECKING`` block, by name
+(``importlib.import_module("kilonet.experiments.cli")``, ``__import__``), or as a string that
+names a module of the project (``"kilonet.scenarios.analyze:register"``); docstrings do not
+count.
 """
 
 from __future__ import annotations
@@ -21,7 +24,10 @@ import pytest
 from kilonet.robot import RESERVED_PREFIX
 
 ROOT = Path(__file__).resolve().parents[1]
-LAYERS = ("kilonet", "protocols", "scenarios", "presentation", "experiments")
+#: The layers above the kernel: each is a top-level folder, installed as ``kilonet.<folder>``.
+SUBLAYERS = ("protocols", "scenarios", "viz", "experiments")
+#: Every layer, bottom first; ``kernel`` is ``kilonet`` less its sub-layers.
+LAYERS = ("kernel", *SUBLAYERS)
 
 #: What a protocol may use of the kernel: the robot API (the Kilobot base class, messages,
 #: parameter declarations) and pure math.
@@ -34,17 +40,42 @@ _IMPORT_FUNCTIONS = {"import_module", "__import__", "find_spec"}
 
 
 def module_name(path: Path) -> str:
-    """``kilonet/cli.py`` -> ``kilonet.cli``; ``scenarios/__init__.py`` -> ``scenarios``."""
+    """``kilonet/cli.py`` -> ``kilonet.cli``; ``scenarios/__init__.py`` -> ``kilonet.scenarios``."""
     parts = list(path.relative_to(ROOT).with_suffix("").parts)
     if parts[-1] == "__init__":
         parts.pop()
+    if parts[0] in SUBLAYERS:
+        parts.insert(0, "kilonet")
     return ".".join(parts)
 
 
+def source_path(name: str) -> Path:
+    """Where the dotted project module ``name`` lives, less its suffix: ``kilonet.scenarios.gcs``
+    -> ``ROOT/scenarios/gcs``, ``kilonet.cli`` -> ``ROOT/kilonet/cli``."""
+    parts = name.split(".")
+    if len(parts) > 1 and parts[0] == "kilonet" and parts[1] in SUBLAYERS:
+        parts = parts[1:]
+    return ROOT.joinpath(*parts)
+
+
 def is_project_module(name: str) -> bool:
-    """Whether ``name`` (dotted) is a module or package of the project."""
-    base = ROOT.joinpath(*name.split("."))
+    """Whether ``name`` (dotted) is a module or package of the installed ``kilonet``."""
+    if name.split(".")[0] != "kilonet":
+        return False
+    base = source_path(name)
     return base.with_suffix(".py").is_file() or (base / "__init__.py").is_file()
+
+
+def layer_of(name: str) -> str | None:
+    """The layer of the dotted module ``name``, or ``None`` outside ``kilonet``.
+
+    >>> layer_of("kilonet.protocols.gcs.program"), layer_of("kilonet.medium"), layer_of("numpy")
+    ('protocols', 'kernel', None)
+    """
+    parts = name.split(".")
+    if parts[0] != "kilonet":
+        return None
+    return parts[1] if len(parts) > 1 and parts[1] in SUBLAYERS else "kernel"
 
 
 def _docstrings(tree: ast.AST) -> set[int]:
@@ -58,12 +89,10 @@ def _docstrings(tree: ast.AST) -> set[int]:
 
 
 def _named_module(text: str) -> str | None:
-    """The project module a string names (``"experiments.cli"``, ``"scenarios.gcs:SCENARIO"``),
-    or ``None``."""
+    """The project module a string names (``"kilonet.experiments.cli"``,
+    ``"kilonet.scenarios.gcs:SCENARIO"``), or ``None``."""
     name = text.partition(":")[0]
-    if name.split(".")[0] not in LAYERS or "." not in text.strip(":"):
-        return None
-    if not all(part.isidentifier() for part in name.split(".")):
+    if "." not in name or not all(part.isidentifier() for part in name.split(".")):
         return None
     return name if is_project_module(name) else None
 
@@ -76,8 +105,8 @@ def imports_of(source: str, module: str) -> Iterator[tuple[int, str]]:
 
     Examples
     --------
-    >>> sorted(imports_of("import os\\nfrom . import base\\n", "scenarios.gcs"))
-    [(1, 'os'), (2, 'scenarios'), (2, 'scenarios.base')]
+    >>> sorted(imports_of("import os\\nfrom . import base\\n", "kilonet.scenarios.gcs"))
+    [(1, 'os'), (2, 'kilonet.scenarios'), (2, 'kilonet.scenarios.base')]
     """
     tree = ast.parse(source)
     package = module if is_project_module(module + ".__init__") else module.rpartition(".")[0]
@@ -121,23 +150,26 @@ def _within(name: str, modules: tuple[str, ...]) -> bool:
 
 def layer_rule_broken(importer: str, imported: str) -> str | None:
     """Why ``importer`` may not import ``imported``, or ``None`` if it may."""
-    layer, top = importer.split(".")[0], imported.split(".")[0]
-    if layer == "kilonet" and top in ("protocols", "scenarios", "presentation", "experiments"):
-        return "the kernel imports no protocol, scenario, presentation or experiment"
+    layer, other = layer_of(importer), layer_of(imported)
+    top = imported.split(".")[0]
+    if top in SUBLAYERS:
+        return f"{top} is not installed top-level: import kilonet.{top}"
+    if layer == "kernel" and other in SUBLAYERS:
+        return "the kernel imports no protocol, scenario, picture or experiment"
     if layer == "protocols":
-        if top in ("scenarios", "presentation", "experiments"):
-            return "protocols import no scenario, presentation or experiment"
-        if top == "kilonet" and not _within(imported, ROBOT_API + PURE_MATH_KERNEL):
+        if other in ("scenarios", "viz", "experiments"):
+            return "protocols import no scenario, picture or experiment"
+        if other == "kernel" and not _within(imported, ROBOT_API + PURE_MATH_KERNEL):
             return (
                 "protocols use only the robot API "
                 f"({', '.join(ROBOT_API)}) and pure math ({', '.join(PURE_MATH_KERNEL)})"
             )
-        if top not in LAYERS and top not in sys.stdlib_module_names and top not in PURE_MATH:
+        if other is None and top not in sys.stdlib_module_names and top not in PURE_MATH:
             return f"protocols use only the standard library and pure math ({', '.join(PURE_MATH)})"
-    if layer == "scenarios" and top in ("presentation", "experiments"):
-        return "scenarios import no presentation or experiment (they sit above)"
-    if layer == "presentation" and top == "experiments":
-        return "presentation imports no experiment (experiments sit on top)"
+    if layer == "scenarios" and other in ("viz", "experiments"):
+        return "scenarios import no picture or experiment (they sit above)"
+    if layer == "viz" and other == "experiments":
+        return "kilonet.viz imports no experiment (experiments sit on top)"
     return None
 
 
@@ -154,7 +186,7 @@ def violations_in(path: Path, source: str) -> list[str]:
 
 
 def _project_files() -> list[Path]:
-    return sorted(p for layer in LAYERS for p in (ROOT / layer).rglob("*.py"))
+    return sorted(p for folder in ("kilonet", *SUBLAYERS) for p in (ROOT / folder).rglob("*.py"))
 
 
 def test_every_import_keeps_to_its_layer():
@@ -174,26 +206,26 @@ def test_the_checker_sees_static_imports_in_functions_and_type_checking_blocks()
     source = (
         "from typing import TYPE_CHECKING\n"
         "if TYPE_CHECKING:\n"
-        "    from scenarios.base import Scenario\n"
+        "    from kilonet.scenarios.base import Scenario\n"
         "def f():\n"
-        "    import experiments.sweep\n"
+        "    import kilonet.experiments.sweep\n"
     )
     broken = [line for line, why in _check(source, "kilonet.cli") if why]
-    assert broken == [3, 5]  # scenarios.base, experiments.sweep
+    assert broken == [3, 5]  # kilonet.scenarios.base, kilonet.experiments.sweep
 
 
 def test_the_checker_sees_imports_by_name_and_module_strings():
     source = (
-        '"""Mentions scenarios.analyze in a docstring, which is fine."""\n'
+        '"""Mentions kilonet.scenarios.analyze in a docstring, which is fine."""\n'
         "import importlib\n"
-        'importlib.import_module("experiments.cli")\n'
-        '__import__("protocols.gcs.program")\n'
-        'PLUGINS = ["scenarios.analyze:register", "not.a.module", "scenarios"]\n'
+        'importlib.import_module("kilonet.experiments.cli")\n'
+        '__import__("kilonet.protocols.gcs.program")\n'
+        'PLUGINS = ["kilonet.scenarios.analyze:register", "not.a.module", "scenarios"]\n'
     )
     found = [(line, name) for line, name in imports_of(source, "kilonet.cli")]
-    assert (3, "experiments.cli") in found
-    assert (4, "protocols.gcs.program") in found
-    assert (5, "scenarios.analyze") in found
+    assert (3, "kilonet.experiments.cli") in found
+    assert (4, "kilonet.protocols.gcs.program") in found
+    assert (5, "kilonet.scenarios.analyze") in found
     assert all(line != 1 for line, _ in found)
     assert [line for line, why in _check(source, "kilonet.cli") if why] == [3, 4, 5]
 
@@ -208,25 +240,27 @@ def test_the_checker_sees_imports_by_name_and_module_strings():
         ("numpy", True),
         ("scipy.spatial.transform", True),
         ("math", True),
-        ("protocols.gcs.base", True),
+        ("kilonet.protocols.gcs.base", True),
         ("kilonet.simulation", False),
         ("kilonet.medium", False),
         ("kilonet.motion", False),
         ("kilonet", False),  # the package re-exports Simulation
         ("pandas", False),
         ("simpy", False),
-        ("scenarios.base", False),
+        ("kilonet.scenarios.base", False),
     ],
 )
 def test_protocols_use_only_the_robot_api_and_pure_math(imported, allowed):
-    assert (layer_rule_broken("protocols.gradient", imported) is None) is allowed
+    assert (layer_rule_broken("kilonet.protocols.gradient", imported) is None) is allowed
 
 
 def test_a_violation_names_file_line_and_rule():
-    source = "def main():\n    import scenarios\n"
+    source = "def main():\n    import kilonet.scenarios\n    import scenarios\n"
     assert violations_in(ROOT / "kilonet" / "cli.py", source) == [
-        "kilonet/cli.py:2: imports scenarios: the kernel imports no protocol, scenario, "
-        "presentation or experiment"
+        "kilonet/cli.py:2: imports kilonet.scenarios: the kernel imports no protocol, scenario, "
+        "picture or experiment",
+        "kilonet/cli.py:3: imports scenarios: scenarios is not installed top-level: "
+        "import kilonet.scenarios",
     ]
 
 
@@ -234,15 +268,16 @@ def test_a_violation_names_file_line_and_rule():
 #: Protocol modules that are pure math: they may import only the standard library, pure math
 #: and one another, never a robot part (a program, a phase, a message layout).
 PROTOCOL_MATH = (
-    "protocols.localize.island_solve",
-    "protocols.follower.pivot_turns",
-    "protocols.gcs.merging_rules",
-    "protocols.gcs.frame_keys",
+    "kilonet.protocols.localize.island_solve",
+    "kilonet.protocols.follower.pivot_turns",
+    "kilonet.protocols.gcs.merging_rules",
+    "kilonet.protocols.gcs.frame_keys",
 )
 
 
 def _phase_number(module: str) -> int | None:
-    """``protocols.gcs.phase7_refinement`` -> 7, ``….phase5b_pause`` -> 5; None if no phase."""
+    """``kilonet.protocols.gcs.phase7_refinement`` -> 7, ``….phase5b_pause`` -> 5; None if no
+    phase."""
     found = re.match(r"phase(\d+)", module.rpartition(".")[2])
     return int(found.group(1)) if found else None
 
@@ -259,20 +294,20 @@ def test_no_phase_imports_a_later_phase():
             if imported.rpartition(".")[0] == package and other is not None and other > own:
                 later.append(f"{path.relative_to(ROOT)}:{line}: imports {imported}")
     assert not later, "phases import later phases:\n" + "\n".join(later)
-    assert _phase_number("protocols.gcs.phase7_refinement") == 7
-    assert _phase_number("protocols.gcs.phase5b_pause") == 5
-    assert _phase_number("protocols.gcs.program") is None
+    assert _phase_number("kilonet.protocols.gcs.phase7_refinement") == 7
+    assert _phase_number("kilonet.protocols.gcs.phase5b_pause") == 5
+    assert _phase_number("kilonet.protocols.gcs.program") is None
 
 
 def test_protocol_math_imports_no_robot_part():
     allowed = PURE_MATH_KERNEL + PROTOCOL_MATH
     found = []
     for module in PROTOCOL_MATH:
-        path = ROOT.joinpath(*module.split(".")).with_suffix(".py")
+        path = source_path(module).with_suffix(".py")
         for line, imported in imports_of(path.read_text(), module):
             top = imported.split(".")[0]
-            if top in LAYERS:
-                broken = imported != "protocols" and not _within(imported, allowed)
+            if top == "kilonet":
+                broken = imported != "kilonet.protocols" and not _within(imported, allowed)
             else:
                 broken = top not in sys.stdlib_module_names and top not in PURE_MATH
             if broken:

@@ -1,22 +1,25 @@
 """Message layouts, every protocol at once: within a protocol no two layouts share a type byte
 (a robot tells messages apart by that byte alone), every layout fits the kilolib payload, and
 gcs registers every layout its modules hold. The inventories come from the code
-(:func:`protocols.common.layouts.discover`), not from lists kept here."""
+(:func:`kilonet.protocols.common.layouts.discover`), not from lists kept here."""
 
 from __future__ import annotations
 
 import pytest
+from kilonet.protocols.common.layouts import LayoutClash, ProtocolLayouts, discover, protocol_names
 
 from kilonet.message import Layout
-from protocols.common.layouts import LayoutClash, ProtocolLayouts, discover, protocol_names
 
 
 def test_every_protocol_is_found():
     names = protocol_names()
-    assert {"protocols.gcs", "protocols.localize", "protocols.follower", "protocols.maze"} <= set(
-        names
-    )
-    assert "protocols.common" not in names
+    assert {
+        "kilonet.protocols.gcs",
+        "kilonet.protocols.localize",
+        "kilonet.protocols.follower",
+        "kilonet.protocols.maze",
+    } <= set(names)
+    assert "kilonet.protocols.common" not in names
 
 
 @pytest.mark.parametrize("protocol", protocol_names())
@@ -30,10 +33,10 @@ def test_no_two_layouts_of_a_protocol_share_a_type_byte(protocol):
 
 
 def test_gcs_registers_every_layout_its_modules_hold():
-    import protocols.gcs.program  # noqa: F401  (imports every phase)
-    from protocols.gcs.base import LAYOUTS
+    import kilonet.protocols.gcs.program  # noqa: F401  (imports every phase)
+    from kilonet.protocols.gcs.base import LAYOUTS
 
-    assert list(discover("protocols.gcs")) == list(LAYOUTS)
+    assert list(discover("kilonet.protocols.gcs")) == list(LAYOUTS)
 
 
 def test_a_second_layout_on_a_taken_type_byte_is_refused():
@@ -45,7 +48,7 @@ def test_a_second_layout_on_a_taken_type_byte_is_refused():
 
 
 def test_gcs_layout_registers_and_a_clash_fails_when_the_layout_is_built():
-    from protocols.gcs.base import gcs_layout
+    from kilonet.protocols.gcs.base import gcs_layout
 
     register = ProtocolLayouts("gcs-test")
     gcs_layout("one", type=3, fields=[("x", "B")], register=register)

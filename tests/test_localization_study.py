@@ -1,12 +1,11 @@
-"""experiments.studies.localization_study: the tables it builds from the two sweeps' results, on
-a small results table written out by hand (the columns a results store gives)."""
+"""kilonet.experiments.studies.localization_study: the tables it builds from the two sweeps'
+results, on a small results table written out by hand (the columns a results store gives)."""
 
 from __future__ import annotations
 
 import pandas as pd
 import pytest
-
-from experiments.studies.localization_study import (
+from kilonet.experiments.studies.localization_study import (
     base_table,
     comparison,
     joined,

@@ -12,30 +12,27 @@ import json
 import math
 from pathlib import Path
 
+import kilonet.protocols.localize.program as localize_module
 import numpy as np
 import pandas as pd
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-
-import protocols.localize.program as localize_module
-import scenarios
-from kilonet.message import Message
-from protocols.common import refinement
-from protocols.common.refinement import (
+from kilonet.protocols.common import refinement
+from kilonet.protocols.common.refinement import (
     DIST,
     SettleWindow,
     distance_code,
     gauss_newton_step,
     unwrap_distance,
 )
-from protocols.localize import base as localize_base
-from protocols.localize import island_solve
-from protocols.localize import phase1_election as localize_election
-from protocols.localize import phase2_spread as localize_spread
-from protocols.localize import phase3_termination as localize_termination
-from protocols.localize import phase4_island as localize_island
-from protocols.localize.base import (
+from kilonet.protocols.localize import base as localize_base
+from kilonet.protocols.localize import island_solve
+from kilonet.protocols.localize import phase1_election as localize_election
+from kilonet.protocols.localize import phase2_spread as localize_spread
+from kilonet.protocols.localize import phase3_termination as localize_termination
+from kilonet.protocols.localize import phase4_island as localize_island
+from kilonet.protocols.localize.base import (
     COMPLETE,
     LOCALIZED,
     NBR,
@@ -47,8 +44,8 @@ from protocols.localize.base import (
     choose_parent,
     distance_report,
 )
-from protocols.localize.phase1_election import ELECT, Election, echo_complete, election_key
-from protocols.localize.phase2_spread import (
+from kilonet.protocols.localize.phase1_election import ELECT, Election, echo_complete, election_key
+from kilonet.protocols.localize.phase2_spread import (
     CAND,
     POS,
     ROOT,
@@ -62,9 +59,12 @@ from protocols.localize.phase2_spread import (
     mirror_candidates,
     overlap_vote,
 )
-from protocols.localize.phase3_termination import gives_up, subtree_complete
-from protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR
-from scenarios.neighbourhood import noise_free_estimate_mm, trusted_links
+from kilonet.protocols.localize.phase3_termination import gives_up, subtree_complete
+from kilonet.protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR
+from kilonet.scenarios.neighbourhood import noise_free_estimate_mm, trusted_links
+
+from kilonet import scenarios
+from kilonet.message import Message
 
 LOCALIZE = scenarios.get("localize")
 
@@ -771,11 +771,11 @@ def test_a_lone_robot_is_done_without_a_frame():
 
 
 def test_both_ends_of_a_pair_fit_the_same_distance():
-    # Each end fits the mean of the two ends' last reports (protocols.common.refinement): where both
-    # last reports arrived, the two numbers are the same, however old the reports are. (Their
-    # age does not matter: with 17 neighbours and a report every 0.6 s, a neighbour is reported
-    # about once in a 10 s run, and a mean of the first few samples may lie 1 mm from the end's
-    # final mean.)
+    # Each end fits the mean of the two ends' last reports (kilonet.protocols.common.refinement):
+    # where both last reports arrived, the two numbers are the same, however old the reports are.
+    # (Their age does not matter: with 17 neighbours and a report every 0.6 s, a neighbour is
+    # reported about once in a 10 s run, and a mean of the first few samples may lie 1 mm from the
+    # end's final mean.)
     result = run(30)
     robots = result.sim.robots
     by_uid = {r.uid: r for r in robots}
@@ -799,7 +799,7 @@ def test_both_ends_of_a_pair_fit_the_same_distance():
 
 
 def test_measured_distances_are_receptions_of_real_links():
-    from scenarios.reference import measured_distances
+    from kilonet.scenarios.reference import measured_distances
 
     result = run(30)
     sim = result.sim
@@ -866,13 +866,16 @@ def test_protocol_modules_import_only_the_robot_api_and_math():
     for module in _PROTOCOL_MODULES:
         tree = ast.parse(Path(inspect.getfile(module)).read_text())
         for node in ast.walk(tree):
-            if isinstance(node, ast.ImportFrom) and node.module.startswith("kilonet"):
+            if not isinstance(node, ast.ImportFrom) or node.module.startswith("kilonet.protocols"):
+                continue
+            if node.module.startswith("kilonet"):
                 assert node.module in allowed, f"{module.__name__} imports {node.module}"
 
 
 def test_protocol_runs_on_the_robot_api_alone():
+    from kilonet.scenarios.base import build_params, place
+
     from kilonet.simulation import Simulation
-    from scenarios.base import build_params, place
 
     params = build_params(LOCALIZE, {"placement.robots": 25})
     positions = place(LOCALIZE, params)

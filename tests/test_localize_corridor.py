@@ -12,12 +12,10 @@ here on their own; the issue's corridors run end to end in tests/test_localize_s
 
 from __future__ import annotations
 
+import kilonet.protocols.localize.program as localize_module
 import numpy as np
 import pytest
-
-import protocols.localize.program as localize_module
-import scenarios
-from protocols.localize.base import (
+from kilonet.protocols.localize.base import (
     LOCALIZED,
     MAX_HOPS,
     NBR,
@@ -26,8 +24,10 @@ from protocols.localize.base import (
     choose_parent,
     toward_root,
 )
-from protocols.localize.phase1_election import ELECT
-from protocols.localize.phase2_spread import POS
+from kilonet.protocols.localize.phase1_election import ELECT
+from kilonet.protocols.localize.phase2_spread import POS
+
+from kilonet import scenarios
 
 LOCALIZE = scenarios.get("localize")
 

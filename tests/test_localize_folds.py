@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import pytest
 
-import scenarios
+from kilonet import scenarios
 
 LOCALIZE = scenarios.get("localize")
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import scenarios
+from kilonet import scenarios
 from kilonet.placement import c_shape
 
 LOCALIZE = scenarios.get("localize")

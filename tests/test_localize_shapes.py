@@ -7,15 +7,13 @@ robots, with and without loss) are marked slow (``pytest -m slow``).
 
 from __future__ import annotations
 
+import kilonet.protocols.localize.program as localize_module
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-
-import protocols.localize.program as localize_module
-import scenarios
-from protocols.common.refinement import DIST
-from protocols.localize.base import (
+from kilonet.protocols.common.refinement import DIST
+from kilonet.protocols.localize.base import (
     COORDINATE_PERIOD_MM,
     MAX_COORDINATE_MM,
     absolute_position,
@@ -23,8 +21,10 @@ from protocols.localize.base import (
     unwrap_coordinate,
     wrapped_position,
 )
-from protocols.localize.phase2_spread import CAND, POS
-from scenarios.localize import estimates_frame
+from kilonet.protocols.localize.phase2_spread import CAND, POS
+from kilonet.scenarios.localize import estimates_frame
+
+from kilonet import scenarios
 
 LOCALIZE = scenarios.get("localize")
 
@@ -118,7 +118,7 @@ def test_dist_layout_is_unchanged_by_wrapping():
 
 
 def test_a_candidate_near_a_settled_robot_it_does_not_hear_is_impossible():
-    from protocols.localize.phase2_spread import overlap_vote
+    from kilonet.protocols.localize.phase2_spread import overlap_vote
 
     anchors = [(-30.0, 0.0), (30.0, 0.0)]
     pair = ((0.0, 40.0), (0.0, -40.0))
@@ -209,8 +209,9 @@ def _sound(s):
 def _reference_is_the_optimum(result):
     """The solver's positions are the minimum that least squares from the truth ends in, on
     the run's own measurements (kilolib's ranging, each link with its systematic error)."""
+    from kilonet.scenarios.reference import measured_distances
+
     from kilonet.central import central_reference, optimum_agreement_mm
-    from scenarios.reference import measured_distances
 
     sim = result.sim
     truth = sim.world.positions_mm

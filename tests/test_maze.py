@@ -8,11 +8,7 @@ import matplotlib.figure
 import networkx as nx
 import numpy as np
 import pytest
-
-from kilonet.geometry import GeometryError, trilaterate_linear
-from kilonet.params import ParamError, Params
-from kilonet.simulation import Simulation
-from protocols.maze.hardware import (
+from kilonet.protocols.maze.hardware import (
     DIRECTIONS,
     Maze,
     MazeError,
@@ -22,15 +18,15 @@ from protocols.maze.hardware import (
     generate_maze,
     parse_size,
 )
-from protocols.maze.program import (
+from kilonet.protocols.maze.program import (
     bayes_step,
     locate,
     nearest_unvisited,
     predict,
     wall_likelihood,
 )
-from scenarios.base import build_params, place, run, write_outputs
-from scenarios.maze import (
+from kilonet.scenarios.base import build_params, place, run, write_outputs
+from kilonet.scenarios.maze import (
     SCENARIO,
     MazeParams,
     belief_accuracy_by_noise,
@@ -40,7 +36,11 @@ from scenarios.maze import (
     maze_for,
     step_table,
 )
-from scenarios.maze_hardware import MazeHardware, fit_maze_hardware
+from kilonet.scenarios.maze_hardware import MazeHardware, fit_maze_hardware
+
+from kilonet.geometry import GeometryError, trilaterate_linear
+from kilonet.params import ParamError, Params
+from kilonet.simulation import Simulation
 
 TWO_CELLS = """
 +---+---+

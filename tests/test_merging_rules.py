@@ -1,11 +1,11 @@
-"""Phase 6's decision rules (protocols.gcs.merging_rules), each on its own, with exact values."""
+"""Phase 6's decision rules (kilonet.protocols.gcs.merging_rules), each on its own, with exact
+values."""
 
 from __future__ import annotations
 
 import pytest
-
-from protocols.gcs.frame_keys import MAX_HOPS, FrameKey, Rank, Root
-from protocols.gcs.merging_rules import (
+from kilonet.protocols.gcs.frame_keys import MAX_HOPS, FrameKey, Rank, Root
+from kilonet.protocols.gcs.merging_rules import (
     all_partners_heard,
     answer_agrees,
     cuts_round,

@@ -8,8 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
-
-from scenarios.output_dir import OutputDir, OutputDirError, _exchange
+from kilonet.scenarios.output_dir import OutputDir, OutputDirError, _exchange
 
 
 def tree(root: Path) -> list[str]:

@@ -194,7 +194,7 @@ def test_read_toml_errors_name_the_file(tmp_path):
 
 
 def test_optional_fields_take_none_or_a_value_in_range():
-    from protocols.maze.program import MazeParams
+    from kilonet.protocols.maze.program import MazeParams
 
     p = Params(scenario=MazeParams())
     assert p.scenario.filter_p_open is None

@@ -451,8 +451,9 @@ def test_a_uid_that_is_not_a_uint16_is_refused_with_file_and_line(tmp_path, bad)
 
 
 def _placed(overrides: dict, seed: int = 1) -> np.ndarray:
-    import scenarios
-    from scenarios.base import build_params, place
+    from kilonet.scenarios.base import build_params, place
+
+    from kilonet import scenarios
 
     localize = scenarios.get("localize")
     return place(localize, build_params(localize, overrides, seed=seed))

@@ -1,14 +1,14 @@
-"""The audit of a localization run's fixes (scenarios.placement_audit) and rule 1's
-residual-scaled mirror test (protocols.localize.phase2_spread.side_is_clear)."""
+"""The audit of a localization run's fixes (kilonet.scenarios.placement_audit) and rule 1's
+residual-scaled mirror test (kilonet.protocols.localize.phase2_spread.side_is_clear)."""
 
 import json
 
 import numpy as np
 import pandas as pd
+from kilonet.protocols.localize.phase2_spread import side_is_clear
+from kilonet.scenarios.placement_audit import MISPLACED_MM, frame_handedness, placement_errors
 
 from kilonet.geometry import multilaterate
-from protocols.localize.phase2_spread import side_is_clear
-from scenarios.placement_audit import MISPLACED_MM, frame_handedness, placement_errors
 
 TRUTH = np.array([[0.0, 0.0], [60.0, 0.0], [10.0, 50.0], [30.0, 20.0]])
 UIDS = np.array([7, 8, 9, 10])

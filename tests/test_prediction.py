@@ -1,4 +1,5 @@
-"""Tests for scenarios.prediction: the prediction follows the estimates the robots will hold."""
+"""Tests for kilonet.scenarios.prediction: the prediction follows the estimates the robots will
+hold."""
 
 from __future__ import annotations
 
@@ -6,19 +7,19 @@ import math
 
 import numpy as np
 import pytest
+from kilonet.protocols.gcs.frame_keys import FrameKey
+from kilonet.protocols.gcs.phase3_local_frames import reference_candidates
+from kilonet.scenarios.base import build_params
+from kilonet.scenarios.neighbourhood import RECEPTION_NOISE_MM, held_estimates_mm, trusted_links
+from kilonet.scenarios.prediction import _final_frames, predict_from_seeds
 
-import scenarios
+from kilonet import scenarios
 from kilonet.geometry import (
     GeometryError,
     choose_references_max_angle,
     multilaterate,
     place_references,
 )
-from protocols.gcs.frame_keys import FrameKey
-from protocols.gcs.phase3_local_frames import reference_candidates
-from scenarios.base import build_params
-from scenarios.neighbourhood import RECEPTION_NOISE_MM, held_estimates_mm, trusted_links
-from scenarios.prediction import _final_frames, predict_from_seeds
 
 #: Seed 0 with robots 1 and 2 on opposite sides, 176° apart seen from it: |BC| = 72.54 mm reaches
 #: the seed as 73 mm, longer than |AB| + |AC| = 72.59 mm, so the triangle the seed holds does not

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from kilonet.protocols.common.ranging_limit import TABLES_END_MM, trusted_range
+from kilonet.protocols.follower.follower import FollowerParams
+from kilonet.protocols.gcs.base import GcsParams
+from kilonet.protocols.localize.base import LocalizeParams
 
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
-from protocols.common.ranging_limit import TABLES_END_MM, trusted_range
-from protocols.follower.follower import FollowerParams
-from protocols.gcs.base import GcsParams
-from protocols.localize.base import LocalizeParams
 
 
 def test_an_estimate_up_to_the_limit_is_trusted_and_one_above_is_not():

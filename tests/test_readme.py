@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-import scenarios
+from kilonet import scenarios
 from kilonet.cli import COMMANDS
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -27,9 +27,15 @@ def test_the_first_lines_give_the_two_set_up_commands():
     first = _blocks(README, "bash")[0].splitlines()
     assert [line.split("#")[0].strip() for line in first] == [
         "pip install . && kilonet run",
-        "pip install '.[test]' && python -m pytest",
+        "pip install -e '.[test]' && python -m pytest -n auto",
     ]
     assert README.index("```bash") < README.index("\n## ")
+
+
+def test_ci_runs_the_readmes_test_command():
+    test_command = _blocks(README, "bash")[0].splitlines()[1].split("#")[0].strip()
+    ci = (ROOT / ".ci" / "run").read_text().splitlines()
+    assert ci[-1] == test_command
 
 
 def test_the_python_in_the_readme_runs(capsys):

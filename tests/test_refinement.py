@@ -1,5 +1,5 @@
-"""protocols.common.refinement: the symmetric distance reports, the momentum refiner and the local
-stopping rule, with exact values."""
+"""kilonet.protocols.common.refinement: the symmetric distance reports, the momentum refiner and the
+local stopping rule, with exact values."""
 
 from __future__ import annotations
 
@@ -7,8 +7,7 @@ import math
 from types import SimpleNamespace
 
 import pytest
-
-from protocols.common.refinement import (
+from kilonet.protocols.common.refinement import (
     Refiner,
     agreed_range_mm,
     gauss_newton_step,

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import pandas as pd
-
-from experiments.report import _markdown_table, aggregate
+from kilonet.experiments.report import _markdown_table, aggregate
 
 
 def test_a_fractions_interval_stays_within_0_and_1():

@@ -1,5 +1,5 @@
-"""The split check (protocols.gcs.split_detection) on a real GcsRobot: its flags describe the
-present, they lapse when a neighbour stops reporting or the robot's own frame moves again, and
+"""The split check (kilonet.protocols.gcs.split_detection) on a real GcsRobot: its flags describe
+the present, they lapse when a neighbour stops reporting or the robot's own frame moves again, and
 only a boundary that lasts ``gcs.split_confirm_s`` asks for a recovery.
 
 The robot under test runs the whole protocol in a scripted world, beside six real GcsRobots
@@ -14,14 +14,14 @@ behaviour is covered by tests/test_thesis_cases.py.
 from __future__ import annotations
 
 import pytest
+from kilonet.protocols.gcs.phase6_merging import TF_ROT, TF_SHIFT
+from kilonet.protocols.gcs.program import GcsRobot, phase_windows_s
+from kilonet.protocols.gcs.recovery import RECOVER
+from kilonet.protocols.gcs.split_detection import POS
+from kilonet.scenarios.base import build_params
 
-import scenarios
+from kilonet import scenarios
 from kilonet.placement import hex_lattice
-from protocols.gcs.phase6_merging import TF_ROT, TF_SHIFT
-from protocols.gcs.program import GcsRobot, phase_windows_s
-from protocols.gcs.recovery import RECOVER
-from protocols.gcs.split_detection import POS
-from scenarios.base import build_params
 
 GCS = scenarios.get("gcs")
 STRANGER = 300  # an ID no robot here draws (gcs.id_bits = 8)

@@ -16,11 +16,8 @@ import time
 from pathlib import Path
 
 import pytest
-from test_experiments import SMALL  # four runs of 20 robots for 5 s
-
-import kilonet.cli
-from experiments.runner import WorkerWatch, run_sweep
-from experiments.store import (
+from kilonet.experiments.runner import WorkerWatch, run_sweep
+from kilonet.experiments.store import (
     DB_NAME,
     ResultStore,
     RunRecord,
@@ -28,7 +25,10 @@ from experiments.store import (
     lock_directory,
     row_checksum,
 )
-from experiments.sweep import parse_sweep
+from kilonet.experiments.sweep import parse_sweep
+from test_experiments import SMALL  # four runs of 20 robots for 5 s
+
+import kilonet.cli
 
 _CLI = "import sys, kilonet.cli as c; sys.exit(c.main(sys.argv[1:]))"
 
@@ -303,7 +303,7 @@ def test_sweeps_started_at_the_same_instant_one_wins_the_others_say_in_use(tmp_p
 
 def test_a_store_created_by_another_process_meanwhile_is_opened(tmp_path, monkeypatch):
     # the other sweep links its store in between our look and our link
-    import experiments.store as store_module
+    import kilonet.experiments.store as store_module
 
     sweep = parse_sweep(SMALL, name="small")
     original = store_module._create_database

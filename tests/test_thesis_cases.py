@@ -13,15 +13,10 @@ import json
 
 import numpy as np
 import pytest
-
-import scenarios
-from kilonet.cli import main
-from kilonet.placement import validate_positions
-from kilonet.visibility import LinkModel, communication_graph
-from scenarios.analyze import predict
-from scenarios.base import build_params, place
-from scenarios.gcs import estimates_frame
-from scenarios.thesis_placements import (
+from kilonet.scenarios.analyze import predict
+from kilonet.scenarios.base import build_params, place
+from kilonet.scenarios.gcs import estimates_frame
+from kilonet.scenarios.thesis_placements import (
     BLUE_SEED_7_1B,
     LEFT_GROUP_7_1C,
     NAMED_PLACEMENTS,
@@ -31,6 +26,11 @@ from scenarios.thesis_placements import (
     thesis_7_1b,
     thesis_7_1c,
 )
+
+from kilonet import scenarios
+from kilonet.cli import main
+from kilonet.placement import validate_positions
+from kilonet.visibility import LinkModel, communication_graph
 
 GCS = scenarios.get("gcs")
 #: The thesis's premise the constructions rely on: bodies block links.

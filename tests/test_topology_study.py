@@ -6,8 +6,7 @@ import json
 
 import pandas as pd
 import pytest
-
-from experiments.studies.topology_study import (
+from kilonet.experiments.studies.topology_study import (
     RANGE,
     RECOVERY,
     detection_scores,

@@ -1,15 +1,15 @@
-"""Phase 1 of the global coordinate system, locally unique IDs (protocols.gcs.phase1_unique_ids),
-on one real GcsRobot: scripted messages for its own rules, and scripted neighbours in the real
-medium that announce a duplicate ID."""
+"""Phase 1 of the global coordinate system, locally unique IDs
+(kilonet.protocols.gcs.phase1_unique_ids), on one real GcsRobot: scripted messages for its own
+rules, and scripted neighbours in the real medium that announce a duplicate ID."""
 
 from __future__ import annotations
 
 import pytest
+from kilonet.protocols.gcs.phase1_unique_ids import CONFLICT, ID
+from kilonet.protocols.gcs.program import GcsRobot
+from kilonet.scenarios.base import build_params
 
-import scenarios
-from protocols.gcs.phase1_unique_ids import CONFLICT, ID
-from protocols.gcs.program import GcsRobot
-from scenarios.base import build_params
+from kilonet import scenarios
 
 GCS = scenarios.get("gcs")
 LAYOUTS = [ID, CONFLICT]

@@ -232,10 +232,10 @@ def speaker_listener(sim: Simulation, speaker_uid: int = 0) -> dict[str, Any]:
 def gradient_simple(sim: Simulation, seed_uid: int = 42, unreached: int = 255) -> dict[str, Any]:
     """The gradient lab: how many robots hold a gradient equal to their hop count from the
     seed over the medium's own links, each from its sender to its receivers
-    (:func:`scenarios.gradient.hop_distances`; a robot the seed cannot reach should still hold
-    ``unreached``), the largest hop count, and the robots that differ as
+    (:func:`kilonet.scenarios.gradient.hop_distances`; a robot the seed cannot reach should still
+    hold ``unreached``), the largest hop count, and the robots that differ as
     ``(robot, gradient, hops)``."""
-    from scenarios.gradient import hop_distances
+    from kilonet.scenarios.gradient import hop_distances
 
     hops = hop_distances(sim, _robot_with_uid(sim, seed_uid))
     wrong = [

@@ -6,7 +6,8 @@ triangle), on the same placement and the same random streams; the table gives, p
 mean, median and standard deviation over seeds of the per-frame RMSE after the best rigid alignment,
 the share of robots located, and the fixes rejected.
 
-    python -m experiments.studies.compare_reference_rules [--seeds 20] [--robots 100] [--workers 2]
+    python -m kilonet.experiments.studies.compare_reference_rules [--seeds 20] [--robots 100]
+    [--workers 2]
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from typing import Any
 
 import pandas as pd
 
-import scenarios
+from kilonet import scenarios
 
 __all__ = ["compare", "run_one"]
 

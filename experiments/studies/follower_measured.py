@@ -1,5 +1,5 @@
 """The measured figures of ``docs/follower.md``: how often the follower reaches its goal, and
-how fast, over generated starts (:func:`scenarios.follower.run_many`).
+how fast, over generated starts (:func:`kilonet.scenarios.follower.run_many`).
 
 Each condition runs the same seeds; a run counts as reached when the follower declared arrival
 and stands within ``follower.success_mm`` (8 mm) of the true centroid. About a minute of CPU
@@ -38,7 +38,7 @@ def success_block() -> str:
     """The table of ``<!-- publish:follower-success -->``: per condition, the share of runs
     that reached the goal, the handedness verdicts, and the median steps, simulated time and
     path length over straight line of the runs that reached it."""
-    from scenarios.follower import run_many
+    from kilonet.scenarios.follower import run_many
 
     rows = []
     cpu_start = time.process_time()

@@ -1,11 +1,11 @@
 """The measured figures of ``docs/gcs.md``, one function per generated block.
 
 Each ``*_block`` function returns the Markdown of one ``<!-- publish:NAME -->`` block of the
-page; :data:`experiments.publish.BLOCKS` registers them, and ``python -m experiments.publish
-docs`` (or ``docs --block NAME``) writes them. Runs are the ``gcs`` scenario's jittered hex
-lattices with its defaults (σ = 1 mm, no loss) unless a row says otherwise; a run that several
-blocks show is made once per process (:func:`gcs_run`). CPU seconds are process time, less
-disturbed than wall time by other work on the machine but not free of it.
+page; :data:`kilonet.experiments.publish.BLOCKS` registers them, and ``python -m
+kilonet.experiments.publish docs`` (or ``docs --block NAME``) writes them. Runs are the ``gcs``
+scenario's jittered hex lattices with its defaults (σ = 1 mm, no loss) unless a row says otherwise;
+a run that several blocks show is made once per process (:func:`gcs_run`). CPU seconds are process
+time, less disturbed than wall time by other work on the machine but not free of it.
 """
 
 from __future__ import annotations
@@ -95,7 +95,7 @@ class GcsRun:
 def gcs_run(robots: int, seed: int, overrides: tuple[tuple[str, Any], ...] = ()) -> GcsRun:
     """One ``gcs`` run of ``robots`` robots (master seed ``seed``, parameter ``overrides`` as
     sorted key-value pairs), read once and kept for the process's other blocks."""
-    import scenarios
+    from kilonet import scenarios
 
     cpu = time.process_time()
     result = scenarios.run(
@@ -106,7 +106,7 @@ def gcs_run(robots: int, seed: int, overrides: tuple[tuple[str, Any], ...] = ())
 
 
 def _read(result: Any, cpu_s: float) -> GcsRun:
-    from scenarios.gcs import run_outcomes
+    from kilonet.scenarios.gcs import run_outcomes
 
     sim, summary = result.sim, result.summary
     outcomes = run_outcomes(sim)
@@ -326,8 +326,9 @@ def last_events(n: int, seed: int, overrides: dict[str, Any]) -> dict[str, Any]:
     Times are read on each robot's own clock, as its windows run: with drifting clocks a
     robot's phase 3 opens and closes up to a second or so away from the nominal times.
     """
-    import scenarios
-    from protocols.gcs.program import phase_windows_s
+    from kilonet.protocols.gcs.program import phase_windows_s
+
+    from kilonet import scenarios
 
     result = scenarios.run(
         scenarios.get("gcs"),

@@ -1,6 +1,6 @@
 """The figures of ``examples/labs/README.md``: every lab run in its own world, measured by
 ``examples.labs.measures`` from the run's ground truth, written as the README's generated
-blocks (``python -m experiments.publish docs --block labs-seed-1`` and ``labs-seeds``).
+blocks (``python -m kilonet.experiments.publish docs --block labs-seed-1`` and ``labs-seeds``).
 
 * :func:`seed_one_block`: the table of the labs, what each does on kilonet with seed 1;
 * :func:`seeds_block`: the labs that depend on chance over several seeds (and variants), one

@@ -4,7 +4,7 @@ A robot tells messages apart by their type byte alone, so within one protocol (t
 that share a swarm) no two layouts may carry the same byte. :class:`ProtocolLayouts` is a
 protocol's register: a layout added under a byte another layout holds raises
 :class:`LayoutClash` at once (gcs registers each layout as it is built,
-:func:`protocols.gcs.base.gcs_layout`). :func:`discover` reads every layout a protocol's
+:func:`kilonet.protocols.gcs.base.gcs_layout`). :func:`discover` reads every layout a protocol's
 modules define, so that a test checks every protocol the same way, and lists what a protocol
 sends without anyone keeping the list by hand.
 
@@ -18,7 +18,7 @@ Examples
 >>> register.add(Layout("other", type=5, fields=[]))
 Traceback (most recent call last):
 ...
-protocols.common.layouts.LayoutClash: demo: layouts 'hello' and 'other' both use type byte 5
+kilonet.protocols.common.layouts.LayoutClash: demo: layouts 'hello' and 'other' both use type byte 5
 """
 
 from __future__ import annotations
@@ -84,12 +84,12 @@ def protocol_names() -> list[str]:
     """Every protocol: the modules and packages of ``protocols`` except ``common`` (dotted).
 
     >>> [name for name in protocol_names() if name.endswith(("gcs", "gradient"))]
-    ['protocols.gcs', 'protocols.gradient']
+    ['kilonet.protocols.gcs', 'kilonet.protocols.gradient']
     """
-    import protocols
+    import kilonet.protocols as protocols
 
     return [
-        f"protocols.{m.name}"
+        f"kilonet.protocols.{m.name}"
         for m in pkgutil.iter_modules(protocols.__path__)
         if m.name != "common"
     ]

@@ -6,8 +6,8 @@ record's mean averages the ranging noise down, and its sum of squares gives the 
 samples (:meth:`NeighbourTable.noise_mm`). Only the robot's own receptions feed it.
 
 One table serves both programs (:class:`NeighbourTable`); ``localize`` subclasses the record
-for what else it learns about each neighbour (:class:`protocols.localize.base.Neighbour`). The
-table can also
+for what else it learns about each neighbour (:class:`kilonet.protocols.localize.base.Neighbour`).
+The table can also
 
 * age its records: each reception stamps the robot's round, and :meth:`NeighbourTable.fresh`
   leaves out those silent for ``stale_rounds`` rounds (``localize``);
@@ -17,7 +17,7 @@ table can also
   test off).
 
 The scenarios read the distances the robots measured through ``by_id`` and a record's
-``mean_mm``, ``samples`` and ``ambiguous`` (:func:`scenarios.reference.measured_distances`).
+``mean_mm``, ``samples`` and ``ambiguous`` (:func:`kilonet.scenarios.reference.measured_distances`).
 """
 
 from __future__ import annotations

@@ -2,11 +2,11 @@
 runs one stage on one robot.
 
 Every protocol here that runs in stages names them in a :class:`Stage` subclass, in the order
-they run: gcs (:class:`protocols.gcs.base.GcsStage`, one :class:`Phase` object per stage, run
-from a window table), ``localize`` (:class:`protocols.localize.base.LocalizeStage`) and the maze
-robot (:class:`protocols.maze.program.MazeStage`). A member's value is its name: the trace, the
-summaries and the parameters (``gcs.until``) write stages as those strings, and a member
-compares equal to its name.
+they run: gcs (:class:`kilonet.protocols.gcs.base.GcsStage`, one :class:`Phase` object per stage,
+run from a window table), ``localize`` (:class:`kilonet.protocols.localize.base.LocalizeStage`) and
+the maze robot (:class:`kilonet.protocols.maze.program.MazeStage`). A member's value is its name:
+the trace, the summaries and the parameters (``gcs.until``) write stages as those strings, and a
+member compares equal to its name.
 
 A :class:`Phase` declares its stage (``name``) and whether it is *open-ended*: it ends when the
 robots agree it is over, not when a window closes. A run's stop rule and a robot's schedule

@@ -35,13 +35,13 @@ measured the same distance itself and takes the value of that cycle nearest to i
 than ``settle_mm`` (:class:`SettleWindow`): the displacement over a window rather than the last
 step, because the slow corrections move every robot a little at every step, and the announced
 positions' 0.1 mm rounding makes single steps jitter. A program with a hop structure can climb
-settledness back to a root (``localize`` does, :mod:`protocols.localize.phase3_termination`); one
-without stops a robot when it and every neighbour it refines against are settled
-(:func:`neighbourhood_settled`).
+settledness back to a root (``localize`` does,
+:mod:`kilonet.protocols.localize.phase3_termination`); one without stops a robot when it and every
+neighbour it refines against are settled (:func:`neighbourhood_settled`).
 
 Nothing here knows a protocol: give it positions and distances, in any frame. ``localize`` runs
-it on every located robot (:mod:`protocols.localize.program`), the thesis pipeline as a last phase
-on its merged estimates (:mod:`protocols.gcs.phase7_refinement`).
+it on every located robot (:mod:`kilonet.protocols.localize.program`), the thesis pipeline as a last
+phase on its merged estimates (:mod:`kilonet.protocols.gcs.phase7_refinement`).
 """
 
 from __future__ import annotations

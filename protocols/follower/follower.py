@@ -44,19 +44,19 @@ goal to be the centroid of robots 1–3 and steps: a small first move gives its 
 (the chord between two fixes); then it turns toward the goal and steps, and re-trilaterates,
 until it is within ``tolerance_mm`` of the goal. A turn runs one motor for ``t = f(angle)`` from
 its linear turn calibration and pivots the body about the rear leg on that side, so the centre
-swings on an arc (:mod:`protocols.follower.pivot_turns`): the seed's α = atan2(u₁v₂ − u₂v₁, u₁v₁ +
-u₂v₂) is only where planning starts. What the seed leaves open is handled as follows:
+swings on an arc (:mod:`kilonet.protocols.follower.pivot_turns`): the seed's α = atan2(u₁v₂ − u₂v₁,
+u₁v₁ + u₂v₂) is only where planning starts. What the seed leaves open is handled as follows:
 
 * **Planning with the swing.** Every move is the next move of the plan of at most two
   (turn, step) moves expected to end nearest the aim, the swing and the robot's own heading
-  and turn errors included (:func:`protocols.follower.pivot_turns.best_pivot_move`); the second
-  move of a two-move plan is made, not planned again. Swings and steps keep clear of the frame
-  robots' bodies and within ``hearing_mm`` of all three.
+  and turn errors included (:func:`kilonet.protocols.follower.pivot_turns.best_pivot_move`); the
+  second move of a two-move plan is made, not planned again. Swings and steps keep clear of the
+  frame robots' bodies and within ``hearing_mm`` of all three.
 * **Mirror frames.** In a mirrored frame a physical left turn shows up as a right turn about
   the frame's right leg. The follower starts assuming a floor-handed frame; every large turn
   votes twice: by its swing (the fix after it minus the one before,
-  :func:`protocols.follower.pivot_turns.swing_vote`) and by the rotation between the step directions
-  before and after it. Until one handedness leads, every turn is a probe of at least
+  :func:`kilonet.protocols.follower.pivot_turns.swing_vote`) and by the rotation between the step
+  directions before and after it. Until one handedness leads, every turn is a probe of at least
   ``probe_deg`` with a short step.
 * **Outside the triangle.** The robot knows where robots 1–3 stand (their coordinates) and
   that bodies are 33 mm discs; it aims at the goal when the straight line is clear of their
@@ -68,7 +68,7 @@ u₂v₂) is only where planning starts. What the seed leaves open is handled as
   within hearing of the robot unheard, and only one that both handedness agree on while the
   handedness is open. A distance at the sensor's ceiling (``saturation_mm``, kilolib's 255) is
   "at least that far": it only rules out candidates; so is one above ``neighbour_max_mm``,
-  where kilolib's estimates saturate (:mod:`protocols.ranging_limit`). A step after which it
+  where kilolib's estimates saturate (:mod:`kilonet.protocols.ranging_limit`). A step after which it
   cannot locate itself at all is undone: the way back to the last fix is planned in the
   robot's own body frame. When that does not help, or a distance is saturated, the follower
   walks to reduce its nearest distance (measuring the bearing from how that distance changes)
@@ -89,18 +89,8 @@ from dataclasses import dataclass
 from statistics import median
 from typing import Literal
 
-from kilonet.geometry import (
-    GeometryError,
-    circle_intersections,
-    rotate,
-    trilaterate_linear,
-    wrap_angle,
-)
-from kilonet.message import Message
-from kilonet.params import ParamError, param
-from kilonet.robot import Kilobot
-from protocols.common.ranging_limit import trusted_range
-from protocols.follower.frame_robots import (
+from kilonet.protocols.common.ranging_limit import trusted_range
+from kilonet.protocols.follower.frame_robots import (
     FOLLOWER,
     FRAME_BYTE,
     FRAME_WIDE,
@@ -114,7 +104,7 @@ from protocols.follower.frame_robots import (
     decode,
     encode,
 )
-from protocols.follower.pivot_turns import (
+from kilonet.protocols.follower.pivot_turns import (
     PIVOT_LEG_MM,
     PivotMove,
     best_pivot_move,
@@ -126,13 +116,24 @@ from protocols.follower.pivot_turns import (
     swing_vote,
     turn_rate_ratio,
 )
-from protocols.follower.planning import (
+from kilonet.protocols.follower.planning import (
     frame_direction,
     plan_direction,
     reachable_goal,
     turn_angle,
 )
-from protocols.follower.turn_calibration import TurnCalibration
+from kilonet.protocols.follower.turn_calibration import TurnCalibration
+
+from kilonet.geometry import (
+    GeometryError,
+    circle_intersections,
+    rotate,
+    trilaterate_linear,
+    wrap_angle,
+)
+from kilonet.message import Message
+from kilonet.params import ParamError, param
+from kilonet.robot import Kilobot
 
 __all__ = [
     "FOLLOWER",

@@ -2,8 +2,9 @@
 
 Robot 1 (:class:`Origin`) is the frame's origin, robot 2 (:class:`XAxisRobot`) lies on its +x axis
 and robot 3 (:class:`ThirdRobot`) above it; each announces what it knows in a FRAME message
-(:func:`encode`, :func:`decode`), from which the follower (:mod:`protocols.follower.follower`)
-trilaterates itself. The layouts are in :mod:`protocols.follower.follower`'s docstring.
+(:func:`encode`, :func:`decode`), from which the follower
+(:mod:`kilonet.protocols.follower.follower`) trilaterates itself. The layouts are in
+:mod:`kilonet.protocols.follower.follower`'s docstring.
 """
 
 from __future__ import annotations

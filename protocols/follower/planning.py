@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import math
 
+from kilonet.protocols.follower.pivot_turns import (
+    segment_blocked,
+)
+
 from kilonet.geometry import (
     rotate,
-)
-from protocols.follower.pivot_turns import (
-    segment_blocked,
 )
 
 Point = tuple[float, float]

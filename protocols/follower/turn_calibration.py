@@ -6,8 +6,9 @@ timed one robot through several known angles and fitted a straight line
 ``t = offset_s + s_per_rad * angle`` by hand; other robots then used that line. Here the robot
 side of that procedure is :class:`TimedTurns` (a program that pivots for a list of durations
 and logs each pulse), and the fit is :meth:`TurnCalibration.fit` (least squares). Measuring the
-angle each pulse actually turned is the observer's job (``scenarios.follower.calibrate_turns``
-reads it from the run's poses, as the author read it off the table).
+angle each pulse actually turned is the observer's job
+(``kilonet.scenarios.follower.calibrate_turns`` reads it from the run's poses, as the author read it
+off the table).
 
 Examples
 --------

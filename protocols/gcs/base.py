@@ -7,9 +7,9 @@ without any message. Inside its window each phase runs its own message protocol,
 that has nothing to say stays silent (which keeps the channel free for those that do).
 
 Every message starts with the sender's 16-bit ID field (values drawn from ``id_bits`` bits), so
-each reception also refines the distance table (:mod:`protocols.common.neighbours`): layouts are
-built with :func:`gcs_layout`, which puts that field first, and :func:`sender_of` reads it from any
-of them.
+each reception also refines the distance table (:mod:`kilonet.protocols.common.neighbours`): layouts
+are built with :func:`gcs_layout`, which puts that field first, and :func:`sender_of` reads it from
+any of them.
 """
 
 from __future__ import annotations
@@ -18,16 +18,17 @@ import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
+from kilonet.protocols.common.layouts import ProtocolLayouts
+from kilonet.protocols.common.phases import Phase as BasePhase
+from kilonet.protocols.common.phases import Stage
+
 from kilonet.message import Layout, Message
 from kilonet.params import param
-from protocols.common.layouts import ProtocolLayouts
-from protocols.common.phases import Phase as BasePhase
-from protocols.common.phases import Stage
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from protocols.gcs.program import GcsRobot
+    from kilonet.protocols.gcs.program import GcsRobot
 
 __all__ = [
     "LAYOUTS",
@@ -55,7 +56,7 @@ class GcsStage(Stage):
 
 #: Phase names in order; ``gcs.until`` names the last one to run. The refinement runs only
 #: when ``gcs.refine`` is on or ``gcs.until`` names it
-#: (:func:`protocols.gcs.program.phase_sequence`).
+#: (:func:`kilonet.protocols.gcs.program.phase_sequence`).
 PHASES = GcsStage.names()
 
 
@@ -136,7 +137,7 @@ class GcsParams:
     recover_flood_s: float = param(
         20.0, lo=1.0, hi=600.0, doc="a recovery epoch starts this long after it is requested"
     )
-    # Phase 7 (protocols.gcs.phase7_refinement): off in the thesis's pipeline.
+    # Phase 7 (kilonet.protocols.gcs.phase7_refinement): off in the thesis's pipeline.
     refine: bool = param(False, doc="refine the merged estimates after merging (phase 7)")
     refine_after_s: float = param(
         5.0, lo=0.0, hi=3600.0, doc="a robot refines once its estimate has been settled this long"
@@ -157,7 +158,7 @@ class GcsParams:
 
 
 #: Every message layout of the protocol, by type byte: :func:`gcs_layout` registers each, so a
-#: type byte used twice fails at import (:mod:`protocols.common.layouts`).
+#: type byte used twice fails at import (:mod:`kilonet.protocols.common.layouts`).
 LAYOUTS = ProtocolLayouts("gcs")
 
 #: The field every message of the protocol starts with: the sender's ID (uint16).
@@ -181,7 +182,7 @@ def gcs_layout(
     ------
     kilonet.message.PayloadError
         If the sender and ``fields`` take more than the 9-byte payload.
-    protocols.common.layouts.LayoutClash
+    kilonet.protocols.common.layouts.LayoutClash
         If another layout of the protocol uses type byte ``type``.
 
     Examples
@@ -202,12 +203,12 @@ def sender_of(message: Message) -> int:
 
 
 class Phase(BasePhase):
-    """One phase of the protocol on one robot (:class:`protocols.common.phases.Phase`).
+    """One phase of the protocol on one robot (:class:`kilonet.protocols.common.phases.Phase`).
 
     A subclass sets ``name`` (a :class:`GcsStage`, or recovery's
-    :class:`~protocols.gcs.recovery.RecoveryStage`), ``open_ended = True`` if its window never
-    closes (it ends by itself), defines :meth:`window_s` and overrides the callbacks it uses;
-    :class:`protocols.gcs.program.GcsRobot` creates it when its window opens and calls
+    :class:`~kilonet.protocols.gcs.recovery.RecoveryStage`), ``open_ended = True`` if its window
+    never closes (it ends by itself), defines :meth:`window_s` and overrides the callbacks it uses;
+    :class:`kilonet.protocols.gcs.program.GcsRobot` creates it when its window opens and calls
     :meth:`start`, then the callbacks, then :meth:`finish`.
     """
 

@@ -4,8 +4,8 @@ A **frame key** names a seed's local frame by the seed's ID and phase-1 salt: ID
 only among a robot's neighbours, so two seeds three hops apart may share one; with the salt,
 two frames are confused only if both match. A **root** is the frame a merged frame is aligned
 to: a frame key, and whether its seed is an edge seed of a recovery epoch
-(:mod:`protocols.gcs.recovery`), whose frames rank after every elected seed's. A **rank** is a
-seed's root and its hops from it (:mod:`protocols.gcs.phase6_merging`); smaller is better.
+(:mod:`kilonet.protocols.gcs.recovery`), whose frames rank after every elected seed's. A **rank** is
+a seed's root and its hops from it (:mod:`kilonet.protocols.gcs.phase6_merging`); smaller is better.
 
 All three are :class:`~typing.NamedTuple` values, ordered as their fields: ``Rank`` by
 (edge, root ID, root salt, hops), exactly as the integers ``((edge · 2¹⁵ + ID) · 256 + salt) ·
@@ -13,7 +13,7 @@ All three are :class:`~typing.NamedTuple` values, ordered as their fields: ``Ran
 the per-reception path, and a tuple hashes and compares in C, while a frozen dataclass costs
 more to create and compares in Python; plain ints would be cheaper still but put the packing
 back into every module. To keep creation off that path, robots build a neighbour's key once
-(:meth:`protocols.gcs.program.GcsRobot.frame_key`) and values read off the wire are interned
+(:meth:`kilonet.protocols.gcs.program.GcsRobot.frame_key`) and values read off the wire are interned
 (``from_wire``): a swarm hears the same few keys and ranks again and again. The costs, timed,
 are in ``docs/gcs.md`` ("Speed").
 

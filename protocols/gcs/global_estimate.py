@@ -13,8 +13,8 @@ Examples
 --------
 >>> import numpy as np
 >>> from scipy.spatial.transform import Rotation
->>> from protocols.gcs.frame_keys import FrameKey, Rank
->>> from protocols.gcs.transforms import Transform
+>>> from kilonet.protocols.gcs.frame_keys import FrameKey, Rank
+>>> from kilonet.protocols.gcs.transforms import Transform
 >>> a, b = FrameKey(3, 1), FrameKey(5, 2)
 >>> est = GlobalEstimate()
 >>> est.locate(a, (10.0, 0.0)); est.locate(b, (0.0, 10.0))
@@ -36,8 +36,8 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from protocols.gcs.frame_keys import FrameKey, Rank, Root
-    from protocols.gcs.transforms import Transform
+    from kilonet.protocols.gcs.frame_keys import FrameKey, Rank, Root
+    from kilonet.protocols.gcs.transforms import Transform
 
 __all__ = ["GlobalEstimate"]
 

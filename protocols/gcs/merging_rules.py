@@ -1,9 +1,9 @@
 """The decisions of phase 6 (frame merging), as pure functions of what a robot knows.
 
-:mod:`protocols.gcs.phase6_merging` runs the rounds and the messages; every choice it makes on the
-way is one of these functions, so each can be read and tested on its own. Ranks and frame keys
-are :mod:`protocols.gcs.frame_keys` values; smaller ranks are better. The design is explained in
-``docs/gcs.md`` ("Merging").
+:mod:`kilonet.protocols.gcs.phase6_merging` runs the rounds and the messages; every choice it makes
+on the way is one of these functions, so each can be read and tested on its own. Ranks and frame
+keys are :mod:`kilonet.protocols.gcs.frame_keys` values; smaller ranks are better. The design is
+explained in ``docs/gcs.md`` ("Merging").
 
 A seed's round, in the order the rules apply: pick a partner (:func:`next_partner`, or a
 hinted one if :func:`hint_is_news`); when the answer comes, step only toward the parent
@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Collection, Iterable, Mapping, Sequence
 from typing import Literal
 
-from protocols.gcs.frame_keys import MAX_HOPS, FrameKey, Rank
+from kilonet.protocols.gcs.frame_keys import MAX_HOPS, FrameKey, Rank
 
 __all__ = [
     "all_partners_heard",

@@ -23,8 +23,9 @@ are repeated at three transmit opportunities.
 
 from __future__ import annotations
 
+from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
+
 from kilonet.message import Message
-from protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 
 __all__ = ["CONFLICT", "ID", "UniqueIds", "is_duplicate"]
 

@@ -29,6 +29,8 @@ Messages (16-bit IDs; distances whole mm; coordinates int16 in 0.1 mm)::
 
 from __future__ import annotations
 
+from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
+
 from kilonet.geometry import (
     GeometryError,
     choose_references_best_conditioned,
@@ -36,7 +38,6 @@ from kilonet.geometry import (
     place_references,
 )
 from kilonet.message import Message
-from protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 
 __all__ = [
     "ASK",
@@ -134,8 +135,8 @@ class LocalFrames(Phase):
         # Asking side (seeds): tables heard, by neighbour: chunk -> entries, and last chunk.
         self.tables: dict[int, dict[int, list[tuple[int, int]]]] = {}
         self.last_chunk: dict[int, int] = {}
-        # A seed that built its frame in an earlier epoch (protocols.gcs.recovery) keeps it: the
-        # positions located in it must stay valid.
+        # A seed that built its frame in an earlier epoch (kilonet.protocols.gcs.recovery) keeps it:
+        # the positions located in it must stay valid.
         self.queue = [uid for uid in r.table.ids()] if r.is_seed and not r.references else []
         self.attempts = dict.fromkeys(self.queue, 0)
         self.asking: int | None = None

@@ -16,7 +16,7 @@ Message (type 40 POS)::
     sender:uint16  seed:uint16  seed_salt:uint8  x:int16  y:int16   (0.1 mm)   9 bytes
 
 A frame is named by its seed's ID and phase-1 salt
-(:meth:`protocols.gcs.program.GcsRobot.frame_key`).
+(:meth:`kilonet.protocols.gcs.program.GcsRobot.frame_key`).
 """
 
 from __future__ import annotations
@@ -24,13 +24,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
+from kilonet.protocols.common.neighbours import NeighbourTable
+from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
+from kilonet.protocols.gcs.frame_keys import FrameKey
+from kilonet.protocols.gcs.phase3_local_frames import announce_reference, receive_reference
 
 from kilonet.geometry import multilaterate
 from kilonet.message import Message
-from protocols.common.neighbours import NeighbourTable
-from protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
-from protocols.gcs.frame_keys import FrameKey
-from protocols.gcs.phase3_local_frames import announce_reference, receive_reference
 
 __all__ = [
     "POS",

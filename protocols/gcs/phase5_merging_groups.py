@@ -13,7 +13,8 @@ Message (type 50 REGISTER, 7 bytes)::
 
     sender:uint16  seed:uint16  partner:uint16  partner_salt:uint8
 
-Frames are named by frame keys (seed ID and salt, :meth:`protocols.gcs.program.GcsRobot.frame_key`).
+Frames are named by frame keys (seed ID and salt,
+:meth:`kilonet.protocols.gcs.program.GcsRobot.frame_key`).
 """
 
 from __future__ import annotations
@@ -23,10 +24,11 @@ import math
 from collections.abc import Mapping
 from typing import TypeVar
 
+from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
+from kilonet.protocols.gcs.frame_keys import FrameKey
+from kilonet.protocols.gcs.phase4_localization import announce_position, receive_position
+
 from kilonet.message import Message
-from protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
-from protocols.gcs.frame_keys import FrameKey
-from protocols.gcs.phase4_localization import announce_position, receive_position
 
 __all__ = ["REGISTER", "MergingGroups", "find_groups"]
 
@@ -53,8 +55,8 @@ def find_groups(
     Parameters
     ----------
     own : mapping
-        The robot's positions by frame (a :class:`~protocols.gcs.frame_keys.FrameKey`, or any
-        ordered name of a frame: the prediction uses seed indices), mm.
+        The robot's positions by frame (a :class:`~kilonet.protocols.gcs.frame_keys.FrameKey`, or
+        any ordered name of a frame: the prediction uses seed indices), mm.
     announced : mapping
         Neighbours' positions by frame, then neighbour ID, mm.
     neighbours : set

@@ -4,11 +4,11 @@ Every seed S keeps its frame's transform: a 3-D rotation R_S and a shift v_S wit
 ``global = R_S · (x, y, 0) + v_S`` (3-D so that a frame that is the mirror image of another can
 be turned into it: a 180° turn about an in-plane axis). Initially R_S = I, v_S = 0. Seeds
 broadcast their transform (TF_ROT, TF_SHIFT) with a 7-bit version (bit 7: the seed is done)
-and their rank (TF_ROOT; :class:`protocols.gcs.frame_keys.Rank`: the root their frame has been
-aligned to and their hops from it, smaller is better).
+and their rank (TF_ROOT; :class:`kilonet.protocols.gcs.frame_keys.Rank`: the root their frame has
+been aligned to and their hops from it, smaller is better).
 
 A round of seed I (:class:`SeedRounds`; every choice is a rule of
-:mod:`protocols.gcs.merging_rules`):
+:mod:`kilonet.protocols.gcs.merging_rules`):
 
 1. I picks a partner frame K — after a hint the hinted one, otherwise every other round its
    parent (the best-ranked partner it knows) and each partner in turn between — and a robot X
@@ -38,7 +38,8 @@ rounds it gives up, or stops its rounds if done. ``docs/gcs.md`` says why each r
 
 Messages (rotations as the three int16 words of :func:`kilonet.alignment.pack_quaternion`;
 shifts int16 in 0.25 mm; frames by their seed's ID and salt,
-:class:`~protocols.gcs.frame_keys.FrameKey`; ranks as :meth:`~protocols.gcs.frame_keys.Rank.wire`)::
+:class:`~kilonet.protocols.gcs.frame_keys.FrameKey`; ranks as
+:meth:`~kilonet.protocols.gcs.frame_keys.Rank.wire`)::
 
     type 60 TF_ROT     sender:uint16  version:uint8  q0 q1 q2:int16          9 bytes
     type 61 TF_SHIFT   sender:uint16  version:uint8  vx vy vz:int16          9 bytes
@@ -58,16 +59,9 @@ shifts int16 in 0.25 mm; frames by their seed's ID and salt,
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
-from kilonet.alignment import (
-    half_map,
-)
-from kilonet.geometry import GeometryError
-from kilonet.message import Message
-from protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
-from protocols.gcs.frame_keys import FrameKey, Rank
-from protocols.gcs.merging_rules import (
+from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
+from kilonet.protocols.gcs.frame_keys import FrameKey, Rank
+from kilonet.protocols.gcs.merging_rules import (
     all_partners_heard,
     answer_agrees,
     cuts_round,
@@ -81,15 +75,22 @@ from protocols.gcs.merging_rules import (
     round_end,
     seed_message,
 )
-from protocols.gcs.replacement_wave import PlacedNeighbours
-from protocols.gcs.split_detection import SplitCheck
-from protocols.gcs.transforms import (
+from kilonet.protocols.gcs.replacement_wave import PlacedNeighbours
+from kilonet.protocols.gcs.split_detection import SplitCheck
+from kilonet.protocols.gcs.transforms import (
     Transform,
     quaternion_fields,
     rotation_from_fields,
     version_byte,
     version_number,
 )
+from scipy.spatial.transform import Rotation
+
+from kilonet.alignment import (
+    half_map,
+)
+from kilonet.geometry import GeometryError
+from kilonet.message import Message
 
 __all__ = [
     "ANS_ERROR",
@@ -226,7 +227,7 @@ class FrameMerging(Phase):
         of every frame it is located in done (a robot stays a member for a frame whose seed
         still merges), no recovery is announced or awaited, and a seed's own rounds are done.
         Or at once, when the refinement's re-placement wave has reached it
-        (:func:`~protocols.gcs.replacement_wave.wave_reached`): the wave places it, whatever
+        (:func:`~kilonet.protocols.gcs.replacement_wave.wave_reached`): the wave places it, whatever
         holds merging back (the refinement keeps merging going, and a recovery still ends it).
         """
         r = self.robot
@@ -255,7 +256,7 @@ class FrameMerging(Phase):
     # -- member side: hints --------------------------------------------------------------------
     def _hint(self) -> Message | None:
         """A HINT for a seed of this robot's groups whose partner ranks better than it could
-        know (:func:`~protocols.gcs.merging_rules.hint_due`), at most one per pair and
+        know (:func:`~kilonet.protocols.gcs.merging_rules.hint_due`), at most one per pair and
         ``gcs.merge_round_s``."""
         r = self.robot
         now = r.kilo_ticks
@@ -577,7 +578,7 @@ class SeedRounds:
 
     def _choose(self) -> tuple[int, FrameKey]:
         """The (member, partner) of a new round: a hint's, if news; otherwise the partner of
-        :func:`~protocols.gcs.merging_rules.next_partner` and one of its members."""
+        :func:`~kilonet.protocols.gcs.merging_rules.next_partner` and one of its members."""
         r = self.robot
         hinted, self.hint = self.hint, None
         if hinted is not None and not hint_is_news(hinted[1], self.partner_ranks, self.rank):
@@ -637,7 +638,7 @@ class SeedRounds:
 
     def _apply(self, rotation: Rotation, shift: np.ndarray, error_mm: float, rank: Rank) -> None:
         """Take an answer (the half step, the disagreement in mm, the partner's rank) and end
-        the round by the rules of :mod:`protocols.gcs.merging_rules`."""
+        the round by the rules of :mod:`kilonet.protocols.gcs.merging_rules`."""
         r, p = self.robot, self.params
         asked = self.asking[1] if self.asking is not None else None
         if asked is not None:
@@ -694,8 +695,8 @@ class SeedRounds:
     # -- messages ------------------------------------------------------------------------------
     def message_tx(self) -> Message:
         """The seed's message at a transmit opportunity
-        (:func:`~protocols.gcs.merging_rules.seed_message`); a new round starts first when one is
-        due."""
+        (:func:`~kilonet.protocols.gcs.merging_rules.seed_message`); a new round starts first when
+        one is due."""
         r = self.robot
         now = r.kilo_ticks
         timed_out = now - self.round_start > self.merging.round_ticks
@@ -777,7 +778,7 @@ class SeedRounds:
     def _take_hint(self, m) -> None:
         """A member says partner K ranks better than this seed: the next round asks K through
         that member, and the running round may end now
-        (:func:`~protocols.gcs.merging_rules.cuts_round`)."""
+        (:func:`~kilonet.protocols.gcs.merging_rules.cuts_round`)."""
         r = self.robot
         partner = FrameKey.from_wire(m.partner, m.partner_salt)
         if m.seed == r.uid and m.sender in r.partners.get(partner, ()):

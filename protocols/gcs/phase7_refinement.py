@@ -4,14 +4,14 @@ estimates, as ``localize`` does.
 Merging (phase 6) leaves every robot with a global estimate made of local fixes and half-way
 transforms; its errors compound from frame to frame. Here each robot starts from that estimate
 and keeps improving it from its neighbours' broadcast global positions and the distances both
-ends measured, by the refinement of :mod:`protocols.common.refinement` (robust Gauss–Newton steps
-with momentum, the symmetric DIST reports): the swarm descends on the least-squares stress of every
-measured pair. Nothing is anchored: the stress does not change under a rigid motion of the
+ends measured, by the refinement of :mod:`kilonet.protocols.common.refinement` (robust Gauss–Newton
+steps with momentum, the symmetric DIST reports): the swarm descends on the least-squares stress of
+every measured pair. Nothing is anchored: the stress does not change under a rigid motion of the
 whole frame, so the frame keeps where merging put it, up to a small drift.
 
 **Entering.** Merging's window never closes; a robot enters this phase when merging is
-over *for it* (:meth:`protocols.gcs.phase6_merging.FrameMerging.finished`): its estimate has been
-settled, and the seed of every frame it is located in done, for ``gcs.refine_after_s``, no
+over *for it* (:meth:`kilonet.protocols.gcs.phase6_merging.FrameMerging.finished`): its estimate has
+been settled, and the seed of every frame it is located in done, for ``gcs.refine_after_s``, no
 recovery is announced or awaited, and, on a seed, its own rounds are done. A robot without a
 settled estimate keeps merging — until the re-placement wave (below) reaches it: a merging
 robot that hears three placed neighbours in one frame at least as good as its own
@@ -20,8 +20,8 @@ it. Without this, robots that a recovery epoch sent back to merging and whose es
 settled there (it disagreed with the neighbours', so the split check kept flagging them) kept
 merged estimates hundreds of mm off beside a placed swarm.
 
-**Merging goes on**, its split check does not (:mod:`protocols.gcs.split_detection`: the placed
-positions replace the estimates it compares). A refining robot keeps its part in merging: it
+**Merging goes on**, its split check does not (:mod:`kilonet.protocols.gcs.split_detection`: the
+placed positions replace the estimates it compares). A refining robot keeps its part in merging: it
 still tracks the seeds' transforms and ranks and answers their queries, and a seed still runs
 its rounds (every other transmit opportunity is merging's). When merging moves the merged
 estimate of a robot not yet placed by more than ``_FOLLOW_MM``, its estimate moves by as much;
@@ -51,8 +51,8 @@ else (a split awaiting its recovery) and may never come.
 
 **Joining a better frame.** Merging may leave the swarm in several frames. A refining robot
 that hears at least three placed neighbours whose estimates lie in a frame with a better root
-(:class:`~protocols.gcs.frame_keys.Root` order, the one merging uses) places itself in that frame
-by multilateration from their positions and its measured distances
+(:class:`~kilonet.protocols.gcs.frame_keys.Root` order, the one merging uses) places itself in that
+frame by multilateration from their positions and its measured distances
 (:func:`~kilonet.geometry.multilaterate`, with the collinearity, residual and mirror checks
 phase 4 uses) and refines there from then on (:func:`frame_to_join` picks the frame). A robot
 that merging left without an estimate joins the same way. Roots only get better, so the frames
@@ -65,19 +65,19 @@ drifting as a whole never stops moving on the table, but its robots stop moving 
 other); with no hop structure to climb, it stops (*done*: its
 estimate frozen, still announced as settled) when it and every neighbour it refines
 against have been settled for ``_CONFIRM_ROUNDS`` rounds in a row and no settled merging
-neighbour is still to join (:func:`~protocols.common.refinement.neighbourhood_settled`). A robot
-that does not stop within ``gcs.refine_timeout_s`` stops anyway (the phase's window).
+neighbour is still to join (:func:`~kilonet.protocols.common.refinement.neighbourhood_settled`). A
+robot that does not stop within ``gcs.refine_timeout_s`` stops anyway (the phase's window).
 
 Messages (one transmit opportunity in ``_DIST_EVERY`` carries a DIST report of
-:mod:`protocols.common.refinement`, with the global position, 0.1 mm)::
+:mod:`kilonet.protocols.common.refinement`, with the global position, 0.1 mm)::
 
     type 73 GPOS          sender:uint16  x:int16  y:int16 (0.1 mm)  root:uint16  salt:uint8
     type 75 GPOS_PLACED   the same, from a robot the wave has placed               9 bytes
     type 74 GPOS_SETTLED  the same, from a placed robot that has settled or is done
 
 ``root`` and ``salt`` are the wire ID and salt of the merged frame's root
-(:meth:`protocols.gcs.frame_keys.Root.from_wire`): the whole root, so a robot that joins a frame
-names it as merging does. Coordinates span ±3,276.7 mm: a robot whose estimate lies beyond
+(:meth:`kilonet.protocols.gcs.frame_keys.Root.from_wire`): the whole root, so a robot that joins a
+frame names it as merging does. Coordinates span ±3,276.7 mm: a robot whose estimate lies beyond
 stays silent.
 """
 
@@ -86,10 +86,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-from kilonet.geometry import multilaterate
-from kilonet.message import Message
-from protocols.common.refinement import (
+from kilonet.protocols.common.refinement import (
     DIST,
     DISTANCE_STEP_MM,
     Refiner,
@@ -99,9 +96,9 @@ from protocols.common.refinement import (
     next_report,
     unwrap_distance,
 )
-from protocols.gcs.base import LAYOUTS, SENDER, GcsParams, GcsStage, Phase
-from protocols.gcs.frame_keys import Root
-from protocols.gcs.replacement_wave import (
+from kilonet.protocols.gcs.base import LAYOUTS, SENDER, GcsParams, GcsStage, Phase
+from kilonet.protocols.gcs.frame_keys import Root
+from kilonet.protocols.gcs.replacement_wave import (
     GPOS,
     GPOS_PLACED,
     GPOS_SETTLED,
@@ -109,12 +106,15 @@ from protocols.gcs.replacement_wave import (
     PlacedNeighbours,
     wave_reached,
 )
-from protocols.gcs.split_detection import POS
+from kilonet.protocols.gcs.split_detection import POS
+
+from kilonet.geometry import multilaterate
+from kilonet.message import Message
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
-    from protocols.common.neighbours import Neighbour
+    from kilonet.protocols.common.neighbours import Neighbour
 
 __all__ = [
     "GPOS",
@@ -157,7 +157,7 @@ def frame_to_join(
 
     Examples
     --------
-    >>> from protocols.gcs.frame_keys import FrameKey
+    >>> from kilonet.protocols.gcs.frame_keys import FrameKey
     >>> a, b = Root(False, FrameKey(3, 9)), Root(False, FrameKey(5, 1))
     >>> heard = [(a, 0.0, 0.0, 40.0), (a, 40.0, 0.0, 40.0), (b, 0.0, 9.0, 30.0)]
     >>> frame_to_join(b, heard) is None  # two anchors in the better frame: not enough
@@ -182,13 +182,13 @@ def frame_to_join(
 class Peer:
     """What a refining robot knows about one neighbour: its announced global position, root and
     whether it has settled, and the distance reports between the two (the interface
-    :func:`~protocols.common.refinement.next_report` reads).
+    :func:`~kilonet.protocols.common.refinement.next_report` reads).
 
     Parameters
     ----------
     uid : int
         The neighbour's ID.
-    record : protocols.common.neighbours.Neighbour
+    record : kilonet.protocols.common.neighbours.Neighbour
         The robot's neighbour-table record of it (the mean distance, from every reception).
     """
 
@@ -235,7 +235,8 @@ class Peer:
 
     @property
     def range_mm(self) -> float:
-        """The distance both ends fit (:func:`~protocols.common.refinement.agreed_range_mm`), mm."""
+        """The distance both ends fit
+        (:func:`~kilonet.protocols.common.refinement.agreed_range_mm`), mm."""
         return agreed_range_mm(self.record.mean_mm, self.sent_mm, self.reported_mm)
 
 

@@ -2,35 +2,35 @@
 
 The phases (one module each) run in windows on the robot's own clock, in order:
 
-1. :mod:`protocols.gcs.phase1_unique_ids` — locally unique IDs;
-2. :mod:`protocols.gcs.phase2_seed_election` — top and bottom seed elections and the seed check;
-3. :mod:`protocols.gcs.phase3_local_frames` — each seed's frame from two references;
-4. :mod:`protocols.gcs.phase4_localization` — trilateration into the frames of seeds in view;
-5. :mod:`protocols.gcs.phase5_merging_groups` — groups of three robots located in the same two
-   frames;
-6. :mod:`protocols.gcs.phase6_merging` — rounds of half-way transforms until partners agree;
-7. :mod:`protocols.gcs.phase7_refinement` — with ``gcs.refine = true`` only (not the thesis's): the
-   merged estimates refined from neighbours' global positions and measured distances. Merging's
-   window never closes, so a robot leaves it when merging reports itself finished for it
-   (:meth:`~protocols.gcs.base.Phase.finished`).
+1. :mod:`kilonet.protocols.gcs.phase1_unique_ids` — locally unique IDs;
+2. :mod:`kilonet.protocols.gcs.phase2_seed_election` — top and bottom seed elections and the seed
+check; 3. :mod:`kilonet.protocols.gcs.phase3_local_frames` — each seed's frame from two references;
+4. :mod:`kilonet.protocols.gcs.phase4_localization` — trilateration into the frames of seeds in
+view; 5. :mod:`kilonet.protocols.gcs.phase5_merging_groups` — groups of three robots located in the
+   same two frames;
+6. :mod:`kilonet.protocols.gcs.phase6_merging` — rounds of half-way transforms until partners agree;
+7. :mod:`kilonet.protocols.gcs.phase7_refinement` — with ``gcs.refine = true`` only (not the
+   thesis's): the merged estimates refined from neighbours' global positions and measured distances.
+   Merging's window never closes, so a robot leaves it when merging reports itself finished for it
+   (:meth:`~kilonet.protocols.gcs.base.Phase.finished`).
 
-Alongside merging, :mod:`protocols.gcs.split_detection` checks the merged frame against measured
-distances, and :mod:`protocols.gcs.recovery` answers a split that persists with a recovery epoch:
-edge seeds (phase ``edges``) and phases 3-6 again (and 7, when it runs), at most
+Alongside merging, :mod:`kilonet.protocols.gcs.split_detection` checks the merged frame against
+measured distances, and :mod:`kilonet.protocols.gcs.recovery` answers a split that persists with a
+recovery epoch: edge seeds (phase ``edges``) and phases 3-6 again (and 7, when it runs), at most
 ``gcs.recoveries`` times.
 
 ``gcs.until`` stops the program after a phase. The robot's state that phases share lives on
 :class:`GcsRobot` (its ID, neighbour table, seeds in view, groups and partners, and its
-:class:`~protocols.gcs.global_estimate.GlobalEstimate`: local positions, transforms, ranks); phases
-hold their own working state. LED (:func:`led_colour`): phase 1 white, 2 blue (seeds red),
+:class:`~kilonet.protocols.gcs.global_estimate.GlobalEstimate`: local positions, transforms, ranks);
+phases hold their own working state. LED (:func:`led_colour`): phase 1 white, 2 blue (seeds red),
 3 references yellow, located robots green, merged robots cyan.
 
-To add a phase: write its module (a :class:`~protocols.gcs.base.Phase` subclass with a
-``name`` and a ``window_s``), add the name to :data:`protocols.gcs.base.PHASES` and the class
-to :data:`PHASE_SEQUENCE` at the same place (and to :data:`RECOVERY_SEQUENCE` if a recovery
+To add a phase: write its module (a :class:`~kilonet.protocols.gcs.base.Phase` subclass with a
+``name`` and a ``window_s``), add the name to :data:`kilonet.protocols.gcs.base.PHASES` and the
+class to :data:`PHASE_SEQUENCE` at the same place (and to :data:`RECOVERY_SEQUENCE` if a recovery
 epoch must run it again), and give its window a parameter in
-:class:`~protocols.gcs.base.GcsParams`. A phase after one whose window never closes starts
-when that phase's :meth:`~protocols.gcs.base.Phase.finished` says so.
+:class:`~kilonet.protocols.gcs.base.GcsParams`. A phase after one whose window never closes starts
+when that phase's :meth:`~kilonet.protocols.gcs.base.Phase.finished` says so.
 """
 
 from __future__ import annotations
@@ -39,22 +39,23 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from kilonet.protocols.common.neighbours import NeighbourTable
+from kilonet.protocols.common.ranging_limit import trusted_range
+from kilonet.protocols.gcs.base import PHASES, SENDER, GcsParams, Phase
+from kilonet.protocols.gcs.frame_keys import FrameKey, Root
+from kilonet.protocols.gcs.global_estimate import GlobalEstimate
+from kilonet.protocols.gcs.phase1_unique_ids import UniqueIds
+from kilonet.protocols.gcs.phase2_seed_election import SeedElection
+from kilonet.protocols.gcs.phase3_local_frames import LocalFrames
+from kilonet.protocols.gcs.phase4_localization import Localization
+from kilonet.protocols.gcs.phase5_merging_groups import MergingGroups
+from kilonet.protocols.gcs.phase6_merging import FrameMerging
+from kilonet.protocols.gcs.phase7_refinement import GlobalRefinement
+from kilonet.protocols.gcs.recovery import RECOVER, EdgeSeeds, RecoveryFlood
+from kilonet.protocols.gcs.split_detection import POS, SplitCheck
+
 from kilonet.message import Message
 from kilonet.robot import Kilobot
-from protocols.common.neighbours import NeighbourTable
-from protocols.common.ranging_limit import trusted_range
-from protocols.gcs.base import PHASES, SENDER, GcsParams, Phase
-from protocols.gcs.frame_keys import FrameKey, Root
-from protocols.gcs.global_estimate import GlobalEstimate
-from protocols.gcs.phase1_unique_ids import UniqueIds
-from protocols.gcs.phase2_seed_election import SeedElection
-from protocols.gcs.phase3_local_frames import LocalFrames
-from protocols.gcs.phase4_localization import Localization
-from protocols.gcs.phase5_merging_groups import MergingGroups
-from protocols.gcs.phase6_merging import FrameMerging
-from protocols.gcs.phase7_refinement import GlobalRefinement
-from protocols.gcs.recovery import RECOVER, EdgeSeeds, RecoveryFlood
-from protocols.gcs.split_detection import POS, SplitCheck
 
 __all__ = [
     "OPEN_ENDED",
@@ -67,7 +68,7 @@ __all__ = [
     "phase_windows_s",
 ]
 
-#: The phases in the order they run, one per name of :data:`protocols.gcs.base.PHASES`.
+#: The phases in the order they run, one per name of :data:`kilonet.protocols.gcs.base.PHASES`.
 PHASE_SEQUENCE: tuple[type[Phase], ...] = (
     UniqueIds,
     SeedElection,
@@ -195,7 +196,7 @@ class RobotOutcome:
     merged_root : Root or None
         The root of the frame ``merged_position`` is in (the refinement may join another).
     split_boundary, inconsistent : bool
-        What its split check flagged at the end (:mod:`protocols.gcs.split_detection`).
+        What its split check flagged at the end (:mod:`kilonet.protocols.gcs.split_detection`).
     merge_done : bool
         A seed done merging.
     merge_rounds : int
@@ -301,7 +302,7 @@ class GcsRobot(Kilobot):
         # Phase 5: this robot's groups {(I, K): (Y, Z)}; a seed's partners {K: {members}}.
         self.groups: dict[tuple[FrameKey, FrameKey], tuple[int, int]] = {}
         self.partners: dict[FrameKey, set[int]] = {}
-        self.merge_done = False  # a seed done merging (protocols.gcs.phase6_merging)
+        self.merge_done = False  # a seed done merging (kilonet.protocols.gcs.phase6_merging)
         self.merging: FrameMerging | None = None  # the latest merging phase (phase 7 keeps it)
         # Checking and recovering (split_detection, recovery): the check runs while merging.
         self.check: SplitCheck | None = None
@@ -401,7 +402,7 @@ class GcsRobot(Kilobot):
         """Run recovery epoch ``epoch`` from ``start_tick``: the running phase (merging, or the
         refinement) ends there and :data:`RECOVERY_SEQUENCE` follows in windows of the usual
         lengths, the refinement after it when the run refines (see
-        :mod:`protocols.gcs.recovery`)."""
+        :mod:`kilonet.protocols.gcs.recovery`)."""
         self.epoch = epoch
         cls, start, _ = self._windows[self._phase_index]
         windows = [*self._windows[: self._phase_index], (cls, start, start_tick)]

@@ -1,7 +1,7 @@
 """Recovering from a split global frame: the thesis's remedy (§7), finished here.
 
-When :mod:`protocols.gcs.split_detection` finds a robot on the boundary between two merged frames
-that never merged (and ``gcs.recoveries`` are left), that robot starts a **recovery epoch**:
+When :mod:`kilonet.protocols.gcs.split_detection` finds a robot on the boundary between two merged
+frames that never merged (and ``gcs.recoveries`` are left), that robot starts a **recovery epoch**:
 
 1. **Flood.** It broadcasts ``RECOVER(epoch, start tick)`` with a start ``gcs.recover_flood_s``
    ahead; every robot that hears a newer epoch (or the same epoch with an earlier start — two
@@ -30,12 +30,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from kilonet.protocols.common.phases import Stage
+from kilonet.protocols.gcs.base import GcsParams, Phase, gcs_layout
+
 from kilonet.message import Message
-from protocols.common.phases import Stage
-from protocols.gcs.base import GcsParams, Phase, gcs_layout
 
 if TYPE_CHECKING:
-    from protocols.gcs.program import GcsRobot
+    from kilonet.protocols.gcs.program import GcsRobot
 
 __all__ = ["EDGE", "RECOVER", "EdgeSeeds", "RecoveryFlood", "adopts_epoch"]
 

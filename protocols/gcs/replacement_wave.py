@@ -2,9 +2,9 @@
 robot's global position (GPOS, GPOS_PLACED, GPOS_SETTLED) and when the wave has reached a robot
 still merging (:func:`wave_reached`, :class:`PlacedNeighbours`).
 
-Phase 6 (:mod:`protocols.gcs.phase6_merging`) ends for a robot the wave has reached, and phase 7
-(:mod:`protocols.gcs.phase7_refinement`) sends these messages: both import them from here, so
-that no phase imports from a later one. Message layouts (9 bytes each)::
+Phase 6 (:mod:`kilonet.protocols.gcs.phase6_merging`) ends for a robot the wave has reached, and
+phase 7 (:mod:`kilonet.protocols.gcs.phase7_refinement`) sends these messages: both import them from
+here, so that no phase imports from a later one. Message layouts (9 bytes each)::
 
     type 73 GPOS          sender:uint16  x:int16  y:int16 (0.1 mm)  root:uint16  salt:uint8
     type 75 GPOS_PLACED   the same, from a robot the wave has placed
@@ -15,9 +15,10 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from kilonet.protocols.gcs.base import gcs_layout
+from kilonet.protocols.gcs.frame_keys import Root
+
 from kilonet.message import Message
-from protocols.gcs.base import gcs_layout
-from protocols.gcs.frame_keys import Root
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -41,12 +42,12 @@ def wave_reached(own: Root | None, roots: Iterable[Root]) -> bool:
     """Whether the re-placement wave has reached a robot still merging in frame ``own``
     (``None``: it has no estimate): at least three of its placed neighbours — ``roots``, the
     frame of each — lie in one frame whose root is ``own`` or better. Merging is then over for
-    it (:meth:`protocols.gcs.phase6_merging.FrameMerging.finished`): the refinement places it from
-    those neighbours, whatever merging's estimate says.
+    it (:meth:`kilonet.protocols.gcs.phase6_merging.FrameMerging.finished`): the refinement places
+    it from those neighbours, whatever merging's estimate says.
 
     Examples
     --------
-    >>> from protocols.gcs.frame_keys import FrameKey
+    >>> from kilonet.protocols.gcs.frame_keys import FrameKey
     >>> a, b = Root(False, FrameKey(3, 9)), Root(False, FrameKey(5, 1))
     >>> wave_reached(b, [a, a, b])  # three placed, but in two frames
     False

@@ -6,7 +6,7 @@ marked done by its seed — it broadcasts that position now and then::
     type 70 POS  sender:uint16  x:int16  y:int16 (0.5 mm)  root:uint16  root_salt:uint8  9 bytes
 
 ``root`` and ``root_salt`` name the root of the merged frame its estimate is in
-(:class:`protocols.gcs.frame_keys.Root`; bit 15 of ``root``: an edge or isolated
+(:class:`kilonet.protocols.gcs.frame_keys.Root`; bit 15 of ``root``: an edge or isolated
 seed's frame). A settled robot
 that hears a settled neighbour compares, as the thesis proposes, the distance computed from
 both global positions with the distance it measures (the running mean of its neighbour table):
@@ -21,8 +21,8 @@ on and the frames meet after all. They also lapse: a neighbour's flag when it ha
 for ``_FRESH_S`` (it is merging again), and all of them when this robot stops being settled
 (its own frame is moving): a flag raised while the root is still flooding the swarm must not
 outlive the moment both robots have joined that root. A robot that has been on a split boundary
-for ``gcs.split_confirm_s`` without interruption asks for a recovery (:mod:`protocols.gcs.recovery`)
-— unless ``gcs.recoveries`` have been run already.
+for ``gcs.split_confirm_s`` without interruption asks for a recovery
+(:mod:`kilonet.protocols.gcs.recovery`) — unless ``gcs.recoveries`` have been run already.
 
 The comparison uses only what the robot heard: its neighbours' messages and its own ranging.
 """
@@ -32,12 +32,13 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
+from kilonet.protocols.gcs.base import gcs_layout
+from kilonet.protocols.gcs.frame_keys import Root
+
 from kilonet.message import Message
-from protocols.gcs.base import gcs_layout
-from protocols.gcs.frame_keys import Root
 
 if TYPE_CHECKING:
-    from protocols.gcs.program import GcsRobot
+    from kilonet.protocols.gcs.program import GcsRobot
 
 __all__ = ["POS", "SplitCheck", "distance_mismatch_mm"]
 

@@ -1,8 +1,8 @@
-"""A seed's transform of its frame (phase 6, :mod:`protocols.gcs.phase6_merging`) and its wire
-form: the rotation as three int16 quaternion words, the version byte with its done bit.
+"""A seed's transform of its frame (phase 6, :mod:`kilonet.protocols.gcs.phase6_merging`) and its
+wire form: the rotation as three int16 quaternion words, the version byte with its done bit.
 
-Every robot reads transforms (its global estimate, :mod:`protocols.gcs.global_estimate`); only
-phase 6 makes them.
+Every robot reads transforms (its global estimate, :mod:`kilonet.protocols.gcs.global_estimate`);
+only phase 6 makes them.
 """
 
 from __future__ import annotations

@@ -3,25 +3,25 @@ neighbour, and the distance reports that make every measured distance symmetric.
 
 Every message of the protocol starts with the sender's 16-bit ID, so every reception adds a
 distance sample to the sender's :class:`Neighbour` record, in the neighbour table common to
-both protocols (:mod:`protocols.common.neighbours`; its mean averages the ranging noise
+both protocols (:mod:`kilonet.protocols.common.neighbours`; its mean averages the ranging noise
 down). Both ends of a pair fit the same distance, agreed through the symmetric distance
-reports of :mod:`protocols.common.refinement` (DIST, and the choice of neighbour of
-:func:`~protocols.common.refinement.next_report`); one transmit opportunity in
+reports of :mod:`kilonet.protocols.common.refinement` (DIST, and the choice of neighbour of
+:func:`~kilonet.protocols.common.refinement.next_report`); one transmit opportunity in
 ``localize.dist_every`` carries a report::
 
     NBR  (85)  sender:uint16  neighbour:uint16  distance:uint16 (0.01 mm)            6 bytes
 
 A robot without a position reports in NBR, whose full distances also tell the root, while it
-is elected, how far apart its neighbours are (:mod:`protocols.localize.phase2_spread`); once it has
-one, in DIST, which carries the position too (:func:`distance_report`).
+is elected, how far apart its neighbours are (:mod:`kilonet.protocols.localize.phase2_spread`); once
+it has one, in DIST, which carries the position too (:func:`distance_report`).
 
 Every robot measures its own ranging noise, as the median spread of the samples it gets from
 each neighbour (:meth:`Neighbours.noise_mm`), and scales its tolerances by it (the duplicate
-test here, the fix checks of :mod:`protocols.localize.phase2_spread`), so the protocol needs no
-calibration constant for it.
+test here, the fix checks of :mod:`kilonet.protocols.localize.phase2_spread`), so the protocol needs
+no calibration constant for it.
 
-IDs are drawn at random; :mod:`protocols.localize.phase1_election` redraws one heard from another
-robot. Two neighbours of one robot may still share an ID: when a sample from an ID lies more
+IDs are drawn at random; :mod:`kilonet.protocols.localize.phase1_election` redraws one heard from
+another robot. Two neighbours of one robot may still share an ID: when a sample from an ID lies more
 than ``duplicate_sigmas`` noise deviations from that ID's mean, the record is marked
 ambiguous and ignored from then on (:meth:`Neighbours.heard`).
 """
@@ -31,17 +31,18 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
-from kilonet.message import Layout, Message
-from kilonet.params import param
-from protocols.common import neighbours as common_neighbours
-from protocols.common.neighbours import NeighbourTable
-from protocols.common.refinement import (
+from kilonet.protocols.common import neighbours as common_neighbours
+from kilonet.protocols.common.neighbours import NeighbourTable
+from kilonet.protocols.common.refinement import (
     DIST,
     DISTANCE_STEP_MM,
     agreed_range_mm,
     distance_code,
     unwrap_distance,
 )
+
+from kilonet.message import Layout, Message
+from kilonet.params import param
 
 __all__ = [
     "COMPLETE",
@@ -86,7 +87,8 @@ _MAX_WINDING = 7
 #: (49.2 m from the root; a frame farther than that refuses the position, ``out_of_frame``).
 MAX_COORDINATE_MM = _MAX_WINDING * COORDINATE_PERIOD_MM + 3276.7
 
-# State flags of POS and ROOT messages (protocols.localize.phase3_termination sets the last three).
+# State flags of POS and ROOT messages (kilonet.protocols.localize.phase3_termination sets the last
+# three).
 #: The sender has a position in the frame.
 LOCALIZED = 1
 #: The sender's position has stopped moving (or, unlocalized, it has given up).
@@ -244,7 +246,7 @@ class LocalizeParams:
 
 class Neighbour(common_neighbours.Neighbour):
     """What a robot knows about one neighbour ID: the distance samples of the common record
-    (:class:`protocols.common.neighbours.Neighbour`: ``uid``, ``distance_sum_mm``,
+    (:class:`kilonet.protocols.common.neighbours.Neighbour`: ``uid``, ``distance_sum_mm``,
     ``distance_sq_sum_mm2``, ``samples``, ``heard_round``, ``ambiguous``), and what
     ``localize`` learns besides.
 
@@ -297,17 +299,18 @@ class Neighbour(common_neighbours.Neighbour):
         self.hops = UNKNOWN_HOPS
         self.parent = NO_ID
         self.flags = 0
-        self.key: int | None = None  # election key (protocols.localize.phase1_election)
+        self.key: int | None = None  # election key (kilonet.protocols.localize.phase1_election)
         self.echo = False
-        # Two candidate positions (protocols.localize.phase2_spread): (version, [p0, p1]) or None,
-        # and whether they come from three or more anchors on one line (CAND's FROM_LINE).
+        # Two candidate positions (kilonet.protocols.localize.phase2_spread): (version, [p0, p1]) or
+        # None, and whether they come from three or more anchors on one line (CAND's FROM_LINE).
         self.candidates: tuple[int, list] | None = None
         self.candidates_from_line = False
         self.near: set[int] = set()  # the IDs this neighbour's NBR reports were about
 
     @property
     def range_mm(self) -> float:
-        """The distance both ends fit (:func:`~protocols.common.refinement.agreed_range_mm`), mm."""
+        """The distance both ends fit
+        (:func:`~kilonet.protocols.common.refinement.agreed_range_mm`), mm."""
         return agreed_range_mm(self.distance_sum_mm / self.samples, self.sent_mm, self.reported_mm)
 
     @property
@@ -317,9 +320,10 @@ class Neighbour(common_neighbours.Neighbour):
 
 
 class Neighbours(NeighbourTable[Neighbour]):
-    """A robot's neighbour records by ID (:class:`~protocols.common.neighbours.NeighbourTable`,
-    its duplicate test and ageing on), each a ``localize`` :class:`Neighbour`; the robot sets
-    ``duplicate_mm`` from the noise it measures."""
+    """A robot's neighbour records by ID
+    (:class:`~kilonet.protocols.common.neighbours.NeighbourTable`, its duplicate test and ageing
+    on), each a ``localize`` :class:`Neighbour`; the robot sets ``duplicate_mm`` from the noise it
+    measures."""
 
     record_type = Neighbour
 
@@ -463,8 +467,9 @@ def toward_root(hops: int, parent: int, neighbours: Iterable[Neighbour]) -> tupl
       than the rise, and a cycle and every robot below it were waited for by no robot on
       the root's side.
     * *A parent hears its child.* Near ``neighbour_max_mm`` one end of a link often ranges
-      the other beyond it and ignores it (:func:`~protocols.common.ranging_limit.trusted_range`),
-      and a parent that never hears its child cannot count it.
+      the other beyond it and ignores it
+      (:func:`~kilonet.protocols.common.ranging_limit.trusted_range`), and a parent that never hears
+      its child cannot count it.
 
     The root (0 hops) has no parent.
 

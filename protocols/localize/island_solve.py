@@ -20,11 +20,11 @@ solves that problem from the island's distances alone (pure math, no robot API):
    (:func:`align_body`), for every shape. It is taken only if it is unique: every other local
    optimum that moves some member more than ``3 σ`` fits worse by more than ``(3 σ)²`` in its
    sum of squared residuals — the test that
-   :func:`~protocols.localize.phase2_spread.fix_with_candidates` applies to a single robot. Then
-   step 1 runs again.
+   :func:`~kilonet.protocols.localize.phase2_spread.fix_with_candidates` applies to a single robot.
+   Then step 1 runs again.
 
 The island's members solve it each on its own from the same reports and take their own
-positions (:mod:`protocols.localize.phase4_island`); refinement then polishes them with
+positions (:mod:`kilonet.protocols.localize.phase4_island`); refinement then polishes them with
 full-precision distances.
 
 The plane geometry is :mod:`kilonet.geometry`'s: members are placed by its

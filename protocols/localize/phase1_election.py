@@ -9,14 +9,14 @@ its neighbour count for ``localize.listen_s`` and is fixed from then on.
 
 The election ends by an echo over a tree rather than a window: every robot names a parent,
 the neighbour one hop nearer K's robot it hears best
-(:func:`~protocols.localize.base.choose_parent`), and a robot's subtree is *complete* for key K
-when every neighbour it has heard recently holds K and each neighbour that names it parent
+(:func:`~kilonet.protocols.localize.base.choose_parent`), and a robot's subtree is *complete* for
+key K when every neighbour it has heard recently holds K and each neighbour that names it parent
 reports complete (:func:`echo_complete`). Leaves are complete as soon as their neighbours hold
 K; completeness climbs back to K's robot, which then knows that every robot of its swarm has
 heard it — so a robot that only looked like the best (a smaller key had not reached it yet)
 can never win: the robots next to the true best never complete its wave. The winner becomes
-the root of the frame (:mod:`protocols.localize.phase2_spread`); the others enter phase 2 when they
-first hear a phase-2 message. A robot holding the best key starts without the echo after
+the root of the frame (:mod:`kilonet.protocols.localize.phase2_spread`); the others enter phase 2
+when they first hear a phase-2 message. A robot holding the best key starts without the echo after
 ``localize.elect_timeout_s``.
 
 IDs: a robot that hears its own ID from another robot draws a new one (while electing), so
@@ -37,8 +37,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
-from kilonet.message import Layout, Message
-from protocols.localize.base import (
+from kilonet.protocols.localize.base import (
     MAX_HOPS,
     NO_ID,
     Neighbour,
@@ -46,8 +45,10 @@ from protocols.localize.base import (
     choose_parent,
 )
 
+from kilonet.message import Layout, Message
+
 if TYPE_CHECKING:
-    from protocols.localize.program import LocalizeRobot
+    from kilonet.protocols.localize.program import LocalizeRobot
 
 __all__ = ["ELECT", "MAX_HOPS", "Election", "echo_complete", "election_key"]
 

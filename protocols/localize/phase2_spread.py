@@ -84,11 +84,11 @@ Messages::
                the candidates lapsed (never back to an earlier one)
 
 x and y travel modulo 6,553.6 mm, with both winding numbers in ``windings``
-(:func:`~protocols.localize_base.wrapped_position`): a frame up to 49 m from its root fits.
+(:func:`~kilonet.protocols.localize_base.wrapped_position`): a frame up to 49 m from its root fits.
     VOTE (86)  sender:uint16  target:uint16  index:uint8  version:uint8              6 bytes
                the candidate of ``target``'s pair (of that version) that is possible
 
-``flags`` are :mod:`protocols.localize.base`'s LOCALIZED, SETTLED, COMPLETE, DONE.
+``flags`` are :mod:`kilonet.protocols.localize.base`'s LOCALIZED, SETTLED, COMPLETE, DONE.
 """
 
 from __future__ import annotations
@@ -99,6 +99,16 @@ from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
+from kilonet.protocols.common.refinement import gauss_newton_step
+from kilonet.protocols.localize.base import (
+    LOCALIZED,
+    MAX_COORDINATE_MM,
+    NO_ID,
+    SETTLED,
+    Neighbour,
+    absolute_position,
+    wrapped_position,
+)
 
 from kilonet.geometry import (
     MIRROR_SIGMAS,
@@ -111,19 +121,9 @@ from kilonet.geometry import (
     robust_height,
 )
 from kilonet.message import Layout, Message
-from protocols.common.refinement import gauss_newton_step
-from protocols.localize.base import (
-    LOCALIZED,
-    MAX_COORDINATE_MM,
-    NO_ID,
-    SETTLED,
-    Neighbour,
-    absolute_position,
-    wrapped_position,
-)
 
 if TYPE_CHECKING:
-    from protocols.localize.program import LocalizeRobot
+    from kilonet.protocols.localize.program import LocalizeRobot
 
 __all__ = [
     "CAND",
@@ -462,8 +462,8 @@ def mirror_candidates(
     distance from their line but not its side, as two anchors do. The candidates are the
     least-squares fits on either side: each of the two circle intersections of the two anchors
     farthest apart (``pair``, indices ``i < j``), refined by Gauss–Newton steps
-    (:func:`~protocols.common.refinement.gauss_newton_step`, no down-weighting) against every
-    anchor. Index 0 lies left of the line from anchor ``i`` to anchor ``j``, as
+    (:func:`~kilonet.protocols.common.refinement.gauss_newton_step`, no down-weighting) against
+    every anchor. Index 0 lies left of the line from anchor ``i`` to anchor ``j``, as
     :func:`circle_candidates` orders two anchors' candidates.
 
     Returns

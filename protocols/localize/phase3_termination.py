@@ -1,7 +1,7 @@
 """Phase 3 of ``localize``: the swarm decides by itself that it is done.
 
-Located robots keep refining (:mod:`protocols.common.refinement`) until each is *settled*: it moved
-less than ``localize.settle_mm`` over its last ``localize.settle_rounds`` rounds (or it has
+Located robots keep refining (:mod:`kilonet.protocols.common.refinement`) until each is *settled*:
+it moved less than ``localize.settle_mm`` over its last ``localize.settle_rounds`` rounds (or it has
 been located for ``localize.settle_timeout_s``). A robot that cannot place itself must not
 hold the swarm up forever: it *gives up* (:func:`gives_up`) when its anchors and candidates
 have not changed for ``localize.give_up_s`` and its located neighbours are all settled, or,
@@ -10,16 +10,16 @@ takes a position after all if one turns up.
 
 Settledness climbs the tree of parents as a convergecast (:func:`subtree_complete`): a robot
 is *complete* when it is settled and every neighbour that names it parent reports complete.
-The tree is the frame's (:func:`~protocols.localize.base.toward_root`): every parent hears its
-child and is nearer the root, so the root waits for every robot. When the root has been complete for
-``localize.done_confirm_rounds`` rounds it declares the swarm *done*; DONE floods outward (a
+The tree is the frame's (:func:`~kilonet.protocols.localize.base.toward_root`): every parent hears
+its child and is nearer the root, so the root waits for every robot. When the root has been complete
+for ``localize.done_confirm_rounds`` rounds it declares the swarm *done*; DONE floods outward (a
 robot that hears the flag is done too), every robot freezes its estimate, sends
 ``localize.done_repeats`` more messages so its neighbours hear the flag, and falls silent. A
 robot that hears no neighbour any more (for ``localize.stale_s``: they are done and it
 missed every DONE they sent, or they crashed) is done too, and one that is still running
 after ``localize.run_timeout_s`` declares itself done.
 
-The flags travel in POS and ROOT messages (:mod:`protocols.localize.phase2_spread`).
+The flags travel in POS and ROOT messages (:mod:`kilonet.protocols.localize.phase2_spread`).
 """
 
 from __future__ import annotations
@@ -28,10 +28,10 @@ import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from protocols.localize.base import COMPLETE, SETTLED, Neighbour, children_complete
+from kilonet.protocols.localize.base import COMPLETE, SETTLED, Neighbour, children_complete
 
 if TYPE_CHECKING:
-    from protocols.localize.program import LocalizeRobot
+    from kilonet.protocols.localize.program import LocalizeRobot
 
 __all__ = ["Termination", "gives_up", "settled_at", "subtree_complete"]
 
@@ -177,7 +177,8 @@ class Termination:
 
     def repeat_done(self) -> None:
         """Owe the neighbours ``localize.done_repeats`` more DONE messages: a robot that stayed
-        awake after DONE (:mod:`protocols.localize.phase4_island`) announces its final state."""
+        awake after DONE (:mod:`kilonet.protocols.localize.phase4_island`) announces its final
+        state."""
         self.repeats_left = self.robot.params.done_repeats
 
     def sent(self) -> None:

@@ -1,7 +1,7 @@
 """Phase 4 of ``localize``: after DONE, an island of robots the spread left out places itself.
 
-Multilateration (:mod:`protocols.localize.phase2_spread`) places a robot once it hears three placed
-neighbours, or two and a neighbour's candidates. Where the frame meets a group of robots that
+Multilateration (:mod:`kilonet.protocols.localize.phase2_spread`) places a robot once it hears three
+placed neighbours, or two and a neighbour's candidates. Where the frame meets a group of robots that
 each hear at most two placed ones, it stops — though the group is often rigid as a whole and
 tied to the frame by enough distances to fix where it stands. Such a group, an *island*,
 places itself once the swarm is done, when the frame stands still and the channel is free
@@ -19,8 +19,8 @@ places itself once the swarm is done, when the frame stands still and the channe
    is too large to solve; the member stops passing reports on and says so (ISLAND_FULL),
    and a member that hears that stops too.
 3. **Solving.** When a member's reports have not changed for ``island_quiet_s`` it solves the
-   island itself (:func:`~protocols.localize.island_solve.solve_island`: rigid bodies of members
-   aligned to the frame through their links, each only where it is unique) and, if that
+   island itself (:func:`~kilonet.protocols.localize.island_solve.solve_island`: rigid bodies of
+   members aligned to the frame through their links, each only where it is unique) and, if that
    places it, takes the position. The spread's rules keep running too, so its neighbours can
    multilaterate from it.
 4. **Finishing** (:meth:`Island.finished`). A placed member refines against its neighbours
@@ -37,9 +37,10 @@ Messages (the sender first, then the member that measured the distance)::
                       distance:uint8 (mm)                                     9 bytes
     ISLAND_FULL (89)  sender:uint16                                           2 bytes
 
-A link's x and y travel modulo 6,553.6 mm (:func:`~protocols.localize_base.wrapped_position`)
-and a member unwraps them near a position it knows whole, its placed neighbours' (an island
-is far smaller than 3.2 m; :meth:`~protocols.localize.LocalizeRobot.reference_position`).
+A link's x and y travel modulo 6,553.6 mm
+(:func:`~kilonet.protocols.localize_base.wrapped_position`) and a member unwraps them near a
+position it knows whole, its placed neighbours' (an island is far smaller than 3.2 m;
+:meth:`~kilonet.protocols.localize.LocalizeRobot.reference_position`).
 
 A link's distance is carried in whole millimetres, as kilolib's ``estimate_distance`` returns
 it: links longer than 255 mm are not reported, and the solve counts the rounding (a spread of
@@ -55,12 +56,13 @@ from collections import deque
 from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
+from kilonet.protocols.localize.base import Neighbour, unwrap_coordinate, wrapped_position
+from kilonet.protocols.localize.island_solve import Tolerances, solve_island
+
 from kilonet.message import Layout, Message
-from protocols.localize.base import Neighbour, unwrap_coordinate, wrapped_position
-from protocols.localize.island_solve import Tolerances, solve_island
 
 if TYPE_CHECKING:
-    from protocols.localize.program import LocalizeRobot
+    from kilonet.protocols.localize.program import LocalizeRobot
 
 __all__ = [
     "ISLAND_FULL",
@@ -108,8 +110,8 @@ Point = tuple[float, float]
 def in_unplaced_triangle(neighbours: Iterable[Neighbour]) -> bool:
     """Whether two unplaced ``neighbours`` hear each other (one reported the other in NBR):
     with this robot they form a triangle of unplaced robots, the seed of a rigid body
-    (:func:`~protocols.localize.island_solve.solve_island` places nothing in an island without one
-    that multilateration could not place already).
+    (:func:`~kilonet.protocols.localize.island_solve.solve_island` places nothing in an island
+    without one that multilateration could not place already).
 
     Examples
     --------

@@ -3,19 +3,19 @@
 The phases (one module each) follow one another on every robot as its local work is done,
 not in fixed windows:
 
-1. :mod:`protocols.localize.phase1_election` — locally unique IDs, a root elected by flooding the
-   smallest key, every robot's hop count to it, and an echo that tells the root everyone has
-   heard it;
-2. :mod:`protocols.localize.phase2_spread` — the frame starts at the root (root, axis and third
-   robot) and spreads outward by multilateration, with flip and collinearity checks and
+1. :mod:`kilonet.protocols.localize.phase1_election` — locally unique IDs, a root elected by
+   flooding the smallest key, every robot's hop count to it, and an echo that tells the root
+   everyone has heard it;
+2. :mod:`kilonet.protocols.localize.phase2_spread` — the frame starts at the root (root, axis and
+   third robot) and spreads outward by multilateration, with flip and collinearity checks and
    neighbours' candidate pairs where three anchors are missing;
-3. :mod:`protocols.common.refinement` — from the moment it has a position, every robot keeps
+3. :mod:`kilonet.protocols.common.refinement` — from the moment it has a position, every robot keeps
    improving it from its neighbours' announced positions and the distances both ends measured
-   (:mod:`protocols.common.refinement`'s DIST reports), while
-   :mod:`protocols.localize.phase3_termination` climbs settledness back to the root, which floods
-   DONE; every robot then freezes its estimate and falls silent;
-4. :mod:`protocols.localize.phase4_island` — except robots the spread left out in groups none of
-   which hears three placed robots: such an island stays awake after DONE and places itself
+   (:mod:`kilonet.protocols.common.refinement`'s DIST reports), while
+   :mod:`kilonet.protocols.localize.phase3_termination` climbs settledness back to the root, which
+   floods DONE; every robot then freezes its estimate and falls silent;
+4. :mod:`kilonet.protocols.localize.phase4_island` — except robots the spread left out in groups
+   none of which hears three placed robots: such an island stays awake after DONE and places itself
    as rigid bodies tied to the now still frame by their distances.
 
 A robot learns only from what it receives: the messages and the distance estimate of each
@@ -37,11 +37,9 @@ from __future__ import annotations
 import math
 import struct
 
-from kilonet.message import Message, PayloadError
-from kilonet.robot import Kilobot
-from protocols.common.ranging_limit import trusted_range
-from protocols.common.refinement import DIST, Refiner, next_report
-from protocols.localize.base import (
+from kilonet.protocols.common.ranging_limit import trusted_range
+from kilonet.protocols.common.refinement import DIST, Refiner, next_report
+from kilonet.protocols.localize.base import (
     COMPLETE,
     DONE,
     LOCALIZED,
@@ -58,11 +56,14 @@ from protocols.localize.base import (
     toward_root,
     unwrap_coordinate,
 )
-from protocols.localize.phase1_election import ELECT, Election
-from protocols.localize.phase2_spread import CAND, POS, ROOT, VOTE, Spread
-from protocols.localize.phase3_termination import Termination
-from protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR, Island
-from protocols.localize.stages import LocalizeStage
+from kilonet.protocols.localize.phase1_election import ELECT, Election
+from kilonet.protocols.localize.phase2_spread import CAND, POS, ROOT, VOTE, Spread
+from kilonet.protocols.localize.phase3_termination import Termination
+from kilonet.protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR, Island
+from kilonet.protocols.localize.stages import LocalizeStage
+
+from kilonet.message import Message, PayloadError
+from kilonet.robot import Kilobot
 
 __all__ = ["LocalizeRobot"]
 
@@ -88,7 +89,7 @@ class LocalizeRobot(Kilobot):
     ----------
     stage : LocalizeStage
         ``"election"``, ``"localize"``, ``"island"`` (after DONE, for an island:
-        :mod:`protocols.localize.phase4_island`) or ``"done"``.
+        :mod:`kilonet.protocols.localize.phase4_island`) or ``"done"``.
     position : (float, float) or None
         This robot's estimate in the frame, mm.
     root_key : int

@@ -1,9 +1,10 @@
-"""The stages of ``localize`` on one robot, in order (:class:`protocols.common.phases.Stage`).
+"""The stages of ``localize`` on one robot, in order
+(:class:`kilonet.protocols.common.phases.Stage`).
 
-``election`` (phase 1, :mod:`protocols.localize.phase1_election`), ``localize`` (the spread and
-termination, phases 2 and 3), ``island`` (after DONE, for a robot of an island the spread left
-out: phase 4, :mod:`protocols.localize.phase4_island`) and ``done``. Members compare equal to
-their names, which the trace's ``stage`` events carry.
+``election`` (phase 1, :mod:`kilonet.protocols.localize.phase1_election`), ``localize`` (the spread
+and termination, phases 2 and 3), ``island`` (after DONE, for a robot of an island the spread left
+out: phase 4, :mod:`kilonet.protocols.localize.phase4_island`) and ``done``. Members compare equal
+to their names, which the trace's ``stage`` events carry.
 
 >>> LocalizeStage.names()
 ('election', 'localize', 'island', 'done')
@@ -11,7 +12,7 @@ their names, which the trace's ``stage`` events carry.
 
 from __future__ import annotations
 
-from protocols.common.phases import Stage
+from kilonet.protocols.common.phases import Stage
 
 __all__ = ["LocalizeStage"]
 

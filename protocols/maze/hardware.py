@@ -24,7 +24,7 @@ Hardware models (pure functions of the true state they are given, returning nois
 * :class:`MazeKilobot` — a :class:`~kilonet.robot.Kilobot` with that hardware and a drive that
   moves it from one cell centre to the neighbouring one. It is the robot side only: its
   ``"maze"`` part, which holds the world's ground truth, the run's streams and the motion
-  service, is :class:`scenarios.maze_hardware.MazeBody`, fitted by whoever builds the run.
+  service, is :class:`kilonet.scenarios.maze_hardware.MazeBody`, fitted by whoever builds the run.
 
 Why moves are discrete, cell centre to cell centre: the seed's robot moves cell to cell under
 its own wall-following controller, and the filter it runs reasons over cells. The kernel's
@@ -526,7 +526,7 @@ class MazeKilobot(Kilobot):
     Programs subclass it and call :meth:`sense_landmark_ranges`, :meth:`sense_walls` and
     :meth:`drive`; like every :class:`Kilobot` they never see the world itself. The hardware is
     the robot's ``"maze"`` part (:meth:`~kilonet.robot.Kilobot.hardware`), which the run that
-    builds the maze fits to it (:func:`scenarios.maze_hardware.fit_maze_hardware`).
+    builds the maze fits to it (:func:`kilonet.scenarios.maze_hardware.fit_maze_hardware`).
     """
 
     def __init__(self) -> None:

@@ -8,7 +8,7 @@ standing still at a cell centre:
    listening for ``listen_s`` to landmark beacons on the infrared medium (``"infrared"``): each
    beacon is a Kilobot broadcasting its index and coordinates, and the robot uses the median
    distance estimate of each beacon it heard within ``neighbour_max_mm`` (beyond, kilolib's
-   estimates saturate: :mod:`protocols.ranging_limit`). It says so (event ``few_landmarks``)
+   estimates saturate: :mod:`kilonet.protocols.ranging_limit`). It says so (event ``few_landmarks``)
    when it has fewer than three ranges.
 2. **Trilaterates** — with the seed's linear formula (A…F, :func:`kilonet.geometry.
    trilaterate_linear`) over the first three landmarks it has (the fourth ignored, as the seed
@@ -47,20 +47,20 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-
-from kilonet.geometry import GeometryError, multilaterate, trilaterate_linear
-from kilonet.message import Layout, Message
-from kilonet.params import ParamError, param
-from kilonet.robot import Kilobot
-from protocols.common.phases import Stage
-from protocols.common.ranging_limit import trusted_range
-from protocols.maze.hardware import (
+from kilonet.protocols.common.phases import Stage
+from kilonet.protocols.common.ranging_limit import trusted_range
+from kilonet.protocols.maze.hardware import (
     DIRECTIONS,
     Maze,
     MazeError,
     MazeKilobot,
     parse_size,
 )
+
+from kilonet.geometry import GeometryError, multilaterate, trilaterate_linear
+from kilonet.message import Layout, Message
+from kilonet.params import ParamError, param
+from kilonet.robot import Kilobot
 
 if TYPE_CHECKING:  # networkx is imported where used, so that listing scenarios stays fast
     import networkx as nx
@@ -192,7 +192,7 @@ def predict(
         Probability of each cell before the move.
     neighbours : (N, 4) int array
         Where a move W, N, E, S from each cell ends
-        (:attr:`protocols.maze.hardware.Maze.neighbours`).
+        (:attr:`kilonet.protocols.maze.hardware.Maze.neighbours`).
     direction : str
         The commanded move.
     p_move : float
@@ -385,9 +385,9 @@ class MazeParams:
 
 
 class MazeStage(Stage):
-    """Where the maze robot is in its cycle (:class:`protocols.common.phases.Stage`): listening
-    in a cell (it senses and plans once ``listen_s`` has passed), moving to the next one, or
-    done (maze covered or step limit reached)."""
+    """Where the maze robot is in its cycle (:class:`kilonet.protocols.common.phases.Stage`):
+    listening in a cell (it senses and plans once ``listen_s`` has passed), moving to the next one,
+    or done (maze covered or step limit reached)."""
 
     LISTEN = "listen"
     MOVING = "moving"

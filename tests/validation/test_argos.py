@@ -2,16 +2,15 @@
 
 The data beside this file (``data/argos``, its README says what and whence) holds 50 runs of 25
 real Kilobots on a 5 cm grid. Each test re-runs the experiment's firmware in kilonet
-(:mod:`experiments.studies.validation`) and asserts one statistic within the tolerance stated
-beside it.
+(:mod:`kilonet.experiments.studies.validation`) and asserts one statistic within the tolerance
+stated beside it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from experiments.studies import validation as v
+from kilonet.experiments.studies import validation as v
 
 #: Largest accepted |kilonet - real| of the mean reception rate per distance bin (mm). The
 #: bins beyond 141 mm hold links at the edge of their reach, where a few runs of 25 robots

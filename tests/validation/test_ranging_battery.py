@@ -1,16 +1,16 @@
 """kilonet's distance estimates and battery against Rubenstein et al., ICRA 2012.
 
 The paper gives a distance accuracy of ±2 mm and a precision under 1 mm, and a battery life of
-3 to 24 hours depending on activity (:data:`experiments.studies.validation.CHECKS` holds each row's
-figure and tolerance).
+3 to 24 hours depending on activity (:data:`kilonet.experiments.studies.validation.CHECKS` holds
+each row's figure and tolerance).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from kilonet.experiments.studies import validation as v
 
-from experiments.studies import validation as v
 from kilonet import Kilobot, Params, Simulation
 
 

@@ -1,6 +1,6 @@
 """Animations of a finished run: GIF, MP4 and a self-contained HTML replay.
 
-A run directory (``scenarios.write_outputs``) records what happened as events: LED changes,
+A run directory (``kilonet.scenarios.write_outputs``) records what happened as events: LED changes,
 poses of moving robots, stops, protocol events and (with ``trace.messages``) transmissions.
 Frames are sampled from those tables at render time, so the trace stays small however long the
 video. Robots are drawn as 33 mm discs at their true positions (moving robots interpolated
@@ -41,10 +41,8 @@ import math
 from collections.abc import Iterable
 from pathlib import Path
 
-from matplotlib.animation import FFMpegWriter
-
-from presentation.replay import render_html, replay_data
-from presentation.run_data import (
+from kilonet.viz.replay import render_html, replay_data
+from kilonet.viz.run_data import (
     FORMATS,
     MAX_FRAMES,
     OVERLAYS,
@@ -56,7 +54,8 @@ from presentation.run_data import (
     level_to_rgb,
     load_run,
 )
-from presentation.video import FrameRenderer, render_video
+from kilonet.viz.video import FrameRenderer, render_video
+from matplotlib.animation import FFMpegWriter
 
 __all__ = [
     "FORMATS",
@@ -134,7 +133,7 @@ def animate_run(
     Parameters
     ----------
     out_dir : path
-        A run directory written by ``scenarios.write_outputs`` (``kilonet run --out DIR``).
+        A run directory written by ``kilonet.scenarios.write_outputs`` (``kilonet run --out DIR``).
     out_file : path, optional
         ``.gif``, ``.mp4`` or ``.html``; default ``out_dir/animation.gif``. Written atomically
         (a failure leaves nothing behind); missing parent directories are created.

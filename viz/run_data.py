@@ -1,8 +1,8 @@
 """What a replay shows, read from a run directory: the run's tables (:func:`load_run`), the
 state of the swarm at any moment (:class:`Replay`), estimates aligned per frame onto the truth.
 
-Shared by the video renderer (:mod:`presentation.video`) and the HTML replay
-(:mod:`presentation.replay`); :func:`presentation.animation.animate_run` chooses between them.
+Shared by the video renderer (:mod:`kilonet.viz.video`) and the HTML replay
+(:mod:`kilonet.viz.replay`); :func:`kilonet.viz.animation.animate_run` chooses between them.
 """
 
 from __future__ import annotations
@@ -161,7 +161,7 @@ def _read_json(path: Path) -> dict[str, Any]:
 
 
 def load_run(run_dir: str | Path) -> RunData:
-    """Read a run directory written by ``scenarios.write_outputs`` (CSV or Parquet tables).
+    """Read a run directory written by ``kilonet.scenarios.write_outputs`` (CSV or Parquet tables).
 
     Raises
     ------

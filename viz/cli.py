@@ -5,7 +5,7 @@
                         [--raw-estimates]
 
 Registered as the ``animate`` entry point of ``kilonet.commands``; the work is done by
-:func:`presentation.animation.animate_run`, which ``kilonet run --animate`` calls too.
+:func:`kilonet.viz.animation.animate_run`, which ``kilonet run --animate`` calls too.
 """
 
 from __future__ import annotations
@@ -62,17 +62,17 @@ def register(subparsers: Any) -> None:
 
 
 class _OverlayNames:
-    """The overlay names for the help text, from :data:`presentation.animation.OVERLAYS`: imported
+    """The overlay names for the help text, from :data:`kilonet.viz.animation.OVERLAYS`: imported
     only when the help is printed, so that registering the command stays cheap."""
 
     def __str__(self) -> str:
-        from presentation.animation import OVERLAYS
+        from kilonet.viz.animation import OVERLAYS
 
         return ", ".join(OVERLAYS)
 
 
 def _cmd_animate(args: argparse.Namespace) -> int:
-    from presentation.animation import AnimationError, animate_run
+    from kilonet.viz.animation import AnimationError, animate_run
 
     try:
         written = animate_run(
@@ -99,9 +99,9 @@ def animate_after_run(run_dir: Path) -> None:
     Raises
     ------
     UsageError
-        If the run directory cannot be animated (:class:`~presentation.animation.AnimationError`).
+        If the run directory cannot be animated (:class:`~kilonet.viz.animation.AnimationError`).
     """
-    from presentation.animation import AnimationError, animate_run
+    from kilonet.viz.animation import AnimationError, animate_run
 
     try:
         animate_run(run_dir)

@@ -1,5 +1,5 @@
 """The self-contained HTML replay: the run's data as JSON (:func:`replay_data`) inside the
-player page ``presentation/replay.html`` (package data), written by :func:`render_html`."""
+player page ``viz/replay.html`` (package data), written by :func:`render_html`."""
 
 from __future__ import annotations
 
@@ -11,8 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from presentation.run_data import (
+from kilonet.viz.run_data import (
     CRASHED_RGB,
     EDGE_RGB,
     ESTIMATE_RGB,
@@ -127,7 +126,7 @@ def _edge_changes(r: Replay, edge_times_s: Iterable[float]) -> dict[str, list]:
 
 def _estimate_steps(steps: Any, overlays: frozenset[str]) -> dict[str, Any]:
     """The ``estimates`` and ``frames`` entries the overlays ask for, from the held estimates
-    (:class:`~presentation.run_data.EstimateSteps`)."""
+    (:class:`~kilonet.viz.run_data.EstimateSteps`)."""
     # Step k holds from t[k] on; end-of-run values hold from the start.
     times = [round(float(t), 5) if np.isfinite(t) else -1.0 for t in steps.t_s]
     found: dict[str, Any] = {}
@@ -176,7 +175,7 @@ def render_html(data: dict[str, Any], out_file: Path) -> None:
         "path": _css(PATH_RGB),
         "estimate": _css(ESTIMATE_RGB),
     }
-    template = resources.files("presentation").joinpath("replay.html").read_text("utf-8")
+    template = resources.files("kilonet.viz").joinpath("replay.html").read_text("utf-8")
     page = template.replace("__TITLE__", _escape(data.get("title") or "kilonet run"))
     page = page.replace("__COLOURS__", json.dumps(palette)).replace("__DATA__", payload)
     with atomic_output(out_file) as tmp:

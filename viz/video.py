@@ -10,13 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from matplotlib.animation import FFMpegWriter, PillowWriter
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.collections import EllipseCollection, LineCollection
-from matplotlib.figure import Figure
-from PIL import Image
-
-from presentation.run_data import (
+from kilonet.viz.run_data import (
     BOX_RGB,
     CRASHED_RGB,
     EDGE_RGB,
@@ -34,6 +28,11 @@ from presentation.run_data import (
     atomic_output,
     level_to_rgb,
 )
+from matplotlib.animation import FFMpegWriter, PillowWriter
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import EllipseCollection, LineCollection
+from matplotlib.figure import Figure
+from PIL import Image
 
 # --------------------------------------------------------------------------- rendering
 
