@@ -61,7 +61,7 @@ def run_one(n: int, seed: int, overrides: dict[str, str]) -> dict:
 
 
 #: What the floor robots send: their ID first, as every gcs message (4 bytes).
-FLOOR = gcs_layout("floor", type=20, fields=[("padding", "H")])
+FLOOR = gcs_layout("floor", type=20, fields=[("padding", "H")], register=None)
 
 
 class TrafficFloor(Kilobot):

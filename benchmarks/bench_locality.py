@@ -23,10 +23,9 @@ import argparse
 import time
 
 import numpy as np
-import simpy
 from scipy.spatial import cKDTree
 
-from kilonet.clock import Timer
+from kilonet.clock import KernelEnvironment, Timer
 from kilonet.placement import hex_lattice
 
 
@@ -73,8 +72,9 @@ def cost_per_transmission_ns(
 
 
 def event_queue_ns(n: int, events: int) -> float:
-    """Wall ns per event of a SimPy queue holding one self-rescheduling timer per robot."""
-    env = simpy.Environment()
+    """Wall ns per event of the kernel's event queue holding one self-rescheduling timer per
+    robot."""
+    env = KernelEnvironment()
     delays = (0.19 + 0.02 * np.random.default_rng(1).random(events + n)).tolist()
     next_delay = iter(delays).__next__
 

@@ -3,7 +3,8 @@ every transmit opportunity (every 200 ms ± 20 ms, as the global coordinate syst
 library does), for 60 simulated seconds.
 
 Prints, per size: simulated seconds per wall second (the real-time factor), deliveries per wall
-second, and the mean number of receivers per transmission. Each size runs ``--repeat`` times
+second, the mean number of receivers per transmission, and the share of those receptions a
+collision destroyed. Each size runs ``--repeat`` times
 and the fastest run is reported (the least disturbed by whatever else the machine does; the
 spread between repeats here is 10-20 %).
 
@@ -56,7 +57,9 @@ def run_one(n: int, sim_s: float, seed: int = 1) -> dict[str, float]:
         "realtime_x": sim_s / wall,
         "deliveries_per_s": s["receptions_delivered"] / wall,
         "receivers_per_msg": (s["receptions_delivered"] + s["lost_collision"]) / s["messages_sent"],
-        "collision_share": s["lost_collision"] / max(1, s["receptions_delivered"]),
+        # of the receptions that reached a receiver, the share a collision destroyed (<= 100 %)
+        "collision_share": s["lost_collision"]
+        / max(1, s["receptions_delivered"] + s["lost_collision"]),
     }
 
 
