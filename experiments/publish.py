@@ -44,7 +44,9 @@ __all__ = [
     "STUDY_SWEEPS",
     "Block",
     "Publication",
+    "UncommittedCode",
     "blocks_in",
+    "code_changes",
     "publish",
     "replace_block",
     "stamp",
@@ -56,8 +58,37 @@ RUNS = ROOT / "runs" / "publish"
 _BLOCK = re.compile(r"<!-- publish:([\w.-]+) -->\n(.*?)<!-- /publish:\1 -->", re.S)
 
 
+#: What publications write: changes there are the publications' own, not uncommitted code.
+OUTPUTS = ("docs/", "experiments/reports/", "README.md")
+
+
+class UncommittedCode(Exception):
+    """The code that would make the figures differs from its commit: a stamp could not name it."""
+
+
+def _git(root: Path, *args: str) -> str:
+    return subprocess.run(
+        ["git", "-C", str(root), *args], capture_output=True, text=True, check=True
+    ).stdout
+
+
+def code_changes(root: Path | None = None) -> list[str]:
+    """Tracked files of the checkout at ``root`` that differ from its commit, less what the
+    publications write (:data:`OUTPUTS`): figures made now would come from this uncommitted code.
+
+    Raises
+    ------
+    OSError, subprocess.CalledProcessError
+        If git cannot be run, or ``root`` is not a git checkout.
+    """
+    status = _git(root or ROOT, "status", "--porcelain", "--untracked-files=no", "-z")
+    changed = [entry[3:] for entry in status.split("\0") if entry]
+    return [path for path in changed if not path.startswith(OUTPUTS)]
+
+
 def stamp(command: str) -> str:
-    """One line saying when, where and by what a publication was made.
+    """One line saying when, where and by what a publication was made: the commit, with
+    ``-dirty`` when code (not the publications' own outputs) differs from it.
 
     Examples
     --------
@@ -65,12 +96,8 @@ def stamp(command: str) -> str:
     True
     """
     try:
-        commit = subprocess.run(
-            ["git", "-C", str(ROOT), "describe", "--always", "--dirty"],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
+        commit = _git(ROOT, "rev-parse", "--short", "HEAD").strip()
+        commit += "-dirty" if code_changes() else ""
     except (OSError, subprocess.CalledProcessError):
         commit = "unknown"
     try:
@@ -581,6 +608,9 @@ def publish(
     ------
     KeyError
         For a name that is not in :data:`PUBLICATIONS`, or a block not in :data:`BLOCKS`.
+    UncommittedCode
+        If code differs from its commit (:func:`code_changes`): the stamps could not say which
+        code made the figures. Nothing is written then.
     """
     chosen = names or (["docs"] if blocks else list(PUBLICATIONS))
     for name in chosen:
@@ -589,6 +619,14 @@ def publish(
     for name in blocks or []:
         if name not in BLOCKS:
             raise KeyError(name)
+    changed = code_changes()
+    if changed:
+        shown = ", ".join(changed[:5]) + (
+            f" and {len(changed) - 5} more" if len(changed) > 5 else ""
+        )
+        raise UncommittedCode(
+            f"uncommitted changes to {shown}: commit them first, so the stamps name the code"
+        )
     context = Context(RUNS, workers, tuple(blocks) if blocks else None)
     for name in chosen:
         print(f"publish: {name}: {PUBLICATIONS[name].summary}", file=sys.stderr)
@@ -625,7 +663,11 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    publish(args.names, workers=args.workers, blocks=args.block)
+    try:
+        publish(args.names, workers=args.workers, blocks=args.block)
+    except UncommittedCode as exc:
+        print(f"publish: error: {exc}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -70,6 +70,7 @@ def test_docs_with_blocks_makes_only_those_blocks(tmp_path, monkeypatch):
 
     monkeypatch.setattr(publish, "ROOT", tmp_path)
     monkeypatch.setattr(publish, "BLOCKS", {"a": block("a"), "b": block("b")})
+    monkeypatch.setattr(publish, "code_changes", lambda root=None: [])
     publish.publish(blocks=["b"])  # no publication named: docs alone
     assert made == ["b"]
     text = page.read_text()
@@ -86,3 +87,44 @@ def test_unknown_blocks_are_refused_in_one_line(capsys):
     assert publish.main(["docs", "--block", "nonsense"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "unknown block 'nonsense'" in err
+
+
+def _git(root, *args):
+    import subprocess
+
+    subprocess.run(["git", "-C", str(root), *args], check=True, capture_output=True)
+
+
+def test_code_changes_name_changed_code_but_not_the_publications_own_outputs(tmp_path):
+    for name in ("kilonet/medium.py", "docs/model.md", "experiments/reports/loss.md", "x.py"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text("one\n")
+    _git(tmp_path, "init", "-q")
+    _git(tmp_path, "add", ".")
+    _git(tmp_path, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "start")
+    assert publish.code_changes(tmp_path) == []
+    (tmp_path / "docs" / "model.md").write_text("two\n")
+    (tmp_path / "experiments" / "reports" / "loss.md").write_text("two\n")
+    (tmp_path / "new_untracked.py").write_text("not code of the commit's\n")
+    assert publish.code_changes(tmp_path) == []
+    (tmp_path / "kilonet" / "medium.py").write_text("two\n")
+    assert publish.code_changes(tmp_path) == ["kilonet/medium.py"]
+
+
+def test_publishing_from_uncommitted_code_is_refused_before_anything_is_written(
+    tmp_path, monkeypatch, capsys
+):
+    page = tmp_path / "page.md"
+    page.write_text("<!-- publish:a -->\nold\n<!-- /publish:a -->\n")
+    made = []
+    block = publish.Block("page.md", lambda _context: made.append("a") or "new")
+    monkeypatch.setattr(publish, "ROOT", tmp_path)
+    monkeypatch.setattr(publish, "BLOCKS", {"a": block})
+    monkeypatch.setattr(publish, "code_changes", lambda root=None: ["kilonet/medium.py"])
+    assert publish.main(["docs", "--block", "a"]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        "publish: error: uncommitted changes to kilonet/medium.py: commit them first, "
+        "so the stamps name the code\n"
+    )
+    assert made == [] and "old" in page.read_text()
