@@ -27,12 +27,13 @@ import time
 import timeit
 from unittest import mock
 
+import kilonet.scenarios.bounds
 import numpy as np
 import scipy
+from kilonet.scenarios.bounds import crlb_rmse_mm
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation, Slerp
 
-import kilonet.bounds
 from kilonet.alignment import (
     QUATERNION_MAX_ANGLE_ERROR_RAD,
     half_map,
@@ -41,7 +42,6 @@ from kilonet.alignment import (
     unpack_quaternion,
     words_matrix,
 )
-from kilonet.bounds import crlb_rmse_mm
 from kilonet.geometry import collinear, multilaterate, trilaterate_linear
 from kilonet.placement import hex_lattice
 from kilonet.visibility import pairs_in_range
@@ -196,7 +196,7 @@ def crlb_seconds(n: int) -> tuple[float, float]:
     started = time.process_time()
     crlb_rmse_mm(pos, edges, 1.0)
     cholesky_s = time.process_time() - started
-    with mock.patch.object(kilonet.bounds, "_gauge_fixed_trace", return_value=None):
+    with mock.patch.object(kilonet.scenarios.bounds, "_gauge_fixed_trace", return_value=None):
         started = time.process_time()
         crlb_rmse_mm(pos, edges, 1.0)
         eig_s = time.process_time() - started

@@ -152,9 +152,8 @@ def _phase_times(sim: Simulation) -> dict[str, float]:
 
 
 def _metrics(sim: Simulation) -> dict[str, Any]:
+    from kilonet.scenarios.central import pooled_aligned_rmse
     from kilonet.scenarios.reference import largest_frame_mm, reference_metrics
-
-    from kilonet.central import pooled_aligned_rmse
 
     truth = sim.world.positions_mm
     n = sim.n_robots

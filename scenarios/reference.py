@@ -3,21 +3,21 @@
 A localization run (``gcs``, ``localize``) reports, next to its own RMSE:
 
 * ``crlb_rmse_mm``: the anchor-free Cramér–Rao bound of the communication graph with one
-  reception per pair (:func:`kilonet.bounds.crlb_rmse_mm`), each link's error the reception
-  model's effective error at its length (``effective_sigma_mm`` of
+  reception per pair (:func:`kilonet.scenarios.bounds.crlb_rmse_mm`), each link's error the
+  reception model's effective error at its length (``effective_sigma_mm`` of
   :mod:`kilonet.reception`'s models: the systematic part that averaging cannot remove, plus
   one reading's noise and rounding), and ``rmse_over_crlb``;
 * ``crlb_received_rmse_mm``: the same bound for the receptions the robots actually averaged
   (each ordered pair with its number of samples: averaging shrinks the noise, not the
   systematic error), and ``rmse_over_crlb_received``;
 * ``central_rmse_mm``, ``central_localized_fraction``: the centralized solver
-  (:func:`kilonet.central.central_reference`) on the run's own measured distances; a robot
+  (:func:`kilonet.scenarios.central.central_reference`) on the run's own measured distances; a robot
   counts as localized by it when the solver places it right among its neighbours
-  (within :data:`kilonet.central.WITHIN_MM`);
+  (within :data:`kilonet.scenarios.central.WITHIN_MM`);
 * ``largest_frame_over_central``: the largest frame's size over the number of robots the
   solver localizes (a folded frame counts whole);
 * ``at_optimum_over_central``: of the robots the solver localizes, the share the largest
-  frame places at the optimum (:func:`kilonet.central.optimum_agreement_mm` within
+  frame places at the optimum (:func:`kilonet.scenarios.central.optimum_agreement_mm` within
   ``WITHIN_MM``: the frame's estimates, polished to the nearest least-squares minimum, where
   the optimum of the same measurements puts them; a folded or bent part lies tens of
   millimetres off), and ``off_optimum_robots``, the frame's robots it does not place there
@@ -149,8 +149,8 @@ def reference_metrics(
     ``links`` the communication graph's pairs ``(i, j)``. Keys whose inputs are missing (no
     link, no measurement, no noise) are left out, except ``crlb_rmse_mm`` (None without a
     link: the bound is infinite)."""
-    from kilonet.bounds import crlb_rmse_mm
-    from kilonet.central import WITHIN_MM, central_reference, optimum_agreement_mm
+    from kilonet.scenarios.bounds import crlb_rmse_mm
+    from kilonet.scenarios.central import WITHIN_MM, central_reference, optimum_agreement_mm
 
     truth = sim.world.positions_mm
     i, j = links

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from kilonet.scenarios.bounds import crlb_rmse_mm
 from scipy.linalg import lstsq, svdvals
 from scipy.optimize import least_squares
 
 from kilonet.alignment import procrustes_rmse
-from kilonet.bounds import crlb_rmse_mm
 from kilonet.geometry import (
     FIX_REASONS,
     GeometryError,

@@ -209,9 +209,8 @@ def _sound(s):
 def _reference_is_the_optimum(result):
     """The solver's positions are the minimum that least squares from the truth ends in, on
     the run's own measurements (kilolib's ranging, each link with its systematic error)."""
+    from kilonet.scenarios.central import central_reference, optimum_agreement_mm
     from kilonet.scenarios.reference import measured_distances
-
-    from kilonet.central import central_reference, optimum_agreement_mm
 
     sim = result.sim
     truth = sim.world.positions_mm
