@@ -321,9 +321,9 @@ def program_scenario(
     The program's declared settings (:func:`declared_settings`) are the scenario's parameter
     section ``program`` (:func:`settings_section`): ``program.NAME`` keys of a run's overrides
     or of a sweep set them, and every robot's program gets them as attributes before its
-    ``setup()``. ``settings`` (checked by :func:`program_settings`; ``where(name)`` says where
-    one came from, for an error) become the section's defaults, as a run file's ``[program]``
-    does.
+    ``setup()`` (those that differ from the class's value). ``settings`` (checked by
+    :func:`program_settings`; ``where(name)`` says where one came from, for an error) become
+    the section's defaults, as a run file's ``[program]`` does.
 
     The summary names the program (``program``: ``FILE.py:ClassName``), the SHA-256 of its
     source (``program_sha256``) and its settings (``program_settings``). A class defining
@@ -350,8 +350,17 @@ def program_scenario(
     section = settings_section(cls, path.name)
     reporting = callable(getattr(cls, "report", None))
 
+    declared = declared_settings(cls)
+
     def program(params: Any, positions: Any):
-        chosen = dataclasses.asdict(params.scenario)
+        # Only the settings that differ from the class's value become instance attributes: a
+        # program that changes a class attribute while it runs (a shared count) reads it as
+        # it would without kilonet's settings.
+        chosen = {
+            name: value
+            for name, value in dataclasses.asdict(params.scenario).items()
+            if value != declared[name]
+        }
 
         def build(_i: int) -> Kilobot:
             robot = cls()
