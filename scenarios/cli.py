@@ -553,7 +553,7 @@ def _cmd_params(args: argparse.Namespace) -> int:
         if section is None or key.startswith(f"{section}.")
     ]
     head = ("key", "default", "type and allowed values")
-    widths = [max(len(head[k]), *(len(r[k]) for r in rows)) for k in range(3)]
+    widths = [max([len(head[k]), *(len(r[k]) for r in rows)]) for k in range(3)]
     print("  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True)) + "  description")
     for row in rows:
         print("  ".join(c.ljust(w) for c, w in zip(row[:3], widths, strict=True)) + f"  {row[3]}")

@@ -232,13 +232,25 @@ def settings_section(cls: type[Kilobot], source: str) -> type:
     one field per :func:`declared_settings` entry, of its default's type, so that
     :class:`~kilonet.params.Params` checks, records (``params.json``) and lists
     (``kilonet params --program``) them like kilonet's own keys. ``source`` names the file in
-    each field's description."""
+    each field's description and in an error.
+
+    Raises
+    ------
+    ProgramError
+        If the program declares ``section_name``, the attribute that names a section.
+    """
+    if "section_name" in declared_settings(cls):
+        raise ProgramError(
+            f"{source}: {cls.__name__}.section_name: kilonet names a parameter section with "
+            "this attribute, so a program's setting cannot have this name; rename it"
+        )
     fields = [
         (
             name,
             type(default),
             dataclasses.field(
-                default=default, metadata={"doc": f"{cls.__name__}.{name} in {source}"}
+                default=default,
+                metadata={"doc": f"{cls.__name__}.{name} in {Path(source).name}"},
             ),
         )
         for name, default in declared_settings(cls).items()
@@ -347,7 +359,7 @@ def program_scenario(
         )
     label = f"{path.name}:{cls.__name__}"
     values = program_settings(cls, dict(settings or {}), where)
-    section = settings_section(cls, path.name)
+    section = settings_section(cls, str(path))
     reporting = callable(getattr(cls, "report", None))
 
     declared = declared_settings(cls)

@@ -322,3 +322,24 @@ def test_a_program_sweep_file_with_a_mistake_is_one_line(tmp_path, leader, capsy
     assert main(["sweep", str(path), "--out", str(out), "--no-progress"]) == 2
     assert one_error(capsys).startswith("kilonet: error: ")
     assert not out.exists()
+
+
+def test_params_program_of_a_program_without_settings_and_a_reserved_name(tmp_path, capsys):
+    idle = tmp_path / "idle.py"
+    idle.write_text("from kilonet.robot import Kilobot\n\n\nclass Idle(Kilobot):\n    pass\n")
+    assert main(["params", "program", "--program", str(idle)]) == 0
+    assert capsys.readouterr().out.split() == [
+        "key",
+        "default",
+        "type",
+        "and",
+        "allowed",
+        "values",
+        "description",
+    ]
+    idle.write_text(idle.read_text().replace("pass", "section_name = 'mine'"))
+    assert main(["params", "--program", str(idle)]) == 2
+    assert one_error(capsys) == (
+        f"kilonet: error: {idle}: Idle.section_name: kilonet names a parameter section with "
+        "this attribute, so a program's setting cannot have this name; rename it"
+    )
