@@ -5,11 +5,17 @@ import its neighbours) and the class to run is the one Kilobot subclass it defin
 named after the colon. Every robot runs ``ClassName()``; the swarm comes from ``--placement``
 or ``--robots`` (a jittered hex lattice), and the run writes what every scenario writes
 (``robots.csv``, ``led.csv``, ``events.csv``, ``poses.csv``, ``summary.json``,
-``params.json``) plus ``program.png``: start and final positions, LEDs and paths.
+``params.json``) plus ``program.png``: start and final positions, LEDs and paths, and
+``program.py``, a copy of the source whose SHA-256 the summary gives (``program_sha256``).
 
 A run file's ``[program]`` section, and ``--set program.NAME=VALUE``, set class attributes
 the program declares (``gain = 0.5`` in its class body) on every robot before ``setup()``
-(:func:`program_settings`): a program's own parameters, checked like kilonet's.
+(:func:`program_settings`): a program's own parameters, the parameter section ``program``
+(:func:`settings_section`), checked, recorded in ``params.json`` and the summary and listed by
+``kilonet params --program FILE.py`` like kilonet's. What a class's ``report()`` returns
+becomes columns of ``robots.csv`` and, summed up, the summary's ``report``
+(:func:`aggregate_reports`). A sweep names a program by :func:`program_key`, which
+:func:`kilonet.scenarios.get` loads in whichever process runs the run.
 
 A program that cannot run is refused in one line naming the file and line
 (:class:`ProgramError`): a missing file, a syntax error, an exception while the file loads,
