@@ -248,6 +248,17 @@ def test_the_process_pool_stores_what_the_serial_runs_give(sweep_file, tmp_path)
     assert set(frame["report.leader.true"]) == {1}
 
 
+def test_a_changed_program_does_not_resume_into_its_old_sweep(sweep_file, leader, tmp_path, capsys):
+    argv = ["sweep", str(sweep_file), "--out", str(tmp_path / "out"), "--no-progress"]
+    assert main([*argv, "--workers", "1"]) == 0
+    capsys.readouterr()
+    leader.write_text(LEADER.replace("patience_ticks = 62", "patience_ticks = 63"))
+    assert main(argv) == 2
+    assert one_error(capsys).startswith(f"kilonet: error: {tmp_path / 'out'} holds sweep ")
+    with ResultStore.open(tmp_path / "out") as store:
+        assert store.counts()["ok"] == 4
+
+
 @pytest.mark.slow  # a scheduler and two worker processes: about 8 s
 def test_a_program_sweep_on_a_local_dask_cluster(sweep_file, tmp_path, capsys):
     from distributed import LocalCluster
