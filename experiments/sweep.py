@@ -4,7 +4,8 @@ A sweep file is TOML::
 
     name = "loss"                        # optional; default: the file's stem
     description = "Gradient under message loss"
-    scenario = "gradient"                # a name from ``kilonet scenarios``
+    scenario = "gradient"                # a name from ``kilonet scenarios``, or instead:
+    # program = "leader.py:Leader"       # your own program (path relative to this file)
     seeds = 20                           # 1..20; or [3, 5, 8]; or {first = 100, count = 20}
 
     [fixed]                              # parameters of every run (dotted keys or sub-tables)
@@ -22,6 +23,13 @@ A sweep file is TOML::
     x = "medium.loss_prob"               # x axis (default: the first swept parameter)
     metrics = ["gradient_correct_fraction", "last_change_s"]
     xscale = "linear"                    # or "log"
+
+A program file (``program = "FILE.py[:ClassName]"``, ``scenario`` left out or ``"program"``)
+is swept like a scenario: its declared settings are the keys ``program.NAME``
+(``"program.patience_ticks" = [31, 62]``), and ``placement.robots`` must give the swarm. The
+sweep stores it as ``program:/absolute/FILE.py:ClassName@SHA256``
+(:func:`kilonet.scenarios.program.program_key`): every worker, local or on a Dask cluster,
+loads the file by that path and refuses it if it changed since.
 
 A *cell* is one combination of swept values; a *run* is a cell with one seed. Every parameter
 value is checked against the scenario's parameters before anything runs, and every error names
@@ -62,7 +70,17 @@ from typing import Any
 
 __all__ = ["MAX_RUNS", "Run", "Sweep", "SweepError", "load_sweep", "parse_sweep"]
 
-_TOP_KEYS = ("name", "description", "scenario", "seeds", "fixed", "grid", "cases", "report")
+_TOP_KEYS = (
+    "name",
+    "description",
+    "scenario",
+    "program",
+    "seeds",
+    "fixed",
+    "grid",
+    "cases",
+    "report",
+)
 _RANGE_KEYS = frozenset({"start", "stop", "num", "step", "log"})
 _REPORT_KEYS = ("x", "metrics", "xscale")
 #: Grid values are rounded to this many significant digits so that 0.1 + 0.2 is stored as 0.3.
@@ -238,12 +256,15 @@ def load_sweep(path: str | Path) -> Sweep:
         raise SweepError(f"{path}: no such sweep file") from None
     except (IsADirectoryError, UnicodeDecodeError) as exc:
         raise SweepError(f"{path}: cannot read sweep file ({exc})") from None
-    return parse_sweep(text, name=path.stem, where=str(path))
+    return parse_sweep(text, name=path.stem, where=str(path), folder=path.parent)
 
 
-def parse_sweep(text: str, *, name: str, where: str | None = None) -> Sweep:
-    """Parse and validate sweep TOML ``text``; ``name`` is the default sweep name and ``where``
-    (default ``name``) prefixes every error message.
+def parse_sweep(
+    text: str, *, name: str, where: str | None = None, folder: str | Path = "."
+) -> Sweep:
+    """Parse and validate sweep TOML ``text``; ``name`` is the default sweep name, ``where``
+    (default ``name``) prefixes every error message, and a ``program`` file is relative to
+    ``folder`` (the sweep file's).
 
     Raises
     ------
@@ -256,14 +277,15 @@ def parse_sweep(text: str, *, name: str, where: str | None = None) -> Sweep:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SweepError(f"{where}: not valid TOML ({exc})") from None
-    return _Validator(where).sweep(data, name)
+    return _Validator(where, Path(folder)).sweep(data, name)
 
 
 class _Validator:
     """Turns parsed TOML into a :class:`Sweep`, raising :class:`SweepError` naming the key."""
 
-    def __init__(self, where: str) -> None:
+    def __init__(self, where: str, folder: Path = Path(".")) -> None:
         self.where = where
+        self.folder = folder
 
     def fail(self, message: str) -> SweepError:
         return SweepError(f"{self.where}: {message}")
@@ -274,7 +296,7 @@ class _Validator:
             raise self.fail(f"unknown key {unknown[0]!r}; a sweep has: {', '.join(_TOP_KEYS)}")
         name = self.text(data, "name", default_name)
         description = self.text(data, "description", "")
-        scenario = self.scenario(data)
+        scenario_key, scenario = self.scenario(data)
         seeds = self.seeds(data.get("seeds", 1))
         fixed = self.flat_table(data, "fixed")
         if "seed" in fixed:
@@ -296,7 +318,7 @@ class _Validator:
         self.check_params(scenario, fixed, grid, cases)
         sweep = Sweep(
             name=name,
-            scenario=scenario.name,
+            scenario=scenario_key,
             seeds=seeds,
             fixed=fixed,
             grid=grid,
@@ -312,14 +334,38 @@ class _Validator:
             raise self.fail(f"{key} must be a string, not {value!r}")
         return value
 
-    def scenario(self, data: dict[str, Any]) -> Any:
+    def scenario(self, data: dict[str, Any]) -> tuple[str, Any]:
+        """The name the sweep stores for its scenario, and the scenario: a registered one, or
+        the ``program`` file's (:func:`kilonet.scenarios.program.program_key`)."""
+        from kilonet.scenarios.program import program_key
+
         from kilonet import scenarios
 
+        if "program" in data:
+            spec = self.text(data, "program", "")
+            if data.get("scenario", "program") != "program":
+                raise self.fail(
+                    f"scenario = {data['scenario']!r} and program = {spec!r}: a sweep runs "
+                    "one; leave one out"
+                )
+            try:
+                key = program_key(spec, self.folder)
+                return key, scenarios.get(key)
+            except scenarios.ScenarioError as exc:
+                raise self.fail(f"program: {exc}") from None
         if "scenario" not in data:
-            raise self.fail(f"missing key 'scenario'; one of: {', '.join(scenarios.names())}")
+            raise self.fail(
+                f"missing key 'scenario' (one of: {', '.join(scenarios.names())}) or "
+                "'program' (FILE.py:ClassName)"
+            )
         name = self.text(data, "scenario", "")
+        if name == "program":
+            raise self.fail(
+                'scenario = "program" needs program = "FILE.py:ClassName" (relative to the '
+                "sweep file)"
+            )
         try:
-            return scenarios.get(name)
+            return name, scenarios.get(name)
         except scenarios.ScenarioError as exc:
             raise self.fail(f"scenario: {exc}") from None
 
@@ -453,9 +499,9 @@ class _Validator:
 
         from kilonet.params import ParamError
 
-        def check(section: str, overrides: dict[str, Any]) -> None:
+        def check(section: str, overrides: dict[str, Any]) -> Any:
             try:
-                build_params(scenario, overrides)
+                return build_params(scenario, overrides)
             except ParamError as exc:
                 raise self.fail(f"{section}{exc}") from None
 
@@ -468,7 +514,13 @@ class _Validator:
         for case in cases or [{}]:
             for values in itertools.product(*grid.values()):
                 cell = {**case, **dict(zip(grid, values, strict=True))}
-                check(f"cell {json.dumps(cell)}: ", {**fixed, **cell})
+                params = check(f"cell {json.dumps(cell)}: ", {**fixed, **cell})
+                if not (params.placement.robots or scenario.robots):
+                    raise self.fail(
+                        f"cell {json.dumps(cell)}: placement.robots is not set and "
+                        f"{scenario.summary} has no swarm of its own; set it in [fixed] or "
+                        "[grid]"
+                    )
 
     def report(self, table: Any, swept: list[str]) -> ReportSpec:
         if not isinstance(table, dict):

@@ -5,6 +5,10 @@ A scenario registers itself as an entry point of the group ``kilonet.scenarios``
 can add scenarios the same way): the entry's name is the scenario's name, its value the
 :class:`Scenario` object (``"kilonet.scenarios.gcs:SCENARIO"``). A scenario's module is imported
 only when the scenario is asked for.
+
+A researcher's own program file is a scenario too, under the name a sweep stores for it
+(``program:/path/to/FILE.py:ClassName@SHA256``, :func:`kilonet.scenarios.program.program_key`):
+:func:`get` loads the file by its path, so any process that sees the file can run it.
 """
 
 from __future__ import annotations
@@ -38,15 +42,22 @@ def names() -> list[str]:
 
 
 def get(name: str) -> Scenario:
-    """The scenario called ``name``.
+    """The scenario called ``name``: a registered one, or a program file's
+    (``program:FILE.py:ClassName@SHA256``, see :func:`kilonet.scenarios.program.program_key`).
 
     Raises
     ------
     ScenarioError
-        If there is none; the message lists the known names.
+        If there is none; the message lists the known names. For a program file, a
+        :class:`~kilonet.scenarios.program.ProgramError` if it cannot be loaded or changed since
+        its name was made.
     TypeError
         If the entry point names something that is not a :class:`Scenario` (a packaging bug).
     """
+    from kilonet.scenarios.program import PROGRAM_PREFIX, scenario_of_key
+
+    if name.startswith(PROGRAM_PREFIX):
+        return scenario_of_key(name)
     found = [ep for ep in entry_points(group=GROUP) if ep.name == name]
     if not found:
         known = ", ".join(names()) or f"none ({GROUP} entry points: is kilonet installed?)"

@@ -5,7 +5,7 @@
                 [--out DIR [--replace]] [--format csv|parquet] [--json] [--animate]
                 [scenario options, e.g. --until PHASE]
     kilonet scenarios
-    kilonet params [SCENARIO]
+    kilonet params [SCENARIO|SECTION] [--program FILE.py[:CLASS]]
 
 Registered as entry points of ``kilonet.commands`` (``pyproject.toml``). Scenarios come from
 the ``kilonet.scenarios`` entry points, and so do their own options (:class:`ScenarioOption`):
@@ -509,13 +509,36 @@ def register_params(subparsers: Any) -> None:
         "'program' for kilonet run --program; or a section (medium, ranging, ...): its keys "
         f"as {scenarios.DEFAULT} sets them",
     )
+    params.add_argument(
+        "--program",
+        metavar="FILE.py[:CLASS]",
+        help="the parameters kilonet run --program FILE.py[:CLASS] runs with: the kernel's "
+        "defaults and the program's own settings (program.NAME, the class attributes it "
+        "declares); with a section name, that section only",
+    )
     params.set_defaults(func=_cmd_params)
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
     name = args.scenario or scenarios.DEFAULT
     section = None
-    if name == "program":  # kilonet run --program: the kernel's defaults, no scenario's
+    if args.program is not None:
+        from kilonet.scenarios.program import program_scenario
+
+        if args.scenario is not None and args.scenario in scenarios.names():
+            raise UsageError(
+                f"--program lists your program's parameters, not the scenario "
+                f"{args.scenario!r}; leave one out"
+            )
+        params = build_params(program_scenario(args.program))
+        section = args.scenario
+        if section not in (None, "program") and not any(
+            key.startswith(f"{section}.") for key, *_ in describe(params)
+        ):
+            raise UsageError(
+                f"{section!r} is not a section of parameters (program, medium, ranging, ...)"
+            )
+    elif name == "program":  # kilonet run --program: the kernel's defaults, no scenario's
         params = Params()
     elif name in scenarios.names():
         params = build_params(scenarios.get(name))
@@ -529,8 +552,8 @@ def _cmd_params(args: argparse.Namespace) -> int:
         for key, value, kind, doc in describe(params)
         if section is None or key.startswith(f"{section}.")
     ]
-    widths = [max(len(r[k]) for r in rows) for k in range(3)]
     head = ("key", "default", "type and allowed values")
+    widths = [max([len(head[k]), *(len(r[k]) for r in rows)]) for k in range(3)]
     print("  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True)) + "  description")
     for row in rows:
         print("  ".join(c.ljust(w) for c, w in zip(row[:3], widths, strict=True)) + f"  {row[3]}")

@@ -5,11 +5,17 @@ import its neighbours) and the class to run is the one Kilobot subclass it defin
 named after the colon. Every robot runs ``ClassName()``; the swarm comes from ``--placement``
 or ``--robots`` (a jittered hex lattice), and the run writes what every scenario writes
 (``robots.csv``, ``led.csv``, ``events.csv``, ``poses.csv``, ``summary.json``,
-``params.json``) plus ``program.png``: start and final positions, LEDs and paths.
+``params.json``) plus ``program.png``: start and final positions, LEDs and paths, and
+``program.py``, a copy of the source whose SHA-256 the summary gives (``program_sha256``).
 
 A run file's ``[program]`` section, and ``--set program.NAME=VALUE``, set class attributes
 the program declares (``gain = 0.5`` in its class body) on every robot before ``setup()``
-(:func:`program_settings`): a program's own parameters, checked like kilonet's.
+(:func:`program_settings`): a program's own parameters, the parameter section ``program``
+(:func:`settings_section`), checked, recorded in ``params.json`` and the summary and listed by
+``kilonet params --program FILE.py`` like kilonet's. What a class's ``report()`` returns
+becomes columns of ``robots.csv`` and, summed up, the summary's ``report``
+(:func:`aggregate_reports`). A sweep names a program by :func:`program_key`, which
+:func:`kilonet.scenarios.get` loads in whichever process runs the run.
 
 A program that cannot run is refused in one line naming the file and line
 (:class:`ProgramError`): a missing file, a syntax error, an exception while the file loads,
@@ -21,10 +27,15 @@ an exception raised by the program while the swarm runs (in ``setup``, ``loop``,
 from __future__ import annotations
 
 import ast
+import dataclasses
+import hashlib
 import importlib.util
 import inspect
+import math
 import sys
 import traceback
+import weakref
+from collections import Counter
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -41,12 +52,18 @@ if TYPE_CHECKING:
     from kilonet.simulation import Simulation
 
 __all__ = [
+    "PROGRAM_PREFIX",
     "ProgramError",
+    "aggregate_reports",
+    "declared_settings",
     "load_program",
     "parse_spec",
+    "program_key",
     "program_scenario",
     "program_settings",
     "reported_as_user_errors",
+    "scenario_of_key",
+    "settings_section",
 ]
 
 
@@ -185,6 +202,70 @@ def reported_as_user_errors(path: str | Path, during: str = "") -> Iterator[None
 _SETTING_TYPES = (bool, int, float, str)
 
 
+def declared_settings(cls: type[Kilobot]) -> dict[str, Any]:
+    """The settings a program declares, each with its default: every public class attribute of
+    ``cls`` and of its bases below :class:`~kilonet.robot.Kilobot` holding a bool, int, finite
+    float or str (``patience_ticks = 31`` in the class body), in declaration order, bases first.
+    A float that is not finite (``math.inf``) is not a setting: a parameter must be finite.
+
+    Examples
+    --------
+    >>> class Bot(Kilobot):
+    ...     speed = 2.5
+    ...     name = "a"
+    ...     _hidden = 1
+    ...     limits = (1, 2)
+    >>> declared_settings(Bot)
+    {'speed': 2.5, 'name': 'a'}
+    """
+    out: dict[str, Any] = {}
+    for klass in reversed(cls.__mro__[: cls.__mro__.index(Kilobot)]):
+        for name, value in vars(klass).items():
+            if name.startswith("_"):
+                continue
+            usable = isinstance(value, _SETTING_TYPES) and not (
+                isinstance(value, float) and not math.isfinite(value)
+            )
+            if usable:
+                out[name] = value
+            else:
+                out.pop(name, None)  # a subclass turned it into something else
+    return out
+
+
+def settings_section(cls: type[Kilobot], source: str) -> type:
+    """The program's settings as a parameter section named ``program``: a frozen dataclass with
+    one field per :func:`declared_settings` entry, of its default's type, so that
+    :class:`~kilonet.params.Params` checks, records (``params.json``) and lists
+    (``kilonet params --program``) them like kilonet's own keys. ``source`` names the file in
+    each field's description and in an error.
+
+    Raises
+    ------
+    ProgramError
+        If the program declares ``section_name``, the attribute that names a section.
+    """
+    if "section_name" in declared_settings(cls):
+        raise ProgramError(
+            f"{source}: {cls.__name__}.section_name: kilonet names a parameter section with "
+            "this attribute, so a program's setting cannot have this name; rename it"
+        )
+    fields = [
+        (
+            name,
+            type(default),
+            dataclasses.field(
+                default=default,
+                metadata={"doc": f"{cls.__name__}.{name} in {Path(source).name}"},
+            ),
+        )
+        for name, default in declared_settings(cls).items()
+    ]
+    return dataclasses.make_dataclass(
+        f"{cls.__name__}Settings", fields, frozen=True, namespace={"section_name": "program"}
+    )
+
+
 def program_settings(
     cls: type[Kilobot], settings: dict[str, Any], where: Callable[[str], str] = str
 ) -> dict[str, Any]:
@@ -209,16 +290,11 @@ def program_settings(
     >>> program_settings(Bot, {"speed": 3, "verbose": "true"})
     {'speed': 3.0, 'verbose': True}
     """
+    declared = declared_settings(cls)
     out: dict[str, Any] = {}
     for name, value in settings.items():
-        default = None
-        for klass in cls.__mro__:
-            if klass is Kilobot:
-                break
-            if name in vars(klass):
-                default = vars(klass)[name]
-                break
-        if name.startswith("_") or not isinstance(default, _SETTING_TYPES):
+        default = declared.get(name)
+        if default is None:
             raise ProgramError(
                 f"{where(name)}: program.{name}: {cls.__name__} has no class attribute {name!r} "
                 f"holding a number, bool or text; a [program] key sets one the class declares "
@@ -252,44 +328,220 @@ def _refuse(value: Any, kind: type, where: str) -> Any:
 
 
 def program_scenario(
-    spec: str, settings: dict[str, Any] | None = None, where: Callable[[str], str] = str
+    spec: str,
+    settings: dict[str, Any] | None = None,
+    where: Callable[[str], str] = str,
+    *,
+    sha256: str | None = None,
 ) -> Scenario:
-    """A scenario that runs the program ``spec`` (``FILE.py[:ClassName]``) on every robot,
-    with ``settings`` (checked by :func:`program_settings`) set on each robot's program before
-    its ``setup()`` (``where(name)``: where a setting came from, for an error).
+    """A scenario that runs the program ``spec`` (``FILE.py[:ClassName]``) on every robot.
+
+    The program's declared settings (:func:`declared_settings`) are the scenario's parameter
+    section ``program`` (:func:`settings_section`): ``program.NAME`` keys of a run's overrides
+    or of a sweep set them, and every robot's program gets them as attributes before its
+    ``setup()`` (those that differ from the class's value). ``settings`` (checked by
+    :func:`program_settings`; ``where(name)`` says where one came from, for an error) become
+    the section's defaults, as a run file's ``[program]`` does.
+
+    The summary names the program (``program``: ``FILE.py:ClassName``), the SHA-256 of its
+    source (``program_sha256``) and its settings (``program_settings``). A class defining
+    ``report(self) -> dict`` has each robot's values as columns of ``robots.csv`` and, summed
+    up over the robots (:func:`aggregate_reports`), under ``report`` in the summary. A run
+    directory holds a copy of the source as ``program.py`` and ``program.png``.
 
     Raises
     ------
     ProgramError
-        If the program cannot be loaded (:func:`load_program`) or a setting is refused.
+        If the program cannot be loaded (:func:`load_program`), a setting is refused, or its
+        source's SHA-256 is not ``sha256`` (when given: the file changed since a sweep named it).
     """
     path, cls = load_program(spec)
+    source = path.read_bytes()
+    digest = hashlib.sha256(source).hexdigest()
+    if sha256 is not None and digest != sha256:
+        raise ProgramError(
+            f"{path}: changed since the sweep was defined (sha256 {digest[:12]}..., the "
+            f"sweep's {sha256[:12]}...); run the sweep again into a new --out directory"
+        )
     label = f"{path.name}:{cls.__name__}"
     values = program_settings(cls, dict(settings or {}), where)
+    section = settings_section(cls, str(path))
+    reporting = callable(getattr(cls, "report", None))
 
-    def build(_i: int) -> Kilobot:
-        robot = cls()
-        for name, value in values.items():
-            setattr(robot, name, value)
-        return robot
+    declared = declared_settings(cls)
 
     def program(params: Any, positions: Any):
+        # Only the settings that differ from the class's value become instance attributes: a
+        # program that changes a class attribute while it runs (a shared count) reads it as
+        # it would without kilonet's settings.
+        chosen = {
+            name: value
+            for name, value in dataclasses.asdict(params.scenario).items()
+            if value != declared[name]
+        }
+
+        def build(_i: int) -> Kilobot:
+            robot = cls()
+            for name, value in chosen.items():
+                setattr(robot, name, value)
+            return robot
+
         return build
 
-    def metrics(_sim: Simulation) -> dict[str, Any]:
-        return {"program": label}
+    def metrics(sim: Simulation) -> dict[str, Any]:
+        out = {
+            "program": label,
+            "program_sha256": digest,
+            "program_settings": dataclasses.asdict(sim.params.scenario),
+        }
+        if reporting:
+            out["report"] = aggregate_reports(_reports(sim, path))
+        return out
 
-    def figure(result: RunResult, out_dir: Path) -> None:
+    def robot_columns(sim: Simulation) -> Any:
+        import pandas as pd
+
+        rows = _reports(sim, path)
+        taken = {"uid", *sim.robots_frame().columns}
+        clash = sorted(taken.intersection(key for row in rows for key in row))
+        if clash:
+            raise ProgramError(
+                f"{_where(cls, 'report', path)}: report() returns {clash[0]!r}, a column kilonet "
+                "writes in robots.csv; give the value another name"
+            )
+        return pd.DataFrame(rows).assign(robot=range(len(rows)))
+
+    def outputs(result: RunResult, out_dir: Path) -> None:
+        (out_dir / "program.py").write_bytes(source)
         _figure(result, label, out_dir / "program.png")
 
     return Scenario(
         name="program",
         summary=f"your program {label} on every robot",
         program=program,
+        section=section,
         robots=0,
+        defaults={f"program.{name}": value for name, value in values.items()},
         metrics=metrics,
-        outputs=figure,
+        outputs=outputs,
+        robot_columns=robot_columns if reporting else None,
     )
+
+
+#: Types a value of ``report()`` may have (numpy scalars are taken as their Python values).
+_REPORT_TYPES = (bool, int, float, str, type(None))
+
+#: Each finished simulation's ``report()`` rows, so the summary and robots.csv share one call.
+_REPORTED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _reports(sim: Simulation, path: Path) -> list[dict[str, Any]]:
+    """Every robot's ``report()``, checked: a dict of names to numbers, bools, text or None."""
+    if sim in _REPORTED:
+        return _REPORTED[sim]
+    rows = []
+    for robot in sim.robots:
+        with reported_as_user_errors(path, "in report"):
+            row = robot.report()
+        where = _where(type(robot), "report", path)
+        if not isinstance(row, dict):
+            raise ProgramError(
+                f"{where}: report() returned {type(row).__name__}; it returns a dict of "
+                "names to values, one per robot"
+            )
+        for key, value in row.items():
+            if hasattr(value, "item") and not isinstance(value, str):
+                value = row[key] = value.item()  # a numpy scalar
+            if not isinstance(key, str) or not isinstance(value, _REPORT_TYPES):
+                raise ProgramError(
+                    f"{where}: report() returned {key!r}: {value!r}; its keys are names and "
+                    "its values numbers, bools, text or None"
+                )
+        rows.append(row)
+    _REPORTED[sim] = rows
+    return rows
+
+
+def _where(cls: type, method: str, path: Path) -> str:
+    """``path:LINE`` of ``cls.method`` (the program file ``path`` as the user named it), for an
+    error about what it returned; just ``path`` when the method is defined elsewhere."""
+    code = getattr(getattr(cls, method), "__code__", None)
+    if code is None or Path(code.co_filename).resolve() != path.resolve():
+        return str(path)
+    return f"{path}:{code.co_firstlineno}"
+
+
+def aggregate_reports(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Each reported value summed up over the robots: for a bool the robots where it is true
+    and false; for a number its ``min``, ``mean`` and ``max``; for text the number of
+    ``distinct`` values and the most common one (``most``, the first in sorted order on a tie).
+    Every entry counts the robots that reported no value (``none``: key missing or None).
+
+    Examples
+    --------
+    >>> aggregate_reports([{"leader": True, "max": 7, "state": "done"},
+    ...                    {"leader": False, "max": 5, "state": "done"}])
+    ... # doctest: +NORMALIZE_WHITESPACE
+    {'leader': {'true': 1, 'false': 1, 'none': 0},
+     'max': {'min': 5, 'mean': 6.0, 'max': 7, 'none': 0},
+     'state': {'distinct': 1, 'most': 'done', 'none': 0}}
+    """
+    keys = list(dict.fromkeys(key for row in rows for key in row))
+    out: dict[str, dict[str, Any]] = {}
+    for key in keys:
+        values = [row.get(key) for row in rows]
+        given = [v for v in values if v is not None]
+        missing = len(values) - len(given)
+        if given and all(isinstance(v, bool) for v in given):
+            true = sum(given)
+            out[key] = {"true": true, "false": len(given) - true, "none": missing}
+        elif given and all(isinstance(v, int | float) and not isinstance(v, bool) for v in given):
+            mean = math.fsum(given) / len(given)
+            out[key] = {"min": min(given), "mean": mean, "max": max(given), "none": missing}
+        else:
+            counts = Counter(str(v) for v in given)
+            most = min(counts, key=lambda v: (-counts[v], v)) if counts else None
+            out[key] = {"distinct": len(counts), "most": most, "none": missing}
+    return out
+
+
+#: How a sweep's scenario name for a program file begins (:func:`program_key`).
+PROGRAM_PREFIX = "program:"
+
+
+def program_key(spec: str, folder: str | Path = ".") -> str:
+    """The scenario name a sweep stores for the program ``spec`` (``FILE.py[:ClassName]``,
+    relative to ``folder``): ``program:/absolute/FILE.py:ClassName@SHA256``.
+    :func:`kilonet.scenarios.get` turns it back into the scenario (:func:`scenario_of_key`), in
+    whichever process runs the run, and refuses a file that changed since.
+
+    Raises
+    ------
+    ProgramError
+        If the program cannot be loaded (:func:`load_program`).
+    """
+    path, name = parse_spec(spec)
+    path = Path(folder) / path
+    _, cls = load_program(f"{path}:{name}" if name else str(path))
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    return f"{PROGRAM_PREFIX}{path.resolve()}:{cls.__name__}@{digest}"
+
+
+def scenario_of_key(key: str) -> Scenario:
+    """The scenario of a :func:`program_key` name: the file loaded by its path, checked against
+    the SHA-256 the key holds.
+
+    Raises
+    ------
+    ProgramError
+        If the key is malformed, or the program cannot be loaded or changed.
+    """
+    spec, sep, digest = key.removeprefix(PROGRAM_PREFIX).rpartition("@")
+    if not (key.startswith(PROGRAM_PREFIX) and sep and spec):
+        raise ProgramError(
+            f"{key!r} is not a program's scenario name (program:FILE.py:CLASS@SHA256)"
+        )
+    return program_scenario(spec, sha256=digest)
 
 
 def _figure(result: RunResult, label: str, path: Path) -> None:

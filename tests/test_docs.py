@@ -61,7 +61,7 @@ def summaries(results) -> dict[str, set[str]]:
 
 
 def test_every_file_a_run_writes_is_documented(results, tmp_path):
-    named = set(re.findall(r"`([\w.-]+\.(?:png|csv|txt|json))`", OUTPUTS.read_text()))
+    named = set(re.findall(r"`([\w.-]+\.(?:png|csv|txt|json|py))`", OUTPUTS.read_text()))
     missing = {}
     for name, result in results.items():
         out = tmp_path / name
