@@ -476,10 +476,12 @@ def _die_with(pid: int, poll_s: float = 1.0) -> None:
 def _terminate_local(executor: cf.ProcessPoolExecutor) -> None:
     """Cancel pending runs and end the workers now rather than after their current run.
 
-    The pool's manager thread is then waited for: left running, it closes its wake-up pipe
-    while the interpreter's exit wakes it, which prints ``Exception ignored in
-    threading._shutdown ... Bad file descriptor`` after the sweep's message.
+    The pool's manager thread is then waited for (at most :data:`_MANAGER_JOIN_S`): left
+    running, it closes its wake-up pipe while the interpreter's exit wakes it, which prints
+    ``Exception ignored ... Bad file descriptor`` after the sweep's message. The executor
+    forgets the thread on its first shutdown, so it is taken first.
     """
+    manager = executor._executor_manager_thread
     if hasattr(executor, "terminate_workers"):  # Python >= 3.14
         executor.terminate_workers()
     else:
@@ -490,7 +492,12 @@ def _terminate_local(executor: cf.ProcessPoolExecutor) -> None:
                 process.terminate()
         for process in processes:
             process.join()
-    executor.shutdown(wait=True)  # the workers are gone: this only joins the manager thread
+    if manager is not None:  # the workers are gone, so it ends at once
+        manager.join(_MANAGER_JOIN_S)
+
+
+#: Seconds to wait for a terminated pool's manager thread (it ends once its workers have).
+_MANAGER_JOIN_S = 10.0
 
 
 def check_scheduler_address(address: str) -> None:
