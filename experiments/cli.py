@@ -90,9 +90,15 @@ def register_report(subparsers: Any) -> None:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from kilonet.experiments.runner import SweepAborted, run_sweep
+    from kilonet.experiments.runner import (
+        SchedulerAddressError,
+        SweepAborted,
+        check_scheduler_address,
+        run_sweep,
+    )
     from kilonet.experiments.store import ResultStore, StoreError, is_sweep_dir
     from kilonet.experiments.sweep import SweepError, load_sweep
+    from kilonet.scenarios.progress import resolve_mode
 
     from kilonet.cli import UsageError
 
@@ -104,6 +110,14 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         raise UsageError(
             f"--no-workers-timeout must be a number of seconds > 0, not {args.no_workers_timeout}"
         )
+    try:
+        if args.scheduler is not None:
+            check_scheduler_address(args.scheduler)
+    except SchedulerAddressError as exc:
+        raise UsageError(str(exc)) from None
+    except SweepAborted as exc:
+        print(f"kilonet: sweep stopped: {exc}", file=sys.stderr)
+        return 1
     out = Path(args.out)
     if args.resume and not is_sweep_dir(out):
         raise UsageError(f"--resume: {out} holds no sweep to resume")
@@ -114,7 +128,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             sweep = load_sweep(args.sweep_file)
             source = Path(args.sweep_file).read_text()
         elif args.resume:
-            with ResultStore.open(out) as store:
+            with ResultStore.open(out, read_only=True) as store:
                 sweep = store.sweep()
         else:
             raise UsageError("give a sweep file, or --resume to continue the sweep in --out DIR")
@@ -124,7 +138,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             workers=args.workers,
             scheduler=args.scheduler,
             retry_failed=args.retry_failed,
-            progress=not args.no_progress,
+            # a bar only on a terminal, as `kilonet run` decides
+            progress=not args.no_progress and resolve_mode("auto") == "bar",
             source=source,
             no_workers_timeout_s=args.no_workers_timeout,
         )
@@ -159,7 +174,7 @@ def _stored(out: Path) -> int:
     from kilonet.experiments.store import ResultStore, StoreError
 
     try:
-        with ResultStore.open(out) as store:
+        with ResultStore.open(out, read_only=True) as store:
             return sum(store.counts().values())
     except StoreError:
         return 0

@@ -64,7 +64,7 @@ def load(directory: str | Path) -> tuple[Sweep, pd.DataFrame]:
     kilonet.experiments.store.StoreError
         If ``directory`` holds no sweep results.
     """
-    with ResultStore.open(directory) as store:
+    with ResultStore.open(directory, read_only=True) as store:
         return store.sweep(), store.frame()
 
 
@@ -92,6 +92,12 @@ def metrics_of(results: pd.DataFrame, sweep: Sweep) -> list[str]:
         if column not in _NOT_METRICS and len(values) and values.nunique() > 1:
             out.append(column)
     return out
+
+
+def _is_numeric(column: pd.Series) -> bool:
+    """Whether every value of ``column`` present is a number."""
+    values = column.dropna()
+    return bool(len(values)) and pd.to_numeric(values, errors="coerce").notna().all()
 
 
 def _figure_columns(results: pd.DataFrame, sweep: Sweep) -> list[str]:
@@ -291,6 +297,15 @@ def write_report(
         unknown = [m for m in metrics if m not in results.columns]
         if unknown:
             raise ReportError(f"metric {unknown[0]!r} is not reported by any stored run")
+        for metric in metrics:
+            values = results.loc[results["status"] == "ok", metric].dropna()
+            text = values[pd.to_numeric(values, errors="coerce").isna()]
+            if len(text):
+                numeric = [c for c in _figure_columns(results, sweep) if _is_numeric(results[c])]
+                raise ReportError(
+                    f"--metric {metric!r} is not a numeric result (a run reports "
+                    f"{text.iloc[0]!r}); numeric results: {', '.join(numeric) or 'none'}"
+                )
         chosen = list(metrics)
     else:
         chosen = metrics_of(results, sweep)

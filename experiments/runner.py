@@ -48,9 +48,11 @@ from kilonet.experiments.sweep import Run, Sweep
 from tqdm import tqdm
 
 __all__ = [
+    "SchedulerAddressError",
     "SweepAborted",
     "SweepOutcome",
     "WorkerWatch",
+    "check_scheduler_address",
     "default_workers",
     "execute_run",
     "run_sweep",
@@ -60,6 +62,10 @@ __all__ = [
 class SweepAborted(RuntimeError):
     """The sweep could not go on (a worker process died, the cluster is unreachable); the runs
     stored so far are kept and the same command resumes."""
+
+
+class SchedulerAddressError(ValueError):
+    """A Dask scheduler address that cannot name a scheduler; the message says why."""
 
 
 @dataclass(frozen=True)
@@ -188,6 +194,8 @@ def run_sweep(
     ------
     kilonet.experiments.store.StoreError
         If ``directory`` holds another sweep or is in use.
+    SchedulerAddressError
+        If ``scheduler`` cannot be a scheduler's address (checked before anything starts).
     SweepAborted
         If a local worker process died or could not start, the scheduler is unreachable or
         had no workers for ``no_workers_timeout_s``, or the store cannot take a row (full
@@ -199,6 +207,8 @@ def run_sweep(
         raise ValueError(f"workers must be at least 1, not {workers}")
     if not no_workers_timeout_s > 0:
         raise ValueError(f"no_workers_timeout_s must be > 0, not {no_workers_timeout_s}")
+    if scheduler is not None:
+        check_scheduler_address(scheduler)
     runs = sweep.runs()
     with (
         lock_directory(directory),
@@ -464,27 +474,87 @@ def _die_with(pid: int, poll_s: float = 1.0) -> None:
 
 
 def _terminate_local(executor: cf.ProcessPoolExecutor) -> None:
-    """Cancel pending runs and end the workers now rather than after their current run."""
+    """Cancel pending runs and end the workers now rather than after their current run.
+
+    The pool's manager thread is then waited for (at most :data:`_MANAGER_JOIN_S`): left
+    running, it closes its wake-up pipe while the interpreter's exit wakes it, which prints
+    ``Exception ignored ... Bad file descriptor`` after the sweep's message. The executor
+    forgets the thread on its first shutdown, so it is taken first.
+    """
+    manager = executor._executor_manager_thread
     if hasattr(executor, "terminate_workers"):  # Python >= 3.14
         executor.terminate_workers()
-        return
-    processes = list((executor._processes or {}).values())
-    executor.shutdown(wait=False, cancel_futures=True)
-    for process in processes:
-        if process.is_alive():
-            process.terminate()
-    for process in processes:
-        process.join()
+    else:
+        processes = list((executor._processes or {}).values())
+        executor.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            if process.is_alive():
+                process.terminate()
+        for process in processes:
+            process.join()
+    if manager is not None:  # the workers are gone, so it ends at once
+        manager.join(_MANAGER_JOIN_S)
 
 
-@contextmanager
-def _dask_executor(scheduler: str) -> Iterator[tuple[cf.Executor, Callable[[], int]]]:
+#: Seconds to wait for a terminated pool's manager thread (it ends once its workers have).
+_MANAGER_JOIN_S = 10.0
+
+
+def check_scheduler_address(address: str) -> None:
+    """Refuse an address that cannot name a Dask scheduler, before anything starts (Dask's
+    client would print a traceback from its event loop and never exit): it must be
+    ``[scheme://]host:port`` with a scheme Dask knows and a port from 1 to 65535 (an
+    ``inproc://`` address is taken as it is).
+
+    Raises
+    ------
+    SweepAborted
+        If Dask ``distributed`` is not installed.
+    SchedulerAddressError
+        Saying what is wrong with ``address``.
+
+    Examples
+    --------
+    >>> check_scheduler_address("tcp://127.0.0.1:8786")
+    >>> try:
+    ...     check_scheduler_address("tcp://127.0.0.1:notaport")
+    ... except SchedulerAddressError as exc:
+    ...     print(str(exc).split(";")[0])
+    --scheduler 'tcp://127.0.0.1:notaport': the port 'notaport' is not a number
+    """
     try:
-        from distributed import Client
+        from distributed.comm.addressing import parse_address
+        from distributed.comm.registry import get_backend
     except ImportError:
         raise SweepAborted(
             "--scheduler needs Dask distributed: pip install 'kilonet[cluster]'"
         ) from None
+
+    def refuse(why: str) -> SchedulerAddressError:
+        return SchedulerAddressError(
+            f"--scheduler {address!r}: {why}; give [tcp://]HOST:PORT, e.g. tcp://127.0.0.1:8786"
+        )
+
+    try:
+        scheme, location = parse_address(address)
+        get_backend(scheme)
+    except ValueError as exc:
+        raise refuse(str(exc)) from None
+    if scheme == "inproc":
+        return
+    host, sep, port = location.rpartition(":")
+    if not sep or not host.strip("[]"):
+        raise refuse("it needs a host and a port")
+    if not port.isdigit():
+        raise refuse(f"the port {port!r} is not a number")
+    if not 1 <= int(port) <= 65535:
+        raise refuse(f"the port {port} is not from 1 to 65535")
+
+
+@contextmanager
+def _dask_executor(scheduler: str) -> Iterator[tuple[cf.Executor, Callable[[], int]]]:
+    from distributed import Client
+
     try:
         client = Client(scheduler, set_as_default=False)
     except OSError as exc:

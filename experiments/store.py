@@ -23,14 +23,21 @@ again, and never hold a run twice.
   (:meth:`ResultStore.frame`); Parquet would need one schema for every part.
 * **No new dependency**: ``sqlite3`` is in the standard library, and one file is easy to copy.
 
-Every row carries a SHA-256 checksum of its columns, checked whenever rows are read, so a
-value changed outside kilonet (an edited digit, a damaged disk block) is refused instead of
-reported. A store is created as a temporary file and linked into place complete, so a crash or
-a full disk never leaves a half-made store that blocks the directory.
+Every row carries a SHA-256 checksum of its columns, checked whenever rows are read, and so
+does the stored sweep definition, checked whenever it is read, so a value changed outside
+kilonet (an edited digit or seed, a damaged disk block) is refused instead of reported or
+resumed. A store is created as a temporary file and linked into place complete, so a crash or
+a full disk never leaves a half-made store that blocks the directory; a store created by a
+sweep that stops before storing any run is removed again. A store is checked before anything is
+written to it (a damaged one is refused without a byte written), and readers
+(``kilonet report``) open it read-only, so they work on a read-only file system.
 
 Its limits: one writer at a time (the sweep's parent process writes; workers only return
 rows), guarded by a lock file (:func:`lock_directory`, taken before anything in the directory
-is written) so two sweeps cannot fill one directory at once; and SQLite
+is written) so two sweeps cannot fill one directory at once, and ``kilonet run --out``
+cannot replace a directory a sweep holds (:mod:`kilonet.scenarios.output_dir` honours the same
+lock); a reader of a store a sweep last wrote may leave SQLite's empty ``-wal``/``-shm`` files
+beside it (the next sweep takes them over); and SQLite
 locking is unreliable on network file systems, so keep the directory on a local disk (copy it
 afterwards). :meth:`ResultStore.frame` hands the table to pandas, so ``frame().to_parquet()``
 exports it for analyses that want Parquet.
@@ -39,11 +46,11 @@ exports it for analyses that want Parquet.
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import hashlib
 import json
 import os
 import sqlite3
+import urllib.parse
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -52,6 +59,7 @@ from typing import Any
 
 import pandas as pd
 from kilonet.experiments.sweep import Sweep
+from kilonet.scenarios.output_dir import LOCK_NAME, DirectoryInUse, hold_lock
 
 __all__ = [
     "DB_NAME",
@@ -65,9 +73,11 @@ __all__ = [
 ]
 
 DB_NAME = "results.sqlite"
-_LOCK_NAME = ".sweep.lock"
-#: Schema 2 adds the per-row ``checksum``; a schema-1 store is upgraded when opened.
-_SCHEMA_VERSION = "2"
+#: Schema 2 adds the per-row ``checksum``, schema 3 the ``sweep_checksum`` of the definition;
+#: an older store is upgraded when opened for writing.
+_SCHEMA_VERSION = "3"
+#: Files SQLite keeps beside a store in write-ahead-log mode.
+_SIDE_FILES = ("-wal", "-shm", "-journal")
 #: Columns every row of :meth:`ResultStore.frame` has besides the swept parameters and figures.
 META_COLUMNS = ("run_id", "seed", "status", "error", "wall_s", "worker", "finished_at")
 
@@ -141,9 +151,13 @@ class ResultStore:
     be read or written: a damaged file, a full disk, a row whose checksum fails.
     """
 
-    def __init__(self, directory: Path, connection: sqlite3.Connection) -> None:
+    def __init__(self, directory: Path, connection: sqlite3.Connection, schema: str) -> None:
         self.directory = directory
         self._db = connection
+        self._schema = schema
+        #: Whether :meth:`create_or_open` created the store (then :meth:`__exit__` removes it
+        #: if the block fails before a run is stored).
+        self.created = False
 
     # ---------------------------------------------------------------------------- opening
 
@@ -166,6 +180,7 @@ class ResultStore:
         directory = Path(directory)
         if directory.exists() and not directory.is_dir():
             raise StoreError(f"{directory} exists and is not a directory")
+        created = False
         if not is_sweep_dir(directory):
             if directory.exists() and _foreign_entries(directory):
                 raise StoreError(f"{directory} is not empty and holds no sweep results")
@@ -173,37 +188,41 @@ class ResultStore:
                 directory.mkdir(parents=True, exist_ok=True)
                 _remove_stale_creations(directory)
                 _create_database(directory / DB_NAME, sweep)
+                created = True
             except FileExistsError:
                 pass  # another process created it at this instant: open theirs
             except (OSError, sqlite3.DatabaseError) as exc:
                 raise StoreError(
                     f"{directory}: cannot create the results store ({_reason(exc)})"
                 ) from None
-        store = cls.open(directory)
+        try:
+            store = cls.open(directory)
+        except BaseException:
+            if created:  # e.g. a full disk refused the write-ahead log: no half-made store
+                _remove_store(directory)
+            raise
+        store.created = created
         try:
             stored = store.sweep()
-        except BaseException:
-            store.close()
-            raise
-        differences = stored.differences(sweep)
-        if differences:
-            store.close()
-            raise StoreError(
-                f"{directory} holds sweep {stored.name!r} with a different "
-                f"{', '.join(differences)}; use another --out directory"
-            )
-        # Same runs: the newer file's name, description and [report] take over.
-        try:
+            differences = stored.differences(sweep)
+            if differences:
+                raise StoreError(
+                    f"{directory} holds sweep {stored.name!r} with a different "
+                    f"{', '.join(differences)}; use another --out directory"
+                )
+            # Same runs: the newer file's name, description and [report] take over.
             store._write_meta(sweep, source)
-        except BaseException:
-            store.close()
+        except BaseException as exc:
+            store.__exit__(type(exc), exc, exc.__traceback__)
             raise
         return store
 
     def _write_meta(self, sweep: Sweep, source: str | None) -> None:
+        text = json.dumps(sweep.to_dict())
         with self._guard("cannot write the sweep definition"), self._db:
+            self._db.execute("INSERT OR REPLACE INTO meta VALUES ('sweep', ?)", (text,))
             self._db.execute(
-                "INSERT OR REPLACE INTO meta VALUES ('sweep', ?)", (json.dumps(sweep.to_dict()),)
+                "INSERT OR REPLACE INTO meta VALUES ('sweep_checksum', ?)", (_text_checksum(text),)
             )
             if source is not None:
                 self._db.execute("INSERT OR REPLACE INTO meta VALUES ('source', ?)", (source,))
@@ -216,9 +235,14 @@ class ResultStore:
                 ) from None
 
     @classmethod
-    def open(cls, directory: str | Path) -> ResultStore:
-        """Open an existing store; a schema-1 store (rows without checksums, made by an older
-        kilonet) is upgraded in place, its rows checksummed as they are.
+    def open(cls, directory: str | Path, *, read_only: bool = False) -> ResultStore:
+        """Open an existing store, checked read-only before anything is written to it.
+
+        For writing (the default), a store made by an older kilonet is upgraded in place: a
+        schema-1 store's rows and a schema-1 or 2 store's definition are checksummed as they
+        are. ``read_only`` opens it with SQLite's ``mode=ro`` (on a read-only file system, as
+        immutable) and never writes; a schema-2 store is then read with its definition
+        unchecked, a schema-1 store (rows without checksums) is refused.
 
         Raises
         ------
@@ -231,25 +255,36 @@ class ResultStore:
         path = directory / DB_NAME
         db = None
         try:
-            db = _connect(path)
+            _check_header(path)
+            db = _connect_read_only(path)
             row = db.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone()
-            if row is not None and row[0] == "1":
-                _upgrade_from_schema_1(db)
-                row = (_SCHEMA_VERSION,)
+            schema = row[0] if row is not None else None
+            if schema not in ("1", "2", _SCHEMA_VERSION):
+                raise StoreError(f"{path}: unknown store schema {schema!r}")
+            if not read_only:
+                db.close()
+                db = None
+                db = _connect(path)
+                if schema != _SCHEMA_VERSION:
+                    _upgrade(db, schema)
+                    schema = _SCHEMA_VERSION
+            elif schema == "1":
+                raise StoreError(
+                    f"{path}: made by an older kilonet (store schema 1); "
+                    f"`kilonet sweep --resume --out {directory}` upgrades it"
+                )
         except sqlite3.DatabaseError as exc:
             if db is not None:
                 db.close()
             damaged = getattr(exc, "sqlite_errorname", "") in ("SQLITE_NOTADB", "SQLITE_CORRUPT")
             if damaged or str(exc).startswith("no such table"):
-                raise StoreError(
-                    f"{path}: not a readable sweep store ({_reason(exc)}); move it away or use "
-                    "another --out directory"
-                ) from None
+                raise _unreadable(path, _reason(exc)) from None
             raise StoreError(f"{path}: cannot open the store ({_reason(exc)})") from None
-        if row is None or row[0] != _SCHEMA_VERSION:
-            db.close()
-            raise StoreError(f"{path}: unknown store schema {row[0] if row else None!r}")
-        return cls(directory, db)
+        except BaseException:
+            if db is not None:
+                db.close()
+            raise
+        return cls(directory, db, schema)
 
     def close(self) -> None:
         """Close the database (rows are already on disk)."""
@@ -258,8 +293,19 @@ class ResultStore:
     def __enter__(self) -> ResultStore:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        """Close; a store :meth:`create_or_open` created is removed again (with its
+        ``sweep.toml``) if the block ends in an exception before any run was stored, so a
+        sweep that could not start leaves no empty store behind."""
+        remove = False
+        if exc_type is not None and self.created:
+            try:
+                remove = self._fetch("SELECT COUNT(*) FROM runs")[0][0] == 0
+            except StoreError:
+                remove = False  # cannot tell: keep it
         self.close()
+        if remove:
+            _remove_store(self.directory)
 
     def lock(self) -> contextlib.AbstractContextManager[None]:
         """:func:`lock_directory` of this store's directory."""
@@ -280,11 +326,27 @@ class ResultStore:
     # ---------------------------------------------------------------------------- reading
 
     def sweep(self) -> Sweep:
-        """The sweep this store belongs to."""
-        rows = self._fetch("SELECT value FROM meta WHERE key = 'sweep'")
+        """The sweep this store belongs to, checked against its checksum.
+
+        Raises
+        ------
+        StoreError
+            If the stored definition does not match its checksum (it was changed outside
+            kilonet) or cannot be read.
+        """
+        meta = dict(self._fetch("SELECT key, value FROM meta WHERE key LIKE 'sweep%'"))
+        text = meta.get("sweep")
+        if self._schema == _SCHEMA_VERSION and (
+            text is None or meta.get("sweep_checksum") != _text_checksum(text)
+        ):
+            raise StoreError(
+                f"{self.directory / DB_NAME}: the stored sweep definition does not match its "
+                "checksum (changed outside kilonet); restore the file from a copy or run the "
+                "sweep into a new directory"
+            )
         try:
-            return Sweep.from_dict(json.loads(rows[0][0]))
-        except (IndexError, ValueError, KeyError, TypeError) as exc:
+            return Sweep.from_dict(json.loads(text))
+        except (ValueError, KeyError, TypeError) as exc:
             raise StoreError(
                 f"{self.directory / DB_NAME}: the stored sweep definition is damaged "
                 f"({type(exc).__name__}: {exc})"
@@ -427,7 +489,12 @@ def row_checksum(columns: Sequence[Any]) -> str:
     >>> row_checksum(row) == row_checksum(row[:5] + (0.26,) + row[6:])
     False
     """
-    return hashlib.sha256(json.dumps(list(columns)).encode()).hexdigest()
+    return _text_checksum(json.dumps(list(columns)))
+
+
+def _text_checksum(text: str) -> str:
+    """SHA-256 (hex) of ``text`` (UTF-8)."""
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 @contextmanager
@@ -442,7 +509,7 @@ def lock_directory(directory: str | Path) -> Iterator[None]:
     Raises
     ------
     StoreError
-        If another process holds it, or ``directory`` cannot be created.
+        If another process holds it, or ``directory`` or the lock file cannot be created.
     """
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
@@ -452,7 +519,7 @@ def lock_directory(directory: str | Path) -> Iterator[None]:
         directory.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise StoreError(f"{directory}: cannot create the directory ({_reason(exc)})") from None
-    path = directory / _LOCK_NAME
+    path = directory / LOCK_NAME
     try:
         handle = _acquire(path)
     except BaseException:
@@ -470,31 +537,13 @@ def lock_directory(directory: str | Path) -> Iterator[None]:
 
 
 def _acquire(path: Path) -> int:
-    """Open and ``flock`` the lock file at ``path``; returns its file descriptor. Retries if
-    the holder removed the file between our open and our lock (we would then hold a file
-    nobody else can find)."""
-    while True:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise StoreError(f"{path}: cannot create the lock file ({_reason(exc)})") from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 100, 0).decode(errors="replace").strip() or "another process"
-            os.close(fd)
-            raise StoreError(f"{path.parent} is in use by a running sweep ({holder})") from None
-        try:
-            same = os.stat(path).st_ino == os.fstat(fd).st_ino
-        except FileNotFoundError:
-            same = False
-        if not same:
-            os.close(fd)
-            continue
-        with contextlib.suppress(OSError):  # a full disk: the lock holds without its note
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, f"pid {os.getpid()}\n".encode(), 0)
-        return fd
+    """:func:`kilonet.scenarios.output_dir.hold_lock` with its errors as :class:`StoreError`."""
+    try:
+        return hold_lock(path)
+    except DirectoryInUse as exc:
+        raise StoreError(str(exc)) from None
+    except OSError as exc:
+        raise StoreError(f"{path}: cannot create the lock file ({_reason(exc)})") from None
 
 
 def _remove_if_empty(directory: Path) -> None:
@@ -507,8 +556,11 @@ def _foreign_entries(directory: Path) -> list[str]:
     return [
         p.name
         for p in directory.iterdir()
-        if p.name != _LOCK_NAME
-        and not (p.name.startswith(f".{DB_NAME}.") and p.name.endswith((".tmp", ".tmp-journal")))
+        if p.name != LOCK_NAME
+        and not (
+            p.name.startswith(f".{DB_NAME}.")
+            and p.name.endswith((".tmp", *(f".tmp{side}" for side in _SIDE_FILES)))
+        )
     ]
 
 
@@ -519,8 +571,7 @@ def _remove_stale_creations(directory: Path) -> None:
         pid = tmp.name[len(DB_NAME) + 2 : -len(".tmp")]
         if not pid.isdigit() or _alive(int(pid)):
             continue
-        tmp.unlink(missing_ok=True)
-        Path(f"{tmp}-journal").unlink(missing_ok=True)
+        _unlink_with_side_files(tmp)
 
 
 def _alive(pid: int) -> bool:
@@ -536,7 +587,8 @@ def _alive(pid: int) -> bool:
 
 def _create_database(path: Path, sweep: Sweep) -> None:
     """Create the store at ``path`` with its schema and ``sweep``'s definition, complete or not
-    at all: built in a temporary file and hard-linked into place.
+    at all: built in a temporary file (already in write-ahead-log mode, so opening it later
+    changes nothing in it) and hard-linked into place.
 
     Raises
     ------
@@ -546,33 +598,59 @@ def _create_database(path: Path, sweep: Sweep) -> None:
         If it cannot be written; nothing is left behind.
     """
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.unlink(missing_ok=True)
+    _unlink_with_side_files(tmp)
+    text = json.dumps(sweep.to_dict())
     try:
         db = sqlite3.connect(tmp, isolation_level="DEFERRED")
         try:
+            db.execute("PRAGMA journal_mode = WAL")
             db.execute("PRAGMA synchronous = FULL")
             with db:
                 db.executescript(_SCHEMA)
                 db.execute("INSERT INTO meta VALUES ('schema', ?)", (_SCHEMA_VERSION,))
-                db.execute("INSERT INTO meta VALUES ('sweep', ?)", (json.dumps(sweep.to_dict()),))
+                db.execute("INSERT INTO meta VALUES ('sweep', ?)", (text,))
+                db.execute("INSERT INTO meta VALUES ('sweep_checksum', ?)", (_text_checksum(text),))
         finally:
-            db.close()
+            db.close()  # the last connection: the log is folded into the file and removed
+        if any(Path(f"{tmp}{side}").exists() for side in _SIDE_FILES):
+            raise OSError(f"{tmp}: SQLite could not fold its log into the file")
         os.link(tmp, path)
     finally:
-        tmp.unlink(missing_ok=True)
-        Path(f"{tmp}-journal").unlink(missing_ok=True)
+        _unlink_with_side_files(tmp)
 
 
-def _upgrade_from_schema_1(db: sqlite3.Connection) -> None:
-    """Add the ``checksum`` column to a schema-1 store and checksum its rows as they are."""
+def _unlink_with_side_files(path: Path) -> None:
+    """Remove the database file ``path`` and SQLite's files beside it."""
+    for suffix in ("", *_SIDE_FILES):
+        Path(f"{path}{suffix}").unlink(missing_ok=True)
+
+
+def _remove_store(directory: Path) -> None:
+    """Remove the store of ``directory`` that this process created (its database, SQLite's
+    files beside it and ``sweep.toml``); the caller holds the directory's lock."""
+    _unlink_with_side_files(directory / DB_NAME)
+    (directory / "sweep.toml").unlink(missing_ok=True)
+
+
+def _upgrade(db: sqlite3.Connection, schema: str) -> None:
+    """Bring an older store to the current schema: a schema-1 store gets the ``checksum``
+    column, its rows checksummed as they are; both schema 1 and 2 get the definition's
+    ``sweep_checksum``, of the definition as it is."""
     with db:
-        db.execute("ALTER TABLE runs ADD COLUMN checksum TEXT")
-        for rowid, *columns in db.execute(f"SELECT rowid, {_ROW_COLUMNS} FROM runs").fetchall():
+        if schema == "1":
+            db.execute("ALTER TABLE runs ADD COLUMN checksum TEXT")
+            rows = db.execute(f"SELECT rowid, {_ROW_COLUMNS} FROM runs").fetchall()
+            for rowid, *columns in rows:
+                db.execute(
+                    "UPDATE runs SET checksum = ? WHERE rowid = ?", (row_checksum(columns), rowid)
+                )
+        (text,) = db.execute("SELECT value FROM meta WHERE key = 'sweep'").fetchone() or (None,)
+        if text is not None:
             db.execute(
-                "UPDATE runs SET checksum = ? WHERE rowid = ?", (row_checksum(columns), rowid)
+                "INSERT OR REPLACE INTO meta VALUES ('sweep_checksum', ?)", (_text_checksum(text),)
             )
         db.execute("UPDATE meta SET value = ? WHERE key = 'schema'", (_SCHEMA_VERSION,))
-        db.execute("INSERT OR REPLACE INTO meta VALUES ('upgraded_from_schema', '1')")
+        db.execute("INSERT OR REPLACE INTO meta VALUES ('upgraded_from_schema', ?)", (schema,))
 
 
 def _reason(exc: BaseException) -> str:
@@ -597,6 +675,66 @@ def _flat_summary(summary: dict[str, Any], prefix: str = "") -> dict[str, Any]:
         else:
             out[f"{prefix}{key}"] = value
     return out
+
+
+#: The first 16 bytes of every SQLite database file.
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def _check_header(path: Path) -> None:
+    """Refuse, without opening it in SQLite (which would write its side files beside it), a
+    file that is not a whole SQLite database: another kind of file, or one cut short of the
+    size its header gives. An empty file passes (SQLite reads it as an empty database, which
+    then has no tables).
+
+    Raises
+    ------
+    StoreError
+        If the file is not a whole database or cannot be read.
+    """
+    try:
+        with open(path, "rb") as f:
+            header = f.read(100)
+            size = os.fstat(f.fileno()).st_size
+    except OSError as exc:
+        raise StoreError(f"{path}: cannot open the store ({_reason(exc)})") from None
+    if not header:
+        return
+    if len(header) < 100 or not header.startswith(_SQLITE_MAGIC):
+        raise _unreadable(path, "file is not a database")
+    page_size = int.from_bytes(header[16:18], "big")
+    page_size = 65536 if page_size == 1 else page_size
+    pages = int.from_bytes(header[28:32], "big")
+    pages_valid = header[24:28] == header[92:96]  # as SQLite decides whether to trust it
+    if pages_valid and pages and size < pages * page_size:
+        raise _unreadable(
+            path, f"cut short: {size} bytes of the {pages * page_size} its header gives"
+        )
+
+
+def _unreadable(path: Path, reason: str) -> StoreError:
+    return StoreError(
+        f"{path}: not a readable sweep store ({reason}); move it away or use another --out "
+        "directory"
+    )
+
+
+def _connect_read_only(path: Path) -> sqlite3.Connection:
+    """A connection that cannot write ``path`` (SQLite ``mode=ro``). Where its directory
+    cannot be written (a read-only file system) SQLite cannot make the shared-memory file a
+    write-ahead-log database needs, and nobody can be writing the store there, so it is
+    opened as immutable."""
+    uri = f"file:{urllib.parse.quote(str(path.absolute()))}?mode=ro"
+    db = sqlite3.connect(uri, uri=True)
+    try:
+        db.execute("SELECT 1 FROM sqlite_master LIMIT 1").fetchall()
+    except sqlite3.DatabaseError as exc:
+        db.close()
+        cannot_open = getattr(exc, "sqlite_errorname", "") == "SQLITE_CANTOPEN"
+        if not cannot_open or os.access(path.parent, os.W_OK):
+            raise
+        db = sqlite3.connect(f"{uri}&immutable=1", uri=True)
+    return db
 
 
 def _connect(path: Path) -> sqlite3.Connection:

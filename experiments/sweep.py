@@ -68,7 +68,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-__all__ = ["MAX_RUNS", "Run", "Sweep", "SweepError", "load_sweep", "parse_sweep"]
+__all__ = ["MAX_RUNS", "MAX_SEED", "Run", "Sweep", "SweepError", "load_sweep", "parse_sweep"]
 
 _TOP_KEYS = (
     "name",
@@ -88,6 +88,9 @@ _SIGNIFICANT_DIGITS = 12
 #: Most runs a sweep may have (and values a range or seed count may give): a range with a tiny
 #: step would otherwise build billions of values before anything is checked.
 MAX_RUNS = 100_000
+#: Largest seed a sweep may have: the results store keeps seeds as SQLite (signed 64-bit)
+#: integers.
+MAX_SEED = 2**63 - 1
 
 
 class SweepError(ValueError):
@@ -389,6 +392,11 @@ class _Validator:
                 raise self.fail(f"seeds = {raw!r}: need first >= 0 and count >= 1")
             if count > MAX_RUNS:
                 raise self.fail(f"seeds = {raw!r}: at most {MAX_RUNS} seeds")
+            if first + count - 1 > MAX_SEED:
+                raise self.fail(
+                    f"seeds = {raw!r}: the last seed {first + count - 1} is out of range; "
+                    f"seeds are integers from 0 to {MAX_SEED}"
+                )
             return tuple(range(first, first + count))
         if isinstance(raw, list):
             if not raw:
@@ -396,6 +404,10 @@ class _Validator:
             for s in raw:
                 if isinstance(s, bool) or not isinstance(s, int) or s < 0:
                     raise self.fail(f"seeds: {s!r} is not a non-negative integer")
+                if s > MAX_SEED:
+                    raise self.fail(
+                        f"seeds: {s} is out of range; seeds are integers from 0 to {MAX_SEED}"
+                    )
             if len(set(raw)) != len(raw):
                 raise self.fail(f"seeds: {raw!r} repeats a seed")
             return tuple(raw)

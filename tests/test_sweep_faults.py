@@ -129,7 +129,7 @@ def test_a_schema_1_store_is_upgraded_and_then_checked(tmp_path):
         assert (rec.run_id, rec.summary) == ("r1", {"hits": 3})
     with sqlite3.connect(out / DB_NAME) as db:
         meta = dict(db.execute("SELECT key, value FROM meta"))
-        assert (meta["schema"], meta["upgraded_from_schema"]) == ("2", "1")
+        assert (meta["schema"], meta["upgraded_from_schema"]) == ("3", "1")
         db.execute("UPDATE runs SET summary = '{\"hits\": 4}'")
     with ResultStore.open(out) as store, pytest.raises(StoreError, match="checksum"):
         store.records()
@@ -413,7 +413,7 @@ def test_a_cluster_without_workers_stops_the_sweep_with_one_line(tmp_path, capsy
         f"kilonet: sweep stopped: the Dask cluster at {cluster.scheduler_address} has had no "
         "workers for 1.5 s (4 runs waiting); start workers, then run the same command"
     )
-    assert stored_runs(out) == [] and not (out / ".sweep.lock").exists()
+    assert not out.exists()  # a sweep that stored no run leaves no empty store behind
 
 
 def test_worker_watch_resets_when_workers_come_back():
