@@ -27,6 +27,8 @@ from kilonet.placement import PlacementError, generate_from, load_csv, read_plac
 from kilonet.robot import Kilobot
 
 if TYPE_CHECKING:
+    import pandas as pd
+
     from kilonet.simulation import Simulation
 
 __all__ = [
@@ -91,7 +93,7 @@ class Scenario:
         ``outputs(result, out_dir)`` writes scenario files (figures, extra tables).
     robot_columns : callable, optional
         ``robot_columns(sim) -> DataFrame`` with a ``robot`` column: scenario columns joined
-        to the robots table.
+        to the robots table (one named like a kernel column, ``uid``, replaces it).
     options : tuple of ScenarioOption
         Options of ``kilonet run`` that set this scenario's parameters (``--until``).
     expected_end_s : callable, optional
@@ -363,7 +365,7 @@ def write_run_files(result: RunResult, directory: str | Path, *, fmt: str = "csv
     robots = sim.robots_frame()
     robots.insert(1, "uid", _final_uids(sim))
     if result.scenario.robot_columns is not None:
-        robots = robots.merge(result.scenario.robot_columns(sim), on="robot", how="left")
+        robots = _with_scenario_columns(robots, result.scenario.robot_columns(sim))
     traces = sim.trace.frames()
     if not result.params.trace.messages:
         del traces["messages"]  # recorded only with trace.messages: an empty table misleads
@@ -379,6 +381,21 @@ def write_run_files(result: RunResult, directory: str | Path, *, fmt: str = "csv
     if result.scenario.outputs is not None:
         result.scenario.outputs(result, out)
     return sorted(out.iterdir())
+
+
+def _with_scenario_columns(robots: pd.DataFrame, extra: pd.DataFrame) -> pd.DataFrame:
+    """The robots table with a scenario's columns (``robot_columns``) joined on ``robot``.
+
+    A scenario column named like a kernel column takes that column's place instead of
+    beside it (a merge would give ``uid_x`` and ``uid_y``): gcs and localize robots have no
+    ``kilo_uid`` (``robot.hardware_uids = false``) and their ``uid`` is the ID each robot
+    chose for itself.
+    """
+    shared = [c for c in extra.columns if c != "robot" and c in robots.columns]
+    joined = robots.merge(extra, on="robot", how="left", suffixes=("", "_scenario"))
+    for column in shared:
+        joined[column] = joined.pop(f"{column}_scenario")
+    return joined
 
 
 def _final_uids(sim: Simulation) -> list[int | None]:
