@@ -21,6 +21,7 @@ nothing (said after the run, so that an error stays the only line).
 from __future__ import annotations
 
 import argparse
+import enum
 import json
 import re
 import sys
@@ -468,6 +469,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
     walk(summary, "")
     width = max(len(k) for k in flat)
     for key, value in flat.items():
+        value = _plain(value)
         if isinstance(value, float):
             shown = f"{value:.4g}"
         elif isinstance(value, list) and len(value) > 8:
@@ -475,6 +477,25 @@ def _print_summary(summary: dict[str, Any]) -> None:
         else:
             shown = value
         print(f"{key:<{width}}  {shown}")
+
+
+def _plain(value: Any) -> Any:
+    """``value`` with every enum member as its value, lists and tuples as lists: what
+    ``--json`` prints (``['ids', 'seeds']``, not ``[<GcsStage.IDS: 'ids'>, ...]``).
+
+    Examples
+    --------
+    >>> import enum
+    >>> class Stage(str, enum.Enum):
+    ...     IDS = "ids"
+    >>> _plain([Stage.IDS, (1, Stage.IDS)])
+    ['ids', [1, 'ids']]
+    """
+    if isinstance(value, enum.Enum):
+        return value.value
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
 
 
 # -- scenarios and params ------------------------------------------------------------------------
