@@ -365,7 +365,7 @@ def _run_command(args: argparse.Namespace) -> int:
     overrides = {**file_overrides, **given, **_scenario_options(args, scenario)}
     if args.robots is not None:
         if args.robots < 1:
-            raise UsageError(f"--robots {args.robots}: give the number of robots (at least 2)")
+            raise UsageError(f"--robots {args.robots}: give the number of robots (at least 1)")
         overrides["placement.robots"] = args.robots
     if args.duration is not None:
         overrides["duration_s"] = args.duration
