@@ -22,11 +22,28 @@ from pathlib import Path
 
 from kilonet.errors import UserError
 
-__all__ = ["OutputDir", "OutputDirError"]
+__all__ = ["OutputDir", "OutputDirError", "why_not_written"]
 
 
 class OutputDirError(UserError):
     """The output directory cannot be used; the message names it and says why."""
+
+
+def why_not_written(exc: OSError, directory: str | os.PathLike) -> str:
+    """Why a file could not be made in ``directory``, in words for the user: the system's
+    reason, except where it misleads. A virtual file system (``/proc``, ``/sys``) answers
+    "No such file or directory" for a directory that plainly exists.
+
+    Examples
+    --------
+    >>> why_not_written(OSError(errno.ENOENT, "No such file or directory"), "/")
+    'the file system there takes no new files, e.g. /proc or /sys'
+    >>> why_not_written(OSError(errno.ENOSPC, "No space left on device"), "/")
+    'No space left on device'
+    """
+    if exc.errno == errno.ENOENT and Path(directory).is_dir():
+        return "the file system there takes no new files, e.g. /proc or /sys"
+    return exc.strerror or str(exc)
 
 
 class OutputDir:
@@ -98,7 +115,10 @@ class OutputDir:
             self.staging.chmod(0o777 & ~_umask())
         except OSError as exc:
             self.discard()
-            raise OutputDirError(f"cannot write in {target.parent} ({exc.strerror})") from None
+            raise OutputDirError(
+                f"--out {target}: cannot write in {target.parent} "
+                f"({why_not_written(exc, target.parent)})"
+            ) from None
 
     def _make_parents(self, parent: Path) -> None:
         missing = []
