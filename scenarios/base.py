@@ -210,6 +210,8 @@ def place(
         if p.kind == "scenario" and scenario.placement is not None:
             return scenario.placement(params, n, rng)
         return generate_from(p, "hex" if p.kind == "scenario" else p.kind, n, rng)
+    except ParamError:
+        raise  # already names the parameters
     except ValueError as exc:  # a generator refusing its parameters is the user's to fix
         raise ParamError(f"placement ({p.kind}, {n} robots): {exc}") from None
 
