@@ -37,6 +37,7 @@ from kilonet.scenarios.progress import MODES
 
 from kilonet import scenarios
 from kilonet.cli import UsageError
+from kilonet.errors import UserError
 from kilonet.params import ParamError, Params, describe
 from kilonet.watchdog import BUSY_CALL_S
 
@@ -353,8 +354,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run_command(args: argparse.Namespace) -> int:
-    from kilonet.scenarios.base import write_run_files
+    from kilonet.scenarios.base import AfterRunError, after_the_run, write_run_files
     from kilonet.scenarios.output_dir import OutputDir
+    from kilonet.scenarios.progress import StageProgress
 
     scenario, file_overrides, run_file = _resolve(args)
     if run_file is not None:
@@ -377,32 +379,43 @@ def _run_command(args: argparse.Namespace) -> int:
     params = build_params(scenario, overrides, seed=args.seed)  # every value, before the run
     if args.program is not None and args.placement is None and not params.placement.robots:
         raise UsageError("--program needs --placement F.csv or --robots N (a hex lattice)")
+    progress = "none" if args.json or args.quiet else args.progress
     reserved = OutputDir(args.out, replace=args.replace) if args.out is not None else None
+    failed: AfterRunError | None = None  # a step after the run, reported after its summary
     with reserved or nullcontext() as out:
         result = _guarded(args)(
-            scenario,
-            overrides,
-            seed=args.seed,
-            placement=args.placement,
-            progress="none" if args.json or args.quiet else args.progress,
+            scenario, overrides, seed=args.seed, placement=args.placement, progress=progress
         )
         if args.out is not None:
-            try:
-                written = write_run_files(result, out.staging, fmt=args.format)
-            except OSError as exc:
-                raise UsageError(f"{args.out}: cannot write the run ({exc.strerror})") from None
-            if args.animate:
-                _animator()(out.staging)
+            with StageProgress(scenario.name, enabled=progress) as display:
+                try:
+                    write_run_files(result, out.staging, fmt=args.format, stage=display.stage)
+                    if args.animate:
+                        display.stage("drawing animation.gif")
+                        with after_the_run(out.staging, "animation.gif"):
+                            _animator()(out.staging)
+                except AfterRunError as exc:
+                    failed = exc  # the run is finished and written: keep it
+                except OSError as exc:
+                    raise UsageError(f"{args.out}: cannot write the run ({exc.strerror})") from None
+            written = sorted(p.name for p in out.staging.iterdir())
             out.publish()
             if not (args.json or args.quiet):
-                extra = " and animation.gif" if args.animate else ""
-                print(f"wrote {len(written)} files{extra} to {args.out}", file=sys.stderr)
+                extra = " and animation.gif" if "animation.gif" in written else ""
+                files = len(written) - bool(extra)
+                print(f"wrote {files} files{extra} to {args.out}", file=sys.stderr)
     if args.out is None and not args.quiet:
         print("kilonet: no --out DIR given, so nothing was written", file=sys.stderr)
     if args.json:
         print(json.dumps(json_safe(result.summary), indent=2))
     else:
         _print_summary(result.summary)
+    if failed is not None:
+        sys.stdout.flush()  # the summary first, then the one line of the failure
+        cause = failed.__cause__
+        if not isinstance(cause, OSError | UserError):
+            raise cause  # a bug in the step: its traceback (the run is kept)
+        raise AfterRunError(f"{args.out}: {failed}")
     return 0
 
 
