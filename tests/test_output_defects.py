@@ -100,6 +100,41 @@ def test_a_run_whose_animation_fills_the_disk_is_kept(tmp_path, capsys, monkeypa
     assert no_staging(tmp_path)
 
 
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 128 KiB tmpfs: room for a short run's tables, not for its animation (needs root)."""
+    import os
+    import subprocess
+
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small file system needs root")
+    mounted = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=128k", "tmpfs", str(disk)], capture_output=True
+    )
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.decode().strip()}")
+    try:
+        yield disk
+    finally:
+        subprocess.run(["umount", str(disk)], check=True)
+
+
+@pytest.mark.slow
+def test_a_run_whose_animation_fills_a_real_disk_is_kept(small_disk, capsys):
+    out = small_disk / "r"
+    argv = ["run", "gradient", "--robots", "6", "--duration", "30", "--quiet", "--animate"]
+    assert main([*argv, "--out", str(out)]) == 2
+    assert capsys.readouterr().err == (
+        f"kilonet: error: {out}: animation.gif not written (No space left on device); "
+        "the run itself is written\n"
+    )
+    assert pd.read_csv(out / "robots.csv").robot.tolist() == list(range(6))
+    assert sorted(p.name for p in small_disk.iterdir()) == ["r"]
+    assert not (out / "animation.gif").exists()
+
+
 def test_a_run_whose_figures_fail_is_kept(tmp_path, capsys, monkeypatch):
     from matplotlib.figure import Figure
 
