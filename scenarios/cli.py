@@ -15,7 +15,9 @@ Everything the user can get wrong is checked before the simulation starts: the s
 parameter (a run file's bad key is reported with the file and line), the placement, the
 program file, and the output directory (``--out`` must not exist unless ``--replace``; its
 parent must be a writable directory). A run without ``--out`` says in one line that it writes
-nothing (said after the run, so that an error stays the only line).
+nothing (said after the run, so that an error stays the only line). A finished run is never
+discarded by a failure after it (the scenario's figures, ``--animate``): it is written, its
+summary printed, and the failure is one line with exit status 2.
 """
 
 from __future__ import annotations
