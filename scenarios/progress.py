@@ -139,6 +139,7 @@ class RunProgress:
             self._lines.close()
             self._lines = None
         if self._bar is not None:
+            self._bar.set_description_str(self.name, refresh=False)  # not a last stage's name
             self._bar.close()
 
     def __enter__(self) -> RunProgress:
@@ -240,9 +241,14 @@ class StageProgress:
                 from tqdm import tqdm
 
                 self._bar = tqdm(
-                    total=None, file=sys.stderr, bar_format="{desc} [{elapsed}]", leave=False
+                    total=None,
+                    file=sys.stderr,
+                    bar_format="{desc} [{elapsed}]",
+                    desc=f"{self.name}: {what}",
+                    leave=False,
                 )
-            self._bar.set_description_str(f"{self.name}: {what}")
+            else:
+                self._bar.set_description_str(f"{self.name}: {what}")
 
     def close(self) -> None:
         """End the display: the bar is erased; ``lines`` says how long the work took."""

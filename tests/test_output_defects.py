@@ -64,6 +64,28 @@ def test_scoring_and_writing_show_as_lines_after_the_run(tmp_path, capsys):
     assert err[-1] == f"wrote 11 files to {tmp_path / 'r'}"
 
 
+def test_on_a_terminal_the_stages_after_the_run_show_and_are_erased(tmp_path, monkeypatch):
+    import io
+    import sys
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    monkeypatch.setattr(sys, "stdout", io.StringIO())
+    assert main([*GRADIENT, "--out", str(tmp_path / "r")]) == 0
+    shown = terminal.getvalue()
+    run_bar, after = shown.split("\n", 1)
+    assert "\rgradient: scoring  100% |" in run_bar  # scoring shows on the bar
+    assert run_bar.split("\r")[-1].startswith("gradient  100% |##########| 3.0/3.0 sim s")
+    drawn = after.split("\r")
+    assert drawn[1].startswith("gradient: writing tables [")
+    assert drawn[2].startswith("gradient: writing the gradient scenario's figures [")
+    assert drawn[-2].strip() == "" and drawn[-1] == f"wrote 11 files to {tmp_path / 'r'}\n"
+
+
 @pytest.mark.parametrize("flags", [["--quiet", "--progress", "lines"], []])
 def test_no_progress_after_the_run_when_quiet_or_into_a_file(tmp_path, capsys, flags):
     assert main([*GRADIENT, *flags, "--out", str(tmp_path / "r")]) == 0
