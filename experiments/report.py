@@ -11,7 +11,8 @@ From the shell: ``kilonet report runs/loss --out loss.html`` (one self-contained
 figures embedded as PNG) or ``--out loss.md`` (figures as PNG files in ``loss_files/``).
 
 Aggregation is over the seeds of each cell, successful runs only: the mean, the sample standard
-deviation and a Student-t confidence interval of the mean (default 95 %).
+deviation and a Student-t confidence interval of the mean (default 95 %), cut to the values a
+run can have: [0, 1] for a fraction, 0 and up for a time.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ __all__ = [
     "aggregate",
     "failures",
     "is_fraction",
+    "is_time",
     "load",
     "metrics_of",
     "plot",
@@ -131,7 +133,7 @@ def aggregate(
     DataFrame
         One row per cell and metric: the ``by`` columns, ``metric``, ``runs`` (values that
         entered), ``mean``, ``std``, ``ci_low``, ``ci_high`` (NaN for a single run; for a
-        fraction, :func:`is_fraction`, cut to [0, 1]).
+        fraction, :func:`is_fraction`, cut to [0, 1]; for a time, :func:`is_time`, cut at 0).
 
     Examples
     --------
@@ -152,7 +154,9 @@ def aggregate(
             values = pd.to_numeric(group[metric], errors="coerce").dropna().to_numpy(float)
             row = _stats(values, confidence)
             if is_fraction(metric):
-                row["ci_low"], row["ci_high"] = _clipped(row["ci_low"], row["ci_high"])
+                row["ci_low"], row["ci_high"] = _clipped(row["ci_low"], row["ci_high"], 0.0, 1.0)
+            elif is_time(metric):
+                row["ci_low"], row["ci_high"] = _clipped(row["ci_low"], row["ci_high"], 0.0)
             rows.append(dict(zip(by, key, strict=True)) | {"metric": metric, **row})
     return pd.DataFrame(rows, columns=columns)
 
@@ -167,12 +171,26 @@ def is_fraction(metric: str) -> bool:
     return metric.endswith(("fraction", "_share"))
 
 
-def _clipped(low: float, high: float) -> tuple[float, float]:
-    """A fraction's interval cut to [0, 1]: a Student-t interval of values near 0 or 1 reaches
-    past them, where no run can be."""
+def is_time(metric: str) -> bool:
+    """Whether ``metric`` is a time in seconds by its name (``done_s``, ``last_change_s``):
+    never negative. A rate (``..._deg_s``, ``..._mm_s``, ``..._per_s``) is not one.
+
+    >>> is_time("done_s"), is_time("follower_turn_deg_s"), is_time("rmse_mm")
+    (True, False, False)
+    """
+    return metric.endswith("_s") and not metric.endswith(("_deg_s", "_mm_s", "_per_s"))
+
+
+def _clipped(
+    low: float, high: float, lowest: float, highest: float = math.inf
+) -> tuple[float, float]:
+    """An interval cut to the values a run can have, ``[lowest, highest]``. The Student-t
+    interval is symmetric about the mean, so for a few seeds' values near a bound (a fraction
+    near 0 or 1, a time near 0 with a long tail) it reaches past the bound, where no run can
+    be; the cut band says what the runs allow and is no longer symmetric."""
     if math.isnan(low):
         return low, high
-    return max(low, 0.0), min(high, 1.0)
+    return max(low, lowest), min(high, highest)
 
 
 def _stats(values: np.ndarray, confidence: float) -> dict[str, float]:
@@ -364,7 +382,13 @@ class _Page:
             )
         runs = f"{total} in {len(s.cells())} cells: {ok} ok, {failed} failed"
         facts.append(("runs", runs + (f", {missing} not run yet" if missing else "")))
-        facts.append(("aggregation", f"over seeds; band and CI: {self.confidence:.0%} Student t"))
+        facts.append(
+            (
+                "aggregation",
+                f"over seeds; band and CI: {self.confidence:.0%} Student t, cut to [0, 1] "
+                "for fractions and at 0 for times",
+            )
+        )
         return facts
 
     def html(self) -> str:

@@ -532,10 +532,14 @@ def _check_ranges(section: Any, prefix: str) -> None:
         if isinstance(value, float) and not math.isfinite(value):
             raise ParamError(f"{prefix}{f.name} = {value} is not a finite number")
         if (lo is not None and value < lo) or (hi is not None and value > hi):
-            raise ParamError(
-                f"{prefix}{f.name} = {value} is out of range [{lo if lo is not None else '-inf'}, "
-                f"{hi if hi is not None else 'inf'}]"
-            )
+            # Only finite numbers are taken (above), so an open side is no bound of "inf".
+            if lo is not None and hi is not None:
+                allowed = f"out of range [{lo}, {hi}]"
+            elif lo is not None:
+                allowed = f"out of range: give a finite number >= {lo}"
+            else:
+                allowed = f"out of range: give a finite number <= {hi}"
+            raise ParamError(f"{prefix}{f.name} = {value} is {allowed}")
 
 
 def _optional(tp: Any) -> Any:

@@ -64,7 +64,7 @@ def validate_positions(
     diameter_mm: float = ROBOT_DIAMETER_MM,
     source: str = "placement",
     row_offset: int | None = None,
-    min_robots: int = 2,
+    min_robots: int = 1,
 ) -> np.ndarray:
     """Check a placement and return it as a new float64 (N, 2) array of centres in mm.
 
@@ -80,8 +80,8 @@ def validate_positions(
         If given, robot ``i`` is reported as ``line i + row_offset`` (2 for a file whose
         header is line 1); otherwise as ``robot i (0-based index)``.
     min_robots : int
-        Fewest robots accepted: 2 for a swarm a user hands in; a :class:`~kilonet.Simulation`
-        also runs a robot alone (1).
+        Fewest robots accepted (a :class:`~kilonet.Simulation` runs a robot alone, and so does
+        ``kilonet run --placement``).
 
     Returns
     -------
@@ -674,7 +674,7 @@ def save_csv(positions, path: str | os.PathLike) -> None:
 
 
 def _check(
-    positions, diameter_mm: float, source: str, lines: Sequence[int] | None, min_robots: int = 2
+    positions, diameter_mm: float, source: str, lines: Sequence[int] | None, min_robots: int = 1
 ):
     """Validate positions; robot i is called ``line lines[i]``, or by index if `lines` is None."""
     if not (math.isfinite(diameter_mm) and diameter_mm > 0):

@@ -19,14 +19,17 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS
 
 from kilonet import scenarios
 
-__all__ = ["predict", "register"]
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = ["predict", "prediction_figure", "register"]
 
 
 def predict(
@@ -52,30 +55,48 @@ def predict(
     return predict_from_seeds(estimates, sim.params, seeds)
 
 
-def _figure(pos: np.ndarray, report: dict[str, Any], path: Path) -> None:
-    import matplotlib
+def prediction_figure(pos: np.ndarray, report: dict[str, Any]) -> Figure:
+    """The prediction drawn: each robot (``pos``, mm) filled with the colour of the global
+    frame it will report (grey: none), seeds as squares, and rings around the robots on a
+    frame boundary and the other failure cases ``report`` (:func:`predict`) lists."""
+    from matplotlib import colormaps
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 6))
-    ax.scatter(pos[:, 0], pos[:, 1], s=40, c="0.75", label="robots")
-    ax.scatter(*pos[report["seeds"]].T, s=40, c="tab:blue", label="seeds")
-    for key, color, label in (
-        ("unlocalizable", "tab:red", "cannot localize"),
-        ("isolated_seeds", "tab:orange", "isolated seed"),
-        ("articulation_points", "k", "articulation point"),
+    fig = Figure(figsize=(6, 6), layout="tight")
+    ax = fig.add_subplot()
+    final = report["final_frame"]
+    unplaced = [i for i in range(len(pos)) if final.get(i) is None]
+    if unplaced:
+        ax.scatter(*pos[unplaced].T, s=40, c="0.75", label="in no frame")
+    palette = colormaps["tab10"].colors
+    seeds = set(report["seeds"])
+    for k in range(len(report["frames"])):
+        members = [i for i in range(len(pos)) if final.get(i) == k]
+        if not members:
+            continue  # a component no robot reports (merged into another)
+        colour = palette[k % len(palette)]
+        plain = [i for i in members if i not in seeds]
+        ax.scatter(*pos[plain].reshape(-1, 2).T, s=40, color=colour, label=f"frame {k + 1}")
+        own = [i for i in members if i in seeds]
+        ax.scatter(*pos[own].reshape(-1, 2).T, s=60, color=colour, marker="s", edgecolors="k")
+    if seeds:
+        ax.scatter([], [], s=60, marker="s", facecolors="none", edgecolors="k", label="seeds")
+    for key, color, size, label in (
+        ("boundary", "tab:purple", 150, "on a frame boundary"),
+        ("unlocalizable", "tab:red", 90, "cannot localize"),
+        ("isolated_seeds", "tab:orange", 90, "isolated seed"),
+        ("articulation_points", "k", 90, "articulation point"),
     ):
         if report[key]:
-            ax.scatter(*pos[report[key]].T, s=90, facecolors="none", edgecolors=color, label=label)
+            ax.scatter(
+                *pos[report[key]].T, s=size, facecolors="none", edgecolors=color, label=label
+            )
     ax.set_aspect("equal")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
-    ax.set_title(f"predicted global frames: {len(report['frames'])}")
+    ax.set_title(f"predicted global frames: {report['final_frames']}")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    return fig
 
 
 def _cmd(args: argparse.Namespace) -> int:
@@ -140,7 +161,7 @@ def _write_figure(pos: np.ndarray, report: dict[str, Any], path: Path) -> None:
 
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.png")
     try:
-        _figure(pos, report, tmp)
+        prediction_figure(pos, report).savefig(tmp, dpi=100)
         tmp.replace(path)
     except OSError as exc:
         raise UsageError(f"{path}: cannot write the figure ({exc.strerror})") from None

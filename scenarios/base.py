@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Mapping
+import shutil
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -27,13 +29,17 @@ from kilonet.placement import PlacementError, generate_from, load_csv, read_plac
 from kilonet.robot import Kilobot
 
 if TYPE_CHECKING:
+    import pandas as pd
+
     from kilonet.simulation import Simulation
 
 __all__ = [
+    "AfterRunError",
     "RunResult",
     "Scenario",
     "ScenarioError",
     "ScenarioOption",
+    "after_the_run",
     "build_params",
     "json_safe",
     "place",
@@ -46,6 +52,50 @@ __all__ = [
 
 class ScenarioError(UserError, ValueError):
     """A scenario name, file or option is unusable; the message says which and why."""
+
+
+class AfterRunError(UserError):
+    """A step after a finished run (the scenario's figures, the animation) failed; the run's
+    tables and summary are written all the same. The message says which step and why."""
+
+
+@contextmanager
+def after_the_run(directory: str | Path, what: str) -> Iterator[None]:
+    """A step after a finished run that must not cost the run: if the block fails, what it
+    left in ``directory`` is removed and :class:`AfterRunError` raised, so that the caller
+    can keep the run and report the failure in one line.
+
+    Parameters
+    ----------
+    directory : path
+        The run directory the step writes into.
+    what : str
+        The step's output in words, first in the message (``"animation.gif"``).
+
+    Raises
+    ------
+    AfterRunError
+        If the block raised: for an ``OSError`` (a full or read-only disk) the system's reason,
+        for a :class:`~kilonet.errors.UserError` its message, for anything else (a bug, chained
+        as the cause) the exception's type and message.
+    """
+    directory = Path(directory)
+    before = set(directory.iterdir())
+    try:
+        yield
+    except Exception as exc:
+        for left in set(directory.iterdir()) - before:
+            if left.is_dir() and not left.is_symlink():
+                shutil.rmtree(left, ignore_errors=True)
+            else:
+                left.unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            why = exc.strerror or str(exc)
+        elif isinstance(exc, UserError):
+            why = str(exc)
+        else:
+            why = f"{type(exc).__name__}: {exc}"
+        raise AfterRunError(f"{what} not written ({why}); the run itself is written") from exc
 
 
 @dataclass(frozen=True)
@@ -91,7 +141,7 @@ class Scenario:
         ``outputs(result, out_dir)`` writes scenario files (figures, extra tables).
     robot_columns : callable, optional
         ``robot_columns(sim) -> DataFrame`` with a ``robot`` column: scenario columns joined
-        to the robots table.
+        to the robots table (one named like a kernel column, ``uid``, replaces it).
     options : tuple of ScenarioOption
         Options of ``kilonet run`` that set this scenario's parameters (``--until``).
     expected_end_s : callable, optional
@@ -208,6 +258,8 @@ def place(
         if p.kind == "scenario" and scenario.placement is not None:
             return scenario.placement(params, n, rng)
         return generate_from(p, "hex" if p.kind == "scenario" else p.kind, n, rng)
+    except ParamError:
+        raise  # already names the parameters
     except ValueError as exc:  # a generator refusing its parameters is the user's to fix
         raise ParamError(f"placement ({p.kind}, {n} robots): {exc}") from None
 
@@ -303,9 +355,10 @@ def run(
         sim.start()  # every robot's setup(), also for a run of zero seconds
         bar.stage("running")
         _run(sim, scenario, params.duration_s, bar)
-    summary = {"scenario": scenario.name, **sim.summary()}
-    if scenario.metrics is not None:
-        summary.update(scenario.metrics(sim))
+        bar.stage("scoring")  # the summary and the scenario's metrics take long for a big swarm
+        summary = {"scenario": scenario.name, **sim.summary()}
+        if scenario.metrics is not None:
+            summary.update(scenario.metrics(sim))
     return RunResult(scenario, params, sim, summary)
 
 
@@ -347,23 +400,43 @@ def json_safe(value: Any) -> Any:
     return value
 
 
-def write_run_files(result: RunResult, directory: str | Path, *, fmt: str = "csv") -> list[Path]:
+def write_run_files(
+    result: RunResult,
+    directory: str | Path,
+    *,
+    fmt: str = "csv",
+    stage: Callable[[str], None] | None = None,
+) -> list[Path]:
     """Write a run's files into ``directory`` (which exists): tables (CSV or Parquet),
-    ``summary.json``, ``params.json`` and the scenario's own files. Returns the paths written.
+    ``summary.json``, ``params.json``, then the scenario's own files (figures). Returns the
+    paths written.
+
+    Parameters
+    ----------
+    stage : callable, optional
+        Called with each step's name (``"writing tables"``) before it starts, for a progress
+        display (:class:`kilonet.scenarios.progress.StageProgress`).
 
     Raises
     ------
     ScenarioError
         If ``fmt`` is not ``csv`` or ``parquet``.
+    OSError
+        If a table or the summary cannot be written.
+    AfterRunError
+        If the scenario's own files cannot be written (:func:`after_the_run`: those it left
+        are removed); the tables and the summary are written.
     """
     if fmt not in ("csv", "parquet"):
         raise ScenarioError(f"--format must be csv or parquet, not {fmt!r}")
+    stage = stage or (lambda _what: None)
     out = Path(directory)
     sim = result.sim
+    stage("writing tables")
     robots = sim.robots_frame()
     robots.insert(1, "uid", _final_uids(sim))
     if result.scenario.robot_columns is not None:
-        robots = robots.merge(result.scenario.robot_columns(sim), on="robot", how="left")
+        robots = _with_scenario_columns(robots, result.scenario.robot_columns(sim))
     traces = sim.trace.frames()
     if not result.params.trace.messages:
         del traces["messages"]  # recorded only with trace.messages: an empty table misleads
@@ -377,8 +450,25 @@ def write_run_files(result: RunResult, directory: str | Path, *, fmt: str = "csv
     flat = result.params.to_flat_dict()
     (out / "params.json").write_text(json.dumps(flat, indent=2, default=str) + "\n")
     if result.scenario.outputs is not None:
-        result.scenario.outputs(result, out)
+        stage(f"writing the {result.scenario.name} scenario's figures")
+        with after_the_run(out, f"the {result.scenario.name} scenario's figures"):
+            result.scenario.outputs(result, out)
     return sorted(out.iterdir())
+
+
+def _with_scenario_columns(robots: pd.DataFrame, extra: pd.DataFrame) -> pd.DataFrame:
+    """The robots table with a scenario's columns (``robot_columns``) joined on ``robot``.
+
+    A scenario column named like a kernel column takes that column's place instead of
+    beside it (a merge would give ``uid_x`` and ``uid_y``): gcs and localize robots have no
+    ``kilo_uid`` (``robot.hardware_uids = false``) and their ``uid`` is the ID each robot
+    chose for itself.
+    """
+    shared = [c for c in extra.columns if c != "robot" and c in robots.columns]
+    joined = robots.merge(extra, on="robot", how="left", suffixes=("", "_scenario"))
+    for column in shared:
+        joined[column] = joined.pop(f"{column}_scenario")
+    return joined
 
 
 def _final_uids(sim: Simulation) -> list[int | None]:
@@ -406,6 +496,9 @@ def write_outputs(
     ------
     ScenarioError
         If ``fmt`` is not ``csv`` or ``parquet``.
+    AfterRunError
+        If the scenario's own files (figures) cannot be written: the run directory is put in
+        place without them first.
     kilonet.scenarios.output_dir.OutputDirError
         If ``out_dir`` exists and is not empty (without ``replace``), is not a directory, or
         cannot be created or written.
@@ -413,6 +506,10 @@ def write_outputs(
     if fmt not in ("csv", "parquet"):
         raise ScenarioError(f"--format must be csv or parquet, not {fmt!r}")
     with OutputDir(out_dir, replace=replace) as out:
-        names = [p.name for p in write_run_files(result, out.staging, fmt=fmt)]
+        try:
+            names = [p.name for p in write_run_files(result, out.staging, fmt=fmt)]
+        except AfterRunError:
+            out.publish()  # a finished run is kept when its figures fail
+            raise
         target = out.publish()
     return [target / name for name in names]

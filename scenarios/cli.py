@@ -15,12 +15,15 @@ Everything the user can get wrong is checked before the simulation starts: the s
 parameter (a run file's bad key is reported with the file and line), the placement, the
 program file, and the output directory (``--out`` must not exist unless ``--replace``; its
 parent must be a writable directory). A run without ``--out`` says in one line that it writes
-nothing (said after the run, so that an error stays the only line).
+nothing (said after the run, so that an error stays the only line). A finished run is never
+discarded by a failure after it (the scenario's figures, ``--animate``): it is written, its
+summary printed, and the failure is one line with exit status 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import enum
 import json
 import re
 import sys
@@ -36,6 +39,7 @@ from kilonet.scenarios.progress import MODES
 
 from kilonet import scenarios
 from kilonet.cli import UsageError
+from kilonet.errors import UserError
 from kilonet.params import ParamError, Params, describe
 from kilonet.watchdog import BUSY_CALL_S
 
@@ -352,8 +356,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run_command(args: argparse.Namespace) -> int:
-    from kilonet.scenarios.base import write_run_files
+    from kilonet.scenarios.base import AfterRunError, after_the_run, write_run_files
     from kilonet.scenarios.output_dir import OutputDir
+    from kilonet.scenarios.progress import StageProgress
 
     scenario, file_overrides, run_file = _resolve(args)
     if run_file is not None:
@@ -364,7 +369,7 @@ def _run_command(args: argparse.Namespace) -> int:
     overrides = {**file_overrides, **given, **_scenario_options(args, scenario)}
     if args.robots is not None:
         if args.robots < 1:
-            raise UsageError(f"--robots {args.robots}: give the number of robots (at least 2)")
+            raise UsageError(f"--robots {args.robots}: give the number of robots (at least 1)")
         overrides["placement.robots"] = args.robots
     if args.duration is not None:
         overrides["duration_s"] = args.duration
@@ -376,32 +381,43 @@ def _run_command(args: argparse.Namespace) -> int:
     params = build_params(scenario, overrides, seed=args.seed)  # every value, before the run
     if args.program is not None and args.placement is None and not params.placement.robots:
         raise UsageError("--program needs --placement F.csv or --robots N (a hex lattice)")
+    progress = "none" if args.json or args.quiet else args.progress
     reserved = OutputDir(args.out, replace=args.replace) if args.out is not None else None
+    failed: AfterRunError | None = None  # a step after the run, reported after its summary
     with reserved or nullcontext() as out:
         result = _guarded(args)(
-            scenario,
-            overrides,
-            seed=args.seed,
-            placement=args.placement,
-            progress="none" if args.json or args.quiet else args.progress,
+            scenario, overrides, seed=args.seed, placement=args.placement, progress=progress
         )
         if args.out is not None:
-            try:
-                written = write_run_files(result, out.staging, fmt=args.format)
-            except OSError as exc:
-                raise UsageError(f"{args.out}: cannot write the run ({exc.strerror})") from None
-            if args.animate:
-                _animator()(out.staging)
+            with StageProgress(scenario.name, enabled=progress) as display:
+                try:
+                    write_run_files(result, out.staging, fmt=args.format, stage=display.stage)
+                    if args.animate:
+                        display.stage("drawing animation.gif")
+                        with after_the_run(out.staging, "animation.gif"):
+                            _animator()(out.staging)
+                except AfterRunError as exc:
+                    failed = exc  # the run is finished and written: keep it
+                except OSError as exc:
+                    raise UsageError(f"{args.out}: cannot write the run ({exc.strerror})") from None
+            written = sorted(p.name for p in out.staging.iterdir())
             out.publish()
             if not (args.json or args.quiet):
-                extra = " and animation.gif" if args.animate else ""
-                print(f"wrote {len(written)} files{extra} to {args.out}", file=sys.stderr)
+                extra = " and animation.gif" if "animation.gif" in written else ""
+                files = len(written) - bool(extra)
+                print(f"wrote {files} files{extra} to {args.out}", file=sys.stderr)
     if args.out is None and not args.quiet:
         print("kilonet: no --out DIR given, so nothing was written", file=sys.stderr)
     if args.json:
         print(json.dumps(json_safe(result.summary), indent=2))
     else:
         _print_summary(result.summary)
+    if failed is not None:
+        sys.stdout.flush()  # the summary first, then the one line of the failure
+        cause = failed.__cause__
+        if not isinstance(cause, OSError | UserError):
+            raise cause  # a bug in the step: its traceback (the run is kept)
+        raise AfterRunError(f"{args.out}: {failed}")
     return 0
 
 
@@ -468,6 +484,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
     walk(summary, "")
     width = max(len(k) for k in flat)
     for key, value in flat.items():
+        value = _plain(value)
         if isinstance(value, float):
             shown = f"{value:.4g}"
         elif isinstance(value, list) and len(value) > 8:
@@ -475,6 +492,25 @@ def _print_summary(summary: dict[str, Any]) -> None:
         else:
             shown = value
         print(f"{key:<{width}}  {shown}")
+
+
+def _plain(value: Any) -> Any:
+    """``value`` with every enum member as its value, lists and tuples as lists: what
+    ``--json`` prints (``['ids', 'seeds']``, not ``[<GcsStage.IDS: 'ids'>, ...]``).
+
+    Examples
+    --------
+    >>> import enum
+    >>> class Stage(str, enum.Enum):
+    ...     IDS = "ids"
+    >>> _plain([Stage.IDS, (1, Stage.IDS)])
+    ['ids', [1, 'ids']]
+    """
+    if isinstance(value, enum.Enum):
+        return value.value
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
 
 
 # -- scenarios and params ------------------------------------------------------------------------

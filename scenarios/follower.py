@@ -244,6 +244,12 @@ def _generate(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
         )
     radius = ROBOT_DIAMETER_MM + f.clearance_mm
     r_max = f.start_max_mm or reach_mm
+    if f.start_min_mm > r_max:  # an empty start band (and numpy's "high - low < 0")
+        raise ParamError(
+            f"follower.start_min_mm = {f.start_min_mm:g} is beyond the farthest start, "
+            f"{r_max:g} mm from the goal (follower.start_max_mm = {f.start_max_mm:g}; 0: as far "
+            f"as it ranges, {_ranging_source(params)}); lower follower.start_min_mm"
+        )
     for _ in range(200):
         d12, d13, d23 = rng.uniform(f.side_min_mm, f.side_max_mm, 3)
         x3 = (d13**2 - d23**2 + d12**2) / (2 * d12)

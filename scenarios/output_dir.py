@@ -33,7 +33,15 @@ from pathlib import Path
 
 from kilonet.errors import UserError
 
-__all__ = ["LOCK_NAME", "DirectoryInUse", "OutputDir", "OutputDirError", "hold_lock", "lock_holder"]
+__all__ = [
+    "LOCK_NAME",
+    "DirectoryInUse",
+    "OutputDir",
+    "OutputDirError",
+    "hold_lock",
+    "lock_holder",
+    "why_not_written",
+]
 
 #: The lock file a running sweep holds (``flock``) in its directory.
 LOCK_NAME = ".sweep.lock"
@@ -119,6 +127,23 @@ def _note(fd: int) -> str:
     return os.pread(fd, 100, 0).decode(errors="replace").strip() or "another process"
 
 
+def why_not_written(exc: OSError, directory: str | os.PathLike) -> str:
+    """Why a file could not be made in ``directory``, in words for the user: the system's
+    reason, except where it misleads. A virtual file system (``/proc``, ``/sys``) answers
+    "No such file or directory" for a directory that plainly exists.
+
+    Examples
+    --------
+    >>> why_not_written(OSError(errno.ENOENT, "No such file or directory"), "/")
+    'the file system there takes no new files, e.g. /proc or /sys'
+    >>> why_not_written(OSError(errno.ENOSPC, "No space left on device"), "/")
+    'No space left on device'
+    """
+    if exc.errno == errno.ENOENT and Path(directory).is_dir():
+        return "the file system there takes no new files, e.g. /proc or /sys"
+    return exc.strerror or str(exc)
+
+
 class OutputDir:
     """The directory a run writes to, reserved before the run.
 
@@ -198,7 +223,10 @@ class OutputDir:
             self.staging.chmod(0o777 & ~_umask())
         except OSError as exc:
             self.discard()
-            raise OutputDirError(f"cannot write in {given.parent} ({exc.strerror})") from None
+            raise OutputDirError(
+                f"--out {given}: cannot write in {given.parent} "
+                f"({why_not_written(exc, target.parent)})"
+            ) from None
 
     def _make_parents(self, parent: Path) -> None:
         missing = []

@@ -139,9 +139,15 @@ def load_program(spec: str) -> tuple[Path, type[Kilobot]]:
             )
         if len(defined) > 1:
             names = ", ".join(c.__name__ for c in defined)
+            # Suggest a class no other one builds on: the one that combines the others
+            # (orbit.py's Orbit runs OrbitStar and OrbitPlanet), else the first.
+            leaves = [
+                c for c in defined if not any(d is not c and issubclass(d, c) for d in defined)
+            ]
+            suggested = leaves[0] if len(leaves) == 1 else defined[0]
             raise ProgramError(
                 f"{path}: defines several Kilobot subclasses ({names}); name one: "
-                f"--program {path}:{defined[0].__name__}"
+                f"--program {path}:{suggested.__name__}"
             )
         (cls,) = defined
     else:

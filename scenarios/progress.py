@@ -27,7 +27,7 @@ import time
 from types import TracebackType
 from typing import Any
 
-__all__ = ["MODES", "RunProgress", "resolve_mode"]
+__all__ = ["MODES", "RunProgress", "StageProgress", "resolve_mode"]
 
 #: The progress modes, as ``kilonet run --progress`` takes them.
 MODES = ("auto", "bar", "lines", "none")
@@ -139,6 +139,7 @@ class RunProgress:
             self._lines.close()
             self._lines = None
         if self._bar is not None:
+            self._bar.set_description_str(self.name, refresh=False)  # not a last stage's name
             self._bar.close()
 
     def __enter__(self) -> RunProgress:
@@ -209,3 +210,65 @@ class _Lines:
     def close(self) -> None:
         elapsed = time.monotonic() - self.start
         self.write(f"done at {self.now_s:g} sim s in {elapsed:.1f} s")
+
+
+class StageProgress:
+    """Progress of the work after a run (writing its tables, figures, the animation) on
+    stderr, by the rules of :class:`RunProgress`: ``bar`` shows the current stage on one line
+    redrawn in place and erased at the end (the summary follows); ``lines`` writes one line per
+    stage and one at the end; ``none`` writes nothing.
+
+    Parameters
+    ----------
+    name : str
+        The scenario, shown first.
+    enabled : bool or str
+        A mode of :data:`MODES` (``True``: ``bar``; ``False``: ``none``).
+    """
+
+    def __init__(self, name: str, *, enabled: bool | str = True) -> None:
+        self.name = name
+        self._mode = resolve_mode(enabled)
+        self._start = time.monotonic()
+        self._bar: Any = None
+
+    def stage(self, what: str) -> None:
+        """Show that the work is now ``what`` (``"writing tables"``)."""
+        if self._mode == "lines":
+            print(f"{self.name}: {what}", file=sys.stderr, flush=True)
+        elif self._mode == "bar":
+            if self._bar is None:
+                from tqdm import tqdm
+
+                self._bar = tqdm(
+                    total=None,
+                    file=sys.stderr,
+                    bar_format="{desc} [{elapsed}]",
+                    desc=f"{self.name}: {what}",
+                    leave=False,
+                )
+            else:
+                self._bar.set_description_str(f"{self.name}: {what}")
+
+    def close(self) -> None:
+        """End the display: the bar is erased; ``lines`` says how long the work took."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+        if self._mode == "lines":
+            elapsed = time.monotonic() - self._start
+            print(f"{self.name}: written in {elapsed:.1f} s", file=sys.stderr, flush=True)
+            self._mode = "none"
+
+    def __enter__(self) -> StageProgress:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc_type is not None and self._mode == "lines":
+            self._mode = "none"  # no "written" line for work that failed
+        self.close()

@@ -90,8 +90,9 @@ def test_progress_lines_are_whole_lines(capsys):
         "gradient: starting",
         "gradient: running to 10 sim s",
     ]
-    shares = [line.split()[1] for line in lines[4:-2]]
+    shares = [line.split()[1] for line in lines[4:-3]]
     assert shares == [f"{p}%" for p in range(10, 101, 10)]
+    assert lines[-3] == "gradient: scoring"
     assert lines[-2].startswith("gradient: done at 10 sim s in ")
     assert max(len(line) for line in lines) < 80
 

@@ -215,8 +215,7 @@ def test_validate_returns_float_copy():
     [
         ([[0.0, 0.0], [40.0, 0.0], [3.0, 4.0]], "robots 0 and 2 (0-based index) are 5.0 mm apart"),
         ([[0.0, 0.0], [0.0, math.inf]], "robot 1 (0-based index) position (0.0, inf) is not fin"),
-        ([[0.0, 0.0]], "1 robot, at least 2 are needed"),
-        ([], "0 robots, at least 2 are needed"),
+        ([], "0 robots, at least 1 is needed"),
         ([[0.0, 0.0, 0.0], [40.0, 0.0, 0.0]], "must have shape (N, 2), got (2, 3)"),
     ],
 )
@@ -341,10 +340,7 @@ GOOD = ["0,0", "40,0", "80,0", "120,0", "160,0", "200,0"]
             id="several-bad-values",
         ),
         pytest.param(
-            "x_mm,y_mm\n0,0\n", ["placement.csv: 1 robot, at least 2 are needed"], id="one-robot"
-        ),
-        pytest.param(
-            "x_mm,y_mm\n", ["placement.csv: 0 robots, at least 2 are needed"], id="header-only"
+            "x_mm,y_mm\n", ["placement.csv: 0 robots, at least 1 is needed"], id="header-only"
         ),
         pytest.param(
             "\n".join(["x_mm,y_mm", *GOOD[:1], "300,0", *GOOD[1:4], "3,0"]) + "\n",

@@ -50,6 +50,7 @@ from kilonet.viz.run_data import (
     Replay,
     RunData,
     aligned_estimates,
+    frame_count,
     frame_times,
     level_to_rgb,
     load_run,
@@ -59,6 +60,7 @@ from matplotlib.animation import FFMpegWriter
 
 __all__ = [
     "FORMATS",
+    "GIF_FPS",
     "MAX_FRAMES",
     "OVERLAYS",
     "AnimationError",
@@ -67,6 +69,7 @@ __all__ = [
     "RunData",
     "aligned_estimates",
     "animate_run",
+    "frame_count",
     "frame_times",
     "level_to_rgb",
     "load_run",
@@ -75,6 +78,10 @@ __all__ = [
     "replay_data",
 ]
 
+
+#: The frame rates a GIF can hold (frames per second): a frame's delay is a whole number of
+#: hundredths of a second in 16 bits, 0.01 s to 655.35 s.
+GIF_FPS = (1 / 655.35, 100.0)
 
 # ---------------------------------------------------------------------------- entry point
 
@@ -161,7 +168,10 @@ def animate_run(
     ------
     AnimationError
         For an unusable run directory, an unknown suffix or overlay, an overlay whose data the
-        run lacks, a bad number, more than :data:`MAX_FRAMES` frames, or MP4 without ffmpeg.
+        run lacks, a bad number, a frame rate a GIF cannot hold (:data:`GIF_FPS`), more than
+        :data:`MAX_FRAMES` frames, or MP4 without ffmpeg.
+    OSError
+        If the file cannot be written (a read-only or full disk); nothing is left behind.
     """
     out_dir = Path(out_dir)
     target = Path(out_file) if out_file is not None else out_dir / "animation.gif"
@@ -174,6 +184,11 @@ def animate_run(
             "write a .gif or .html instead"
         )
     _check_positive("--fps", fps)
+    if suffix == ".gif" and not GIF_FPS[0] <= fps <= GIF_FPS[1]:
+        raise AnimationError(
+            f"--fps {fps:g}: a GIF plays {GIF_FPS[0]:.4f} to {GIF_FPS[1]:g} frames per second "
+            "(a frame lasts 0.01 s to 655.35 s); write a .mp4 or .html for another rate"
+        )
     if speed is not None:
         _check_positive("--speed", speed)
     if window_s is not None:
@@ -189,17 +204,18 @@ def animate_run(
             f"end {end:g} s (the run lasted {duration:g} s)"
         )
     speed = speed if speed is not None else max(1.0, (end - start_s) / 20.0)
+    frames = frame_count(start_s, end, fps, speed)  # before anything is drawn or allocated
+    if frames > MAX_FRAMES:
+        raise AnimationError(
+            f"{frames:,} frames ({end - start_s:g} s at speed {speed:g}, {fps:g} fps) is more "
+            f"than {MAX_FRAMES:,}; raise --speed or lower --fps"
+        )
     frame_s = speed / fps
     tx_period = float(run.params.get("robot.tx_period_s", 0.2))
     window = window_s if window_s is not None else min(frame_s, tx_period)
     replay = Replay(run, window_s=window, align_estimates=align_estimates)
     chosen = _choose_overlays(run, replay, overlays)
     times = frame_times(start_s, end, fps, speed)
-    if len(times) > MAX_FRAMES:
-        raise AnimationError(
-            f"{len(times)} frames ({end - start_s:g} s at speed {speed:g}, {fps:g} fps) is more "
-            f"than {MAX_FRAMES}; raise --speed or lower --fps"
-        )
     title = str(run.summary.get("scenario", ""))
     if suffix == ".html":
         data = replay_data(replay, chosen, title=title, edge_times_s=times, speed=speed)

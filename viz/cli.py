@@ -72,6 +72,7 @@ class _OverlayNames:
 
 
 def _cmd_animate(args: argparse.Namespace) -> int:
+    from kilonet.scenarios.output_dir import why_not_written
     from kilonet.viz.animation import AnimationError, animate_run
 
     try:
@@ -89,6 +90,10 @@ def _cmd_animate(args: argparse.Namespace) -> int:
         )
     except AnimationError as exc:
         raise UsageError(str(exc)) from None
+    except OSError as exc:  # a read-only or full disk: the partial file is already removed
+        target = Path(args.out) if args.out is not None else Path(args.run_dir) / "animation.gif"
+        why = why_not_written(exc, target.parent)
+        raise UsageError(f"{target}: cannot write the animation ({why})") from None
     print(f"wrote {written} ({written.stat().st_size / 1024:,.0f} kB)", file=sys.stderr)
     return 0
 

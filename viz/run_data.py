@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -92,9 +93,22 @@ def frame_times(start_s: float, end_s: float, fps: float, speed: float) -> np.nd
     >>> len(frame_times(0.0, 600.0, fps=10, speed=30.0))
     201
     """
+    return start_s + np.arange(frame_count(start_s, end_s, fps, speed)) * (speed / fps)
+
+
+def frame_count(start_s: float, end_s: float, fps: float, speed: float) -> int:
+    """How many frames :func:`frame_times` gives, counted without making them, so that a
+    video too long to draw is refused before memory for its frames is asked for
+    (``--fps 1e9`` would be tens of GiB). ``sys.maxsize`` when the count does not fit.
+
+    Examples
+    --------
+    >>> frame_count(0.0, 600.0, fps=10, speed=30.0), frame_count(0.0, 30.0, fps=1e9, speed=1.0)
+    (201, 30000000001)
+    """
     step = speed / fps
-    n = math.floor((end_s - start_s) / step + 1e-9) + 1
-    return start_s + np.arange(n) * step
+    span = (end_s - start_s) / step if step > 0 else math.inf
+    return math.floor(span + 1e-9) + 1 if span < sys.maxsize else sys.maxsize
 
 
 # ------------------------------------------------------------------------------ run data
