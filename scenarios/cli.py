@@ -37,7 +37,7 @@ from kilonet.scenarios.progress import MODES
 from kilonet import scenarios
 from kilonet.cli import UsageError
 from kilonet.params import ParamError, Params, describe
-from kilonet.watchdog import BUSY_CALL_S
+from kilonet.watchdog import BUSY_CALL_S, check_watchdog_s
 
 __all__ = ["register_params", "register_run", "register_scenarios", "run_file_overrides"]
 
@@ -374,6 +374,7 @@ def _run_command(args: argparse.Namespace) -> int:
         raise UsageError("--replace needs --out DIR: it replaces that directory")
     _check_placement(args)
     params = build_params(scenario, overrides, seed=args.seed)  # every value, before the run
+    check_watchdog_s(args.watchdog, "--watchdog")
     if args.program is not None and args.placement is None and not params.placement.robots:
         raise UsageError("--program needs --placement F.csv or --robots N (a hex lattice)")
     reserved = OutputDir(args.out, replace=args.replace) if args.out is not None else None

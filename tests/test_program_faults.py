@@ -341,6 +341,23 @@ def test_a_program_mistake_is_one_line_naming_the_file_and_line(tmp_path, capsys
     assert says in err, err
 
 
+@pytest.mark.parametrize(
+    ("value", "says"),
+    [
+        ("inf", "--watchdog inf"),
+        ("1e10", "--watchdog 1e+10"),
+        ("nan", "--watchdog nan"),
+        ("-1", "--watchdog -1"),
+    ],
+)
+def test_a_watchdog_that_cannot_be_set_is_refused(tmp_path, capsys, value, says):
+    path, _ = write(tmp_path, "class Fine(Kilobot):\n    pass  # <-\n")
+    err = refused_line(
+        tmp_path, capsys, "--program", str(path), "--robots", "1", "--watchdog", value
+    )
+    assert err.startswith(f"kilonet: error: {says}: "), err
+
+
 def test_a_program_left_running_a_thread_does_not_keep_kilonet_waiting(tmp_path):
     path, line = write(
         tmp_path,
