@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from importlib.metadata import EntryPoint, entry_points
 
 from kilonet import __version__
-from kilonet.errors import UserError
+from kilonet.errors import UserError, one_line
 
 __all__ = ["COMMANDS", "UsageError", "main"]
 
@@ -92,7 +92,7 @@ def _main(argv: Sequence[str] | None) -> int:
     try:
         return args.func(args)
     except UserError as exc:
-        print(f"kilonet: error: {exc}", file=sys.stderr)
+        print(f"kilonet: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         where = f" {exc}" if str(exc) else ""  # the robot and callback it stopped, if known

@@ -21,7 +21,9 @@ __all__ = [
     "ProgramTypeError",
     "UserError",
     "exception_line",
+    "one_line",
     "read_text",
+    "shown",
 ]
 
 
@@ -57,6 +59,33 @@ class ProgramRuntimeError(ProgramFault, RuntimeError):
     yield)."""
 
 
+def one_line(text: str) -> str:
+    """``text`` on one line: its non-blank lines, stripped, joined with `` | ``.
+
+    Examples
+    --------
+    >>> one_line("first\\nsecond\\r\\n  third")
+    'first | second | third'
+    """
+    return " | ".join(part.strip() for part in text.splitlines() if part.strip())
+
+
+def shown(value: object, limit: int = 80) -> str:
+    """``repr(value)`` for an error message about a program's value: on one line, cut to
+    ``limit`` characters, and a note instead when the program's ``__repr__`` raises.
+
+    Examples
+    --------
+    >>> shown("x"), shown(list(range(100)), 20)
+    ("'x'", '[0, 1, 2, 3, 4, 5...')
+    """
+    try:
+        text = one_line(repr(value))
+    except BaseException as failed:  # any error of the program's __repr__
+        return f"<{type(value).__name__}: repr() raised {type(failed).__name__}>"
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def exception_line(exc: BaseException) -> str:
     """``Type: message`` of ``exc`` on one line: the lines of a multi-line message joined with
     `` | ``, the type alone for an empty message, and a note in place of the message when
@@ -71,10 +100,9 @@ def exception_line(exc: BaseException) -> str:
     """
     name = type(exc).__name__
     try:
-        text = str(exc)
+        text = one_line(str(exc))
     except BaseException as failed:  # any error of the program's __str__
         return f"{name} (its message cannot be shown: str() raised {type(failed).__name__})"
-    text = " | ".join(part.strip() for part in text.splitlines() if part.strip())
     return f"{name}: {text}" if text else name
 
 

@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from kilonet.errors import ProgramTypeError
+from kilonet.errors import ProgramTypeError, shown
 from kilonet.message import Message, message_crc
 from kilonet.ranging import CalibrationTables, DistanceMeasurement, estimate_distance
 
@@ -646,11 +646,13 @@ def _check_callback(cls: type[Kilobot], name: str, args: tuple[str, ...]) -> Non
     call = f"{name}({', '.join(args)})"
     if isinstance(raw, FunctionType | staticmethod | classmethod):
         bound = raw.__get__(_PROBE, cls)
-    elif callable(raw) and not hasattr(type(raw), "__get__"):
+    elif hasattr(type(raw), "__get__"):
+        return  # another descriptor (a partialmethod, ...): what it gives is its own affair
+    elif callable(raw):
         bound = raw  # a callable object: called as it is, without the robot
     else:
         raise ProgramTypeError(
-            f"{owner.__name__}.{name} = {raw!r} is not a method: the simulation calls {call}; "
+            f"{owner.__name__}.{name} = {shown(raw)} is not a method: the simulation calls {call}; "
             f"define def {name}(self{''.join(', ' + a for a in args)}) or leave it out",
             *_attribute_place(owner, name),
         )
@@ -671,9 +673,9 @@ def _check_callback(cls: type[Kilobot], name: str, args: tuple[str, ...]) -> Non
     try:
         signature.bind(*args)
     except TypeError:
-        shown = inspect.signature(function) if code else signature
+        spelled = inspect.signature(function) if code else signature
         raise ProgramTypeError(
-            f"{owner.__name__}.{name}{shown} cannot take the arguments {call} the simulation "
+            f"{owner.__name__}.{name}{spelled} cannot take the arguments {call} the simulation "
             "calls it with",
             *place,
         ) from None

@@ -29,7 +29,7 @@ import numpy as np
 from kilonet.battery import Battery
 from kilonet.clock import KernelEnvironment, RobotClocks
 from kilonet.counters import LOSS_CAUSES
-from kilonet.errors import ProgramRuntimeError, ProgramTypeError
+from kilonet.errors import ProgramRuntimeError, ProgramTypeError, shown
 from kilonet.faults import FaultInjector
 from kilonet.medium import InfraredMedium
 from kilonet.message import Message
@@ -372,7 +372,7 @@ class Simulation:
                     x = y = frame = None
                 if not (isinstance(x, Real) and isinstance(y, Real) and isinstance(frame, str)):
                     raise ProgramTypeError(
-                        f"robot {i}'s position_estimate() returned {estimate!r}, not "
+                        f"robot {i}'s position_estimate() returned {shown(estimate)}, not "
                         "(x_mm, y_mm, frame) or None",
                         *callback_place(type(self.robots[i]), "position_estimate"),
                     )
@@ -478,7 +478,7 @@ class Simulation:
                     code, line = frame.f_code, frame.f_lineno
                     result.close()
                     raise ProgramTypeError(
-                        f"robot {i}'s {code.co_name} yielded {event!r}; a program may only "
+                        f"robot {i}'s {code.co_name} yielded {shown(event)}; a program may only "
                         "yield self.delay(ms)",
                         code.co_filename,
                         line,

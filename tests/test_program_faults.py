@@ -18,7 +18,7 @@ import pytest
 from kilonet.cli import main
 
 HEADER = (
-    "import math, sys, threading\nimport simpy\n"
+    "import math, sys, threading\nimport numpy, simpy\n"
     "from kilonet.message import Message\nfrom kilonet.robot import Kilobot\n\n\n"
 )
 
@@ -96,6 +96,27 @@ CORPUS: dict[str, tuple[str, str]] = {
                 yield simpy.Environment().timeout(1)  # <-
         """,
         "robot 0's loop yielded <Timeout(1) object at",
+    ),
+    "yield a value shown on several lines": (
+        """
+        class Bad(Kilobot):
+            def loop(self):
+                yield numpy.zeros((2, 2))  # <-
+        """,
+        "robot 0's loop yielded array([[0., 0.], | [0., 0.]]); a program may only",
+    ),
+    "yield a value whose repr raises": (
+        """
+        class Odd:
+            def __repr__(self):
+                raise ValueError("no")
+
+
+        class Bad(Kilobot):
+            def loop(self):
+                yield Odd()  # <-
+        """,
+        "robot 0's loop yielded <Odd: repr() raised ValueError>; a program may only",
     ),
     "delay not yielded before another": (
         """
