@@ -13,9 +13,14 @@ the program declares (``gain = 0.5`` in its class body) on every robot before ``
 
 A program that cannot run is refused in one line naming the file and line
 (:class:`ProgramError`): a missing file, a syntax error, an exception while the file loads,
-no Kilobot subclass (or a name that is not one, or one whose constructor needs arguments), and
-an exception raised by the program while the swarm runs (in ``setup``, ``loop``,
-``message_rx``, ...): ``my_bot.py:14: in setup: ZeroDivisionError: division by zero``.
+no Kilobot subclass (or a name that is not one, or one whose constructor needs arguments), a
+write of a kernel name (``self._krate = ...``), what the kernel refuses of the class (a
+callback it cannot call, a redefined kilolib function; :func:`kilonet.robot.check_program_class`)
+or of a run (a yield of anything but a delay, a bad ``position_estimate``), an exception raised
+by the program while the swarm runs (in ``setup``, ``loop``, ``message_rx``, ...; any
+``BaseException`` but Ctrl-C, ``sys.exit()`` included):
+``my_bot.py:14: in setup: ZeroDivisionError: division by zero (robot 2)``, and a thread of the
+program left running.
 """
 
 from __future__ import annotations
@@ -203,65 +208,102 @@ def _kernel_write(node: ast.AST) -> str | None:
 
 @contextmanager
 def reported_as_user_errors(path: str | Path, during: str = "") -> Iterator[None]:
-    """Turn an exception raised in the program file ``path`` into a one-line
-    :class:`ProgramError` naming the file, the line, the function and the robot
+    """Turn an exception raised in the program, the file ``path`` or a module beside it
+    (which it imports: its folder is on ``sys.path``), into a one-line :class:`ProgramError`
+    naming the file, the line, the function and the robot
     (``my_bot.py:14: in setup: ZeroDivisionError: division by zero (robot 2)``), and a
     :class:`~kilonet.errors.ProgramFault` the kernel raised about the program into one naming
-    ``path`` as the user wrote it. Anything derived from ``BaseException`` counts
+    the file as the user wrote it. Anything derived from ``BaseException`` counts
     (``sys.exit()``, ``raise GeneratorExit``) but ``KeyboardInterrupt`` (the user's Ctrl-C);
-    exceptions that did not pass through the file are left alone (they are kilonet's).
+    exceptions that did not pass through the program are left alone (they are kilonet's).
 
     A thread of the program still running (not a daemon) when the block ends is refused too:
     the interpreter would wait for it at exit, forever.
     """
-    target = Path(path).resolve()
+    program = _ProgramFiles(Path(path))
     before = {t.ident for t in threading.enumerate()}
     try:
         yield
     except (ScenarioError, BusyCallError, KeyboardInterrupt):
         raise
     except ProgramFault as fault:
-        if fault.file is not None and Path(fault.file).resolve() == target:
-            raise ProgramError(f"{path}:{fault.line}: {fault.message}") from None
+        shown = program.named(fault.file) if fault.file is not None else None
+        if shown is not None:
+            raise ProgramError(f"{shown}:{fault.line}: {fault.message}") from None
         raise ProgramError(str(fault)) from None
     except PayloadError as exc:
-        found = _program_frame(exc, target)
+        found = program.frame(exc)
         if found is not None:
-            frame, line, _ = found
-            raise ProgramError(f"{path}:{line}: in {frame.f_code.co_name}: {exc}") from None
+            shown, frame, line, _ = found
+            raise ProgramError(f"{shown}:{line}: in {frame.f_code.co_name}: {exc}") from None
         raise ProgramError(f"{path}: {exc}") from None  # what message_tx returned
     except BaseException as exc:
-        found = _program_frame(exc, target)
+        found = program.frame(exc)
         if found is None:
             raise
-        frame, line, error = found
+        shown, frame, line, error = found
         name = frame.f_code.co_name
         context = f"in {name}" if name != "<module>" else (during or "at top level")
         robot = _robot_of(error)
         note = f" (robot {robot._kindex})" if robot is not None else ""
         if isinstance(error, SystemExit):
             note = " (a robot program cannot end kilonet; return from the callback)"
-        raise ProgramError(f"{path}:{line}: {context}: {exception_line(exc)}{note}") from None
-    _refuse_threads_left(path, target, before)
+        raise ProgramError(f"{shown}:{line}: {context}: {exception_line(exc)}{note}") from None
+    program.refuse_threads_left(before)
 
 
-def _program_frame(exc: BaseException, target: Path) -> tuple[Any, int, BaseException] | None:
-    """The innermost frame of the program file ``target`` that ``exc`` passed through, its
-    line, and the exception it passed as: ``exc`` or, for the copy of a failed process's
-    exception that the kernel raises, the original (the first ``__cause__`` with a frame of
-    the program)."""
-    error: BaseException | None = exc
-    while error is not None:
-        found = None
-        tb = error.__traceback__
-        while tb is not None:
-            if Path(tb.tb_frame.f_code.co_filename).resolve() == target:
-                found = (tb.tb_frame, tb.tb_lineno, error)
-            tb = tb.tb_next
-        if found is not None:
-            return found
-        error = error.__cause__
-    return None
+class _ProgramFiles:
+    """The files of a program: its file ``path`` (as the user named it) and the Python
+    modules beside it, which it may import."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.target = path.resolve()
+
+    def named(self, filename: str) -> Path | None:
+        """``filename`` as the user would name it, if it is a file of the program."""
+        file = Path(filename).resolve()
+        if file == self.target:
+            return self.path
+        if file.parent == self.target.parent and file.suffix == ".py":
+            return self.path.parent / file.name
+        return None
+
+    def frame(self, exc: BaseException) -> tuple[Path, Any, int, BaseException] | None:
+        """The innermost frame of the program that ``exc`` passed through: its file as the
+        user names it, the frame, its line, and the exception it passed as: ``exc`` or, for
+        the copy of a failed process's exception that the kernel raises, the original (the
+        first ``__cause__`` with a frame of the program)."""
+        error: BaseException | None = exc
+        while error is not None:
+            found = None
+            tb = error.__traceback__
+            while tb is not None:
+                shown = self.named(tb.tb_frame.f_code.co_filename)
+                if shown is not None:
+                    found = (shown, tb.tb_frame, tb.tb_lineno, error)
+                tb = tb.tb_next
+            if found is not None:
+                return found
+            error = error.__cause__
+        return None
+
+    def refuse_threads_left(self, before: set[int | None]) -> None:
+        """Refuse a thread the program started, not a daemon, that still runs (see
+        :func:`reported_as_user_errors`), naming the line of the program it runs now."""
+        frames = sys._current_frames()
+        for thread in threading.enumerate():
+            if thread.daemon or thread.ident in before or not thread.is_alive():
+                continue
+            frame = frames.get(thread.ident)
+            while frame is not None and self.named(frame.f_code.co_filename) is None:
+                frame = frame.f_back
+            if frame is not None:
+                raise ProgramError(
+                    f"{self.named(frame.f_code.co_filename)}:{frame.f_lineno}: the program's "
+                    f"thread {thread.name!r} still runs after the run, and kilonet would wait "
+                    "for it forever; start it with daemon=True, or end it"
+                )
 
 
 def _robot_of(error: BaseException) -> Kilobot | None:
@@ -275,24 +317,6 @@ def _robot_of(error: BaseException) -> Kilobot | None:
             robot = candidate
         tb = tb.tb_next
     return robot
-
-
-def _refuse_threads_left(path: str | Path, target: Path, before: set[int | None]) -> None:
-    """Refuse a thread the program started, not a daemon, that still runs (see
-    :func:`reported_as_user_errors`), naming the line of the program it runs now."""
-    frames = sys._current_frames()
-    for thread in threading.enumerate():
-        if thread.daemon or thread.ident in before or not thread.is_alive():
-            continue
-        frame = frames.get(thread.ident)
-        while frame is not None and Path(frame.f_code.co_filename).resolve() != target:
-            frame = frame.f_back
-        if frame is not None:
-            raise ProgramError(
-                f"{path}:{frame.f_lineno}: the program's thread {thread.name!r} still runs "
-                "after the run, and kilonet would wait for it forever; start it with "
-                "daemon=True, or end it"
-            )
 
 
 #: Types a ``[program]`` setting may have: those of the class attribute it replaces.

@@ -404,3 +404,16 @@ def test_a_program_left_running_a_thread_does_not_keep_kilonet_waiting(tmp_path)
     assert done.stderr.startswith(f"kilonet: error: {path}:{line}: "), done.stderr
     assert "thread 'waiter'" in done.stderr
     assert not out.exists()
+
+
+def test_a_mistake_in_a_module_beside_the_program_names_that_module(tmp_path, capsys):
+    (tmp_path / "faults_helper_base.py").write_text(
+        "from kilonet.robot import Kilobot\n\n\nclass Base(Kilobot):\n"
+        "    def loop(self):\n        yield self.delay(1)\n        [][1]\n"
+    )
+    path, _ = write(
+        tmp_path, "from faults_helper_base import Base\n\n\nclass Bot(Base):  # <-\n    pass\n"
+    )
+    err = refused_line(tmp_path, capsys, "--program", str(path), "--robots", "1")
+    helper = tmp_path / "faults_helper_base.py"
+    assert err.startswith(f"kilonet: error: {helper}:7: in loop: IndexError: list index"), err
