@@ -577,7 +577,8 @@ def check_program_class(cls: type[Kilobot]) -> None:
         :data:`RESERVED_PREFIX` (the kernel's own attributes) or another name of the kilolib
         API (``delay``, ``set_color``, ``_attach``, ...); defines a callback
         (:data:`CALLBACKS`) that is not a method (``loop = None``), is ``async`` (never
-        awaited: it would never run) or cannot take the arguments the simulation passes; or
+        awaited: it would never run) or cannot take the arguments the simulation passes;
+        defines an :attr:`~Kilobot.LED_KEY` that is not ``((r, g, b), meaning)`` pairs; or
         overrides a generator ``setup``/``loop`` with a plain function that calls
         ``super().setup()``/``super().loop()`` (that call only builds the parent's generator
         and throws it away: the parent's code never runs).
@@ -616,6 +617,7 @@ def check_program_class(cls: type[Kilobot]) -> None:
                 )
     for name, args in CALLBACKS.items():
         _check_callback(cls, name, args)
+    _check_led_key(cls)
     for method in ("setup", "loop"):
         for i, klass in enumerate(own):
             fn = vars(klass).get(method)
@@ -646,10 +648,10 @@ def _check_callback(cls: type[Kilobot], name: str, args: tuple[str, ...]) -> Non
     call = f"{name}({', '.join(args)})"
     if isinstance(raw, FunctionType | staticmethod | classmethod):
         bound = raw.__get__(_PROBE, cls)
-    elif hasattr(type(raw), "__get__"):
-        return  # another descriptor (a partialmethod, ...): what it gives is its own affair
-    elif callable(raw):
+    elif callable(raw) and not hasattr(type(raw), "__get__"):
         bound = raw  # a callable object: called as it is, without the robot
+    elif hasattr(type(raw), "__get__") and not isinstance(raw, property):
+        return  # another descriptor (a partialmethod, ...): what it gives is its own affair
     else:
         raise ProgramTypeError(
             f"{owner.__name__}.{name} = {shown(raw)} is not a method: the simulation calls {call}; "
@@ -696,6 +698,28 @@ def callback_place(cls: type[Kilobot], name: str) -> tuple[str | None, int | Non
     raw = vars(owner)[name]
     code = getattr(getattr(raw, "__func__", raw), "__code__", None)
     return (code.co_filename, code.co_firstlineno) if code else _attribute_place(owner, name)
+
+
+def _check_led_key(cls: type[Kilobot]) -> None:
+    """Refuse a :attr:`Kilobot.LED_KEY` that is not ``((r, g, b), meaning)`` pairs with
+    levels 0-3 (the run's outputs read it once the run is over)."""
+    key = cls.LED_KEY
+    try:
+        valid = all(
+            len(colour) == 3
+            and all(isinstance(c, int | np.integer) and 0 <= c <= 3 for c in colour)
+            and isinstance(meaning, str)
+            for colour, meaning in key
+        )
+    except (TypeError, ValueError):  # not pairs of a colour and a meaning
+        valid = False
+    if not valid:
+        owner = next(k for k in cls.__mro__ if "LED_KEY" in vars(k))
+        raise ProgramTypeError(
+            f"{owner.__name__}.LED_KEY = {shown(key)}: give ((r, g, b), meaning) pairs, "
+            "levels 0-3, as (((3, 0, 0), 'leader'),)",
+            *_attribute_place(owner, "LED_KEY"),
+        )
 
 
 #: What a method is bound to when its signature is checked (any object: nothing is called).

@@ -65,6 +65,27 @@ CORPUS: dict[str, tuple[str, str]] = {
         """,
         "Bad.loop = 5 is not a method",
     ),
+    "loop is a property": (
+        """
+        class Bad(Kilobot):
+            loop = property(lambda self: 5)  # <-
+        """,
+        "Bad.loop = <property object at",
+    ),
+    "LED_KEY is a number": (
+        """
+        class Bad(Kilobot):
+            LED_KEY = 5  # <-
+        """,
+        "Bad.LED_KEY = 5: give ((r, g, b), meaning) pairs",
+    ),
+    "LED_KEY with a level above 3": (
+        """
+        class Bad(Kilobot):
+            LED_KEY = (((9, 0, 0), "red"),)  # <-
+        """,
+        "Bad.LED_KEY = (((9, 0, 0), 'red'),): give",
+    ),
     "async loop": (
         """
         class Bad(Kilobot):
