@@ -35,6 +35,7 @@ from __future__ import annotations
 import ast
 import inspect
 import textwrap
+import weakref
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -568,7 +569,7 @@ _OVERRIDABLE = frozenset(CALLBACKS) | {"LED_KEY"}
 def check_program_class(cls: type[Kilobot]) -> None:
     """Refuse a program class the kernel would run wrongly, or fail in, without naming the
     program: the error (a :class:`~kilonet.errors.ProgramTypeError`) names the program's file
-    and line. Checked once per class when a simulation is built, so no call pays for it.
+    and line. Checked once per class (the first simulation built with it), so no call pays for it.
 
     Raises
     ------
@@ -600,6 +601,8 @@ def check_program_class(cls: type[Kilobot]) -> None:
     ...         yield from super().setup()
     >>> check_program_class(Fixed)
     """
+    if cls in _CHECKED:
+        return
     own = [k for k in cls.__mro__ if k is not Kilobot and issubclass(k, Kilobot)]
     for klass in own:
         for name in vars(klass):
@@ -636,6 +639,11 @@ def check_program_class(cls: type[Kilobot]) -> None:
                     code.co_filename,
                     code.co_firstlineno,
                 )
+    _CHECKED.add(cls)
+
+
+#: The program classes :func:`check_program_class` passed (each is checked once a process).
+_CHECKED: weakref.WeakSet[type] = weakref.WeakSet()
 
 
 def _check_callback(cls: type[Kilobot], name: str, args: tuple[str, ...]) -> None:
