@@ -438,3 +438,36 @@ def test_a_mistake_in_a_module_beside_the_program_names_that_module(tmp_path, ca
     err = refused_line(tmp_path, capsys, "--program", str(path), "--robots", "1")
     helper = tmp_path / "faults_helper_base.py"
     assert err.startswith(f"kilonet: error: {helper}:7: in loop: IndexError: list index"), err
+
+
+def test_the_kernels_refusals_keep_their_builtin_types_and_carry_the_line():
+    from kilonet.errors import ProgramFault
+    from kilonet.params import Params
+    from kilonet.robot import Kilobot
+    from kilonet.simulation import Simulation
+
+    class Deaf(Kilobot):
+        def message_rx(self):
+            pass
+
+    class Yields(Kilobot):
+        def loop(self):
+            yield 5
+
+    with pytest.raises(TypeError) as refused:
+        Simulation([[0, 0]], Deaf, Params(seed=1))
+    assert isinstance(refused.value, ProgramFault)
+    assert (refused.value.file, refused.value.line) == (
+        __file__,
+        Deaf.message_rx.__code__.co_firstlineno,
+    )
+    with pytest.raises(TypeError, match=r"test_program_faults.py:\d+: robot 0's loop yielded 5"):
+        Simulation([[0, 0]], Yields, Params(seed=1)).run(1.0)
+
+
+def test_a_watchdog_outside_the_command_line_is_refused_as_a_value_error():
+    from kilonet.watchdog import busy_watchdog
+
+    refused = pytest.raises(ValueError, match=r"^watchdog_s nan: give 0 \(no watchdog\)")
+    with refused, busy_watchdog(float("nan")):
+        pass
