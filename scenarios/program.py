@@ -247,7 +247,8 @@ def reported_as_user_errors(path: str | Path, during: str = "") -> Iterator[None
         robot = _robot_of(error)
         note = f" (robot {robot._kindex})" if robot is not None else ""
         if isinstance(error, SystemExit):
-            note = " (a robot program cannot end kilonet; return from the callback)"
+            back = "; return from the callback" if name != "<module>" else ""
+            note = f" (a robot program cannot end kilonet{back})"
         raise ProgramError(f"{shown}:{line}: {context}: {exception_line(exc)}{note}") from None
     program.refuse_threads_left(before)
 
