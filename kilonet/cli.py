@@ -18,11 +18,12 @@ import argparse
 import contextlib
 import os
 import sys
+import threading
 from collections.abc import Sequence
 from importlib.metadata import EntryPoint, entry_points
 
 from kilonet import __version__
-from kilonet.errors import UserError
+from kilonet.errors import UserError, one_line
 
 __all__ = ["COMMANDS", "UsageError", "main"]
 
@@ -57,7 +58,28 @@ def _parser(argv: Sequence[str]) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``kilonet`` console script; returns the exit status."""
+    """Entry point of the ``kilonet`` console script; returns the exit status.
+
+    As the console script (``argv`` not given), a failed command ends the process at once
+    when a thread that is not a daemon still runs (one a robot program started, already
+    refused in one line): the interpreter would otherwise wait for it at exit, forever.
+    """
+    status = _main(argv)
+    if argv is None and status != 0 and _threads_left():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    return status
+
+
+def _threads_left() -> bool:
+    """Whether a thread other than the main one, not a daemon, still runs."""
+    main_thread = threading.main_thread()
+    return any(t is not main_thread and not t.daemon for t in threading.enumerate())
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    """:func:`main` but for what it does at the end."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if not list(entry_points(group=COMMANDS)):
         print(
@@ -70,7 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return args.func(args)
     except UserError as exc:
-        print(f"kilonet: error: {exc}", file=sys.stderr)
+        print(f"kilonet: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         where = f" {exc}" if str(exc) else ""  # the robot and callback it stopped, if known

@@ -459,8 +459,14 @@ class KernelEnvironment(simpy.Environment):
 
 
 def _raise_failed(event: Any) -> None:
-    """Raise the exception of a failed event nobody defused, as SimPy's step does."""
+    """Raise the exception of a failed event nobody defused, as SimPy's step does: a copy
+    whose ``__cause__`` is the original (with the traceback of where it was raised, in a
+    process's generator); the original itself when its class cannot be rebuilt from its
+    ``args`` (a constructor that wants other arguments)."""
     error = event.value
-    exc = type(error)(*error.args)
+    try:
+        exc = type(error)(*error.args)
+    except Exception:  # whatever the program's constructor raises
+        raise error from None
     exc.__cause__ = error
     raise exc

@@ -32,14 +32,19 @@ what arrives through the medium. It has no handle on the world.
 
 from __future__ import annotations
 
+import ast
 import inspect
+import textwrap
+import weakref
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from types import FunctionType
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from kilonet.errors import ProgramTypeError, shown
 from kilonet.message import Message, message_crc
 from kilonet.ranging import CalibrationTables, DistanceMeasurement, estimate_distance
 
@@ -56,6 +61,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ADC_CONVERSION_S",
+    "CALLBACKS",
     "RESERVED_PREFIX",
     "RGB",
     "TICKS_PER_SEC",
@@ -63,6 +69,8 @@ __all__ = [
     "Kilobot",
     "RobotServices",
     "RobotStopped",
+    "callback_place",
+    "check_kernel_names",
     "check_program_class",
 ]
 
@@ -297,7 +305,8 @@ class Kilobot:
             If called from a plain (non-generator) ``setup`` or ``loop``, where nothing can
             block; or if the previous delay was not yielded.
         ValueError
-            If ``ms`` is negative.
+            If ``ms`` is not a number >= 0 (a NaN or a text would reach the event queue,
+            which cannot place it in time).
         """
         if not self._kprocess:
             raise RuntimeError(
@@ -306,8 +315,12 @@ class Kilobot:
             )
         if self._kdelay is not None:
             raise RuntimeError(f"robot {self._kindex}: delay() was called without `yield`")
-        if ms < 0:
-            raise ValueError(f"delay(ms) needs ms >= 0, got {ms}")
+        try:
+            valid = ms >= 0  # False for a NaN
+        except TypeError:  # not a number
+            valid = False
+        if not valid:
+            raise ValueError(f"delay(ms) needs a number of ms >= 0, got {ms!r}")
         self._kdelay = self._kenv.timeout(self._kservices.clocks.true_s(self._kindex, ms / 1000.0))
         return self._kdelay
 
@@ -538,16 +551,38 @@ class Kilobot:
         return self._kservices.params.rx_mode == "polled"
 
 
+#: The callbacks the simulation calls on a program, and the arguments it passes each.
+CALLBACKS: Mapping[str, tuple[str, ...]] = {
+    "setup": (),
+    "loop": (),
+    "message_tx": (),
+    "message_tx_success": (),
+    "message_rx": ("message", "distance"),
+    "position_estimate": (),
+}
+
+#: What a program class may redefine of :class:`Kilobot`: its callbacks and its LED key.
+#: Every other name of the class is the kilolib API the simulation runs the robot with.
+_OVERRIDABLE = frozenset(CALLBACKS) | {"LED_KEY"}
+
+
 def check_program_class(cls: type[Kilobot]) -> None:
-    """Refuse a program class the kernel would run wrongly without a word.
+    """Refuse a program class the kernel would run wrongly, or fail in, without naming the
+    program: the error (a :class:`~kilonet.errors.ProgramTypeError`) names the program's file
+    and line. Checked once per class (the first simulation built with it), so no call pays for it.
 
     Raises
     ------
-    TypeError
-        If a class of the program defines a name starting with :data:`RESERVED_PREFIX` (the
-        kernel's own attributes), or overrides a generator ``setup``/``loop`` with a plain
-        function that calls ``super().setup()``/``super().loop()`` (that call only builds
-        the parent's generator and throws it away: the parent's code never runs).
+    kilonet.errors.ProgramTypeError
+        (a ``TypeError``) If a class of the program defines a name starting with
+        :data:`RESERVED_PREFIX` (the kernel's own attributes) or another name of the kilolib
+        API (``delay``, ``set_color``, ``_attach``, ...); defines a callback
+        (:data:`CALLBACKS`) that is not a method (``loop = None``), is ``async`` (never
+        awaited: it would never run) or cannot take the arguments the simulation passes;
+        defines an :attr:`~Kilobot.LED_KEY` that is not ``((r, g, b), meaning)`` pairs; or
+        overrides a generator ``setup``/``loop`` with a plain function that calls
+        ``super().setup()``/``super().loop()`` (that call only builds the parent's generator
+        and throws it away: the parent's code never runs).
 
     Examples
     --------
@@ -560,20 +595,32 @@ def check_program_class(cls: type[Kilobot]) -> None:
     >>> check_program_class(Child)
     Traceback (most recent call last):
     ...
-    TypeError: Child.setup is a plain function but calls super().setup(), which is a generator...
+    kilonet.errors.ProgramTypeError: ...: Child.setup is a plain function but calls super()...
     >>> class Fixed(Parent):
     ...     def setup(self):
     ...         yield from super().setup()
     >>> check_program_class(Fixed)
     """
+    if cls in _CHECKED:
+        return
     own = [k for k in cls.__mro__ if k is not Kilobot and issubclass(k, Kilobot)]
     for klass in own:
         for name in vars(klass):
             if name.startswith(RESERVED_PREFIX):
-                raise TypeError(
+                raise ProgramTypeError(
                     f"{klass.__name__}.{name}: names starting with {RESERVED_PREFIX!r} are the "
-                    "kernel's; rename it"
+                    "kernel's; rename it",
+                    *_attribute_place(klass, name),
                 )
+            if name in vars(Kilobot) and name not in _OVERRIDABLE and not name.startswith("__"):
+                raise ProgramTypeError(
+                    f"{klass.__name__}.{name} replaces Kilobot.{name}, part of the kilolib API "
+                    "the simulation runs the robot with; give yours another name",
+                    *_attribute_place(klass, name),
+                )
+    for name, args in CALLBACKS.items():
+        _check_callback(cls, name, args)
+    _check_led_key(cls)
     for method in ("setup", "loop"):
         for i, klass in enumerate(own):
             fn = vars(klass).get(method)
@@ -584,28 +631,155 @@ def check_program_class(cls: type[Kilobot]) -> None:
                 continue
             parent = next((k for k in own[i + 1 :] if method in vars(k)), None)
             if parent is not None and inspect.isgeneratorfunction(vars(parent)[method]):
-                raise TypeError(
+                raise ProgramTypeError(
                     f"{klass.__name__}.{method} is a plain function but calls super().{method}(), "
                     f"which is a generator ({parent.__name__}.{method}): that call does not run "
                     f"it; make {klass.__name__}.{method} a generator with "
-                    f"`yield from super().{method}()`"
+                    f"`yield from super().{method}()`",
+                    code.co_filename,
+                    code.co_firstlineno,
                 )
+    _CHECKED.add(cls)
+
+
+#: The program classes :func:`check_program_class` passed (each is checked once a process).
+_CHECKED: weakref.WeakSet[type] = weakref.WeakSet()
+
+
+def _check_callback(cls: type[Kilobot], name: str, args: tuple[str, ...]) -> None:
+    """Refuse callback ``name`` of ``cls`` if the simulation cannot call it with ``args`` (see
+    :func:`check_program_class`)."""
+    owner = next(k for k in cls.__mro__ if name in vars(k))
+    if owner is Kilobot:
+        return
+    raw = vars(owner)[name]
+    call = f"{name}({', '.join(args)})"
+    if isinstance(raw, FunctionType | staticmethod | classmethod):
+        bound = raw.__get__(_PROBE, cls)
+    elif callable(raw) and not hasattr(type(raw), "__get__"):
+        bound = raw  # a callable object: called as it is, without the robot
+    elif hasattr(type(raw), "__get__") and not isinstance(raw, property):
+        return  # another descriptor (a partialmethod, ...): what it gives is its own affair
+    else:
+        raise ProgramTypeError(
+            f"{owner.__name__}.{name} = {shown(raw)} is not a method: the simulation calls {call}; "
+            f"define def {name}(self{''.join(', ' + a for a in args)}) or leave it out",
+            *_attribute_place(owner, name),
+        )
+    function = getattr(raw, "__func__", raw)
+    code = getattr(function, "__code__", None)
+    place = callback_place(cls, name)
+    if inspect.iscoroutinefunction(function) or inspect.isasyncgenfunction(function):
+        raise ProgramTypeError(
+            f"{owner.__name__}.{name} is a coroutine function (async def): the simulation "
+            f"calls {call} and never awaits it, so its body would never run; write a plain "
+            "def (a generator with `yield self.delay(ms)` to wait)",
+            *place,
+        )
+    try:
+        signature = inspect.signature(bound)
+    except (TypeError, ValueError):  # a callable without a signature Python can read
+        return
+    try:
+        signature.bind(*args)
+    except TypeError:
+        spelled = inspect.signature(function) if code else signature
+        raise ProgramTypeError(
+            f"{owner.__name__}.{name}{spelled} cannot take the arguments {call} the simulation "
+            "calls it with",
+            *place,
+        ) from None
+
+
+def callback_place(cls: type[Kilobot], name: str) -> tuple[str | None, int | None]:
+    """The file and line where program class ``cls`` defines callback ``name`` (the line of
+    its ``def``), for an error message; ``(None, None)`` if that is not known.
+
+    Examples
+    --------
+    >>> callback_place(Kilobot, "loop")[1] > 0
+    True
+    """
+    owner = next((k for k in cls.__mro__ if name in vars(k)), None)
+    if owner is None:
+        return None, None
+    raw = vars(owner)[name]
+    code = getattr(getattr(raw, "__func__", raw), "__code__", None)
+    return (code.co_filename, code.co_firstlineno) if code else _attribute_place(owner, name)
+
+
+def _check_led_key(cls: type[Kilobot]) -> None:
+    """Refuse a :attr:`Kilobot.LED_KEY` that is not ``((r, g, b), meaning)`` pairs with
+    levels 0-3 (the run's outputs read it once the run is over)."""
+    key = cls.LED_KEY
+    try:
+        valid = all(
+            len(colour) == 3
+            and all(isinstance(c, int | np.integer) and 0 <= c <= 3 for c in colour)
+            and isinstance(meaning, str)
+            for colour, meaning in key
+        )
+    except (TypeError, ValueError):  # not pairs of a colour and a meaning
+        valid = False
+    if not valid:
+        owner = next(k for k in cls.__mro__ if "LED_KEY" in vars(k))
+        raise ProgramTypeError(
+            f"{owner.__name__}.LED_KEY = {shown(key)}: give ((r, g, b), meaning) pairs, "
+            "levels 0-3, as (((3, 0, 0), 'leader'),)",
+            *_attribute_place(owner, "LED_KEY"),
+        )
+
+
+#: What a method is bound to when its signature is checked (any object: nothing is called).
+_PROBE = object()
+
+
+def _attribute_place(klass: type, name: str | None = None) -> tuple[str | None, int | None]:
+    """The file and line where class ``klass`` defines ``name`` (the class's own line without
+    ``name`` or if that cannot be found; ``(None, None)`` without source): for an error
+    message only."""
+    try:
+        lines, first = inspect.getsourcelines(klass)
+        file = inspect.getsourcefile(klass)
+    except (OSError, TypeError):
+        return None, None
+    if name is None:
+        return file, first
+    try:
+        body = ast.parse(textwrap.dedent("".join(lines))).body[0].body
+    except (SyntaxError, IndexError, AttributeError):
+        return file, first
+    for node in body:
+        targets: list[ast.expr] = []
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            if node.name == name:
+                return file, first + node.lineno - 1
+        elif isinstance(node, ast.Assign):
+            targets = node.targets
+        elif isinstance(node, ast.AnnAssign | ast.AugAssign):
+            targets = [node.target]
+        if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+            return file, first + node.lineno - 1
+    return file, first
 
 
 def check_kernel_names(robot: Kilobot, index: int, slots: dict[str, Any]) -> None:
     """Refuse a program that set an attribute starting with :data:`RESERVED_PREFIX` (the
-    simulation calls it once, after ``setup()``, with the values its kernel slots must hold).
+    simulation calls it after ``setup()`` and when a run stops, with the values its kernel
+    slots must hold).
 
     Raises
     ------
-    TypeError
-        If such a name is in the robot's ``__dict__``, or a slot in ``slots`` no longer holds
-        that value.
+    kilonet.errors.ProgramTypeError
+        (a ``TypeError``) If such a name is in the robot's ``__dict__``, or a slot in
+        ``slots`` no longer holds that value; it names the program's class and its line.
     """
     names = [k for k in vars(robot) if k.startswith(RESERVED_PREFIX)]
     names += [k for k, v in slots.items() if getattr(robot, k, None) != v]
     if names:
-        raise TypeError(
-            f"robot {index} ({type(robot).__name__}) set {', '.join(names)}: names starting "
-            f"with {RESERVED_PREFIX!r} are the kernel's; rename them"
+        cls = type(robot)
+        raise ProgramTypeError(
+            f"robot {index} ({cls.__name__}) set {', '.join(names)}: names starting "
+            f"with {RESERVED_PREFIX!r} are the kernel's; rename them",
+            *_attribute_place(cls),
         )

@@ -21,6 +21,7 @@ import math
 import time
 from collections.abc import Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass, field
+from numbers import Real
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -28,6 +29,7 @@ import numpy as np
 from kilonet.battery import Battery
 from kilonet.clock import KernelEnvironment, RobotClocks
 from kilonet.counters import LOSS_CAUSES
+from kilonet.errors import ProgramRuntimeError, ProgramTypeError, shown
 from kilonet.faults import FaultInjector
 from kilonet.medium import InfraredMedium
 from kilonet.message import Message
@@ -37,7 +39,13 @@ from kilonet.placement import ROBOT_DIAMETER_MM, validate_positions
 from kilonet.radio import Transceivers, reach_of
 from kilonet.ranging import calibration_tables, measurement_for, read_calibration
 from kilonet.reception import ModelContext, reception_model
-from kilonet.robot import Kilobot, RobotServices, check_kernel_names, check_program_class
+from kilonet.robot import (
+    Kilobot,
+    RobotServices,
+    callback_place,
+    check_kernel_names,
+    check_program_class,
+)
 from kilonet.sensors import Sensors
 from kilonet.trace import Trace
 
@@ -318,6 +326,15 @@ class Simulation:
         }
         check_kernel_names(self.robots[i], i, slots)
 
+    def _check_all_kernel_names(self, failure: BaseException | None = None) -> None:
+        """:meth:`_check_kernel_names` of every robot; a refusal raised while the run was
+        failing with ``failure`` chains it."""
+        for i in range(self.n_robots):
+            try:
+                self._check_kernel_names(i)
+            except ProgramTypeError as refusal:
+                raise refusal from failure
+
     def _sample_estimates(self) -> None:
         """Every ``trace.estimates_period_s`` from the start, and whenever :meth:`run` returns,
         record each running robot's :meth:`~kilonet.robot.Kilobot.position_estimate` where it
@@ -348,6 +365,17 @@ class Simulation:
             if not running[i]:
                 continue
             estimate = self.robots[i].position_estimate()
+            if estimate is not None:
+                try:
+                    x, y, frame = estimate
+                except (TypeError, ValueError):
+                    x = y = frame = None
+                if not (isinstance(x, Real) and isinstance(y, Real) and isinstance(frame, str)):
+                    raise ProgramTypeError(
+                        f"robot {i}'s position_estimate() returned {shown(estimate)}, not "
+                        "(x_mm, y_mm, frame) or None",
+                        *callback_place(type(self.robots[i]), "position_estimate"),
+                    )
             last = held.get(i)
             if estimate is None:
                 if last is not None:
@@ -386,7 +414,7 @@ class Simulation:
         between but its receptions). With ``drains``, the polled buffer goes to
         ``message_rx`` after each call."""
         robot, running = self.robots[i], self.world.running
-        yield from self._blocking(i, robot.setup())
+        yield from self._blocking(i, robot.setup)
         if not running[i]:
             return
         self._check_kernel_names(i)
@@ -414,7 +442,7 @@ class Simulation:
             else:
                 call_tick = None  # right after a call that blocked: not on a tick's middle
             if not plain_loop:
-                yield from self._blocking(i, robot.loop())
+                yield from self._blocking(i, robot.loop)
                 if not running[i]:
                     return
             if drains:
@@ -428,23 +456,32 @@ class Simulation:
                 if position - tick > 0.5:
                     tick += 1
 
-    def _blocking(self, i: int, result: Any) -> Generator[Any, Any, None]:
-        """Run a program call that may be a generator of delays (see :meth:`Kilobot.delay`).
+    def _blocking(self, i: int, callback: Callable[[], Any]) -> Generator[Any, Any, None]:
+        """Run a program call, ``callback()``, that may be a generator of delays (see
+        :meth:`Kilobot.delay`).
 
         Raises
         ------
-        TypeError
-            If the program yields anything but ``self.delay(ms)``.
-        RuntimeError
-            If it called ``delay`` without yielding it.
+        kilonet.errors.ProgramTypeError
+            (a ``TypeError``) If the program yields anything but ``self.delay(ms)``: at the
+            line of that ``yield``.
+        kilonet.errors.ProgramRuntimeError
+            (a ``RuntimeError``) If it called ``delay`` without yielding it, and returned:
+            at the line of the callback.
         """
         robot = self.robots[i]
+        result = callback()
         if inspect.isgenerator(result):
             for event in result:
                 if event is None or event is not robot._kdelay:
+                    frame = result.gi_frame
+                    code, line = frame.f_code, frame.f_lineno
                     result.close()
-                    raise TypeError(
-                        f"robot {i}: a program may only yield self.delay(ms), got {event!r}"
+                    raise ProgramTypeError(
+                        f"robot {i}'s {code.co_name} yielded {shown(event)}; a program may only "
+                        "yield self.delay(ms)",
+                        code.co_filename,
+                        line,
                     )
                 robot._kdelay = None
                 yield event
@@ -453,7 +490,12 @@ class Simulation:
                     return
         if robot._kdelay is not None:
             robot._kdelay = None
-            raise RuntimeError(f"robot {i}: delay() was called without `yield`")
+            name = callback.__name__
+            raise ProgramRuntimeError(
+                f"robot {i}'s {name} called delay() without `yield`: it blocks only as "
+                "`yield self.delay(ms)`",
+                *callback_place(type(robot), name),
+            )
 
     def run(
         self, until_s: float | None = None, *, stop_when: Callable[[], bool] | None = None
@@ -462,15 +504,27 @@ class Simulation:
 
         With ``stop_when``, the run also ends as soon as that predicate (checked every simulated
         second) is true.
+
+        Raises
+        ------
+        kilonet.errors.ProgramTypeError
+            If a program set a kernel name (see :func:`kilonet.robot.check_kernel_names`)
+            during the run: checked when it stops, and when it fails (a program that overwrote
+            the kernel's state may have failed for that reason).
         """
         self.start()
         until = self.params.duration_s if until_s is None else until_s
         started = time.perf_counter()
-        if stop_when is None:
-            self.env.run(until=until)
-        else:
-            while self.env.now < until and not stop_when():
-                self.env.run(until=min(until, self.env.now + 1.0))
+        try:
+            if stop_when is None:
+                self.env.run(until=until)
+            else:
+                while self.env.now < until and not stop_when():
+                    self.env.run(until=min(until, self.env.now + 1.0))
+        except Exception as exc:
+            self._check_all_kernel_names(exc)
+            raise
+        self._check_all_kernel_names()
         if self._estimating:
             self._record_estimates()  # what the robots hold where the run stops
         self.wall_time_s += time.perf_counter() - started

@@ -18,15 +18,59 @@ from typing import Any
 from kilonet.errors import UserError
 from kilonet.robot import Kilobot
 
-__all__ = ["BUSY_CALL_S", "BusyCallError", "busy_watchdog", "describe_call", "robot_frame"]
+__all__ = [
+    "BUSY_CALL_S",
+    "MAX_WATCHDOG_S",
+    "BusyCallError",
+    "WatchdogValueError",
+    "busy_watchdog",
+    "check_watchdog_s",
+    "describe_call",
+    "robot_frame",
+]
 
 #: Wall-clock seconds one call into a program may run, with simulated time standing still,
 #: before :func:`busy_watchdog` stops the run (``kilonet run --watchdog``).
 BUSY_CALL_S = 30.0
 
+#: The longest watchdog period, wall-clock seconds (a day): the system's interval timer takes
+#: no period beyond what its clock counts, and no call needs longer.
+MAX_WATCHDOG_S = 86400.0
+
 
 class BusyCallError(UserError):
     """One call into a robot program ran too long while simulated time stood still."""
+
+
+class WatchdogValueError(UserError, ValueError):
+    """A watchdog period that is not 0 (off) or a number of seconds the timer can count."""
+
+
+def check_watchdog_s(seconds: float, where: str = "watchdog_s") -> float:
+    """``seconds`` if it is a watchdog period :func:`busy_watchdog` can set: 0 (off) or a
+    number of wall-clock seconds in (0, :data:`MAX_WATCHDOG_S`].
+
+    ``where`` names where the value came from, for the error (``--watchdog``).
+
+    Raises
+    ------
+    WatchdogValueError
+        (a ``ValueError``) For a negative, infinite or NaN period, or one above a day.
+
+    Examples
+    --------
+    >>> check_watchdog_s(0.5)
+    0.5
+    >>> check_watchdog_s(float("inf"), "--watchdog")
+    Traceback (most recent call last):
+    ...
+    kilonet.watchdog.WatchdogValueError: --watchdog inf: give 0 (no watchdog) or seconds up to 86400
+    """
+    if not 0 <= seconds <= MAX_WATCHDOG_S:
+        raise WatchdogValueError(
+            f"{where} {seconds:g}: give 0 (no watchdog) or seconds up to {MAX_WATCHDOG_S:g}"
+        )
+    return seconds
 
 
 def robot_frame(frame: FrameType | None) -> tuple[Kilobot, FrameType] | None:
@@ -73,9 +117,13 @@ def busy_watchdog(seconds: float = BUSY_CALL_S) -> Iterator[None]:
     ------
     BusyCallError
         From inside the stuck call.
+    WatchdogValueError
+        If ``seconds`` is not a period the timer can count (:func:`check_watchdog_s`).
     """
     import signal
     import threading
+
+    check_watchdog_s(seconds)
 
     if (
         seconds <= 0

@@ -41,7 +41,7 @@ from kilonet import scenarios
 from kilonet.cli import UsageError
 from kilonet.errors import UserError
 from kilonet.params import ParamError, Params, describe
-from kilonet.watchdog import BUSY_CALL_S
+from kilonet.watchdog import BUSY_CALL_S, check_watchdog_s
 
 __all__ = ["register_params", "register_run", "register_scenarios", "run_file_overrides"]
 
@@ -379,6 +379,7 @@ def _run_command(args: argparse.Namespace) -> int:
         raise UsageError("--replace needs --out DIR: it replaces that directory")
     _check_placement(args)
     params = build_params(scenario, overrides, seed=args.seed)  # every value, before the run
+    check_watchdog_s(args.watchdog, "--watchdog")
     if args.program is not None and args.placement is None and not params.placement.robots:
         raise UsageError("--program needs --placement F.csv or --robots N (a hex lattice)")
     progress = "none" if args.json or args.quiet else args.progress

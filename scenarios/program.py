@@ -19,9 +19,14 @@ becomes columns of ``robots.csv`` and, summed up, the summary's ``report``
 
 A program that cannot run is refused in one line naming the file and line
 (:class:`ProgramError`): a missing file, a syntax error, an exception while the file loads,
-no Kilobot subclass (or a name that is not one, or one whose constructor needs arguments), and
-an exception raised by the program while the swarm runs (in ``setup``, ``loop``,
-``message_rx``, ...): ``my_bot.py:14: in setup: ZeroDivisionError: division by zero``.
+no Kilobot subclass (or a name that is not one, or one whose constructor needs arguments), a
+write of a kernel name (``self._krate = ...``), what the kernel refuses of the class (a
+callback it cannot call, a redefined kilolib function; :func:`kilonet.robot.check_program_class`)
+or of a run (a yield of anything but a delay, a bad ``position_estimate``), an exception raised
+by the program while the swarm runs (in ``setup``, ``loop``, ``message_rx``, ...; any
+``BaseException`` but Ctrl-C, ``sys.exit()`` included):
+``my_bot.py:14: in setup: ZeroDivisionError: division by zero (robot 2)``, and a thread of the
+program left running.
 """
 
 from __future__ import annotations
@@ -33,7 +38,7 @@ import importlib.util
 import inspect
 import math
 import sys
-import traceback
+import threading
 import weakref
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -43,9 +48,9 @@ from typing import TYPE_CHECKING, Any
 
 from kilonet.scenarios.base import RunResult, Scenario, ScenarioError
 
-from kilonet.errors import read_text
+from kilonet.errors import ProgramFault, exception_line, read_text
 from kilonet.message import PayloadError
-from kilonet.robot import Kilobot
+from kilonet.robot import RESERVED_PREFIX, Kilobot
 from kilonet.watchdog import BusyCallError
 
 if TYPE_CHECKING:
@@ -168,40 +173,174 @@ def load_program(spec: str) -> tuple[Path, type[Kilobot]]:
             f"{where}: {cls.__name__}() needs {', '.join(required)}; every robot runs "
             f"{cls.__name__}() with no arguments"
         )
+    _refuse_kernel_writes(path, source, cls)
     return path, cls
+
+
+def _refuse_kernel_writes(path: Path, source: str, cls: type[Kilobot]) -> None:
+    """Refuse a program whose classes in ``source`` write a kernel name on the robot
+    (``self._krate = 0.0``, ``setattr(self, "_krate", ...)``, ``del self._kenv``) anywhere,
+    before it runs: written in ``loop`` it would change what the kernel counts without a word
+    (a write the source does not spell out is found when the run stops)."""
+    mine = {k.__name__ for k in cls.__mro__ if k.__module__ == cls.__module__}
+    for node in ast.walk(ast.parse(source)):
+        if not (isinstance(node, ast.ClassDef) and node.name in mine):
+            continue
+        for method in node.body:
+            if not isinstance(method, ast.FunctionDef | ast.AsyncFunctionDef):
+                continue
+            for inner in ast.walk(method):
+                name = _kernel_write(inner)
+                if name is not None:
+                    raise ProgramError(
+                        f"{path}:{inner.lineno}: {node.name}.{method.name} sets self.{name}: "
+                        f"names starting with {RESERVED_PREFIX!r} are the kernel's; rename it"
+                    )
+
+
+def _kernel_write(node: ast.AST) -> str | None:
+    """The kernel name that statement ``node`` writes on ``self``, if it writes one."""
+    targets: list[ast.expr] = []
+    if isinstance(node, ast.Assign | ast.Delete):
+        targets = node.targets
+    elif isinstance(node, ast.AugAssign | ast.AnnAssign):
+        targets = [node.target]
+    elif (
+        isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Name)
+        and node.func.id in ("setattr", "delattr")
+        and len(node.args) >= 2
+        and isinstance(node.args[0], ast.Name)
+        and node.args[0].id == "self"
+        and isinstance(node.args[1], ast.Constant)
+        and isinstance(node.args[1].value, str)
+        and node.args[1].value.startswith(RESERVED_PREFIX)
+    ):
+        return node.args[1].value
+    for target in targets:
+        for leaf in ast.walk(target):
+            if (
+                isinstance(leaf, ast.Attribute)
+                and isinstance(leaf.value, ast.Name)
+                and leaf.value.id == "self"
+                and leaf.attr.startswith(RESERVED_PREFIX)
+            ):
+                return leaf.attr
+    return None
 
 
 @contextmanager
 def reported_as_user_errors(path: str | Path, during: str = "") -> Iterator[None]:
-    """Turn an exception raised in the program file ``path`` into a one-line
-    :class:`ProgramError` naming the file, the line and the function
-    (``my_bot.py:14: in setup: ZeroDivisionError: division by zero``). Exceptions that did not
-    pass through the file are left alone (they are kilonet's)."""
-    target = Path(path).resolve()
+    """Turn an exception raised in the program, the file ``path`` or a module beside it
+    (which it imports: its folder is on ``sys.path``), into a one-line :class:`ProgramError`
+    naming the file, the line, the function and the robot
+    (``my_bot.py:14: in setup: ZeroDivisionError: division by zero (robot 2)``), and a
+    :class:`~kilonet.errors.ProgramFault` the kernel raised about the program into one naming
+    the file as the user wrote it. Anything derived from ``BaseException`` counts
+    (``sys.exit()``, ``raise GeneratorExit``) but ``KeyboardInterrupt`` (the user's Ctrl-C);
+    exceptions that did not pass through the program are left alone (they are kilonet's).
+
+    A thread of the program still running (not a daemon) when the block ends is refused too:
+    the interpreter would wait for it at exit, forever.
+    """
+    program = _ProgramFiles(Path(path))
+    before = {t.ident for t in threading.enumerate()}
     try:
         yield
-    except (ScenarioError, BusyCallError):
+    except (ScenarioError, BusyCallError, KeyboardInterrupt):
         raise
+    except ProgramFault as fault:
+        shown = program.named(fault.file) if fault.file is not None else None
+        if shown is not None:
+            raise ProgramError(f"{shown}:{fault.line}: {fault.message}") from None
+        raise ProgramError(str(fault)) from None
     except PayloadError as exc:
-        frames = [f for f in traceback.extract_tb(exc.__traceback__) if f.filename]
-        mine = [f for f in frames if Path(f.filename).resolve() == target]
-        if mine:
-            last = mine[-1]
-            raise ProgramError(f"{path}:{last.lineno}: in {last.name}: {exc}") from None
+        found = program.frame(exc)
+        if found is not None:
+            shown, frame, line, _ = found
+            raise ProgramError(f"{shown}:{line}: in {frame.f_code.co_name}: {exc}") from None
         raise ProgramError(f"{path}: {exc}") from None  # what message_tx returned
-    except Exception as exc:
-        frames = [
-            f
-            for f in traceback.extract_tb(exc.__traceback__)
-            if f.filename and Path(f.filename).resolve() == target
-        ]
-        if not frames:
+    except BaseException as exc:
+        found = program.frame(exc)
+        if found is None:
             raise
-        last = frames[-1]
-        context = f"in {last.name}" if last.name != "<module>" else (during or "at top level")
-        raise ProgramError(
-            f"{path}:{last.lineno}: {context}: {type(exc).__name__}: {exc}"
-        ) from None
+        shown, frame, line, error = found
+        name = frame.f_code.co_name
+        context = f"in {name}" if name != "<module>" else (during or "at top level")
+        robot = _robot_of(error)
+        note = f" (robot {robot._kindex})" if robot is not None else ""
+        if isinstance(error, SystemExit):
+            back = "; return from the callback" if name != "<module>" else ""
+            note = f" (a robot program cannot end kilonet{back})"
+        raise ProgramError(f"{shown}:{line}: {context}: {exception_line(exc)}{note}") from None
+    program.refuse_threads_left(before)
+
+
+class _ProgramFiles:
+    """The files of a program: its file ``path`` (as the user named it) and the Python
+    modules beside it, which it may import."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.target = path.resolve()
+
+    def named(self, filename: str) -> Path | None:
+        """``filename`` as the user would name it, if it is a file of the program."""
+        file = Path(filename).resolve()
+        if file == self.target:
+            return self.path
+        if file.parent == self.target.parent and file.suffix == ".py":
+            return self.path.parent / file.name
+        return None
+
+    def frame(self, exc: BaseException) -> tuple[Path, Any, int, BaseException] | None:
+        """The innermost frame of the program that ``exc`` passed through: its file as the
+        user names it, the frame, its line, and the exception it passed as: ``exc`` or, for
+        the copy of a failed process's exception that the kernel raises, the original (the
+        first ``__cause__`` with a frame of the program)."""
+        error: BaseException | None = exc
+        while error is not None:
+            found = None
+            tb = error.__traceback__
+            while tb is not None:
+                shown = self.named(tb.tb_frame.f_code.co_filename)
+                if shown is not None:
+                    found = (shown, tb.tb_frame, tb.tb_lineno, error)
+                tb = tb.tb_next
+            if found is not None:
+                return found
+            error = error.__cause__
+        return None
+
+    def refuse_threads_left(self, before: set[int | None]) -> None:
+        """Refuse a thread the program started, not a daemon, that still runs (see
+        :func:`reported_as_user_errors`), naming the line of the program it runs now."""
+        frames = sys._current_frames()
+        for thread in threading.enumerate():
+            if thread.daemon or thread.ident in before or not thread.is_alive():
+                continue
+            frame = frames.get(thread.ident)
+            while frame is not None and self.named(frame.f_code.co_filename) is None:
+                frame = frame.f_back
+            if frame is not None:
+                raise ProgramError(
+                    f"{self.named(frame.f_code.co_filename)}:{frame.f_lineno}: the program's "
+                    f"thread {thread.name!r} still runs after the run, and kilonet would wait "
+                    "for it forever; start it with daemon=True, or end it"
+                )
+
+
+def _robot_of(error: BaseException) -> Kilobot | None:
+    """The robot whose program ``error`` passed through (the ``self`` of its innermost robot
+    method on the traceback), if any."""
+    robot = None
+    tb = error.__traceback__
+    while tb is not None:
+        candidate = tb.tb_frame.f_locals.get("self")
+        if isinstance(candidate, Kilobot) and isinstance(getattr(candidate, "_kindex", None), int):
+            robot = candidate
+        tb = tb.tb_next
+    return robot
 
 
 #: Types a ``[program]`` setting may have: those of the class attribute it replaces.
