@@ -225,7 +225,7 @@ def _validation(context: Context) -> None:
     from kilonet.experiments.studies.validation import write_page
 
     write_page(
-        ROOT / "docs" / "validation.md",
+        ROOT / "docs" / "results" / "validation.md",
         stamp=stamp("python -m kilonet.experiments.publish validation"),
     )
 
@@ -397,10 +397,10 @@ def _kilombo_block(context: Context) -> str:
 
 
 def _gcs_page(make: Callable[[], str]) -> Block:
-    """A block of ``docs/gcs.md`` made by ``make``, one of
+    """A block of ``docs/results/gcs.md`` made by ``make``, one of
     :mod:`kilonet.experiments.studies.gcs_measured`'s functions (they run their own simulations, no
     sweep)."""
-    return Block("docs/gcs.md", lambda _context: make())
+    return Block("docs/results/gcs.md", lambda _context: make())
 
 
 def _localization_runs(context: Context):
@@ -469,14 +469,14 @@ def _labs():
 
 #: Generated blocks by name.
 BLOCKS: dict[str, Block] = {
-    "clock-drift": Block("docs/model.md", _clock_drift_block),
+    "clock-drift": Block("docs/results/model.md", _clock_drift_block),
     "medium-throughput": Block("docs/performance.md", _medium_block),
     "startup": Block("docs/performance.md", _startup_block),
     "testkit-speed": Block("docs/performance.md", _testkit_block),
     "localize-speed": Block("docs/performance.md", _localize_speed_block),
     "kilombo": Block("docs/performance.md", _kilombo_block),
     "large-runs": Block("docs/performance.md", _large_runs_block),
-    # docs/gcs.md: experiments/studies/gcs_measured.py
+    # docs/results/gcs.md: experiments/studies/gcs_measured.py
     "gcs-robot-model": _gcs_page(gcs_measured.robot_model_block),
     "gcs-isolated-seeds": _gcs_page(gcs_measured.isolated_seeds_block),
     "gcs-runs": _gcs_page(gcs_measured.runs_block),
@@ -487,9 +487,9 @@ BLOCKS: dict[str, Block] = {
     "localize-random": Block("docs/localize.md", _localization_block(_localize_random)),
     "localize-compared": Block("docs/localize.md", _localization_block(_localize_compared)),
     "localize-shapes": Block("docs/localize.md", _localization_block(_localize_shapes)),
-    # docs/follower.md: experiments/studies/follower_measured.py
+    # docs/results/follower.md: experiments/studies/follower_measured.py
     "follower-success": Block(
-        "docs/follower.md", lambda _context: follower_measured.success_block()
+        "docs/results/follower.md", lambda _context: follower_measured.success_block()
     ),
     # examples/labs/README.md: experiments/studies/labs_measured.py
     "labs-seed-1": Block("examples/labs/README.md", lambda _context: _labs().seed_one_block()),
@@ -583,7 +583,7 @@ PUBLICATIONS: dict[str, Publication] = {
         "validation",
         "kilonet beside real Kilobots: the ARGoS communication data, ICRA 2012's ranging "
         "and battery (experiments/studies/validation.py)",
-        ("docs/validation.md", "docs/validation_files/"),
+        ("docs/results/validation.md", "docs/results/validation_files/"),
         _validation,
     ),
     "default-gif": Publication(

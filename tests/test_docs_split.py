@@ -1,0 +1,62 @@
+"""docs/ holds design apart from results: a design page (``docs/NAME.md``) holds no generated
+block, its results page (``docs/results/NAME.md``) holds them, every result is argued on its
+design page, and every block a page names by name exists (issue 42, item 7)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from kilonet.experiments import publish
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = ROOT / "docs"
+#: Results pages made of generated blocks, each beside the design page of the same name.
+RESULTS = sorted(p for p in (DOCS / "results").glob("*.md") if publish.blocks_in(p.read_text()))
+PAGES = [*DOCS.glob("**/*.md"), ROOT / "README.md", *ROOT.glob("examples/**/*.md")]
+#: "block `NAME`", "blocks `A` and `B`", "`A`, `B` and `C` blocks" in prose.
+CITED = re.compile(
+    r"\bblocks? ((?:`[\w.-]+`(?:, | and )?)+)|((?:`[\w.-]+`(?:, | and )?)+) blocks?\b", re.I
+)
+
+
+def ids(path: Path) -> str:
+    return path.relative_to(ROOT).as_posix()
+
+
+def test_there_are_results_pages():
+    assert {p.stem for p in RESULTS} >= {"gcs", "model", "follower"}
+
+
+@pytest.mark.parametrize("results", RESULTS, ids=ids)
+def test_a_design_page_holds_no_generated_block_and_argues_each_of_its_results(results):
+    design = (DOCS / results.name).read_text()
+    assert publish.blocks_in(design) == [], f"{results.name} still holds generated blocks"
+    for name in publish.blocks_in(results.read_text()):
+        assert f"`{name}`" in design, f"docs/{results.name} never names its block {name!r}"
+    assert f"(../{results.name})" in results.read_text(), "the results page links its design"
+
+
+def test_every_block_sits_on_exactly_one_page():
+    pages: dict[str, list[str]] = {}
+    for page in PAGES:
+        for name in publish.blocks_in(page.read_text()):
+            pages.setdefault(name, []).append(ids(page))
+    assert {name: where for name, where in pages.items() if len(where) > 1} == {}
+
+
+@pytest.mark.parametrize("page", sorted(DOCS.glob("**/*.md")), ids=ids)
+def test_every_block_a_page_names_exists(page):
+    for match in CITED.finditer(" ".join(page.read_text().split())):
+        for name in re.findall(r"`([\w.-]+)`", match.group(0)):
+            if name == "NAME":  # the placeholder of `publish docs --block NAME`
+                continue
+            assert name in publish.BLOCKS, f"{page.name} names a block {name!r} that does not exist"
+
+
+@pytest.mark.parametrize("page", sorted((DOCS / "results").glob("*.md")), ids=ids)
+def test_every_relative_link_of_a_results_page_points_to_a_shipped_file(page):
+    for target in re.findall(r"\]\(([^)#\s]+)\)", page.read_text()):
+        if "://" not in target:
+            assert (page.parent / target).exists(), f"{page.name} links to a missing {target}"
