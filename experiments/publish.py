@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import json
 import os
 import platform
 import re
@@ -396,6 +397,52 @@ def _kilombo_block(context: Context) -> str:
     return "\n".join(lines)
 
 
+#: What ``_math_block`` reads from ``benchmarks/bench_math.py``, printed as JSON by a child
+#: process started with one BLAS thread (OpenBLAS's idle threads spin, and process time counts
+#: them; the thread count is fixed when numpy loads).
+_MATH_FIGURES = (
+    "import json, bench_math as b; "
+    "print(json.dumps({'costs': b.costs(5), 'calls': b.gcs_calls(), 'crlb': b.crlb_seconds(1000)}))"
+)
+
+
+def _math_block(context: Context) -> str:
+    figures = json.loads(
+        subprocess.run(
+            [sys.executable, "-c", _MATH_FIGURES],
+            cwd=ROOT / "benchmarks",
+            env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    )
+    lines = [
+        "| function | hand-written µs | library route µs | calls in `kilonet run gcs --seed 1` |",
+        "|---|---:|---:|---:|",
+    ]
+    saved_s, counted = 0.0, set()
+    for name, fast, slow in figures["costs"]:
+        function = name.split()[0]
+        calls = figures["calls"].get(function) if function not in counted else None
+        counted.add(function)
+        lines.append(
+            f"| `{name}` | {fast:.1f} | {'' if slow is None else f'{slow:.1f}'} "
+            f"| {'' if calls is None else f'{calls:,}'} |"
+        )
+        if slow is not None and calls is not None:
+            saved_s += calls * (slow - fast) * 1e-6
+    cholesky_s, eig_s = figures["crlb"]
+    lines += [
+        "",
+        f"Calls × difference: the hand-written versions save {saved_s:.2f} CPU s on that run. "
+        f"`crlb_rmse_mm` on 1,000 robots: {cholesky_s:.2f} CPU s by Cholesky, {eig_s:.2f} s by "
+        "the eigen-decomposition. CPU time per call, best of 5 rounds, one BLAS thread "
+        "(`OPENBLAS_NUM_THREADS=1 python benchmarks/bench_math.py --calls` prints the same).",
+    ]
+    return "\n".join(lines)
+
+
 def _gcs_page(make: Callable[[], str]) -> Block:
     """A block of ``docs/results/gcs.md`` made by ``make``, one of
     :mod:`kilonet.experiments.studies.gcs_measured`'s functions (they run their own simulations, no
@@ -476,6 +523,7 @@ BLOCKS: dict[str, Block] = {
     "localize-speed": Block("docs/performance.md", _localize_speed_block),
     "kilombo": Block("docs/performance.md", _kilombo_block),
     "large-runs": Block("docs/performance.md", _large_runs_block),
+    "math-speed": Block("docs/results/math.md", _math_block),
     # docs/results/gcs.md: experiments/studies/gcs_measured.py
     "gcs-robot-model": _gcs_page(gcs_measured.robot_model_block),
     "gcs-isolated-seeds": _gcs_page(gcs_measured.isolated_seeds_block),

@@ -60,3 +60,16 @@ def test_every_relative_link_of_a_results_page_points_to_a_shipped_file(page):
     for target in re.findall(r"\]\(([^)#\s]+)\)", page.read_text()):
         if "://" not in target:
             assert (page.parent / target).exists(), f"{page.name} links to a missing {target}"
+
+
+@pytest.mark.slow
+def test_the_math_block_times_every_function_and_counts_the_gcs_runs_calls():
+    lines = publish._math_block(publish.Context(runs=ROOT / "runs", workers=1)).splitlines()
+    rows = [line.split("|")[1:-1] for line in lines if line.startswith("| `")]
+    names = [cells[0].strip() for cells in rows]
+    assert names[:2] == ["`half_map (3 members)`", "`level_matrix`"] and len(names) == 10
+    assert all(float(cells[1]) > 0 for cells in rows)
+    calls = {name: cells[3].strip() for name, cells in zip(names, rows, strict=True)}
+    assert int(calls["`half_map (3 members)`"].replace(",", "")) > 0
+    assert lines[-1].startswith("Calls × difference: the hand-written versions save ")
+    assert "`crlb_rmse_mm` on 1,000 robots: " in lines[-1]
