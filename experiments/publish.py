@@ -273,14 +273,27 @@ def _clock_drift_block(context: Context) -> str:
     return "\n".join([*_markdown_table(wide), "", f"Mean over {runs} seeds per row."])
 
 
-def _benchmark(name: str):
-    """The module ``benchmarks/<name>.py`` (benchmarks are scripts, not a package)."""
+def _benchmark(name: str, folder: str = "benchmarks"):
+    """The module ``<folder>/<name>.py`` (benchmarks and evidence are scripts, not packages)."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    spec = importlib.util.spec_from_file_location(name, ROOT / folder / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def _occlusion_block(context: Context) -> str:
+    evidence = _benchmark("argos_occlusion", "docs/evidence")
+    rows, loss, se, runs = evidence.occlusion(ROOT / "tests" / "validation" / "data" / "argos")
+    lines = ["| distance mm | bodies crossing | reception | pairs |", "|---:|---:|---:|---:|"]
+    lines += [f"| {d:.1f} | {k} | {rate:.3f} | {pairs:,} |" for d, k, rate, pairs in rows]
+    lines += [
+        "",
+        f"Loss per body of the links at 100 mm, against clear links interpolated to that length: "
+        f"{loss:+.2%} ± {se:.2%} (standard error over the {runs} runs).",
+    ]
+    return "\n".join(lines)
 
 
 def _medium_block(context: Context) -> str:
@@ -517,6 +530,7 @@ def _labs():
 #: Generated blocks by name.
 BLOCKS: dict[str, Block] = {
     "clock-drift": Block("docs/results/model.md", _clock_drift_block),
+    "argos-occlusion": Block("docs/results/model.md", _occlusion_block),
     "medium-throughput": Block("docs/performance.md", _medium_block),
     "startup": Block("docs/performance.md", _startup_block),
     "testkit-speed": Block("docs/performance.md", _testkit_block),

@@ -73,3 +73,24 @@ def test_the_math_block_times_every_function_and_counts_the_gcs_runs_calls():
     assert int(calls["`half_map (3 members)`"].replace(",", "")) > 0
     assert lines[-1].startswith("Calls × difference: the hand-written versions save ")
     assert "`crlb_rmse_mm` on 1,000 robots: " in lines[-1]
+
+
+def test_the_occlusion_block_reads_the_shipped_argos_runs():
+    lines = publish._occlusion_block(publish.Context(runs=ROOT / "runs", workers=1)).splitlines()
+    rows = [[cell.strip() for cell in line.split("|")[1:-1]] for line in lines[2:] if "|" in line]
+    assert [(d, k) for d, k, _, _ in rows] == [
+        ("50.0", "0"),
+        ("70.7", "0"),
+        ("100.0", "1"),
+        ("111.8", "0"),
+        ("141.4", "1"),
+        ("150.0", "2"),
+        ("158.1", "2"),
+    ]
+    assert all(0.0 < float(rate) < 1.0 for _, _, rate, _ in rows)
+    assert sum(int(pairs.replace(",", "")) for *_, pairs in rows) <= 50 * 25 * 24
+    assert re.fullmatch(
+        r"Loss per body of the links at 100 mm, against clear links interpolated to that length: "
+        r"[+-]\d+\.\d\d% ± \d+\.\d\d% \(standard error over the 50 runs\)\.",
+        lines[-1],
+    )
