@@ -1,5 +1,5 @@
-"""The figures of ``docs/math.md``: what the hand-written math costs against scipy, how precise
-the packed quaternion is, and how often a gcs run calls each function.
+"""The figures behind ``docs/math.md``: what the hand-written math costs against scipy, how
+precise the packed quaternion is, and how often a gcs run calls each function.
 
 Prints a stamp (date, machine, library versions), then one row per function: its CPU time per
 call (``time.process_time``, the best of ``--repeat`` rounds) and that of the scipy or numpy

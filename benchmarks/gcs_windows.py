@@ -8,8 +8,8 @@ waits; one barely longer risks cutting the phase short on another placement or c
 
     python benchmarks/gcs_windows.py [--sizes 100 300] [--seeds 1 2 3] [--set key=value ...]
 
-docs/gcs.md's table of the same is made by ``python -m kilonet.experiments.publish docs --block
-gcs-windows`` (:func:`kilonet.experiments.studies.gcs_measured.windows_block`).
+docs/results/gcs.md's table of the same is made by ``python -m kilonet.experiments.publish docs
+--block gcs-windows`` (:func:`kilonet.experiments.studies.gcs_measured.windows_block`).
 """
 
 from __future__ import annotations

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import json
 import os
 import platform
 import re
@@ -225,7 +226,7 @@ def _validation(context: Context) -> None:
     from kilonet.experiments.studies.validation import write_page
 
     write_page(
-        ROOT / "docs" / "validation.md",
+        ROOT / "docs" / "results" / "validation.md",
         stamp=stamp("python -m kilonet.experiments.publish validation"),
     )
 
@@ -272,14 +273,27 @@ def _clock_drift_block(context: Context) -> str:
     return "\n".join([*_markdown_table(wide), "", f"Mean over {runs} seeds per row."])
 
 
-def _benchmark(name: str):
-    """The module ``benchmarks/<name>.py`` (benchmarks are scripts, not a package)."""
+def _benchmark(name: str, folder: str = "benchmarks"):
+    """The module ``<folder>/<name>.py`` (benchmarks and evidence are scripts, not packages)."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    spec = importlib.util.spec_from_file_location(name, ROOT / folder / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def _occlusion_block(context: Context) -> str:
+    evidence = _benchmark("argos_occlusion", "docs/evidence")
+    rows, loss, se, runs = evidence.occlusion(ROOT / "tests" / "validation" / "data" / "argos")
+    lines = ["| distance mm | bodies crossing | reception | pairs |", "|---:|---:|---:|---:|"]
+    lines += [f"| {d:.1f} | {k} | {rate:.3f} | {pairs:,} |" for d, k, rate, pairs in rows]
+    lines += [
+        "",
+        f"Loss per body of the links at 100 mm, against clear links interpolated to that length: "
+        f"{loss:+.2%} ± {se:.2%} (standard error over the {runs} runs).",
+    ]
+    return "\n".join(lines)
 
 
 def _medium_block(context: Context) -> str:
@@ -396,11 +410,57 @@ def _kilombo_block(context: Context) -> str:
     return "\n".join(lines)
 
 
+#: What ``_math_block`` reads from ``benchmarks/bench_math.py``, printed as JSON by a child
+#: process started with one BLAS thread (OpenBLAS's idle threads spin, and process time counts
+#: them; the thread count is fixed when numpy loads).
+_MATH_FIGURES = (
+    "import json, bench_math as b; "
+    "print(json.dumps({'costs': b.costs(5), 'calls': b.gcs_calls(), 'crlb': b.crlb_seconds(1000)}))"
+)
+
+
+def _math_block(context: Context) -> str:
+    figures = json.loads(
+        subprocess.run(
+            [sys.executable, "-c", _MATH_FIGURES],
+            cwd=ROOT / "benchmarks",
+            env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    )
+    lines = [
+        "| function | hand-written µs | library route µs | calls in `kilonet run gcs --seed 1` |",
+        "|---|---:|---:|---:|",
+    ]
+    saved_s, counted = 0.0, set()
+    for name, fast, slow in figures["costs"]:
+        function = name.split()[0]
+        calls = figures["calls"].get(function) if function not in counted else None
+        counted.add(function)
+        lines.append(
+            f"| `{name}` | {fast:.1f} | {'' if slow is None else f'{slow:.1f}'} "
+            f"| {'' if calls is None else f'{calls:,}'} |"
+        )
+        if slow is not None and calls is not None:
+            saved_s += calls * (slow - fast) * 1e-6
+    cholesky_s, eig_s = figures["crlb"]
+    lines += [
+        "",
+        f"Calls × difference: the hand-written versions save {saved_s:.2f} CPU s on that run. "
+        f"`crlb_rmse_mm` on 1,000 robots: {cholesky_s:.2f} CPU s by Cholesky, {eig_s:.2f} s by "
+        "the eigen-decomposition. CPU time per call, best of 5 rounds, one BLAS thread "
+        "(`OPENBLAS_NUM_THREADS=1 python benchmarks/bench_math.py --calls` prints the same).",
+    ]
+    return "\n".join(lines)
+
+
 def _gcs_page(make: Callable[[], str]) -> Block:
-    """A block of ``docs/gcs.md`` made by ``make``, one of
+    """A block of ``docs/results/gcs.md`` made by ``make``, one of
     :mod:`kilonet.experiments.studies.gcs_measured`'s functions (they run their own simulations, no
     sweep)."""
-    return Block("docs/gcs.md", lambda _context: make())
+    return Block("docs/results/gcs.md", lambda _context: make())
 
 
 def _localization_runs(context: Context):
@@ -469,14 +529,16 @@ def _labs():
 
 #: Generated blocks by name.
 BLOCKS: dict[str, Block] = {
-    "clock-drift": Block("docs/model.md", _clock_drift_block),
+    "clock-drift": Block("docs/results/model.md", _clock_drift_block),
+    "argos-occlusion": Block("docs/results/model.md", _occlusion_block),
     "medium-throughput": Block("docs/performance.md", _medium_block),
     "startup": Block("docs/performance.md", _startup_block),
     "testkit-speed": Block("docs/performance.md", _testkit_block),
     "localize-speed": Block("docs/performance.md", _localize_speed_block),
     "kilombo": Block("docs/performance.md", _kilombo_block),
     "large-runs": Block("docs/performance.md", _large_runs_block),
-    # docs/gcs.md: experiments/studies/gcs_measured.py
+    "math-speed": Block("docs/results/math.md", _math_block),
+    # docs/results/gcs.md: experiments/studies/gcs_measured.py
     "gcs-robot-model": _gcs_page(gcs_measured.robot_model_block),
     "gcs-isolated-seeds": _gcs_page(gcs_measured.isolated_seeds_block),
     "gcs-runs": _gcs_page(gcs_measured.runs_block),
@@ -487,9 +549,9 @@ BLOCKS: dict[str, Block] = {
     "localize-random": Block("docs/localize.md", _localization_block(_localize_random)),
     "localize-compared": Block("docs/localize.md", _localization_block(_localize_compared)),
     "localize-shapes": Block("docs/localize.md", _localization_block(_localize_shapes)),
-    # docs/follower.md: experiments/studies/follower_measured.py
+    # docs/results/follower.md: experiments/studies/follower_measured.py
     "follower-success": Block(
-        "docs/follower.md", lambda _context: follower_measured.success_block()
+        "docs/results/follower.md", lambda _context: follower_measured.success_block()
     ),
     # examples/labs/README.md: experiments/studies/labs_measured.py
     "labs-seed-1": Block("examples/labs/README.md", lambda _context: _labs().seed_one_block()),
@@ -583,7 +645,7 @@ PUBLICATIONS: dict[str, Publication] = {
         "validation",
         "kilonet beside real Kilobots: the ARGoS communication data, ICRA 2012's ranging "
         "and battery (experiments/studies/validation.py)",
-        ("docs/validation.md", "docs/validation_files/"),
+        ("docs/results/validation.md", "docs/results/validation_files/"),
         _validation,
     ),
     "default-gif": Publication(

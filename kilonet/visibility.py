@@ -14,8 +14,8 @@ others shadows part of that light. :class:`LinkModel` turns true positions into 
 
 The default is ``"none"``: in real-robot measurements (25 Kilobots on a 5 cm grid, the ARGoS
 project's validation runs) a link through one body at 100 mm succeeds as often as clear links
-of that length, and ARGoS dropped its line-of-sight check in 2018; ``docs/model.md`` gives the
-figures and the command that derives them.
+of that length, and ARGoS dropped its line-of-sight check in 2018 (``docs/model.md``; the
+figures: block ``argos-occlusion`` of ``docs/results/model.md``).
 
 A body crosses the segment when its centre lies closer than a body radius to it. The functions
 are pure; the medium precomputes the links once for a static swarm and again only when a robot

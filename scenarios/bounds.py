@@ -76,7 +76,7 @@ def crlb_rmse_mm(
     -----
     O(N³) time and O(N²) memory: J is a dense 2N × 2N matrix. A rigid connected graph is
     handled by one Cholesky factorisation, other graphs by the slower eigen-decomposition
-    (``docs/math.md`` gives both at N = 1,000).
+    (block ``math-speed`` of ``docs/results/math.md`` gives both at N = 1,000).
 
     Examples
     --------

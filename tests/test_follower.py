@@ -447,7 +447,7 @@ def test_start_heading_in_the_trajectory_is_the_true_one():
 
 @pytest.mark.slow
 def test_real_medium_success_rate():
-    # docs/follower.md's second row. On the fitted medium each link keeps a systematic
+    # docs/results/follower.md's second row. On the fitted medium each link keeps a systematic
     # ranging error of about 2 mm and the frame ranges only to 100 mm: 92 % of these seeds,
     # where the 85 mm disc with iid noise gave 97 %.
     table = run_many(range(1, 101), {"medium.loss_prob": 0.1})
@@ -461,6 +461,6 @@ def test_long_range_success_rate():
     from kilonet.experiments.studies.follower_measured import CONDITIONS
 
     (what_if,) = (overrides for label, overrides in CONDITIONS if label.startswith("what-if"))
-    table = run_many(range(1, 101), what_if)  # the 300 mm disc of docs/follower.md's table
+    table = run_many(range(1, 101), what_if)  # the 300 mm disc of docs/results/follower.md's table
     ok = (table["outcome"] == "reached") & (table["final_distance_mm"] <= 10.0)
     assert ok.mean() >= 0.95

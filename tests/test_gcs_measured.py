@@ -1,4 +1,5 @@
-"""Tests for kilonet.experiments.studies.gcs_measured: what docs/gcs.md's blocks read from a run."""
+"""Tests for kilonet.experiments.studies.gcs_measured: what docs/results/gcs.md's blocks read
+from a run."""
 
 from __future__ import annotations
 

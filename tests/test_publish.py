@@ -9,7 +9,7 @@ import pytest
 from kilonet.experiments import publish
 
 ROOT = Path(__file__).resolve().parent.parent
-PAGES = [*ROOT.glob("docs/*.md"), ROOT / "README.md", *ROOT.glob("examples/**/*.md")]
+PAGES = [*ROOT.glob("docs/**/*.md"), ROOT / "README.md", *ROOT.glob("examples/**/*.md")]
 
 
 def test_every_generated_block_has_a_generator_on_its_page_and_every_generator_a_block():

@@ -9,9 +9,12 @@ distance and by the bodies that cross their line of sight (kilonet's own
 the per-body loss a link through one body at 100 mm shows against clear links interpolated to
 that length.
 
-Run it on a checkout (or an exported copy) of that folder::
+Run it on a checkout (or an exported copy) of that folder, such as the one kilonet ships::
 
-    python docs/evidence/argos_occlusion.py PATH/TO/argos3-kilobot/src/validation/kilobots/results
+    python docs/evidence/argos_occlusion.py tests/validation/data/argos
+
+``python -m kilonet.experiments.publish docs --block argos-occlusion`` tabulates it in
+``docs/results/model.md``.
 """
 
 from __future__ import annotations
@@ -35,14 +38,23 @@ def rates(path: Path) -> np.ndarray:
     return data / np.diagonal(data)[None, :]
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("results", type=Path, help="ARGoS's validation/kilobots/results folder")
-    args = parser.parse_args()
+def occlusion(results: Path) -> tuple[list[tuple[float, int, float, int]], float, float, int]:
+    """What the runs in ``results`` show: rows of (distance mm, bodies crossing, mean reception,
+    pairs) up to 160 mm, the loss per body at 100 mm against clear links interpolated to that
+    length (a fraction: negative when the link through a body does better) and its standard error,
+    and the number of runs.
+
+    Raises
+    ------
+    ValueError
+        If ``results`` holds fewer than two ``comm_*_run*.dat`` files.
+    """
     i, j = np.nonzero(~np.eye(25, dtype=bool))
     bodies = bodies_crossing(GRID_MM, i, j, 16.5)
     dist = np.hypot(*(GRID_MM[i] - GRID_MM[j]).T).round(1)
-    files = sorted(args.results.glob("comm_*_run*.dat"))
+    files = sorted(results.glob("comm_*_run*.dat"))
+    if len(files) < 2:
+        raise ValueError(f"{results}: fewer than two comm_*_run*.dat files")
     groups: dict[tuple[float, int], list[float]] = collections.defaultdict(list)
     per_body = []
     for path in files:
@@ -52,14 +64,25 @@ def main() -> None:
         mean = {d: r[dist == d].mean() for d in (70.7, 100.0, 111.8)}
         clear = mean[70.7] + (mean[111.8] - mean[70.7]) * (100.0 - 70.7) / (111.8 - 70.7)
         per_body.append(1.0 - mean[100.0] / clear)
-    print(f"{len(files)} runs")
-    print(" distance mm  bodies  reception (mean)  pairs")
-    for (d, k), values in sorted(groups.items()):
-        if d <= 160:
-            print(f" {d:11.1f}  {k:6d}  {np.mean(values):16.3f}  {len(values):5d}")
+    rows = [
+        (d, k, float(np.mean(values)), len(values))
+        for (d, k), values in sorted(groups.items())
+        if d <= 160
+    ]
     q = np.array(per_body)
-    se = q.std(ddof=1) / np.sqrt(len(q))
-    print(f"loss per body at 100 mm against clear links: {q.mean():+.4f} ± {se:.4f} (s.e.)")
+    return rows, float(q.mean()), float(q.std(ddof=1) / np.sqrt(len(q))), len(files)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("results", type=Path, help="ARGoS's validation/kilobots/results folder")
+    args = parser.parse_args()
+    rows, loss, se, runs = occlusion(args.results)
+    print(f"{runs} runs")
+    print(" distance mm  bodies  reception (mean)  pairs")
+    for d, k, reception, pairs in rows:
+        print(f" {d:11.1f}  {k:6d}  {reception:16.3f}  {pairs:5d}")
+    print(f"loss per body at 100 mm against clear links: {loss:+.4f} ± {se:.4f} (s.e.)")
 
 
 if __name__ == "__main__":

@@ -7,10 +7,10 @@
   rules compared by phase 4's accuracy.
 - :mod:`kilonet.experiments.studies.gcs_measured`,
   :mod:`kilonet.experiments.studies.follower_measured`,
-  :mod:`kilonet.experiments.studies.labs_measured`: the generated blocks of ``docs/gcs.md``,
-  ``docs/follower.md`` and ``examples/labs/README.md``.
+  :mod:`kilonet.experiments.studies.labs_measured`: the generated blocks of
+  ``docs/results/gcs.md``, ``docs/results/follower.md`` and ``examples/labs/README.md``.
 - :mod:`kilonet.experiments.studies.validation`: kilonet against real-Kilobot data
-  (``docs/validation.md``).
+  (``docs/results/validation.md``).
 
 :mod:`kilonet.experiments.publish` runs them; the sweep files stay in ``experiments/``.
 """

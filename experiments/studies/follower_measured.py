@@ -1,5 +1,5 @@
-"""The measured figures of ``docs/follower.md``: how often the follower reaches its goal, and
-how fast, over generated starts (:func:`kilonet.scenarios.follower.run_many`).
+"""The measured figures of ``docs/results/follower.md``: how often the follower reaches its
+goal, and how fast, over generated starts (:func:`kilonet.scenarios.follower.run_many`).
 
 Each condition runs the same seeds; a run counts as reached when the follower declared arrival
 and stands within ``follower.success_mm`` (8 mm) of the true centroid. About a minute of CPU

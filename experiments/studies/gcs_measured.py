@@ -1,4 +1,4 @@
-"""The measured figures of ``docs/gcs.md``, one function per generated block.
+"""The measured figures of ``docs/results/gcs.md``, one function per generated block.
 
 Each ``*_block`` function returns the Markdown of one ``<!-- publish:NAME -->`` block of the
 page; :data:`kilonet.experiments.publish.BLOCKS` registers them, and ``python -m

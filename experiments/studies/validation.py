@@ -9,7 +9,7 @@ line by line; :func:`simulate` runs it in kilonet on the same grid; the statisti
 and on kilonet's. :func:`ranging_stats` and :func:`battery_life_h` measure kilonet's distance
 estimates and battery against Rubenstein et al. (ICRA 2012). :data:`CHECKS` holds each row's
 real value and tolerance, which ``tests/validation/`` asserts and ``python -m
-kilonet.experiments.publish validation`` tabulates in ``docs/validation.md``.
+kilonet.experiments.publish validation`` tabulates in ``docs/results/validation.md``.
 
 Statistics take *rates*: an array ``(runs, 25, 25)`` whose entry ``[k, i, j]`` is the share of
 robot ``j``'s messages that robot ``i`` received in run ``k`` (the diagonal is undefined).
@@ -361,7 +361,7 @@ def _tolerances() -> dict[str, float]:
 
 
 def write_page(path: Path, *, stamp: str, runs: int = 20) -> None:
-    """Write ``docs/validation.md`` and its figures (``validation_files/`` beside it): the
+    """Write ``docs/results/validation.md`` and its figures (``validation_files/`` beside it): the
     majority series against kilonet's default medium and against the medium before the fit,
     the long series against ``argos-long``, ranging and battery against ICRA 2012."""
     import matplotlib

@@ -74,8 +74,8 @@ class GcsParams:
         doc="a reception with a larger distance estimate is ignored: its sender is no neighbour "
         "(the thesis's range; estimates saturate beyond kilolib's tables)",
     )
-    # Windows: lossless runs with a margin; a lossy channel needs longer ones (docs/gcs.md,
-    # "Measured": how much of each window the robots use).
+    # Windows: lossless runs with a margin; a lossy channel needs longer ones (block gcs-windows
+    # of docs/results/gcs.md: how much of each window the robots use).
     ids_s: float = param(8.0, lo=0.5, hi=600.0, doc="phase 1 window")
     duplicate_distance_mm: float = param(
         12.0, lo=1.0, hi=200.0, doc="one ID heard at distances this far apart is two robots"

@@ -14,8 +14,8 @@ the per-reception path, and a tuple hashes and compares in C, while a frozen dat
 more to create and compares in Python; plain ints would be cheaper still but put the packing
 back into every module. To keep creation off that path, robots build a neighbour's key once
 (:meth:`kilonet.protocols.gcs.program.GcsRobot.frame_key`) and values read off the wire are interned
-(``from_wire``): a swarm hears the same few keys and ranks again and again. The costs, timed,
-are in ``docs/gcs.md`` ("Speed").
+(``from_wire``): a swarm hears the same few keys and ranks again and again (``docs/gcs.md``,
+"Speed").
 
 Wire form (little-endian, as :class:`kilonet.message.Layout` packs fields)::
 
