@@ -61,6 +61,7 @@ from kilonet.protocols.localize.phase2_spread import (
 )
 from kilonet.protocols.localize.phase3_termination import gives_up, subtree_complete
 from kilonet.protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR
+from kilonet.protocols.localize.stages import LocalizingPhase
 from kilonet.scenarios.neighbourhood import noise_free_estimate_mm, trusted_links
 
 from kilonet import scenarios
@@ -344,7 +345,7 @@ def test_a_vote_for_a_lapsed_candidate_pair_is_not_taken_for_the_next_one():
     robot = localize_module.LocalizeRobot(sim.robots[0].params)
     robot._attach(sim, 0, np.random.default_rng(5))
     robot.setup()
-    robot.stage = "localize"
+    robot.driver.enter(LocalizingPhase(robot))
     spread = robot.spread
 
     def attempt():
@@ -471,7 +472,7 @@ def _spread_robot(seed=5):
     robot = localize_module.LocalizeRobot(sim.robots[0].params)
     robot._attach(sim, 0, np.random.default_rng(seed))
     robot.setup()
-    robot.stage = "localize"
+    robot.driver.enter(LocalizingPhase(robot))
     return robot
 
 

@@ -22,6 +22,7 @@ from kilonet.protocols.localize.base import (
     wrapped_position,
 )
 from kilonet.protocols.localize.phase2_spread import CAND, POS
+from kilonet.protocols.localize.stages import LocalizingPhase
 from kilonet.scenarios.localize import estimates_frame
 
 from kilonet import scenarios
@@ -58,7 +59,7 @@ def _robot(sim, index: int) -> localize_module.LocalizeRobot:
     robot = localize_module.LocalizeRobot(sim.robots[0].params)
     robot._attach(sim, index, np.random.default_rng(index))
     robot.setup()
-    robot.stage = "localize"
+    robot.driver.enter(LocalizingPhase(robot))
     return robot
 
 

@@ -1,16 +1,24 @@
-"""The phased-protocol pattern: a protocol's stages as a typed enum, and the phase object that
-runs one stage on one robot.
+"""The phased-protocol pattern: a protocol's stages as a typed enum, the phase object that
+runs one stage on one robot, and the driver that holds the running phase.
 
 Every protocol here that runs in stages names them in a :class:`Stage` subclass, in the order
 they run: gcs (:class:`kilonet.protocols.gcs.base.GcsStage`, one :class:`Phase` object per stage,
-run from a window table), ``localize`` (:class:`kilonet.protocols.localize.base.LocalizeStage`) and
-the maze robot (:class:`kilonet.protocols.maze.program.MazeStage`). A member's value is its name:
+run from a window table), ``localize`` (:class:`kilonet.protocols.localize.stages.LocalizeStage`,
+one phase per stage, run by a :class:`PhaseDriver`) and the maze robot
+(:class:`kilonet.protocols.maze.program.MazeStage`). A member's value is its name:
 the trace, the summaries and the parameters (``gcs.until``) write stages as those strings, and a
 member compares equal to its name.
 
 A :class:`Phase` declares its stage (``name``) and whether it is *open-ended*: it ends when the
 robots agree it is over, not when a window closes. A run's stop rule and a robot's schedule
 read that declaration instead of listing phase names.
+
+A :class:`PhaseDriver` holds a robot's running phase and its receive handlers by message type
+byte: the protocol's own, with the running phase's (:meth:`Phase.handlers`) in place of them for
+the types it names. The table is rebuilt when a phase begins, so a reception costs one lookup,
+not a call into every phase. A phase ends when its window closes (the ``until`` tick it was
+entered with) or when it reports itself :meth:`~Phase.finished`; :meth:`PhaseDriver.advance`
+then starts the phase it hands on to (:meth:`Phase.following`).
 
 Examples
 --------
@@ -24,17 +32,43 @@ Examples
 ...     open_ended = True
 >>> Moving.name.number, Moving.open_ended, Phase.open_ended
 (2, True, False)
+
+A listening phase that ends by its window and hands on to a moving phase that ends when it
+has moved three times; the listening phase takes over message type 7:
+
+>>> class Listening(Phase):
+...     name = Walk.LISTEN
+...     def handlers(self): return {7: lambda m: f"heard {m} while listening"}
+...     def following(self): return Counting()
+>>> class Counting(Moving):
+...     moves = 0
+...     def finished(self): return self.moves >= 3
+>>> driver = PhaseDriver({7: lambda m: f"heard {m}", 8: lambda m: "eight"})
+>>> driver.enter(Listening(), until=100)
+>>> str(driver.stage), driver.handler(7)("x"), driver.handler(8)("y"), driver.handler(9)
+('listen', 'heard x while listening', 'eight', None)
+>>> driver.advance(99), driver.advance(100), str(driver.stage), driver.handler(7)("x")
+(False, True, 'move', 'heard x')
+>>> driver.phase.moves = 3
+>>> driver.advance(101), driver.phase, driver.stage
+(True, None, '')
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable, Mapping
 from enum import StrEnum
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 if TYPE_CHECKING:
     from kilonet.message import Message
 
-__all__ = ["Phase", "Stage"]
+__all__ = ["Handler", "Phase", "PhaseDriver", "Stage"]
+
+#: A receive handler: the protocol decides its arguments (the message, and whatever it has
+#: learned of the sender) and what it returns.
+Handler = Callable[..., Any]
 
 
 class Stage(StrEnum):
@@ -90,3 +124,71 @@ class Phase:
 
     def loop(self) -> None:
         """Called from the robot's loop while the phase runs."""
+
+    def handlers(self) -> Mapping[int, Handler]:
+        """This phase's receive handlers by message type byte, in place of the protocol's own
+        for those types while it runs (:class:`PhaseDriver`). Default: none."""
+        return {}
+
+    def following(self) -> Phase | None:
+        """The phase that runs once this one is over (``None``: none; the driver then holds no
+        phase). Called once, just before :meth:`finish`."""
+        return None
+
+
+class PhaseDriver:
+    """The running phase of one robot's protocol, its receive handlers, and its transitions.
+
+    Parameters
+    ----------
+    handlers : mapping
+        The protocol's receive handlers by message type byte, for every phase; a phase's own
+        (:meth:`Phase.handlers`) replace them for the types it names while it runs.
+
+    Attributes
+    ----------
+    phase : Phase or None
+        The running phase (``None`` before the first and after the last).
+    until : float
+        The tick at which the running phase's window closes (``inf``: it ends only when it
+        reports itself finished).
+    """
+
+    __slots__ = ("_common", "_table", "phase", "until")
+
+    def __init__(self, handlers: Mapping[int, Handler]) -> None:
+        self._common: dict[int, Handler] = dict(handlers)
+        self._table = self._common
+        self.phase: Phase | None = None
+        self.until = math.inf
+
+    @property
+    def stage(self) -> Stage | str:
+        """The running phase's stage ("" when no phase runs)."""
+        return self.phase.name if self.phase is not None else ""
+
+    def handler(self, kind: int) -> Handler | None:
+        """The receive handler for message type ``kind`` now, or ``None`` for a type nobody
+        handles."""
+        return self._table.get(kind)
+
+    def enter(self, phase: Phase | None, *, until: float = math.inf) -> None:
+        """Finish the running phase, if any, and start ``phase`` (``None``: run none), whose
+        window closes at tick ``until``."""
+        if self.phase is not None:
+            self.phase.finish()
+        self.phase = phase
+        self.until = until
+        self._table = self._common if phase is None else {**self._common, **phase.handlers()}
+        if phase is not None:
+            phase.start()
+
+    def advance(self, tick: float) -> bool:
+        """At ``tick``, move on from every phase whose window has closed or that reports itself
+        finished, to the phase it hands on to (its window open-ended); whether the phase
+        changed."""
+        moved = False
+        while self.phase is not None and (tick >= self.until or self.phase.finished()):
+            self.enter(self.phase.following())
+            moved = True
+        return moved

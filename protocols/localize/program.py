@@ -18,6 +18,11 @@ not in fixed windows:
    none of which hears three placed robots: such an island stays awake after DONE and places itself
    as rigid bodies tied to the now still frame by their distances.
 
+Each stage runs as a phase of :mod:`kilonet.protocols.localize.stages` (its work, its message,
+its receive handlers, when it is over and what follows), which the robot's
+:class:`~kilonet.protocols.common.phases.PhaseDriver` holds; this module keeps what every stage
+shares: the rounds, the noise estimate, the distance reports, the refinement and the LED.
+
 A robot learns only from what it receives: the messages and the distance estimate of each
 reception. It keeps time with its own clock (``kilo_ticks``): a round of work every
 ``localize.round_s``, done from ``loop()``; ``message_tx()`` only packs the current state. It
@@ -37,6 +42,7 @@ from __future__ import annotations
 import math
 import struct
 
+from kilonet.protocols.common.phases import PhaseDriver
 from kilonet.protocols.common.ranging_limit import trusted_range
 from kilonet.protocols.common.refinement import DIST, Refiner, next_report
 from kilonet.protocols.localize.base import (
@@ -44,23 +50,20 @@ from kilonet.protocols.localize.base import (
     DONE,
     LOCALIZED,
     MAX_COORDINATE_MM,
-    MAX_HOPS,
     NBR,
     NO_ID,
     SETTLED,
-    UNKNOWN_HOPS,
     LocalizeParams,
     Neighbour,
     Neighbours,
     distance_report,
-    toward_root,
     unwrap_coordinate,
 )
 from kilonet.protocols.localize.phase1_election import ELECT, Election
 from kilonet.protocols.localize.phase2_spread import CAND, POS, ROOT, VOTE, Spread
 from kilonet.protocols.localize.phase3_termination import Termination
-from kilonet.protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR, Island
-from kilonet.protocols.localize.stages import LocalizeStage
+from kilonet.protocols.localize.phase4_island import Island
+from kilonet.protocols.localize.stages import ElectionPhase, LocalizeStage
 
 from kilonet.message import Message, PayloadError
 from kilonet.robot import Kilobot
@@ -87,9 +90,9 @@ class LocalizeRobot(Kilobot):
 
     Attributes
     ----------
-    stage : LocalizeStage
-        ``"election"``, ``"localize"``, ``"island"`` (after DONE, for an island:
-        :mod:`kilonet.protocols.localize.phase4_island`) or ``"done"``.
+    driver : PhaseDriver
+        The running stage's phase (:mod:`kilonet.protocols.localize.stages`) and the receive
+        handlers by message type.
     position : (float, float) or None
         This robot's estimate in the frame, mm.
     root_key : int
@@ -121,14 +124,14 @@ class LocalizeRobot(Kilobot):
             stale_rounds=math.ceil(p.stale_s / p.round_s),
             duplicate_after=p.duplicate_after,
         )
-        # Neighbours' NBR reports about each other, while electing and on the root.
-        self.reports: dict[int, dict[int, float]] = {}
+        # Neighbours' NBR reports about each other, while electing and on the root (None once
+        # no longer needed).
+        self.reports: dict[int, dict[int, float]] | None = {}
         # Ranging error per reception, as this robot measures it, with the per-link error.
         self.sigma_mm = math.hypot(p.sigma_mm, p.link_error_mm)
         self.position: tuple[float, float] | None = None
         self.is_root = False
         self.located_tick = 0
-        self.stage = LocalizeStage.ELECTION
         self.hops = 0
         self.parent = NO_ID  # the neighbour this robot reports to in the convergecasts
         self._parent_repeats = 0  # ELECT messages still owed after a change of parent
@@ -137,11 +140,6 @@ class LocalizeRobot(Kilobot):
         self.election = Election(self)
         self.spread = Spread(self)
         self.island = Island(self)
-        self._island_handlers = {
-            ISLAND_PAIR.type: self.island.pair_rx,
-            ISLAND_LINK.type: self.island.link_rx,
-            ISLAND_FULL.type: self.island.full_rx,
-        }
         self.termination = Termination(self)
         self.refiner = Refiner(
             huber_mm=p.huber_mm,
@@ -155,27 +153,28 @@ class LocalizeRobot(Kilobot):
         self._noise_due = 0.0  # receptions recorded when the noise is next re-estimated
         self._round = 0  # rounds of work done: the neighbour records' time stamps
         self._news = False  # a neighbour's echo or flags changed since the last work
-        self._urgent = False  # this robot's own state changed: send it next
+        self.urgent = False  # this robot's own state changed: send it next
         self._turn = 0
         self.unsendable = 0  # messages message_tx could not pack (a counted event)
-        self._handlers = {
-            ELECT.type: self._elect_rx,
-            DIST.type: self._dist_rx,
-            NBR.type: self._nbr_rx,
-            ROOT.type: self._state_rx,
-            POS.type: self._state_rx,
-            CAND.type: self._cand_rx,
-            VOTE.type: self.spread.vote_rx,
-            ISLAND_PAIR.type: self._island_rx,
-            ISLAND_LINK.type: self._island_rx,
-            ISLAND_FULL.type: self._island_rx,
-        }
+        # The handlers of every stage; a stage's phase puts its own in place of some.
+        self.driver = PhaseDriver(
+            {
+                ELECT.type: self._parent_rx,
+                DIST.type: self._dist_rx,
+                NBR.type: self._nbr_rx,
+                ROOT.type: self._state_rx,
+                POS.type: self._state_rx,
+                CAND.type: self._cand_rx,
+                VOTE.type: self.spread.vote_rx,
+            }
+        )
+        self.driver.enter(ElectionPhase(self))
         self.set_color(0, 0, 2)
 
     def loop(self) -> None:
         if self._polled:
             self.drain_messages()
-        if self.stage == "done":
+        if not self.driver.phase.awake:
             return
         tick = self.kilo_ticks
         if tick >= self._next_round:
@@ -198,40 +197,13 @@ class LocalizeRobot(Kilobot):
         self._news = False
 
     def _work(self, tick: int, fresh: list[Neighbour], *, full: bool) -> None:
-        """A round of work (``full``), or only the updates a neighbour's news calls for."""
+        """A round of work (``full``), or only the updates a neighbour's news calls for, by the
+        running stage's phase; then the next stage if that one is over."""
         before = (self.stage, self.election.echo, self.flags, self.parent)
-        if self.stage == "election":
-            self.election.round(tick, fresh, full=full)
-            if self.election.won:
-                self.is_root = True
-                self._enter_localize()
-                self.locate(0.0, 0.0)
-        elif self.stage == "island":
-            if full:
-                self._island_work(tick, self.neighbours.known())
-        else:
-            if full:
-                if not self.is_root:
-                    # The hop count falls to what the neighbours that hear this robot announce
-                    # and never rises, so every parent hears its child and is nearer the root:
-                    # the convergecasts reach the root from every robot (toward_root).
-                    self.hops, parent = toward_root(self.hops, self.parent, fresh)
-                    if parent != self.parent:
-                        self.parent = parent
-                        self._parent_repeats = self.params.parent_repeats
-                        self._parent_round = self._round
-                self.spread.round(tick, fresh)
-                if self.position is not None:
-                    self._refine(fresh)
-            self.termination.round(tick, fresh, full=full)
-            if self.termination.done:
-                self.stage = (
-                    LocalizeStage.ISLAND if self.island.wake(tick, fresh) else LocalizeStage.DONE
-                )
-                self.log("stage", name=self.stage)
-            self._show()
+        self.driver.phase.work(tick, fresh, full=full)
+        self.driver.advance(tick)
         if (self.stage, self.election.echo, self.flags, self.parent) != before:
-            self._urgent = True
+            self.urgent = True
 
     def message_tx(self) -> Message | None:
         try:
@@ -243,51 +215,54 @@ class LocalizeRobot(Kilobot):
             return None
 
     def _message_tx(self) -> Message | None:
-        if self.stage == "done":
-            return self.spread.state_message() if self.termination.owes_done() else None
+        return self.driver.phase.message_tx()
+
+    def shared_message(self, *, announce_parent: bool = False) -> Message | None:
+        """What an awake robot sends before its stage's own message, if anything: its parent
+        (``announce_parent``, after the election) when owed or now and then, else at times a
+        distance report, unless its own state changed (``urgent``: the stage's message goes
+        out at once). Counts the transmit opportunity."""
         self._turn += 1
-        # After the election, announce the parent after it changed, and now and then anyway: a
-        # lost announcement would leave this robot out of its parent's convergecasts.
-        # A new parent is announced once it has lasted a round of work: while the hop count
-        # still falls, round after round, announcing each parent on the way would waste the
-        # air (the parent before still counts this robot until it hears of the new one).
-        owed = self._parent_repeats and self._round > self._parent_round
-        announce = owed or self._turn % self.params.parent_every == 0
-        if announce and self.stage == "localize" and not self.is_root:
-            self._parent_repeats = max(0, self._parent_repeats - 1)
-            return self.election.message_tx()
-        if self._urgent:  # a change of state goes out at once
-            self._urgent = False
+        if announce_parent:
+            # Announce the parent after it changed, and now and then anyway: a lost
+            # announcement would leave this robot out of its parent's convergecasts. A new
+            # parent is announced once it has lasted a round of work: while the hop count still
+            # falls, round after round, announcing each parent on the way would waste the air
+            # (the parent before still counts this robot until it hears of the new one).
+            owed = self._parent_repeats and self._round > self._parent_round
+            if owed or self._turn % self.params.parent_every == 0:
+                self._parent_repeats = max(0, self._parent_repeats - 1)
+                return self.election.message_tx()
+        if self.urgent:  # a change of state goes out at once
+            self.urgent = False
         elif self._turn % self.params.dist_every == 0:
-            message = self._dist_tx()
-            if message is not None:
-                return message
-        if self.stage == "election":
-            return self.election.message_tx()
-        if self.stage == "island":
-            report = self.island.message_tx()
-            if report is not None:
-                return report
-        return self.spread.message_tx()
+            return self._dist_tx()
+        return None
 
     def message_tx_success(self) -> None:
         self.termination.sent()
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        if self.stage == "done" or not trusted_range(distance_mm, self.params.neighbour_max_mm):
+        phase = self.driver.phase
+        if not phase.awake or not trusted_range(distance_mm, self.params.neighbour_max_mm):
             return  # a robot measured beyond the tables' range is none of its neighbours
         (sender,) = _SENDER(message.data)
         if sender == self.uid:
-            if self.stage == "election":
-                self.election.heard_own_id()
+            phase.heard_own_id()
             return
         n = self.neighbours.heard(sender, distance_mm, self._round)
-        handler = self._handlers.get(message.type)
+        handler = self.driver.handler(message.type)
         # A handler returns whether the sender's echo, flags, key or parent changed.
         if handler is not None and handler(n, message):
             self._news = True
 
     # -- state ---------------------------------------------------------------------------------
+    @property
+    def stage(self) -> LocalizeStage:
+        """``"election"``, ``"localize"``, ``"island"`` (after DONE, for an island:
+        :mod:`kilonet.protocols.localize.phase4_island`) or ``"done"``."""
+        return self.driver.phase.name
+
     @property
     def round_index(self) -> int:
         """Rounds of work done: the time stamps of the neighbour records."""
@@ -336,38 +311,18 @@ class LocalizeRobot(Kilobot):
         self.refiner.reset()
         self.log("unlocated", cause=cause)
 
-    def _enter_localize(self) -> None:
-        self.stage = LocalizeStage.LOCALIZE
-        self.log("stage", name="localize", hops=self.hops, root=self.is_root)
-        if not self.is_root:
-            self.reports = {}  # only the root's choice of frame robots needs them
-            # The hop count starts over from the frame's own messages (POS, ROOT), and from
-            # here it only falls (toward_root). A count of the election would not do: it may be
-            # one to another key's robot (a neighbour last heard before it switched keys
-            # counts 0 hops to itself), or one over links whose other end does not hear.
-            self.hops = MAX_HOPS
-            for n in self.neighbours.known():
-                n.hops = UNKNOWN_HOPS
-
-    def _island_work(self, tick: int, known: list[Neighbour]) -> None:
-        """A round after DONE, for an island: the spread's rules and the island's solve while
-        unplaced, refinement and votes once placed (the frame around stands still now), until
-        the island's work is over or the run's time-out."""
-        # Unplaced, the spread's rules; placed, rule 4's votes on neighbours' candidates (the
-        # frame's robots are silent now, and a member placed here may be the only anchor
-        # left awake to vote).
-        self.spread.round(tick, known)
-        self.island.round(tick, known)
-        if self.position is not None:
-            self._refine(known)
-        if self.island.finished(tick) or tick >= self.termination.run_timeout_tick:
-            self.stage = LocalizeStage.DONE
-            self.termination.repeat_done()
-            self.log("island_done", placed=self.position is not None)
-            self._show()
+    def change_parent(self, parent: int) -> None:
+        """Report to ``parent`` in the convergecasts from now on; a new one is owed
+        ``localize.parent_repeats`` announcements."""
+        if parent != self.parent:
+            self.parent = parent
+            self._parent_repeats = self.params.parent_repeats
+            self._parent_round = self._round
 
     # -- refinement ----------------------------------------------------------------------------
-    def _refine(self, fresh: list[Neighbour]) -> None:
+    def refine(self, fresh: list[Neighbour]) -> None:
+        """A step of refinement of the position from the placed neighbours among ``fresh``
+        (the root holds its origin)."""
         x, y = self.position
         if self.is_root:
             self.refiner.hold(x, y)
@@ -419,30 +374,22 @@ class LocalizeRobot(Kilobot):
             n.reported_mm = m.distance_mm
             return
         n.near.add(m.neighbour)
-        if self.stage == "election" or self.is_root:
+        if self.reports is not None:
             # A root chooses its frame robots from its neighbours' distances to each other.
             self.reports.setdefault(m.sender, {})[m.neighbour] = m.distance_mm
 
-    def _elect_rx(self, n: Neighbour, message: Message) -> bool:
-        if self.stage == "election":
-            return self.election.message_rx(n, message)
-        # A neighbour announcing its parent. Its hop count here may be the election's, which
-        # can be lower than the one it takes in the frame: POS and ROOT carry that one.
+    def _parent_rx(self, n: Neighbour, message: Message) -> bool:
+        """ELECT after the election: a neighbour announcing its parent."""
+        # Its hop count here may be the election's, which can be lower than the one it takes
+        # in the frame: POS and ROOT carry that one.
         hops = n.hops
         news = Election.record(n, message)
         n.hops = hops
         return news
 
-    def _phase2(self) -> None:
-        """A phase-2 message: the root has won; an electing robot moves on."""
-        if self.stage == "election":
-            self._enter_localize()
-            self._urgent = True
-
     def _state_rx(self, n: Neighbour, message: Message) -> bool:
         """ROOT or POS: the sender's state; whether its flags changed (a DONE among them ends
         this robot's work too)."""
-        self._phase2()
         before = n.flags
         spread = self.spread
         (spread.root_rx if message.type == ROOT.type else spread.pos_rx)(n, message)
@@ -452,19 +399,14 @@ class LocalizeRobot(Kilobot):
             self.termination.finish("heard")
         return True
 
-    def _island_rx(self, n: Neighbour, message: Message) -> bool:
-        if self.stage == "island":
-            self._island_handlers[message.type](n, message)
-        return False
-
     def _cand_rx(self, n: Neighbour, message: Message) -> bool:
-        self._phase2()
         self.spread.cand_rx(n, message)
         return False
 
     # -- LED -----------------------------------------------------------------------------------
-    def _show(self) -> None:
-        if self.stage == "done":
+    def show(self) -> None:
+        """Set the LED to this robot's state (:attr:`LED_KEY`)."""
+        if not self.driver.phase.awake:
             self.set_color(0, 0, 0)
         elif self.is_root:
             self.set_color(3, 3, 3)
