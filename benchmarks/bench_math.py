@@ -30,11 +30,7 @@ from unittest import mock
 import kilonet.scenarios.bounds
 import numpy as np
 import scipy
-from kilonet.scenarios.bounds import crlb_rmse_mm
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation, Slerp
-
-from kilonet.alignment import (
+from kilonet.protocols.common.alignment import (
     QUATERNION_MAX_ANGLE_ERROR_RAD,
     half_map,
     level_matrix,
@@ -42,7 +38,11 @@ from kilonet.alignment import (
     unpack_quaternion,
     words_matrix,
 )
-from kilonet.geometry import collinear, multilaterate, trilaterate_linear
+from kilonet.protocols.common.geometry import collinear, multilaterate, trilaterate_linear
+from kilonet.scenarios.bounds import crlb_rmse_mm
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation, Slerp
+
 from kilonet.placement import hex_lattice
 from kilonet.visibility import pairs_in_range
 
@@ -50,11 +50,11 @@ from kilonet.visibility import pairs_in_range
 COUNTED = {
     **dict.fromkeys(
         ("half_map", "level_matrix", "pack_quaternion", "unpack_quaternion", "words_matrix"),
-        "kilonet/alignment.py",
+        "protocols/common/alignment.py",
     ),
     **dict.fromkeys(
         ("collinear", "multilaterate", "place_references", "trilaterate_linear"),
-        "kilonet/geometry.py",
+        "protocols/common/geometry.py",
     ),
 }
 

@@ -1,8 +1,8 @@
 """The Cramér–Rao bound of a measured distance graph: how well any unbiased estimator could
 place a swarm from its ranges, up to a rigid motion (anchor-free), mm.
 
-Split from :mod:`kilonet.geometry`, whose fixes it bounds; ``kilonet.scenarios.reference`` puts it
-in every gcs and localize summary.
+Split from :mod:`kilonet.protocols.common.geometry`, whose fixes it bounds;
+``kilonet.scenarios.reference`` puts it in every gcs and localize summary.
 """
 
 from __future__ import annotations
@@ -10,8 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
-from kilonet.geometry import GeometryError
+from kilonet.protocols.common.geometry import GeometryError
 
 __all__ = ["crlb_rmse_mm"]
 

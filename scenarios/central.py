@@ -23,8 +23,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-from kilonet.alignment import procrustes_rmse, rigid_fit
+from kilonet.protocols.common.alignment import procrustes_rmse, rigid_fit
 
 __all__ = [
     "WITHIN_MM",
@@ -330,7 +329,7 @@ def _wide(points: np.ndarray) -> bool:
 
 def _rigid_onto(source: np.ndarray, target: np.ndarray, common: np.ndarray) -> np.ndarray:
     """``source`` moved by the rigid motion (reflection allowed) that best maps its
-    ``common`` rows onto ``target``'s (:func:`~kilonet.alignment.rigid_fit`)."""
+    ``common`` rows onto ``target``'s (:func:`~kilonet.protocols.common.alignment.rigid_fit`)."""
     q, shift = rigid_fit(source[common], target[common])
     return source @ q.T + shift
 
@@ -463,8 +462,9 @@ def neighbourhood_errors(
 ) -> np.ndarray:
     """Each robot's error among its neighbours, mm.
 
-    For robot i: the rigid motion of ``handedness`` (:func:`~kilonet.alignment.rigid_fit`)
-    that best maps its neighbours' positions (the robots it shares a pair with) onto their
+    For robot i: the rigid motion of ``handedness``
+    (:func:`~kilonet.protocols.common.alignment.rigid_fit`) that best maps its neighbours' positions
+    (the robots it shares a pair with) onto their
     truth, and the distance from i's true position to its own position moved by it. A
     position right among its neighbours scores their relative errors, however far the whole
     shape has bent; a robot on the mirror side of its neighbours, or in a region mirrored

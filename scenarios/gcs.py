@@ -248,7 +248,7 @@ def local_frames_frame(sim: Simulation) -> pd.DataFrame:
 
 
 def _pooled_rmse(groups: list[tuple[np.ndarray, np.ndarray]]) -> float:
-    from kilonet.alignment import procrustes_rmse
+    from kilonet.protocols.common.alignment import procrustes_rmse
 
     squared, count = 0.0, 0
     for est, true in groups:

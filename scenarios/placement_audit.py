@@ -20,8 +20,7 @@ import json
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-from kilonet.alignment import rigid_fit
+from kilonet.protocols.common.alignment import rigid_fit
 
 if TYPE_CHECKING:
     import pandas as pd

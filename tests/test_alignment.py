@@ -1,4 +1,4 @@
-"""Tests for kilonet.alignment: the merging step, levelling, packing, Procrustes.
+"""Tests for kilonet.protocols.common.alignment: the merging step, levelling, packing, Procrustes.
 
 The fast plain-float code is checked against scipy, kept here as the oracle: the least-squares
 rotation of ``Rotation.align_vectors`` (Kabsch), ``Slerp`` from the identity, and
@@ -14,9 +14,7 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation, Slerp
-
-from kilonet.alignment import (
+from kilonet.protocols.common.alignment import (
     _LEVEL_UP,
     QUATERNION_MAX_ANGLE_ERROR_RAD,
     half_map,
@@ -26,7 +24,9 @@ from kilonet.alignment import (
     unpack_quaternion,
     words_matrix,
 )
-from kilonet.geometry import GeometryError
+from kilonet.protocols.common.geometry import GeometryError
+from scipy.spatial.transform import Rotation, Slerp
+
 from kilonet.message import KILOLIB, Layout
 
 coord = st.floats(-300.0, 300.0, allow_nan=False)

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from kilonet.protocols.common.alignment import procrustes_rmse
 from kilonet.viz.animation import (
     AnimationError,
     FrameRenderer,
@@ -26,7 +27,6 @@ from PIL import Image
 
 import kilonet.cli as cli
 from kilonet import scenarios
-from kilonet.alignment import procrustes_rmse
 
 _PATH_COLOUR = (31, 119, 180)
 

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from kilonet.protocols.common.geometry import place_references, trilaterate_linear
 from kilonet.protocols.follower.follower import (
     FRAME_BYTE,
     FRAME_WIDE,
@@ -30,7 +31,6 @@ from kilonet.scenarios.follower import (
     trajectory,
 )
 
-from kilonet.geometry import place_references, trilaterate_linear
 from kilonet.message import PayloadError
 from kilonet.params import ParamError
 from kilonet.placement import save_csv

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import pytest
+from kilonet.protocols.common.geometry import place_references
 from kilonet.protocols.follower.follower import (
     FRAME_BYTE,
     FRAME_WIDE,
@@ -20,7 +21,6 @@ from kilonet.protocols.follower.follower import (
     encode,
 )
 
-from kilonet.geometry import place_references
 from kilonet.message import LIMITS
 from kilonet.params import MediumParams
 

@@ -12,6 +12,7 @@ import json
 import networkx as nx
 import numpy as np
 import pytest
+from kilonet.protocols.common.alignment import half_map, procrustes_rmse
 from kilonet.protocols.gcs.base import GcsParams
 from kilonet.protocols.gcs.phase1_unique_ids import ID
 from kilonet.protocols.gcs.phase6_merging import TF_ROT, quaternion_fields, rotation_from_fields
@@ -20,7 +21,6 @@ from kilonet.scenarios.neighbourhood import trusted_links
 from scipy.spatial.transform import Rotation
 
 from kilonet import scenarios
-from kilonet.alignment import half_map, procrustes_rmse
 
 GCS = scenarios.get("gcs")
 #: The full-size runs check the pipeline's machinery, so they take well-conditioned references:

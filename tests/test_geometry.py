@@ -1,4 +1,5 @@
-"""Tests for kilonet.geometry: frames, reference choice, multilateration, Cramér–Rao bound."""
+"""Tests for kilonet.protocols.common.geometry: frames, reference choice, multilateration,
+Cramér–Rao bound."""
 
 from __future__ import annotations
 
@@ -10,12 +11,8 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from kilonet.scenarios.bounds import crlb_rmse_mm
-from scipy.linalg import lstsq, svdvals
-from scipy.optimize import least_squares
-
-from kilonet.alignment import procrustes_rmse
-from kilonet.geometry import (
+from kilonet.protocols.common.alignment import procrustes_rmse
+from kilonet.protocols.common.geometry import (
     FIX_REASONS,
     GeometryError,
     angle_at,
@@ -31,6 +28,10 @@ from kilonet.geometry import (
     trilaterate_linear,
     wrap_angle,
 )
+from kilonet.scenarios.bounds import crlb_rmse_mm
+from scipy.linalg import lstsq, svdvals
+from scipy.optimize import least_squares
+
 from kilonet.placement import hex_lattice
 from kilonet.visibility import pairs_in_range
 

@@ -30,9 +30,8 @@ SUBLAYERS = ("protocols", "scenarios", "viz", "experiments")
 LAYERS = ("kernel", *SUBLAYERS)
 
 #: What a protocol may use of the kernel: the robot API (the Kilobot base class, messages,
-#: parameter declarations) and pure math.
+#: parameter declarations). Its math is its own (``kilonet.protocols.common.geometry``, …).
 ROBOT_API = ("kilonet.robot", "kilonet.message", "kilonet.params")
-PURE_MATH_KERNEL = ("kilonet.geometry", "kilonet.alignment")
 #: Third-party libraries a protocol may use: array math, linear algebra, graph algorithms.
 PURE_MATH = ("numpy", "scipy", "networkx")
 
@@ -159,11 +158,8 @@ def layer_rule_broken(importer: str, imported: str) -> str | None:
     if layer == "protocols":
         if other in ("scenarios", "viz", "experiments"):
             return "protocols import no scenario, picture or experiment"
-        if other == "kernel" and not _within(imported, ROBOT_API + PURE_MATH_KERNEL):
-            return (
-                "protocols use only the robot API "
-                f"({', '.join(ROBOT_API)}) and pure math ({', '.join(PURE_MATH_KERNEL)})"
-            )
+        if other == "kernel" and not _within(imported, ROBOT_API):
+            return f"protocols use only the robot API of the kernel ({', '.join(ROBOT_API)})"
         if other is None and top not in sys.stdlib_module_names and top not in PURE_MATH:
             return f"protocols use only the standard library and pure math ({', '.join(PURE_MATH)})"
     if layer == "scenarios" and other in ("viz", "experiments"):
@@ -236,7 +232,7 @@ def test_the_checker_sees_imports_by_name_and_module_strings():
         ("kilonet.robot", True),
         ("kilonet.message", True),
         ("kilonet.params", True),
-        ("kilonet.geometry", True),
+        ("kilonet.protocols.common.geometry", True),
         ("numpy", True),
         ("scipy.spatial.transform", True),
         ("math", True),
@@ -268,6 +264,8 @@ def test_a_violation_names_file_line_and_rule():
 #: Protocol modules that are pure math: they may import only the standard library, pure math
 #: and one another, never a robot part (a program, a phase, a message layout).
 PROTOCOL_MATH = (
+    "kilonet.protocols.common.geometry",
+    "kilonet.protocols.common.alignment",
     "kilonet.protocols.localize.island_solve",
     "kilonet.protocols.follower.pivot_turns",
     "kilonet.protocols.gcs.merging_rules",
@@ -300,7 +298,7 @@ def test_no_phase_imports_a_later_phase():
 
 
 def test_protocol_math_imports_no_robot_part():
-    allowed = PURE_MATH_KERNEL + PROTOCOL_MATH
+    allowed = PROTOCOL_MATH
     found = []
     for module in PROTOCOL_MATH:
         path = source_path(module).with_suffix(".py")

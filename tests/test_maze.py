@@ -8,6 +8,7 @@ import matplotlib.figure
 import networkx as nx
 import numpy as np
 import pytest
+from kilonet.protocols.common.geometry import GeometryError, trilaterate_linear
 from kilonet.protocols.maze.hardware import (
     DIRECTIONS,
     Maze,
@@ -38,7 +39,6 @@ from kilonet.scenarios.maze import (
 )
 from kilonet.scenarios.maze_hardware import MazeHardware, fit_maze_hardware
 
-from kilonet.geometry import GeometryError, trilaterate_linear
 from kilonet.params import ParamError, Params
 from kilonet.simulation import Simulation
 

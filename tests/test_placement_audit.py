@@ -5,10 +5,9 @@ import json
 
 import numpy as np
 import pandas as pd
+from kilonet.protocols.common.geometry import multilaterate
 from kilonet.protocols.localize.phase2_spread import side_is_clear
 from kilonet.scenarios.placement_audit import MISPLACED_MM, frame_handedness, placement_errors
-
-from kilonet.geometry import multilaterate
 
 TRUTH = np.array([[0.0, 0.0], [60.0, 0.0], [10.0, 50.0], [30.0, 20.0]])
 UIDS = np.array([7, 8, 9, 10])

@@ -8,6 +8,7 @@ import inspect
 import math
 from pathlib import Path
 
+from kilonet.protocols.common.geometry import Fix
 from kilonet.protocols.localize import phase2_spread, spread_rules
 from kilonet.protocols.localize.spread_rules import (
     anchors_fresh,
@@ -22,8 +23,6 @@ from kilonet.protocols.localize.spread_rules import (
     separation,
     side_is_clear,
 )
-
-from kilonet.geometry import Fix
 
 
 def test_the_rules_module_imports_no_robot_and_no_message():
@@ -45,7 +44,7 @@ def test_the_rules_module_imports_no_robot_and_no_message():
         "itertools",
         "math",
         "numpy",
-        "kilonet.geometry",
+        "kilonet.protocols.common.geometry",
         "kilonet.protocols.common.refinement",
     }
 

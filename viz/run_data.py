@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from kilonet.protocols.common.alignment import procrustes_rmse
 
-from kilonet.alignment import procrustes_rmse
 from kilonet.placement import ROBOT_DIAMETER_MM
 from kilonet.visibility import LinkModel
 
@@ -257,7 +257,8 @@ class Replay:
         Length of the window (s) for :meth:`senders`.
     align_estimates : bool
         Draw the estimates after the best rigid alignment of each frame onto the truth
-        (rotation, shift, reflection; :func:`kilonet.alignment.procrustes_rmse`), as the
+        (rotation, shift, reflection; :func:`kilonet.protocols.common.alignment.procrustes_rmse`),
+        as the
         position metrics do; groups of fewer than three estimates are then left out. ``False``
         draws them as recorded, for estimates already in table coordinates. The estimates are
         those the robots held at each moment (the run's ``estimates`` table) where the run

@@ -165,8 +165,7 @@ def _reference_angle_deg(references: Sequence[tuple[int, float, float]]) -> floa
 
 def _error_bands(sim: Any, outcomes: Any) -> tuple[tuple[int, int, int, float], ...]:
     import numpy as np
-
-    from kilonet.alignment import procrustes_rmse
+    from kilonet.protocols.common.alignment import procrustes_rmse
 
     localized = outcomes.estimates[outcomes.estimates.localized]
     if len(localized) < 3:

@@ -34,13 +34,15 @@ keeps ``data[0..1]`` and stores X and Y as int16 and d12 as uint16 in tenths of 
 The frame robots average ``samples`` distance readings before they flag their coordinates:
 robot 2 sets ``(d12, 0)``; robot 3, once it has a flagged d12 from robot 2 and readings from
 both, sets ``x3 = (d13² − d23² + d12²)/(2 d12)``, ``y3 = √(d13² − x3²)``
-(:func:`kilonet.geometry.place_references`). y3 is taken positive, so when robot 3 stands on the
+(:func:`kilonet.protocols.common.geometry.place_references`). y3 is taken positive, so when robot 3
+stands on the
 right of the 1→2 axis the frame is a mirror image of the floor.
 
 The follower (:class:`Follower`) transmits nothing. It listens until it has fresh readings
 (received after its motors stopped) from all three robots and robot 3's flagged frame, then
-trilaterates with the seed's formulas (:func:`kilonet.geometry.trilaterate_linear`), takes the
-goal to be the centroid of robots 1–3 and steps: a small first move gives its heading u
+trilaterates with the seed's formulas
+(:func:`kilonet.protocols.common.geometry.trilaterate_linear`), takes the goal to be the centroid of
+robots 1–3 and steps: a small first move gives its heading u
 (the chord between two fixes); then it turns toward the goal and steps, and re-trilaterates,
 until it is within ``tolerance_mm`` of the goal. A turn runs one motor for ``t = f(angle)`` from
 its linear turn calibration and pivots the body about the rear leg on that side, so the centre
@@ -89,6 +91,13 @@ from dataclasses import dataclass
 from statistics import median
 from typing import Literal
 
+from kilonet.protocols.common.geometry import (
+    GeometryError,
+    circle_intersections,
+    rotate,
+    trilaterate_linear,
+    wrap_angle,
+)
 from kilonet.protocols.common.ranging_limit import trusted_range
 from kilonet.protocols.follower.frame_robots import (
     FOLLOWER,
@@ -124,13 +133,6 @@ from kilonet.protocols.follower.planning import (
 )
 from kilonet.protocols.follower.turn_calibration import TurnCalibration
 
-from kilonet.geometry import (
-    GeometryError,
-    circle_intersections,
-    rotate,
-    trilaterate_linear,
-    wrap_angle,
-)
 from kilonet.message import Message
 from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot

@@ -12,10 +12,11 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from kilonet.geometry import (
+from kilonet.protocols.common.geometry import (
     GeometryError,
     place_references,
 )
+
 from kilonet.message import Layout, Message
 from kilonet.robot import Kilobot
 

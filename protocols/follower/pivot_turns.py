@@ -21,8 +21,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-
-from kilonet.geometry import rotate, wrap_angle
+from kilonet.protocols.common.geometry import rotate, wrap_angle
 
 __all__ = [
     "PIVOT_LEG_MM",

@@ -6,12 +6,11 @@ from __future__ import annotations
 
 import math
 
+from kilonet.protocols.common.geometry import (
+    rotate,
+)
 from kilonet.protocols.follower.pivot_turns import (
     segment_blocked,
-)
-
-from kilonet.geometry import (
-    rotate,
 )
 
 Point = tuple[float, float]

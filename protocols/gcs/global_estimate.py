@@ -163,7 +163,8 @@ class GlobalEstimate:
         """The robot's position in the merged frame, mm (``None`` before it has one).
 
         The mean of ``R_S (x, y, 0) + v_S`` over the frames of :meth:`frames_used`, in 2-D
-        coordinates of the common plane laid flat by :func:`kilonet.alignment.level_matrix`.
+        coordinates of the common plane laid flat by
+        :func:`kilonet.protocols.common.alignment.level_matrix`.
         """
         if self._position_version != self.version:
             root, used = self.frames_used()

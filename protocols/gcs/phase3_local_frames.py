@@ -17,7 +17,8 @@ another seed, and does not ask a neighbour whose table it already holds.
 When it has asked everyone, A chooses references B, C that see each other (each lists the
 other, at matching distances: :func:`reference_candidates`) by the rule
 ``gcs.reference_rule`` (``max_angle``: the thesis's rule, maximise ∠BAC; ``best_conditioned``:
-see :func:`kilonet.geometry.choose_references_best_conditioned`), places B = (|AB|, 0) and
+see :func:`kilonet.protocols.common.geometry.choose_references_best_conditioned`), places B = (|AB|,
+0) and
 C = (|AC| cos α, |AC| sin α) and announces both until the phase ends.
 
 Messages (16-bit IDs; distances whole mm; coordinates int16 in 0.1 mm)::
@@ -29,14 +30,14 @@ Messages (16-bit IDs; distances whole mm; coordinates int16 in 0.1 mm)::
 
 from __future__ import annotations
 
-from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
-
-from kilonet.geometry import (
+from kilonet.protocols.common.geometry import (
     GeometryError,
     choose_references_best_conditioned,
     choose_references_max_angle,
     place_references,
 )
+from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
+
 from kilonet.message import Message
 
 __all__ = [

@@ -19,7 +19,8 @@ A round of seed I (:class:`SeedRounds`; every choice is a rule of
    never taken for this one's.
 2. X, once it holds I's transform of that version and K's latest transform, maps the three
    members' local positions into both "global" frames, finds the rigid map M from I's to K's
-   (:func:`kilonet.alignment.half_map`: Horn's closed form) and takes **half** of it:
+   (:func:`kilonet.protocols.common.alignment.half_map`: Horn's closed form) and takes **half** of
+   it:
    R_H = Slerp(I, R_M)(½) and t_H = (c_I + c_K)/2 − R_H c_I. It answers with the disagreement
    (the farthest M moves a member) and K's rank (ANS_ERROR, naming the seed), then R_H
    (ANS_ROT) and t_H (ANS_SHIFT), to one seed at a time. A seed that is a member itself
@@ -36,7 +37,8 @@ rounds and resumes on a new rank, a far-off parent or repeated disagreement. A s
 partner is isolated and done at once, its root ranked last; after ``gcs.merge_max_rounds``
 rounds it gives up, or stops its rounds if done. ``docs/gcs.md`` says why each rule is there.
 
-Messages (rotations as the three int16 words of :func:`kilonet.alignment.pack_quaternion`;
+Messages (rotations as the three int16 words of
+:func:`kilonet.protocols.common.alignment.pack_quaternion`;
 shifts int16 in 0.25 mm; frames by their seed's ID and salt,
 :class:`~kilonet.protocols.gcs.frame_keys.FrameKey`; ranks as
 :meth:`~kilonet.protocols.gcs.frame_keys.Rank.wire`)::
@@ -59,6 +61,10 @@ shifts int16 in 0.25 mm; frames by their seed's ID and salt,
 from __future__ import annotations
 
 import numpy as np
+from kilonet.protocols.common.alignment import (
+    half_map,
+)
+from kilonet.protocols.common.geometry import GeometryError
 from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 from kilonet.protocols.gcs.frame_keys import FrameKey, Rank
 from kilonet.protocols.gcs.merging_rules import (
@@ -86,10 +92,6 @@ from kilonet.protocols.gcs.transforms import (
 )
 from scipy.spatial.transform import Rotation
 
-from kilonet.alignment import (
-    half_map,
-)
-from kilonet.geometry import GeometryError
 from kilonet.message import Message
 
 __all__ = [
@@ -110,7 +112,11 @@ __all__ = [
     "version_number",
 ]
 
-_Q = [("q0", "h"), ("q1", "h"), ("q2", "h")]  # kilonet.alignment.pack_quaternion words
+_Q = [
+    ("q0", "h"),
+    ("q1", "h"),
+    ("q2", "h"),
+]  # kilonet.protocols.common.alignment.pack_quaternion words
 _V = [("vx_mm", "h", 0.25), ("vy_mm", "h", 0.25), ("vz_mm", "h", 0.25)]
 _PARTNER = [("partner", "H"), ("partner_salt", "B")]
 TF_ROT = gcs_layout("tf_rot", type=60, fields=[("version", "B"), *_Q])

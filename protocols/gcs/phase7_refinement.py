@@ -36,11 +36,11 @@ only slowly. So the refinement starts over from the root: a robot located in its
 own local frame (the root's seed and that frame's members) takes its position from that frame
 alone and is *placed*; every other robot keeps its merged estimate, unrefined, until it hears
 three placed neighbours in its frame, and then places itself from their positions and its
-measured distances by multilateration (:func:`~kilonet.geometry.multilaterate`, with phase 4's
-collinearity, residual and mirror checks) — the spread of ``localize``, outward from the root
-at the pace of messages. Only placed robots refine, and only against placed neighbours (their
-GPOS_PLACED and GPOS_SETTLED messages). A robot the wave cannot place keeps its merged estimate
-and stops once the placed robots around it have.
+measured distances by multilateration (:func:`~kilonet.protocols.common.geometry.multilaterate`,
+with phase 4's collinearity, residual and mirror checks) — the spread of ``localize``, outward from
+the root at the pace of messages. Only placed robots refine, and only against placed neighbours
+(their GPOS_PLACED and GPOS_SETTLED messages). A robot the wave cannot place keeps its merged
+estimate and stops once the placed robots around it have.
 
 **Neighbours.** Only neighbours whose estimate is in the same merged frame (the same root)
 count: their GPOS messages name the root. A neighbour still merging that broadcasts a settled
@@ -53,7 +53,8 @@ else (a split awaiting its recovery) and may never come.
 that hears at least three placed neighbours whose estimates lie in a frame with a better root
 (:class:`~kilonet.protocols.gcs.frame_keys.Root` order, the one merging uses) places itself in that
 frame by multilateration from their positions and its measured distances
-(:func:`~kilonet.geometry.multilaterate`, with the collinearity, residual and mirror checks
+(:func:`~kilonet.protocols.common.geometry.multilaterate`, with the collinearity, residual and
+mirror checks
 phase 4 uses) and refines there from then on (:func:`frame_to_join` picks the frame). A robot
 that merging left without an estimate joins the same way. Roots only get better, so the frames
 are absorbed one robot at a time into the best root that a rigid chain of neighbours reaches,
@@ -86,6 +87,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from kilonet.protocols.common.geometry import multilaterate
 from kilonet.protocols.common.refinement import (
     DIST,
     DISTANCE_STEP_MM,
@@ -108,7 +110,6 @@ from kilonet.protocols.gcs.replacement_wave import (
 )
 from kilonet.protocols.gcs.split_detection import POS
 
-from kilonet.geometry import multilaterate
 from kilonet.message import Message
 
 if TYPE_CHECKING:

@@ -8,14 +8,13 @@ only phase 6 makes them.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
-from kilonet.alignment import (
+from kilonet.protocols.common.alignment import (
     level_matrix,
     pack_quaternion,
     unpack_quaternion,
     words_matrix,
 )
+from scipy.spatial.transform import Rotation
 
 __all__ = [
     "Transform",
@@ -117,8 +116,9 @@ class Transform:
 
     @property
     def flat(self) -> np.ndarray:
-        """The 3×3 matrix of :func:`kilonet.alignment.level_matrix` for this transform: global
-        coordinates in the common plane laid flat are the first two of ``flat @ g``."""
+        """The 3×3 matrix of :func:`kilonet.protocols.common.alignment.level_matrix` for this
+        transform: global coordinates in the common plane laid flat are the first two of ``flat @
+        g``."""
         if self._flat is None:
             self._flat = level_matrix(self.matrix)
         return self._flat
@@ -135,7 +135,8 @@ class Transform:
 
 def quaternion_fields(rotation: Rotation) -> dict[str, int]:
     """The message fields of a rotation: the three words of
-    :func:`kilonet.alignment.pack_quaternion` (at most 0.0086° lost, also near 180°)."""
+    :func:`kilonet.protocols.common.alignment.pack_quaternion` (at most 0.0086° lost, also near
+    180°)."""
     q0, q1, q2 = pack_quaternion(rotation)
     return {"q0": q0, "q1": q1, "q2": q2}
 

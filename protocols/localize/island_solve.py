@@ -8,11 +8,12 @@ solves that problem from the island's distances alone (pure math, no robot API):
 
 1. *Spread in the frame*: a member with three or more placed points (anchors it links to,
    members placed already) is multilaterated, with every check of
-   :func:`~kilonet.geometry.multilaterate` (collinear anchors, residuals, GDOP, mirror image).
+   :func:`~kilonet.protocols.common.geometry.multilaterate` (collinear anchors, residuals, GDOP,
+   mirror image).
 2. *Rigid bodies*: when that stalls, the unplaced members are placed in a local frame of their
    own, grown from a triangle that stays at least ``min_height_mm`` high whichever way each
-   of its distances is off by the noise (:func:`~kilonet.geometry.robust_height`) by
-   the same multilateration. A member that only two body members place has two mirror
+   of its distances is off by the noise (:func:`~kilonet.protocols.common.geometry.robust_height`)
+   by the same multilateration. A member that only two body members place has two mirror
    positions: the body is grown once with each (a *shape* each, at most :data:`MAX_SHAPES`),
    dropping a position that would put two robots on top of each other.
 3. *Alignment*: the body's rigid motion into the frame (rotation, translation, and whether
@@ -27,9 +28,9 @@ The island's members solve it each on its own from the same reports and take the
 positions (:mod:`kilonet.protocols.localize.phase4_island`); refinement then polishes them with
 full-precision distances.
 
-The plane geometry is :mod:`kilonet.geometry`'s: members are placed by its
-:func:`~kilonet.geometry.multilaterate`, and an alignment's starting shift is its
-:func:`~kilonet.geometry.linear_position`. Only the alignment's Levenberg–Marquardt
+The plane geometry is :mod:`kilonet.protocols.common.geometry`'s: members are placed by its
+:func:`~kilonet.protocols.common.geometry.multilaterate`, and an alignment's starting shift is its
+:func:`~kilonet.protocols.common.geometry.linear_position`. Only the alignment's Levenberg–Marquardt
 (:func:`_fit_motion`) is this module's own: its unknowns are a body's rotation angle and
 shift (three, the angle entering through a rotation of every member, the residuals those of
 many moved points), where geometry's fit (``_refine_position``) moves one point's two
@@ -45,8 +46,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-
-from kilonet.geometry import (
+from kilonet.protocols.common.geometry import (
     MIRROR_SIGMAS,
     GeometryError,
     circle_pair,
@@ -94,7 +94,8 @@ class RigidMotion:
 def _start_shift(turned: np.ndarray, fixed: np.ndarray, ranges: np.ndarray) -> np.ndarray:
     """The translation that best puts each turned member at its link's distance from the
     placed point: the shift t lies at ``ranges[k]`` from ``fixed[k] − turned[k]``, a
-    multilateration, solved in its linear form (:func:`~kilonet.geometry.linear_position`).
+    multilateration, solved in its linear form
+    (:func:`~kilonet.protocols.common.geometry.linear_position`).
     Where those points lie too close to one line for it, the shift that matches the
     centroids."""
     shift, conditioning = linear_position(fixed - turned, ranges)

@@ -10,7 +10,8 @@ nearly collinear triple, whose height the noise makes up, would start the frame 
 set its handedness by chance), and share the most common neighbours with the root (each of those
 can place itself from R, B and C at once). ROOT messages name them. B places itself at
 ``(|RB|, 0)``; C, once it has heard B's position, at ``(x, +y)`` from ``|RC|``, ``|BC|`` and B's x
-(:func:`~kilonet.geometry.place_references`; the positive root of y picks the frame's
+(:func:`~kilonet.protocols.common.geometry.place_references`; the positive root of y picks the
+frame's
 handedness). If B or C is not placed within ``localize.bootstrap_timeout_s`` the root names
 another pair without them; a B or C that placed itself from the old naming after all (its
 position had not yet reached the root) gives its position up when it hears the new one, so the
@@ -50,6 +51,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
+from kilonet.protocols.common.geometry import GeometryError, multilaterate, place_references
 from kilonet.protocols.localize.base import (
     LOCALIZED,
     MAX_COORDINATE_MM,
@@ -74,7 +76,6 @@ from kilonet.protocols.localize.spread_rules import (
     side_is_clear,
 )
 
-from kilonet.geometry import GeometryError, multilaterate, place_references
 from kilonet.message import Layout, Message
 
 if TYPE_CHECKING:

@@ -8,8 +8,9 @@ acts on the answers.
 **Spreading.** Every other robot, at each round, fixes its position from its neighbours that
 have one (their announced positions, the distances both ends agree on):
 
-1. *Three or more anchors*: least squares (:func:`~kilonet.geometry.multilaterate`), rejected
-   if the anchors lie within ``localize.min_height_mm`` of one line (the anchors' positions
+1. *Three or more anchors*: least squares
+   (:func:`~kilonet.protocols.common.geometry.multilaterate`), rejected if the anchors lie within
+   ``localize.min_height_mm`` of one line (the anchors' positions
    carry errors of their own, which the mirror test below does not see), the residuals are
    too large (``localize.max_residual_sigmas`` noise deviations), the geometry is poor, or the
    mirror image across the anchors' line fits nearly as well — the flip that a noisy
@@ -67,9 +68,7 @@ import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-from kilonet.protocols.common.refinement import gauss_newton_step
-
-from kilonet.geometry import (
+from kilonet.protocols.common.geometry import (
     MIRROR_SIGMAS,
     Fix,
     circle_pair,
@@ -77,6 +76,7 @@ from kilonet.geometry import (
     multilaterate,
     robust_height,
 )
+from kilonet.protocols.common.refinement import gauss_newton_step
 
 __all__ = [
     "Point",
@@ -255,8 +255,8 @@ def consistent_subset_fix(
     of both: no point fits them all, rule 1 refuses the fix for its residuals, and without the
     robots of the seam no link ties the two sides together, so the refinement cannot pull them
     into one frame. A subset of at least ``min_anchors`` anchors that does pass every check of
-    rule 1 (:func:`~kilonet.geometry.multilaterate`'s, and :func:`side_is_clear`), and in
-    which no anchor alone decides the side (the others, less any one, do not lie within
+    rule 1 (:func:`~kilonet.protocols.common.geometry.multilaterate`'s, and :func:`side_is_clear`),
+    and in which no anchor alone decides the side (the others, less any one, do not lie within
     ``min_width_mm`` of one line: an anchor off its distance beside three on one line would
     otherwise fit the mirror image), places the robot right relative to those anchors; its
     links to the others then carry the seam's stress into the refinement, which closes it
@@ -433,8 +433,8 @@ def mirror_candidates(
 def side_is_clear(fix: Fix, sigma_mm: float, *, sigmas: float = MIRROR_SIGMAS) -> bool:
     """Whether a fix's side of its anchors' line is beyond doubt, on the fix's own evidence.
 
-    :func:`~kilonet.geometry.multilaterate` rejects a fix whose mirror image fits within
-    ``(sigmas · sigma_mm)²`` of its sum of squared residuals. That margin trusts the anchors'
+    :func:`~kilonet.protocols.common.geometry.multilaterate` rejects a fix whose mirror image fits
+    within ``(sigmas · sigma_mm)²`` of its sum of squared residuals. That margin trusts the anchors'
     positions to the ranging noise; but residuals larger than the noise say the anchors are
     off by more (positions not yet refined, kilolib's per-link errors on long links), and
     the mirror fit's excess is then no better evidence than the residuals themselves. So the
@@ -474,7 +474,8 @@ def fix_with_candidates(
     robot's own mirror ambiguity is the reflection across that line, and a pair that this
     reflection maps onto itself (within ``min_width_mm``) cannot resolve it: such pairs are
     dropped. Every choice of one candidate per remaining pair is then multilaterated with the
-    anchors (:func:`~kilonet.geometry.multilaterate`). The best fix that passes every check is
+    anchors (:func:`~kilonet.protocols.common.geometry.multilaterate`). The best fix that passes
+    every check is
     returned when every choice that puts the robot more than ``3 · sigma_mm`` away from it has
     a sum of squared residuals larger by more than ``(3 · sigma_mm)²``; otherwise (or with
     fewer than three points, or if any choice is degenerate, so its fit cannot be compared)

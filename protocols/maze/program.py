@@ -10,10 +10,10 @@ standing still at a cell centre:
    distance estimate of each beacon it heard within ``neighbour_max_mm`` (beyond, kilolib's
    estimates saturate: :mod:`kilonet.protocols.ranging_limit`). It says so (event ``few_landmarks``)
    when it has fewer than three ranges.
-2. **Trilaterates** — with the seed's linear formula (A…F, :func:`kilonet.geometry.
+2. **Trilaterates** — with the seed's linear formula (A…F, :func:`kilonet.protocols.common.geometry.
    trilaterate_linear`) over the first three landmarks it has (the fourth ignored, as the seed
    ignores its yellow cylinder), or with least squares over all it has when it has four
-   (:func:`kilonet.geometry.multilaterate`; ``fit = "lsq"``, the default).
+   (:func:`kilonet.protocols.common.geometry.multilaterate`; ``fit = "lsq"``, the default).
 3. **Maps (x, y) to a cell** and marks it visited; the event ``step`` carries the grid with
    ``X`` for visited cells, as the seed prints it. Without a fix it keeps the cell it
    dead-reckons from the last cell and command.
@@ -47,6 +47,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
+from kilonet.protocols.common.geometry import GeometryError, multilaterate, trilaterate_linear
 from kilonet.protocols.common.phases import Stage
 from kilonet.protocols.common.ranging_limit import trusted_range
 from kilonet.protocols.maze.hardware import (
@@ -57,7 +58,6 @@ from kilonet.protocols.maze.hardware import (
     parse_size,
 )
 
-from kilonet.geometry import GeometryError, multilaterate, trilaterate_linear
 from kilonet.message import Layout, Message
 from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
@@ -106,9 +106,10 @@ def locate(
 
     With fewer than three ranges there is no fix (``None``). With exactly three, or with
     ``fit = "linear"``, the seed's linear formula over the first three found
-    (:func:`kilonet.geometry.trilaterate_linear`); with four or more and ``fit = "lsq"``, the
-    least-squares fit over all (:func:`kilonet.geometry.multilaterate`'s estimate, taken
-    whatever its verdict: the robot trusts its landmarks).
+    (:func:`kilonet.protocols.common.geometry.trilaterate_linear`); with four or more and ``fit =
+    "lsq"``, the
+    least-squares fit over all (:func:`kilonet.protocols.common.geometry.multilaterate`'s estimate,
+    taken whatever its verdict: the robot trusts its landmarks).
 
     Raises
     ------

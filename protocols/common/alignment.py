@@ -29,9 +29,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from kilonet.protocols.common.geometry import GeometryError, collinear
 from scipy.spatial.transform import Rotation
-
-from kilonet.geometry import GeometryError, collinear
 
 __all__ = [
     "QUATERNION_MAX_ANGLE_ERROR_RAD",
@@ -144,8 +143,8 @@ def half_map(
     ------
     GeometryError
         If fewer than 3 points are given or the points of a frame are collinear (within
-        1e-6 mm of a line, :func:`kilonet.geometry.collinear`: the rotation about that line
-        is undetermined).
+        1e-6 mm of a line, :func:`kilonet.protocols.common.geometry.collinear`: the rotation about
+        that line is undetermined).
     ValueError
         If the arrays' shapes differ or are not (k, 2) / (k, 3), or ``fraction`` is outside
         [0, 1].

@@ -376,7 +376,7 @@ def place_references(
     >>> place_references(40.0, 40.0, 80.0)  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    kilonet.geometry.GeometryError: ... degenerate triangle: C is 0 mm from line AB (need >= 1.0 mm)
+    kilonet.protocols.common.geometry.GeometryError: ... from line AB (need >= 1.0 mm)
     """
     _check_sides(d_ab_mm, d_ac_mm, d_bc_mm)
     x_c = (d_ac_mm**2 - d_bc_mm**2 + d_ab_mm**2) / (2 * d_ab_mm)
