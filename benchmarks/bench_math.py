@@ -40,10 +40,10 @@ from kilonet.protocols.common.alignment import (
 )
 from kilonet.protocols.common.geometry import collinear, multilaterate, trilaterate_linear
 from kilonet.scenarios.bounds import crlb_rmse_mm
+from kilonet.scenarios.placement import hex_lattice
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation, Slerp
 
-from kilonet.placement import hex_lattice
 from kilonet.visibility import pairs_in_range
 
 #: The functions --calls counts: name -> the file that defines it.

@@ -33,8 +33,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-
-from kilonet.placement import hex_lattice
+from kilonet.scenarios.placement import hex_lattice
 
 __all__ = [
     "BLUE_SEED_7_1B",
@@ -143,7 +142,7 @@ def thesis_7_1b() -> np.ndarray:
     and the two references are able to position them in the blue seed's system."
 
     Reconstruction (20 robots): the 19 sites of a hexagonal lattice of 40 mm nearest the
-    origin (:func:`kilonet.placement.hex_lattice`), plus robot 0, the blue robot, at
+    origin (:func:`kilonet.scenarios.placement.hex_lattice`), plus robot 0, the blue robot, at
     (-130, -30) mm beside the lattice's left corner. It sees exactly two robots, (-80, 0) and
     (-60, -34.6) mm (58 and 70 mm away; every other robot is at least 94 mm away), and those
     two see each other. When it is elected, that pair is its only choice of

@@ -6,10 +6,10 @@ import math
 
 import numpy as np
 import pytest
+from kilonet.scenarios.placement import line
 
 from kilonet.message import Message
 from kilonet.params import Params
-from kilonet.placement import line
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
 

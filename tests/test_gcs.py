@@ -431,7 +431,7 @@ def test_merge_300_robots_ends_near_the_central_optimum(merged_300):
 
 
 def test_failures_section_names_the_lone_robot_and_its_isolated_frame():
-    from kilonet.placement import hex_lattice
+    from kilonet.scenarios.placement import hex_lattice
 
     swarm = hex_lattice(19, spacing_mm=40.0)
     positions = np.vstack([swarm, [[500.0, 0.0]]])  # robot 19 hears nobody
@@ -448,8 +448,10 @@ def test_failures_section_names_the_lone_robot_and_its_isolated_frame():
 
 
 def test_analyze_predicts_the_lone_robot_before_a_full_run(tmp_path, capsys):
+    from kilonet.scenarios.placement import hex_lattice
+
     from kilonet.cli import main
-    from kilonet.placement import hex_lattice, save_csv
+    from kilonet.placement import save_csv
 
     placement = tmp_path / "swarm.csv"
     save_csv(np.vstack([hex_lattice(19, spacing_mm=40.0), [[500.0, 0.0]]]), placement)

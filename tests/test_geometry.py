@@ -29,10 +29,10 @@ from kilonet.protocols.common.geometry import (
     wrap_angle,
 )
 from kilonet.scenarios.bounds import crlb_rmse_mm
+from kilonet.scenarios.placement import hex_lattice
 from scipy.linalg import lstsq, svdvals
 from scipy.optimize import least_squares
 
-from kilonet.placement import hex_lattice
 from kilonet.visibility import pairs_in_range
 
 coord = st.floats(-200.0, 200.0, allow_nan=False)

@@ -26,8 +26,10 @@ from kilonet.robot import RESERVED_PREFIX
 ROOT = Path(__file__).resolve().parents[1]
 #: The layers above the kernel: each is a top-level folder, installed as ``kilonet.<folder>``.
 SUBLAYERS = ("protocols", "scenarios", "viz", "experiments")
-#: Every layer, bottom first; ``kernel`` is ``kilonet`` less its sub-layers.
-LAYERS = ("kernel", *SUBLAYERS)
+#: The test kit (``kilonet/testing/``): a tool for users' tests that builds swarms with the
+#: scenarios' placement generators, so it sits above the scenarios though it lives in the
+#: kernel's folder; nothing but tests imports it.
+TEST_KIT = "kilonet.testing"
 
 #: What a protocol may use of the kernel: the robot API (the Kilobot base class, messages,
 #: parameter declarations). Its math is its own (``kilonet.protocols.common.geometry``, …).
@@ -74,6 +76,8 @@ def layer_of(name: str) -> str | None:
     parts = name.split(".")
     if parts[0] != "kilonet":
         return None
+    if name == TEST_KIT or name.startswith(TEST_KIT + "."):
+        return "testing"
     return parts[1] if len(parts) > 1 and parts[1] in SUBLAYERS else "kernel"
 
 
@@ -153,8 +157,12 @@ def layer_rule_broken(importer: str, imported: str) -> str | None:
     top = imported.split(".")[0]
     if top in SUBLAYERS:
         return f"{top} is not installed top-level: import kilonet.{top}"
-    if layer == "kernel" and other in SUBLAYERS:
-        return "the kernel imports no protocol, scenario, picture or experiment"
+    if layer == "kernel" and other in (*SUBLAYERS, "testing"):
+        return "the kernel imports no protocol, scenario, picture, experiment or test kit"
+    if other == "testing" and layer != "testing":
+        return "only tests import the test kit"
+    if layer == "testing" and other in ("protocols", "viz", "experiments"):
+        return "the test kit uses the kernel and the scenarios' placements only"
     if layer == "protocols":
         if other in ("scenarios", "viz", "experiments"):
             return "protocols import no scenario, picture or experiment"
@@ -254,7 +262,7 @@ def test_a_violation_names_file_line_and_rule():
     source = "def main():\n    import kilonet.scenarios\n    import scenarios\n"
     assert violations_in(ROOT / "kilonet" / "cli.py", source) == [
         "kilonet/cli.py:2: imports kilonet.scenarios: the kernel imports no protocol, scenario, "
-        "picture or experiment",
+        "picture, experiment or test kit",
         "kilonet/cli.py:3: imports scenarios: scenarios is not installed top-level: "
         "import kilonet.scenarios",
     ]

@@ -168,7 +168,7 @@ def test_a_robot_whose_neighbours_all_fell_silent_is_done():
 def test_a_run_that_leaves_robots_out_says_which_and_why():
     # A lattice patch, a robot 2 m away (a lone root is no frame) and a row of three beyond
     # it: whatever the reach, the lone robot and the row hold no placed neighbour.
-    from kilonet.placement import hex_lattice
+    from kilonet.scenarios.placement import hex_lattice
 
     positions = np.vstack(
         [hex_lattice(19), [[2000.0, 0.0]], [[4000.0, 0.0], [4040.0, 0.0], [4080.0, 0.0]]]
@@ -330,7 +330,7 @@ def test_the_issues_corridor_runs_to_the_end_in_one_frame(seed):
     # at a cost of 5,855,019 against the solver's 5,855,046 (38.6 mm from the truth against
     # 34.1): one flat valley, along which least squares stops wherever it starts, more than
     # 5 mm apart (docs/localize.md, Limits).
-    from kilonet.placement import corridor
+    from kilonet.scenarios.placement import corridor
 
     positions = corridor(600, length_mm=5000.0, width_mm=200.0, rng=np.random.default_rng(5))
     result = scenarios.run(LOCALIZE, {}, seed=seed, placement=positions)
@@ -364,7 +364,7 @@ def test_the_studys_corridor_is_placed_to_its_far_end(seed):
 def test_a_frame_grows_past_one_coordinate_field():
     # 7 m: the frame reaches beyond one int16 field of tenths (±3,276.7 mm) from its root
     # and its messages still pack.
-    from kilonet.placement import corridor
+    from kilonet.scenarios.placement import corridor
 
     positions = corridor(600, length_mm=7000.0, width_mm=160.0, rng=np.random.default_rng(7))
     result = scenarios.run(LOCALIZE, {}, seed=1, placement=positions)
@@ -382,7 +382,7 @@ def test_a_frame_grows_past_one_coordinate_field():
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2])
 def test_a_c_shape_localizes_and_its_reference_is_the_optimum(seed):
-    from kilonet.placement import c_shape
+    from kilonet.scenarios.placement import c_shape
 
     positions = c_shape(
         300, outer_radius_mm=700.0, inner_radius_mm=450.0, rng=np.random.default_rng(33)

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from kilonet.scenarios.placement import hex_lattice
 from scipy.spatial.distance import pdist
 
 from kilonet.message import Message
 from kilonet.motion import motor_drive
 from kilonet.params import Params
-from kilonet.placement import hex_lattice
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from kilonet.scenarios.placement import generate, hex_lattice, line, random_uniform
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist
 
@@ -15,11 +16,7 @@ from kilonet.placement import (
     MAX_COORDINATE_MM,
     ROBOT_DIAMETER_MM,
     PlacementError,
-    generate,
-    hex_lattice,
-    line,
     load_csv,
-    random_uniform,
     read_placement,
     save_csv,
     validate_positions,

@@ -19,9 +19,9 @@ from kilonet.protocols.gcs.program import GcsRobot, phase_windows_s
 from kilonet.protocols.gcs.recovery import RECOVER
 from kilonet.protocols.gcs.split_detection import POS
 from kilonet.scenarios.base import build_params
+from kilonet.scenarios.placement import hex_lattice
 
 from kilonet import scenarios
-from kilonet.placement import hex_lattice
 
 GCS = scenarios.get("gcs")
 STRANGER = 300  # an ID no robot here draws (gcs.id_bits = 8)

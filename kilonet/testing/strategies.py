@@ -47,7 +47,8 @@ except ImportError as exc:  # pragma: no cover - hypothesis is a test dependency
     ) from exc
 
 from kilonet.message import KILOLIB, SYSTEM_TYPES, Layout, Message, PayloadLimit
-from kilonet.placement import ROBOT_DIAMETER_MM, generate
+from kilonet.placement import ROBOT_DIAMETER_MM
+from kilonet.scenarios.placement import generate
 from kilonet.visibility import LinkModel, communication_graph
 
 __all__ = [
