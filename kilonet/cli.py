@@ -3,9 +3,10 @@
 Every sub-command registers itself as an entry point of the group ``kilonet.commands``
 (``[project.entry-points."kilonet.commands"]`` in ``pyproject.toml``, created when the package
 is installed): the entry's name is the command, its value a function ``register(subparsers)``
-that adds that command's parser (``subparsers.add_parser(name, ...)``) with
-``set_defaults(func=handler)``. A handler returns the exit status. Adding a sub-command means
-writing its module and one line in ``pyproject.toml``; this file does not change.
+that adds that command's parser (``subparsers.add_parser(name, ...)``, a
+:class:`CommandParser`) with ``set_defaults(func=handler)``. A handler returns the exit
+status. Adding a sub-command means writing its module and one line in ``pyproject.toml``; this
+file does not change.
 
 Errors the user can fix (:class:`kilonet.errors.UserError`: a bad parameter, placement,
 scenario, option or program file) print one line on stderr and exit with status 2, leaving no
@@ -19,13 +20,14 @@ import contextlib
 import os
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from importlib.metadata import EntryPoint, entry_points
+from typing import Any
 
 from kilonet import __version__
 from kilonet.errors import UserError, one_line
 
-__all__ = ["COMMANDS", "UsageError", "main"]
+__all__ = ["COMMANDS", "CommandParser", "UsageError", "main"]
 
 #: Entry-point group of the sub-commands.
 COMMANDS = "kilonet.commands"
@@ -33,6 +35,41 @@ COMMANDS = "kilonet.commands"
 
 class UsageError(UserError):
     """A command-line option or argument the user must change (exit status 2)."""
+
+
+class CommandParser(argparse.ArgumentParser):
+    """A sub-command's parser whose costly arguments may wait until they are needed.
+
+    ``register`` functions get their parsers from ``subparsers.add_parser``, which makes them
+    of this class: :meth:`defer` takes a function that adds arguments (say, the options every
+    scenario declares, which loads every scenario and its protocol), called only when this
+    command is parsed or its help or usage is shown, so that ``kilonet --help`` or another
+    command does not pay for it.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._deferred: list[Callable[[argparse.ArgumentParser], None]] = []
+
+    def defer(self, add_arguments: Callable[[argparse.ArgumentParser], None]) -> None:
+        """Call ``add_arguments(self)`` before this parser is first used."""
+        self._deferred.append(add_arguments)
+
+    def _complete(self) -> None:
+        while self._deferred:
+            self._deferred.pop(0)(self)
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
+        self._complete()
+        return super().parse_known_args(args, namespace)
+
+    def format_help(self) -> str:
+        self._complete()
+        return super().format_help()
+
+    def format_usage(self) -> str:
+        self._complete()
+        return super().format_usage()
 
 
 def _commands(argv: Sequence[str]) -> list[EntryPoint]:
@@ -51,7 +88,9 @@ def _parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         epilog="Start with `kilonet run` (the default scenario) or `kilonet run --help`.",
     )
     parser.add_argument("--version", action="version", version=f"kilonet {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=CommandParser
+    )
     for command in _commands(argv):
         command.load()(sub)
     return parser

@@ -145,7 +145,8 @@ def register_run(subparsers: Any) -> None:
     run.add_argument(
         "--animate", action="store_true", help="also write DIR/animation.gif (needs --out)"
     )
-    _add_scenario_options(run)
+    # Every scenario's options load every scenario and its protocol: only for `kilonet run`.
+    run.defer(_add_scenario_options)
     run.set_defaults(func=_cmd_run)
 
 

@@ -364,8 +364,10 @@ def test_help_lists_every_registered_command(capsys):
 def test_each_command_entry_point_registers_its_own_name(name):
     import argparse
 
+    from kilonet.cli import CommandParser
+
     (ep,) = [ep for ep in entry_points(group=COMMANDS) if ep.name == name]
-    sub = argparse.ArgumentParser().add_subparsers()
+    sub = argparse.ArgumentParser().add_subparsers(parser_class=CommandParser)
     ep.load()(sub)
     assert list(sub.choices) == [name]
 
@@ -468,6 +470,21 @@ def _heavy_modules_after(code: str) -> list[str]:
 def test_listing_commands_import_no_heavy_library(argv):
     code = f"from kilonet.cli import main\ntry:\n    main({argv!r})\nexcept SystemExit:\n    pass"
     assert _heavy_modules_after(code) == []
+
+
+def test_the_top_level_help_loads_no_protocol_and_run_help_lists_the_scenario_options(capsys):
+    code = (
+        "import sys\nfrom kilonet.cli import main\ntry:\n    main(['--help'])\n"
+        "except SystemExit:\n    pass\n"
+        "print(sorted(m for m in sys.modules if m.startswith('kilonet.protocols')))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True
+    )
+    assert done.stdout.splitlines()[-1] == "[]"
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    assert "--until {ids,seeds,frames,localization,groups,merge,refine}" in capsys.readouterr().out
 
 
 def test_a_run_reaches_its_first_event_without_pandas_or_matplotlib():
