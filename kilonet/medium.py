@@ -272,6 +272,7 @@ class InfraredMedium:
         self._link_reach: list[np.ndarray] = []
         self._link_loss: list[np.ndarray] = []
         self._rx_r: list[list[int]] = [[] for _ in range(n)]
+        self._rx_at: list[dict[int, int]] = [{} for _ in range(n)]  # receiver -> its position
         self._rx_idx: list[np.ndarray] = [np.empty(0, dtype=np.intp)] * n
         self._rx_d: list[np.ndarray] = [np.empty(0)] * n
         self._rx_loss: list[np.ndarray] = [np.empty(0)] * n
@@ -330,6 +331,7 @@ class InfraredMedium:
         self._rx_signal[s] = 1.0 - p
         ids = self._ids
         self._rx_r[s] = [ids[k] for k in r.tolist()]
+        self._rx_at[s] = {rx: at for at, rx in enumerate(self._rx_r[s])}
         self._rx_h[s] = [self._handlers[k] for k in self._rx_r[s]]
         self._row_count[s] = self._row_next[s] = 0  # rows drawn for the old lists are void
         self._shares[s] = None
@@ -562,7 +564,7 @@ class InfraredMedium:
         if corrupted is None:
             failed_at = lost_at
         else:
-            collided_at = map(receivers.index, corrupted)
+            collided_at = map(self._rx_at[tx.sender].__getitem__, corrupted)
             failed_at = sorted(collided_at if lost_at is None else {*lost_at, *collided_at})
         start = 0
         for at in failed_at:
