@@ -103,7 +103,8 @@ class _Transmission:
     """One message on the air and the fate of each of its receptions.
 
     ``estimates`` holds the distance estimate (mm) per receiver, ``losses`` a loss code per
-    receiver or ``None`` when nothing is lost; ``epoch`` tells whether receiver lists changed
+    receiver or ``None`` when nothing is lost, ``lost_at`` the positions in ``receivers`` whose
+    code is not 0 (``None`` with ``losses``); ``epoch`` tells whether receiver lists changed
     while the message was on the air. The object is also its own end-of-airtime event on the
     kernel's queue (``callbacks``, ``ok``, ``defused``, ``value``: see :mod:`kilonet.clock`),
     which saves an allocation per message.
@@ -116,6 +117,7 @@ class _Transmission:
         "estimates",
         "handlers",
         "losses",
+        "lost_at",
         "message",
         "receivers",
         "sender",
@@ -129,6 +131,7 @@ class _Transmission:
         handlers: list[Callable[[Message, int], None]],
         estimates: bytes,
         losses: bytes | None,
+        lost_at: Sequence[int] | None,
         epoch: int,
         callbacks: list,
     ) -> None:
@@ -138,6 +141,7 @@ class _Transmission:
         self.handlers = handlers
         self.estimates = estimates
         self.losses = losses
+        self.lost_at = lost_at
         self.epoch = epoch
         self.corrupted: set[int] | None = None
         self.callbacks = callbacks
@@ -268,6 +272,7 @@ class InfraredMedium:
         self._link_reach: list[np.ndarray] = []
         self._link_loss: list[np.ndarray] = []
         self._rx_r: list[list[int]] = [[] for _ in range(n)]
+        self._rx_at: list[dict[int, int]] = [{} for _ in range(n)]  # receiver -> its position
         self._rx_idx: list[np.ndarray] = [np.empty(0, dtype=np.intp)] * n
         self._rx_d: list[np.ndarray] = [np.empty(0)] * n
         self._rx_loss: list[np.ndarray] = [np.empty(0)] * n
@@ -276,7 +281,8 @@ class InfraredMedium:
         # Outcomes drawn ahead per sender: row k of the block is its k-th next transmission.
         self._estimates: list[bytes] = [b""] * n  # distance estimate per receiver, mm
         self._losses: list[bytes] = [b""] * n  # loss code per receiver
-        self._lossy_rows: list[list[bool] | None] = [None] * n  # None: no row has a loss
+        # Per row, the positions of the receptions it loses ([] for none); None: no row has a loss
+        self._lossy_rows: list[list[list[int]] | None] = [None] * n
         self._row_next = [0] * n
         self._row_count = [0] * n
         self._refill_rows = [4] * n
@@ -325,6 +331,7 @@ class InfraredMedium:
         self._rx_signal[s] = 1.0 - p
         ids = self._ids
         self._rx_r[s] = [ids[k] for k in r.tolist()]
+        self._rx_at[s] = {rx: at for at, rx in enumerate(self._rx_r[s])}
         self._rx_h[s] = [self._handlers[k] for k in self._rx_r[s]]
         self._row_count[s] = self._row_next[s] = 0  # rows drawn for the old lists are void
         self._shares[s] = None
@@ -454,7 +461,12 @@ class InfraredMedium:
         if outcomes.losses is None:
             self._lossy_rows[s] = None
         else:
-            self._lossy_rows[s] = outcomes.losses.any(axis=1).tolist()
+            self._lossy_rows[s] = [
+                np.flatnonzero(row).tolist() if lossy else []
+                for row, lossy in zip(
+                    outcomes.losses, outcomes.losses.any(axis=1).tolist(), strict=True
+                )
+            ]
             self._losses[s] = outcomes.losses.tobytes()
         self._row_next[s] = 0
         self._row_count[s] = n_rows
@@ -504,11 +516,11 @@ class InfraredMedium:
         n = len(receivers)
         lossy = self._lossy_rows[s]
         if not self._crc_ok[s]:
-            losses = bytes([_CRC]) * n
+            losses, lost_at = bytes([_CRC]) * n, range(n)
         elif lossy is not None and lossy[k]:
-            losses = self._losses[s][k * n : k * n + n]
+            losses, lost_at = self._losses[s][k * n : k * n + n], lossy[k]
         else:
-            losses = None
+            losses = lost_at = None
         tx = _Transmission(
             s,
             message,
@@ -516,6 +528,7 @@ class InfraredMedium:
             self._rx_h[s],
             self._estimates[s][k * n : k * n + n],
             losses,
+            lost_at,
             self._epoch,
             self._end_callbacks,
         )
@@ -532,62 +545,53 @@ class InfraredMedium:
     def _end_of_airtime(self, tx: _Transmission) -> None:
         # Called by the step loop with the event, which is the transmission itself.
         message = tx.message
-        corrupted, losses = tx.corrupted, tx.losses
+        corrupted, lost_at = tx.corrupted, tx.lost_at
         if tx.epoch != self._epoch or tx.sender < 0:
             self._deliver_carefully(tx)
             return
         counters = self.counts
-        if losses is None and corrupted is None:
+        if lost_at is None and corrupted is None:
             self._sink.extend(map(operator.call, tx.handlers, repeat(message), tx.estimates))
             counters.clean_delivery(tx.sender)
             if self._trace_messages:
                 n = len(tx.receivers)
                 self._trace.message(self.env.now, tx.sender, n, n)
             return
-        # Some receptions fail: deliver the others in one comprehension, count the
-        # transmission as clean and take the failed receptions back out of `received`.
-        receivers = tx.receivers
-        if losses is None:
-            # The receptions between the corrupted ones, in receiver order, run by run.
-            handlers, estimates, sink, start = tx.handlers, tx.estimates, self._sink, 0
-            for at in sorted(map(receivers.index, corrupted)):
-                if at > start:
-                    sink.extend(
-                        map(operator.call, handlers[start:at], repeat(message), estimates[start:at])
-                    )
-                start = at + 1
-            if start < len(handlers):
-                sink.extend(
-                    map(operator.call, handlers[start:], repeat(message), estimates[start:])
-                )
-            failed = [(r, 0) for r in corrupted]
+        # Some receptions fail (collided or lost): deliver the others, in receiver order, run
+        # by run between the failed ones, count the transmission as clean and take the failed
+        # receptions back out of `received`.
+        receivers, handlers, estimates, sink = tx.receivers, tx.handlers, tx.estimates, self._sink
+        if corrupted is None:
+            failed_at = lost_at
         else:
-            corrupted = corrupted or ()
-            [
-                h(message, e)
-                for r, h, e, loss in zip(receivers, tx.handlers, tx.estimates, losses, strict=True)
-                if not loss and r not in corrupted
-            ]
-            failed = [
-                (r, loss)
-                for r, loss in zip(receivers, losses, strict=True)
-                if loss or r in corrupted
-            ]
+            collided_at = map(self._rx_at[tx.sender].__getitem__, corrupted)
+            failed_at = sorted(collided_at if lost_at is None else {*lost_at, *collided_at})
+        start = 0
+        for at in failed_at:
+            if at > start:
+                sink.extend(
+                    map(operator.call, handlers[start:at], repeat(message), estimates[start:at])
+                )
+            start = at + 1
+        if start < len(handlers):
+            sink.extend(map(operator.call, handlers[start:], repeat(message), estimates[start:]))
         counters.clean_delivery(tx.sender)
         received, lost_collision, lost_by_code = (
             counters.received,
             counters.lost("collision"),
             self._lost_by_code,
         )
-        for r, loss in failed:
+        losses, corrupted = tx.losses, corrupted or ()
+        for at in failed_at:
+            r = receivers[at]
             received[r] -= 1
             if r in corrupted:
                 lost_collision[r] += 1
             else:
-                lost_by_code[loss][r] += 1
+                lost_by_code[losses[at]][r] += 1
         if self._trace_messages:
             n = len(receivers)
-            self._trace.message(self.env.now, tx.sender, n, n - len(failed))
+            self._trace.message(self.env.now, tx.sender, n, n - len(failed_at))
 
     def _deliver_carefully(self, tx: _Transmission) -> None:
         """End of airtime of a message whose receiver lists changed while it was on the air,
@@ -691,6 +695,7 @@ class InfraredMedium:
             [self._handlers[receiver]],
             outcome.estimates[0].tobytes() if estimate_mm is None else bytes([estimate_mm]),
             bytes([code]),
+            [0] if code else [],
             self._epoch,
             self._end_callbacks,
         )

@@ -216,6 +216,15 @@ class GaussianRanging(ReceptionModel):
         np.clip(est, rg.min_mm, rg.max_mm + 0.5, out=est)
         return est.astype(np.uint8)
 
+    def noise_free_mm(
+        self, senders: np.ndarray, receivers: np.ndarray, distance_mm: np.ndarray
+    ) -> np.ndarray:
+        """The estimates links ``senders[k]`` -> ``receivers[k]`` give at true
+        ``distance_mm[k]`` without noise, mm: here the true distance plus the receiver's bias
+        (neither rounded nor clipped). Scenarios judge protocols by it, for many links at once.
+        """
+        return np.asarray(distance_mm, dtype=float) + self.bias_mm[receivers]
+
     def loss_probability(self, shares: LossShares, distance_mm: np.ndarray) -> np.ndarray:
         """Cumulative thresholds per receiver, one row per cause in :data:`CAUSES` order: a
         uniform draw below row ``c`` loses the reception to the first cause whose threshold it
@@ -307,10 +316,8 @@ class TableRanging(GaussianRanging):
     def estimates(
         self, sender: int, receivers: np.ndarray, distance_mm: np.ndarray, rows: int
     ) -> np.ndarray:
-        from kilonet.ranging import TableLookup, intensity, readings
+        from kilonet.ranging import intensity, readings
 
-        if self._lookup is None:
-            self._lookup = TableLookup(self._irhigh, self._irlow)
         rg = self.ranging
         cached = self._mean_cache.get(sender)
         if cached is not None and cached[0] is receivers and cached[1] is distance_mm:
@@ -324,28 +331,44 @@ class TableRanging(GaussianRanging):
         noise *= rg.intensity_noise
         noise += 1.0
         high, low = readings(np.maximum(noise * mean, 0.0))
-        est = self._lookup.estimates(np.rint(high), np.rint(low), receivers)
+        est = self._table_lookup().estimates(np.rint(high), np.rint(low), receivers)
         return np.clip(est, rg.min_mm, rg.max_mm).astype(np.uint8)
+
+    def _table_lookup(self) -> TableLookup:
+        """The swarm's tables as a look-up (:class:`kilonet.ranging.TableLookup`), built at the
+        first use."""
+        from kilonet.ranging import TableLookup
+
+        if self._lookup is None:
+            self._lookup = TableLookup(self._irhigh, self._irlow)
+        return self._lookup
 
     def systematic_mm(self, sender: int, receiver: int, distance_mm: float) -> float:
         """The estimate the link from ``sender`` to ``receiver`` gives at ``distance_mm``
         without noise, mm: its systematic error is this minus the true distance."""
-        at = np.array([receiver])
-        est = self._noiseless(self._strength[[sender]], at, np.array([float(distance_mm)]))
+        est = self.noise_free_mm(np.array([sender]), np.array([receiver]), [float(distance_mm)])
         return float(est[0])
+
+    def noise_free_mm(
+        self, senders: np.ndarray, receivers: np.ndarray, distance_mm: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`systematic_mm` of many links at once: links ``senders[k]`` ->
+        ``receivers[k]`` at true ``distance_mm[k]``, mm (each the same as on its own: the
+        arithmetic is element by element)."""
+        return self._noiseless(
+            self._strength[senders], receivers, np.asarray(distance_mm, dtype=float)
+        )
 
     def _noiseless(
         self, strength: np.ndarray, receivers: np.ndarray, distance_mm: np.ndarray
     ) -> np.ndarray:
         """Estimates without intensity noise of links of emitter ``strength[k]`` to receiver
         ``receivers[k]`` at ``distance_mm[k]``, mm (clipped like every estimate)."""
-        from kilonet.ranging import estimate_distance_array, intensity, readings
+        from kilonet.ranging import intensity, readings
 
         gap = np.maximum(distance_mm - 33.0, 0.0)
         high, low = readings(strength * self._gain[receivers] * intensity(gap))
-        est = estimate_distance_array(
-            np.rint(high), np.rint(low), self._irhigh[receivers], self._irlow[receivers]
-        )
+        est = self._table_lookup().estimates(np.rint(high), np.rint(low), receivers)
         return np.clip(est, self.ranging.min_mm, self.ranging.max_mm).astype(float)
 
     def effective_sigma_mm(

@@ -71,13 +71,34 @@ def trusted_links(sim: Simulation, max_mm: float, margin_mm: float = 0.0) -> nx.
     pos = sim.world.positions_mm
     graph = nx.DiGraph()
     graph.add_nodes_from(range(sim.n_robots))
-    for s in range(sim.n_robots):
-        for r in sim.medium.receivers_of(s):
-            d = float(np.hypot(*(pos[s] - pos[r])))
-            estimate = noise_free_estimate_mm(sim, s, r, d)
-            if estimate <= max_mm - margin_mm:
-                graph.add_edge(s, r, distance_mm=d, estimate_mm=estimate)
+    links = [(s, r) for s in range(sim.n_robots) for r in sim.medium.receivers_of(s)]
+    distances = [float(np.hypot(*(pos[s] - pos[r]))) for s, r in links]
+    estimates = _noise_free_links_mm(sim, links, np.array(distances))
+    for (s, r), d, estimate in zip(links, distances, estimates.tolist(), strict=True):
+        if estimate <= max_mm - margin_mm:
+            graph.add_edge(s, r, distance_mm=d, estimate_mm=estimate)
     return graph
+
+
+def _noise_free_links_mm(
+    sim: Simulation, links: list[tuple[int, int]], distance_mm: np.ndarray
+) -> np.ndarray:
+    """:func:`noise_free_estimate_mm` of many ``(sender, receiver)`` links, row ``k`` at
+    ``distance_mm[k]`` (a row of distances per link, or one), in one call of the reception
+    model's ``noise_free_mm`` where it has one, mm."""
+    distance_mm = np.asarray(distance_mm, dtype=float)
+    model = sim.medium.reception
+    if not hasattr(model, "noise_free_mm") or not links:
+        return np.array(
+            [
+                [noise_free_estimate_mm(sim, s, r, d) for d in np.atleast_1d(row).tolist()]
+                for (s, r), row in zip(links, distance_mm, strict=True)
+            ]
+        ).reshape(distance_mm.shape)
+    per_link = distance_mm.size // len(links)
+    senders, receivers = (np.repeat(side, per_link) for side in zip(*links, strict=True))
+    flat = model.noise_free_mm(senders, receivers, distance_mm.ravel())
+    return np.asarray(flat, dtype=float).reshape(distance_mm.shape)
 
 
 #: How far a reception's noise moves a link's estimate at most, mm (ranging.intensity_noise
@@ -123,9 +144,13 @@ def held_estimates_mm(sim: Simulation, max_mm: float) -> np.ndarray:
     limit is held too, at about the limit: the receptions the noise brings within it."""
     estimates = np.full((sim.n_robots, sim.n_robots), np.nan)
     spread = 0.5 * sim.params.ranging.intensity_noise
-    for s, r, d in trusted_links(sim, max_mm, -RECEPTION_NOISE_MM).edges(data="distance_mm"):
-        sd = spread * (25.0 + max(d - 33.0, 0.0))
-        readings = [noise_free_estimate_mm(sim, s, r, d + sd * z) for z in _QUANTILES]
-        within = [e for e in readings if e <= max_mm]
-        estimates[s, r] = float(np.mean(within)) if within else max_mm
+    edges = list(trusted_links(sim, max_mm, -RECEPTION_NOISE_MM).edges(data="distance_mm"))
+    d = np.array([d for _, _, d in edges], dtype=float)[:, None]
+    sd = spread * (25.0 + np.maximum(d - 33.0, 0.0))
+    readings = _noise_free_links_mm(
+        sim, [(s, r) for s, r, _ in edges], d + sd * np.array(_QUANTILES)
+    )
+    for (s, r, _), row in zip(edges, readings, strict=True):
+        within = row[row <= max_mm]
+        estimates[s, r] = float(np.mean(within)) if len(within) else max_mm
     return estimates
