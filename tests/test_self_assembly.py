@@ -1,0 +1,160 @@
+"""The self-assembly scenario: shapes from files, what a wrong one says, a robot that loses its
+neighbours, and a small swarm that assembles (values against ground truth)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from kilonet.protocols.self_assembly.program import (
+    ASSEMBLY,
+    LOST_AFTER_S,
+    AssemblyStage,
+    SelfAssembly,
+)
+from kilonet.scenarios.self_assembly import (
+    SEEDS,
+    ShapeError,
+    iou,
+    load_shape,
+    read_bitmap,
+    shipped_shapes,
+)
+
+import kilonet.cli
+from kilonet.testing import ScriptedWorld
+
+
+def _kilonet(argv: list[str], capsys) -> tuple[int, str]:
+    status = kilonet.cli.main(argv)
+    return status, capsys.readouterr().err
+
+
+def _one_line(err: str) -> str:
+    assert err.startswith("kilonet: error: "), err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    return err.removeprefix("kilonet: error: ").rstrip("\n")
+
+
+# -- shapes ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["square", "starfish", "k"])
+@pytest.mark.parametrize("cell_mm", [40.0, 80.0])
+def test_the_shipped_shapes_hold_the_seeds_at_any_scale(name, cell_mm):
+    shape = load_shape(name, cell_mm)
+    assert all(shape.contains(x, y) for x, y in SEEDS)
+    assert shape.area_mm2 == shape.mask.sum() * cell_mm**2
+
+
+def test_the_paper_shapes_are_shipped():
+    assert {"starfish", "k", "square"} <= set(shipped_shapes())
+
+
+def test_a_png_shape_is_its_dark_pixels(tmp_path):
+    import matplotlib.pyplot as plt
+
+    mask = read_bitmap("##..\n####\n####\n", "inline")
+    picture = np.where(np.pad(mask, 2)[..., None], 0.0, 1.0) * np.ones(3)  # white margin
+    plt.imsave(tmp_path / "shape.png", picture)
+    shape = load_shape(str(tmp_path / "shape.png"), 40.0)
+    assert shape.mask.tolist() == mask.tolist()
+
+
+def test_a_bitmap_with_a_stray_character_is_refused_naming_file_line_and_column(tmp_path):
+    path = tmp_path / "bad.txt"
+    path.write_text("; comment\n####\n##x#\n")
+    with pytest.raises(ShapeError, match=r"bad\.txt:3:3: 'x' is not a bitmap cell"):
+        load_shape(str(path), 40.0)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("....\n....\n", "no cell of the shape is inside"),
+        ("....####\n....####\n", r"seed robot\(s\) \[0, 1, 2, 3\] at .* lie outside the shape"),
+    ],
+)
+def test_a_shape_without_cells_or_without_the_seeds_is_refused(tmp_path, content, message):
+    path = tmp_path / "s.txt"
+    path.write_text(content)
+    with pytest.raises(ShapeError, match=message):
+        load_shape(str(path), 40.0)
+
+
+@pytest.mark.parametrize(
+    ("shape", "expected"),
+    [
+        ("nowhere.txt", "nowhere.txt: no such shape file"),
+        ("nowhere.png", "nowhere.png: no such shape file"),
+        (
+            "circle",
+            "self_assembly.shape = 'circle': not a shipped shape (k, square, starfish) "
+            "nor a .txt or .png file",
+        ),
+    ],
+)
+def test_the_command_line_refuses_a_missing_shape_in_one_line_and_writes_nothing(
+    tmp_path, capsys, shape, expected
+):
+    out = tmp_path / "out"
+    argv = ["run", "self-assembly", "--duration", "1", "--set", f"self_assembly.shape={shape}"]
+    status, err = _kilonet([*argv, "--out", str(out)], capsys)
+    assert status == 2
+    assert _one_line(err).endswith(expected)
+    assert not out.exists()
+
+
+def test_the_command_line_names_the_line_of_a_broken_bitmap(tmp_path, capsys):
+    bitmap = tmp_path / "broken.txt"
+    bitmap.write_text("####\n#?##\n")
+    out = tmp_path / "out"
+    argv = ["run", "self-assembly", "--duration", "1", "--set", f"self_assembly.shape={bitmap}"]
+    status, err = _kilonet([*argv, "--out", str(out)], capsys)
+    assert status == 2
+    assert (
+        _one_line(err)
+        == f"{bitmap}:2:2: '?' is not a bitmap cell ('#' or '1' inside, '.' or '0' outside)"
+    )
+    assert not out.exists()
+
+
+def test_iou_of_a_disc_in_its_square_and_of_nothing():
+    square = load_shape("square", 40.0)
+    assert iou(square, np.empty((0, 2)), 33.0) == 0.0
+    one = read_bitmap("#\n", "inline")
+    from kilonet.protocols.self_assembly.rules import Shape
+
+    cell = Shape(one, 33.0, (-16.5, -16.5))
+    assert iou(cell, np.array([[0.0, 0.0]]), 33.0, 0.1) == pytest.approx(np.pi / 4, abs=0.005)
+    # the same disc half outside: intersection ~ half the disc, union grows
+    half = iou(cell, np.array([[33.0, 0.0]]), 33.0, 0.1)
+    assert half < 0.05
+
+
+# -- one robot ---------------------------------------------------------------------------------
+def test_a_moving_robot_that_loses_its_neighbours_stops_and_says_so():
+    world = ScriptedWorld(SelfAssembly(load_shape("square", 40.0)), uid=50)
+    wait = AssemblyStage.WAIT.number
+    for uid, at_s in ((7, 0.1), (8, 0.35)):  # two waiting neighbours of gradient 1, to 10 s
+        world.hear_every(
+            ASSEMBLY.pack(uid=uid, gradient=1, stage=wait, age=0, x=0, y=0),
+            period_s=0.5,
+            from_s=at_s,
+            until_s=10.0,
+            distance_mm=34,
+        )
+    world.run_until(40.0)
+    (start,) = world.events("start")
+    (lost,) = world.events("lost")
+    assert start.fields == {"gradient": 2}
+    assert 4.0 <= start.t_s < 6.0  # after the start-up time, on the edge and the highest
+    assert 10.0 + LOST_AFTER_S <= lost.t_s < 10.0 + LOST_AFTER_S + 2.0
+    last = world.motor_commands()[-1]
+    assert last.value == (0, 0) and last.t_s <= lost.t_s
+    assert world.robot.stage is AssemblyStage.LOST
+    assert world.robot.color == (3, 0, 3)
+
+
+# -- a swarm -----------------------------------------------------------------------------------
+def _overlaps(positions: np.ndarray, diameter_mm: float) -> int:
+    d = np.hypot(*(positions[:, None] - positions[None]).transpose(2, 0, 1))
+    np.fill_diagonal(d, np.inf)
+    return int((d < diameter_mm - 1e-6).sum() // 2)
