@@ -21,6 +21,7 @@ from kilonet.scenarios.self_assembly import (
 )
 
 import kilonet.cli
+from kilonet import scenarios
 from kilonet.testing import ScriptedWorld
 
 
@@ -158,3 +159,58 @@ def _overlaps(positions: np.ndarray, diameter_mm: float) -> int:
     d = np.hypot(*(positions[:, None] - positions[None]).transpose(2, 0, 1))
     np.fill_diagonal(d, np.inf)
     return int((d < diameter_mm - 1e-6).sum() // 2)
+
+
+def _overlaps_over_time(sim, step_s: float = 2.0) -> int:
+    """Pairs of bodies closer than a diameter at any sample of the run (every ``step_s``),
+    each robot where its last recorded pose put it."""
+    poses = sim.trace.poses_frame()
+    times = np.arange(0.0, sim.env.now + step_s, step_s)
+    where = np.repeat(sim.initial_positions_mm[None], len(times), axis=0)
+    for robot, mine in poses.groupby("robot"):
+        at = np.searchsorted(mine["t_s"].to_numpy(), times, side="right") - 1
+        seen = at >= 0
+        where[seen, robot] = mine[["x_mm", "y_mm"]].to_numpy()[at[seen]]
+    return sum(_overlaps(p, sim.world.diameter_mm) for p in where)
+
+
+SMALL_SHAPE = "; 4 x 4 cells of 40 mm: room for the sixteen robots that move\n" + "####\n" * 4
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    shape = tmp_path_factory.mktemp("shape") / "small.txt"
+    shape.write_text(SMALL_SHAPE)
+    overrides = {"placement.robots": 20, "self_assembly.shape": str(shape), "duration_s": 2400.0}
+    return scenarios.run(scenarios.get("self-assembly"), overrides, seed=1)
+
+
+def test_twenty_robots_assemble_the_small_shape(small_run):
+    s = small_run.summary
+    sim = small_run.sim
+    assert s["joined_fraction"] >= 0.8, s
+    assert s["iou"] >= 0.45, s  # bodies cover at most ~0.6 of a shape at the packing's spacing
+    assert s["localization_error_median_mm"] <= 30.0, s
+    assert s["lost"] <= 1, s
+    assert s["moving_at_once_max"] >= 2, s  # robots move one after another, overlapping
+    assert s["sim_time_s"] < 2400.0, s  # every robot joined or stopped lost before the cap
+    stages = [r.stage for r in sim.robots]
+    assert stages[:4] == [AssemblyStage.SEED] * 4
+    assert set(stages[4:]) <= {AssemblyStage.JOINED, AssemblyStage.LOST}
+    events = sim.trace.events_frame()
+    assert (events["event"] == "joined").sum() == s["joined"]
+    assert _overlaps(sim.world.positions_mm, sim.world.diameter_mm) == 0
+    assert _overlaps_over_time(sim) == 0
+
+
+def test_the_run_directory_holds_the_figure_and_a_replay(small_run, tmp_path, capsys):
+    from kilonet.scenarios.base import write_outputs
+
+    out = tmp_path / "run"
+    write_outputs(small_run, out)
+    robots = (out / "robots.csv").read_text().splitlines()
+    assert robots[0].split(",")[-4:] == ["stage", "est_x_mm", "est_y_mm", "localization_error_mm"]
+    assert (out / "self_assembly.png").stat().st_size > 10_000
+    assert kilonet.cli.main(["animate", str(out), "--out", str(out / "replay.html")]) == 0
+    page = (out / "replay.html").read_text()
+    assert "<title>self-assembly — kilonet replay</title>" in page
