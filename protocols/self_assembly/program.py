@@ -21,6 +21,8 @@ estimate) and ``lost`` (a moving robot that heard no stationary robot for
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from kilonet.protocols.common.phases import Stage
 from kilonet.protocols.common.ranging_limit import trusted_range
@@ -41,7 +43,7 @@ from kilonet.protocols.self_assembly.rules import (
 from kilonet.message import Layout, Message
 from kilonet.robot import Kilobot
 
-__all__ = ["ASSEMBLY", "LOST_AFTER_S", "AssemblyStage", "SelfAssembly"]
+__all__ = ["ASSEMBLY", "LOST_AFTER_S", "AssemblyStage", "Neighbour", "SelfAssembly"]
 
 ASSEMBLY = Layout(
     "assembly",
@@ -103,6 +105,20 @@ _COLORS = {
 }
 
 
+@dataclass(slots=True)
+class Neighbour:
+    """The last message heard from one neighbour: when (seconds of the hearer's clock), the
+    distance estimate with it (mm) and what the sender said of itself."""
+
+    heard_s: float
+    distance_mm: float
+    gradient: int
+    stage: int  # an AssemblyStage number
+    age: int
+    x: float
+    y: float
+
+
 class SelfAssembly(Kilobot):
     """A robot of the self-assembly.
 
@@ -138,8 +154,7 @@ class SelfAssembly(Kilobot):
         self.tick_s = 1.0 / self.ticks_per_s
         self.gradient = self.seed_gradient if seed else UNKNOWN
         self.estimate: tuple[float, float] | None = self.seed_at_mm
-        # uid -> [heard_s, distance_mm, gradient, stage number, age, x, y]
-        self.neighbours: dict[int, list] = {}
+        self.neighbours: dict[int, Neighbour] = {}
         self.turn = ""
         self.moved_since_s = 0.0
         self.last_stationary_s = 0.0
@@ -172,15 +187,9 @@ class SelfAssembly(Kilobot):
         if not ASSEMBLY.matches(message):
             return
         m = ASSEMBLY.unpack(message)
-        self.neighbours[m.uid] = [
-            self._now_s(),
-            float(distance_mm),
-            m.gradient,
-            m.stage,
-            m.age,
-            float(m.x),
-            float(m.y),
-        ]
+        self.neighbours[m.uid] = Neighbour(
+            self._now_s(), float(distance_mm), m.gradient, m.stage, m.age, float(m.x), float(m.y)
+        )
 
     def loop(self) -> None:
         stage = self.stage
@@ -192,10 +201,12 @@ class SelfAssembly(Kilobot):
             return
         self.next_check_s = now + CHECK_S
         fresh = self._fresh(now)
-        stationary = [n for n in fresh.items() if n[1][3] not in _MOVING]
+        stationary = [(uid, n) for uid, n in fresh.items() if n.stage not in _MOVING]
         if stationary:
             self.last_stationary_s = now
-        level = gradient_from([n[1] for _, n in stationary], [n[2] for _, n in stationary])
+        level = gradient_from(
+            [n.distance_mm for _, n in stationary], [n.gradient for _, n in stationary]
+        )
         if level is not None and level != self.gradient:
             self.gradient = min(level, UNKNOWN)
             self._message = None
@@ -210,47 +221,49 @@ class SelfAssembly(Kilobot):
         return self.estimate[0], self.estimate[1], "seeds"
 
     # -- the stages --------------------------------------------------------------------------
-    def _wait(self, fresh: dict[int, list], stationary: list) -> None:
+    def _wait(self, fresh: dict[int, Neighbour], stationary: list[tuple[int, Neighbour]]) -> None:
         if self.gradient == UNKNOWN:
             return
         heard = [
-            Heard(uid, n[2], n[3] in _MOVING, n[1])
+            Heard(uid, n.gradient, n.stage in _MOVING, n.distance_mm)
             for uid, n in fresh.items()
-            if n[3] not in _LOCALIZED
+            if n.stage not in _LOCALIZED
         ]
-        edge = on_edge(n[1] for _, n in stationary)
+        edge = on_edge(n.distance_mm for _, n in stationary)
         if may_start(edge, self.gradient, self.kilo_uid, heard):
             self.moved_since_s = self._now_s()
             self._set_stage(AssemblyStage.MOVE_OUTSIDE)
             self.log("start", gradient=self.gradient)
 
-    def _move(self, now: float, fresh: dict[int, list], stationary: list) -> None:
+    def _move(
+        self, now: float, fresh: dict[int, Neighbour], stationary: list[tuple[int, Neighbour]]
+    ) -> None:
         if now - self.last_stationary_s > LOST_AFTER_S:
             self._halt()
             self._set_stage(AssemblyStage.LOST)
             self.log("lost", after_s=LOST_AFTER_S)
             return
         located = self._localize(now, stationary)
-        nearest = min(stationary, key=lambda n: n[1][1], default=None)
+        nearest = min(stationary, key=lambda item: item[1].distance_mm, default=None)
         if located and self._stops(nearest):
             return
         age = int(now - self.moved_since_s)
-        ahead = [(n[4], uid, n[1]) for uid, n in fresh.items() if n[3] in _MOVING]
+        ahead = [(n.age, uid, n.distance_mm) for uid, n in fresh.items() if n.stage in _MOVING]
         if nearest is None or must_yield(age, self.kilo_uid, ahead):
             self._drive("")
         else:
-            self._drive(edge_turn(nearest[1][1]))
+            self._drive(edge_turn(nearest[1].distance_mm))
 
-    def _stops(self, nearest: tuple[int, list] | None) -> bool:
+    def _stops(self, nearest: tuple[int, Neighbour] | None) -> bool:
         """Apply the stop rules to a fresh estimate; whether the robot joined the shape."""
         if self.stage is AssemblyStage.MOVE_OUTSIDE:
             if self.shape.contains(*self.estimate):
                 self._set_stage(AssemblyStage.MOVE_INSIDE)
                 self.log("entered", x=self.estimate[0], y=self.estimate[1])
             return False
-        if nearest is not None and nearest[1][3] in _LOCALIZED:
+        if nearest is not None and nearest[1].stage in _LOCALIZED:
             uid, n = nearest
-            if meets_own_gradient(self.gradient, Heard(uid, n[2], False, n[1])):
+            if meets_own_gradient(self.gradient, Heard(uid, n.gradient, False, n.distance_mm)):
                 self._join("own_gradient")
                 return True
         if about_to_leave(self.shape, self.estimate, self._ahead()):
@@ -258,18 +271,20 @@ class SelfAssembly(Kilobot):
             return True
         return False
 
-    def _localize(self, now: float, stationary: list) -> bool:
+    def _localize(self, now: float, stationary: list[tuple[int, Neighbour]]) -> bool:
         """Update the estimate from the localized stationary neighbours in range, if there are
         at least :data:`MIN_ANCHORS`; whether it did."""
         refs = [
             n
             for _, n in stationary
-            if n[3] in _LOCALIZED and now - n[0] <= RANGE_FRESH_S and trusted_range(n[1], RANGE_MM)
+            if n.stage in _LOCALIZED
+            and now - n.heard_s <= RANGE_FRESH_S
+            and trusted_range(n.distance_mm, RANGE_MM)
         ]
         if len(refs) < MIN_ANCHORS:
             return False
-        anchors = np.array([[n[5], n[6]] for n in refs])
-        ranges = np.array([n[1] for n in refs])
+        anchors = np.array([[n.x, n.y] for n in refs])
+        ranges = np.array([n.distance_mm for n in refs])
         if self.estimate is None:
             fix = first_fix(anchors, ranges)
             if fix is None:
@@ -322,8 +337,9 @@ class SelfAssembly(Kilobot):
         self._message = None
         self.set_color(*_COLORS[stage])
 
-    def _fresh(self, now: float) -> dict[int, list]:
-        stale = [uid for uid, n in self.neighbours.items() if now - n[0] > FORGET_S]
+    def _fresh(self, now: float) -> dict[int, Neighbour]:
+        """The neighbours heard within :data:`FORGET_S`; the others are forgotten."""
+        stale = [uid for uid, n in self.neighbours.items() if now - n.heard_s > FORGET_S]
         for uid in stale:
             del self.neighbours[uid]
         return self.neighbours

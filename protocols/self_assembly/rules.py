@@ -99,11 +99,6 @@ class Shape:
         return 0 <= col < cols and 0 <= row < rows and bool(self.mask[rows - 1 - row, col])
 
     @property
-    def area_mm2(self) -> float:
-        """The shape's area, mm²."""
-        return float(self.mask.sum()) * self.cell_mm**2
-
-    @property
     def extent_mm(self) -> tuple[float, float, float, float]:
         """``(x_min, y_min, x_max, y_max)`` of the bitmap, mm."""
         rows, cols = self.mask.shape
