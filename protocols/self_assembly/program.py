@@ -214,6 +214,8 @@ class SelfAssembly(Kilobot):
             self._wait(fresh, stationary)
         elif moving:
             self._move(now, fresh, stationary)
+        else:  # joined: it keeps refining its estimate against the shape's other robots
+            self._localize(now, stationary)
 
     def position_estimate(self) -> tuple[float, float, str] | None:
         if self.estimate is None:
