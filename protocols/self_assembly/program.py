@@ -79,6 +79,10 @@ LOCALIZE_STEPS = 12
 #: A robot updates its estimate only from at least this many localized stationary robots
 #: (fewer leave it free to slide along a circle, or to its mirror image).
 MIN_ANCHORS = 3
+#: A moving robot whose estimate went this long without an update drops it and waits for a
+#: new first fix, seconds: it has moved some 20-40 mm since, and the descent from there can
+#: settle on the mirror image of its position across a straight edge of the shape.
+REFIX_S = 3.0
 
 
 class AssemblyStage(Stage):
@@ -160,6 +164,7 @@ class SelfAssembly(Kilobot):
         self.last_stationary_s = 0.0
         self.next_check_s = STARTUP_S
         self.track: list[tuple[float, float, float]] = []  # (t, x, y) of recent estimates
+        self.located_s = 0.0  # when the estimate was last updated
         self._message: Message | None = None
         self.set_color(*_COLORS[self.stage])
 
@@ -283,6 +288,10 @@ class SelfAssembly(Kilobot):
             and now - n.heard_s <= RANGE_FRESH_S
             and trusted_range(n.distance_mm, RANGE_MM)
         ]
+        stale = now - self.located_s > REFIX_S
+        if self.stage_no in _MOVING and self.estimate is not None and stale:
+            self.estimate = None
+            self.track.clear()
         if len(refs) < MIN_ANCHORS:
             return False
         anchors = np.array([[n.x, n.y] for n in refs])
@@ -296,6 +305,7 @@ class SelfAssembly(Kilobot):
         else:
             for _ in range(LOCALIZE_STEPS):
                 self.estimate = localize_step(self.estimate, anchors, ranges)
+        self.located_s = now
         self.track.append((now, *self.estimate))
         while self.track and self.track[0][0] < now - HEADING_S:
             self.track.pop(0)
