@@ -13,10 +13,10 @@ Message (kilolib v2, type 20, :data:`ASSEMBLY`)::
 
 A robot knows only what it hears, its distance estimates and its own motion; the rules it
 applies are the pure functions of :mod:`kilonet.protocols.self_assembly.rules`. Events logged:
-``start`` (it begins to move), ``fix`` (its first position estimate), ``entered`` (its estimate
-enters the shape), ``joined`` (it stops in the shape, with the rule that stopped it and its
-estimate) and ``lost`` (a moving robot that heard no stationary robot for
-:data:`LOST_AFTER_S` stops where it is).
+``start`` (it begins to move), ``fix`` (a first position estimate, and again after
+:data:`REFIX_S` without an update), ``entered`` (its estimate enters the shape), ``joined`` (it
+stops in the shape, with the rule that stopped it and its estimate) and ``lost`` (a moving
+robot that heard no stationary robot for :data:`LOST_AFTER_S` stops where it is).
 """
 
 from __future__ import annotations

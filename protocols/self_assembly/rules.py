@@ -2,9 +2,9 @@
 pure function of what one robot knows: its neighbours' messages, its distance estimates to
 them and its own state. :mod:`kilonet.protocols.self_assembly.program` runs them on a robot.
 
-Distances are centre to centre in millimetres; a Kilobot's body is a 33 mm disc. The constants
-are the supplement's, given there as multiples of the body radius and scaled here to a
-Kilobot (``docs/self_assembly.md`` gives each and its reason).
+Distances are centre to centre in millimetres; a Kilobot's body is a 33 mm disc. The distances
+are those public re-implementations of the paper's supplement use, multiples of the body
+radius, scaled here to a Kilobot's (``docs/self_assembly.md`` gives each and its reason).
 """
 
 from __future__ import annotations
@@ -38,13 +38,13 @@ __all__ = [
 ]
 
 #: Edge-following keeps the nearest stationary robot this far, centre to centre (2.3 body
-#: radii, the supplement's DESIRED_DISTANCE): a gap of about 5 mm between the bodies.
+#: radii, DESIRED_DISTANCE): a gap of about 5 mm between the bodies.
 DESIRED_MM = 38.0
-#: A stationary robot counts for the gradient only within this distance (3 body radii, the
-#: supplement's GRADIENT_DISTANCE): the hop count then follows the packing, not the radio reach.
+#: A stationary robot counts for the gradient only within this distance (3 body radii,
+#: GRADIENT_DISTANCE): the hop count then follows the packing, not the radio reach.
 GRADIENT_MM = 49.5
 #: A moving robot waits while a moving robot ahead of it is within this distance (3.5 body
-#: radii, the supplement's YIELD_DISTANCE).
+#: radii, YIELD_DISTANCE).
 YIELD_MM = 58.0
 #: Neighbours within this distance are a robot's ring of touching robots (between the first
 #: and second ring of a packing 34 mm apart: 34 and 59 mm).
