@@ -414,7 +414,8 @@ def test_output_into_a_closed_pipe_ends_quietly():
 def test_scenarios_lists_the_registered_ones(capsys):
     assert main(["scenarios"]) == 0
     names = [line.split()[0] for line in capsys.readouterr().out.splitlines()]
-    assert names == scenarios.names() == ["follower", "gcs", "gradient", "localize", "maze"]
+    assert names == scenarios.names()
+    assert names == ["follower", "gcs", "gradient", "localize", "maze", "self-assembly"]
 
 
 # -- progress -----------------------------------------------------------------------------------
