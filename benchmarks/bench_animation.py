@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
 from kilonet.scenarios.placement import hex_lattice
 from kilonet.viz.animation import animate_run, frame_times, load_run
 

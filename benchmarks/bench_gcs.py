@@ -24,11 +24,10 @@ import json
 import os
 import time
 
+from kilonet import Kilobot, Message, scenarios
 from kilonet.protocols.common.neighbours import NeighbourTable
 from kilonet.protocols.gcs.base import gcs_layout, sender_of
 from kilonet.scenarios.base import build_params
-
-from kilonet import Kilobot, Message, scenarios
 
 FIELDS = (
     "robots",

@@ -23,10 +23,10 @@ import argparse
 import time
 
 import numpy as np
-from kilonet.scenarios.placement import hex_lattice
 from scipy.spatial import cKDTree
 
 from kilonet.clock import KernelEnvironment, Timer
+from kilonet.scenarios.placement import hex_lattice
 
 
 class Receiver:

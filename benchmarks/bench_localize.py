@@ -24,9 +24,8 @@ import json
 import os
 import time
 
-from kilonet.scenarios.base import build_params, place
-
 from kilonet import scenarios
+from kilonet.scenarios.base import build_params, place
 from kilonet.simulation import Simulation
 
 FIELDS = (

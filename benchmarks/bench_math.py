@@ -27,9 +27,12 @@ import time
 import timeit
 from unittest import mock
 
-import kilonet.scenarios.bounds
 import numpy as np
 import scipy
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation, Slerp
+
+import kilonet.scenarios.bounds
 from kilonet.protocols.common.alignment import (
     QUATERNION_MAX_ANGLE_ERROR_RAD,
     half_map,
@@ -41,9 +44,6 @@ from kilonet.protocols.common.alignment import (
 from kilonet.protocols.common.geometry import collinear, multilaterate, trilaterate_linear
 from kilonet.scenarios.bounds import crlb_rmse_mm
 from kilonet.scenarios.placement import hex_lattice
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation, Slerp
-
 from kilonet.visibility import pairs_in_range
 
 #: The functions --calls counts: name -> the file that defines it.

@@ -17,9 +17,9 @@ import argparse
 import time
 
 import numpy as np
-from kilonet.scenarios.placement import hex_lattice
 
 from kilonet import Kilobot, Message, Params, Simulation
+from kilonet.scenarios.placement import hex_lattice
 
 
 class Chatter(Kilobot):

@@ -90,6 +90,7 @@ def register_report(subparsers: Any) -> None:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
+    from kilonet.cli import UsageError
     from kilonet.experiments.runner import (
         SchedulerAddressError,
         SweepAborted,
@@ -99,8 +100,6 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from kilonet.experiments.store import ResultStore, StoreError, is_sweep_dir
     from kilonet.experiments.sweep import SweepError, load_sweep
     from kilonet.scenarios.progress import resolve_mode
-
-    from kilonet.cli import UsageError
 
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers must be at least 1, not {args.workers}")
@@ -181,10 +180,9 @@ def _stored(out: Path) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
+    from kilonet.cli import UsageError
     from kilonet.experiments.report import ReportError, write_report
     from kilonet.experiments.store import StoreError
-
-    from kilonet.cli import UsageError
 
     if not 0 < args.confidence < 1:
         raise UsageError(f"--confidence must be between 0 and 1, not {args.confidence}")

@@ -232,10 +232,9 @@ def _validation(context: Context) -> None:
 
 
 def _default_gif(context: Context) -> None:
+    from kilonet import scenarios
     from kilonet.scenarios.base import write_outputs
     from kilonet.viz.animation import animate_run
-
-    from kilonet import scenarios
 
     run_dir = context.runs / "default-gif"
     result = scenarios.run(scenarios.get("gradient"), {"trace.messages": True}, seed=1)
@@ -509,6 +508,7 @@ def _localize_shapes(joined, localize):
 
 def _localize_compared(joined, localize):
     import pandas as pd
+
     from kilonet.experiments.studies.localization_study import base_table
 
     parts = []

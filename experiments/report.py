@@ -30,11 +30,12 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from kilonet.experiments.store import META_COLUMNS, ResultStore, write_atomically
-from kilonet.experiments.sweep import Sweep
 from matplotlib.figure import Figure
 from matplotlib.ticker import NullLocator
 from scipy import stats
+
+from kilonet.experiments.store import META_COLUMNS, ResultStore, write_atomically
+from kilonet.experiments.sweep import Sweep
 
 __all__ = [
     "ReportError",

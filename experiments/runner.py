@@ -43,9 +43,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from tqdm import tqdm
+
 from kilonet.experiments.store import ResultStore, RunRecord, StoreError, lock_directory
 from kilonet.experiments.sweep import Run, Sweep
-from tqdm import tqdm
 
 __all__ = [
     "SchedulerAddressError",

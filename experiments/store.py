@@ -58,6 +58,7 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
+
 from kilonet.experiments.sweep import Sweep
 from kilonet.scenarios.output_dir import LOCK_NAME, DirectoryInUse, hold_lock
 

@@ -340,9 +340,8 @@ class _Validator:
     def scenario(self, data: dict[str, Any]) -> tuple[str, Any]:
         """The name the sweep stores for its scenario, and the scenario: a registered one, or
         the ``program`` file's (:func:`kilonet.scenarios.program.program_key`)."""
-        from kilonet.scenarios.program import program_key
-
         from kilonet import scenarios
+        from kilonet.scenarios.program import program_key
 
         if "program" in data:
             spec = self.text(data, "program", "")
@@ -507,9 +506,8 @@ class _Validator:
     ) -> None:
         """Build the parameters of every value on its own, then of every cell, so an error
         names the first offending key and value."""
-        from kilonet.scenarios.base import build_params
-
         from kilonet.params import ParamError
+        from kilonet.scenarios.base import build_params
 
         def check(section: str, overrides: dict[str, Any]) -> Any:
             try:

@@ -22,9 +22,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS
 
 from kilonet import scenarios
+from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -19,15 +19,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from kilonet.scenarios.output_dir import OutputDir
-from kilonet.scenarios.placement import generate_from
-from kilonet.scenarios.progress import RunProgress
-from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS, PREMISE
 
 from kilonet.errors import UserError
 from kilonet.params import ParamError, Params
 from kilonet.placement import PlacementError, load_csv, read_placement
 from kilonet.robot import Kilobot
+from kilonet.scenarios.output_dir import OutputDir
+from kilonet.scenarios.placement import generate_from
+from kilonet.scenarios.progress import RunProgress
+from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS, PREMISE
 
 if TYPE_CHECKING:
     import pandas as pd

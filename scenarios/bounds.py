@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from kilonet.protocols.common.geometry import GeometryError
 
 __all__ = ["crlb_rmse_mm"]

@@ -23,6 +23,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from kilonet.protocols.common.alignment import procrustes_rmse, rigid_fit
 
 __all__ = [

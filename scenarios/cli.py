@@ -34,13 +34,12 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
-from kilonet.scenarios.base import Scenario, ScenarioOption, build_params, json_safe
-from kilonet.scenarios.progress import MODES
-
 from kilonet import scenarios
 from kilonet.cli import UsageError
 from kilonet.errors import UserError
 from kilonet.params import ParamError, Params, describe
+from kilonet.scenarios.base import Scenario, ScenarioOption, build_params, json_safe
+from kilonet.scenarios.progress import MODES
 from kilonet.watchdog import BUSY_CALL_S, check_watchdog_s
 
 __all__ = ["register_params", "register_run", "register_scenarios", "run_file_overrides"]
@@ -443,7 +442,6 @@ def _guarded(args: argparse.Namespace):
 
     from kilonet.scenarios.base import run
     from kilonet.scenarios.program import parse_spec, reported_as_user_errors
-
     from kilonet.watchdog import busy_watchdog, describe_call, robot_frame
 
     def guarded(*a: Any, **k: Any):

@@ -58,6 +58,7 @@ def with_alignment(estimates: pd.DataFrame, truth_mm: np.ndarray) -> pd.DataFram
     [0.0, 0.0, 0.0, nan]
     """
     import pandas as pd
+
     from kilonet.scenarios.central import pooled_aligned_rmse
 
     truth = np.asarray(truth_mm, dtype=float)

@@ -41,6 +41,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from kilonet.params import BatteryParams, MotionParams, ParamError, Params, RobotParams
+from kilonet.placement import ROBOT_DIAMETER_MM
 from kilonet.protocols.follower.follower import (
     Follower,
     FollowerParams,
@@ -51,9 +54,6 @@ from kilonet.protocols.follower.follower import (
 )
 from kilonet.protocols.follower.turn_calibration import TimedTurns, TurnCalibration
 from kilonet.scenarios.base import RunResult, Scenario, ScenarioError, run
-
-from kilonet.params import BatteryParams, MotionParams, ParamError, Params, RobotParams
-from kilonet.placement import ROBOT_DIAMETER_MM
 from kilonet.simulation import Simulation, stream_for
 from kilonet.visibility import LinkModel
 

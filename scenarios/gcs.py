@@ -45,15 +45,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
 from kilonet.protocols.gcs.base import PHASES, GcsParams
 from kilonet.scenarios.base import RunResult, Scenario, ScenarioOption
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
     import pandas as pd
-    from kilonet.protocols.gcs.frame_keys import FrameKey
-    from kilonet.protocols.gcs.program import GcsRobot, RobotOutcome
 
     from kilonet.params import Params
+    from kilonet.protocols.gcs.frame_keys import FrameKey
+    from kilonet.protocols.gcs.program import GcsRobot, RobotOutcome
     from kilonet.simulation import Simulation
 
 __all__ = [
@@ -196,6 +197,7 @@ def _estimates(
     robots: list[RobotOutcome], seed_robot: dict[FrameKey, int], truth_mm: np.ndarray
 ) -> pd.DataFrame:
     import pandas as pd
+
     from kilonet.scenarios.estimates import with_alignment
 
     rows = []
@@ -410,6 +412,7 @@ def _reference_metrics(run: _Run, out: dict[str, Any]) -> None:
     two robots in range: nothing is measured, ``crlb_rmse_mm`` is null), and when the swarm was
     done: the last seed done merging, or the last robot done refining."""
     import pandas as pd
+
     from kilonet.scenarios.reference import largest_frame_mm, reference_metrics
 
     sim, est = run.sim, run.outcomes.estimates
@@ -470,7 +473,6 @@ def _boundary(est: pd.DataFrame, i: np.ndarray, j: np.ndarray) -> list[int]:
 
 def _metrics(sim: Simulation) -> dict[str, Any]:
     from kilonet.protocols.gcs.program import phase_windows_s
-
     from kilonet.visibility import LinkModel
 
     events = sim.trace.events_frame()

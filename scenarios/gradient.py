@@ -13,10 +13,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from kilonet.protocols.gradient import UNKNOWN, Gradient
-from kilonet.scenarios.base import RunResult, Scenario
 
 from kilonet.params import ParamError, param
+from kilonet.protocols.gradient import UNKNOWN, Gradient
+from kilonet.scenarios.base import RunResult, Scenario
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
     from kilonet.simulation import Simulation

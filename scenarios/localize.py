@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
 from kilonet.protocols.localize.base import LocalizeParams
 from kilonet.scenarios.base import RunResult, Scenario
 from kilonet.scenarios.neighbourhood import trusted_links
@@ -96,6 +97,7 @@ def estimates_frame(sim: Simulation) -> pd.DataFrame:
     frame's root (``root_robot``), the estimate aligned to the truth and its error
     (:func:`kilonet.scenarios.estimates.with_alignment`) and its state at the end."""
     import pandas as pd
+
     from kilonet.scenarios.estimates import with_alignment
 
     roots = {r.root_key: i for i, r in enumerate(sim.robots) if r.is_root}

@@ -36,6 +36,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from kilonet.params import ParamError, Params
+from kilonet.placement import ROBOT_DIAMETER_MM
 from kilonet.protocols.maze.hardware import (
     Maze,
     RangeSensor,
@@ -53,9 +56,6 @@ from kilonet.protocols.maze.program import (
 )
 from kilonet.scenarios.base import RunResult, Scenario, run
 from kilonet.scenarios.maze_hardware import MazeBody, MazeHardware, fit_maze_hardware
-
-from kilonet.params import ParamError, Params
-from kilonet.placement import ROBOT_DIAMETER_MM
 from kilonet.simulation import Simulation, stream_for
 
 if TYPE_CHECKING:  # pandas and matplotlib are imported where used: listing scenarios is fast

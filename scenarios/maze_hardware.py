@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
+
 from kilonet.protocols.maze.hardware import Maze, MazeError, RangeSensor, WallSensor
 
 if TYPE_CHECKING:

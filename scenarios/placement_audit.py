@@ -20,6 +20,7 @@ import json
 from typing import TYPE_CHECKING
 
 import numpy as np
+
 from kilonet.protocols.common.alignment import rigid_fit
 
 if TYPE_CHECKING:

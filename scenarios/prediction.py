@@ -47,6 +47,8 @@ from typing import Any
 
 import networkx as nx
 import numpy as np
+
+from kilonet.params import Params
 from kilonet.protocols.common.geometry import (
     GeometryError,
     choose_references_best_conditioned,
@@ -59,8 +61,6 @@ from kilonet.protocols.gcs.frame_keys import FrameKey
 from kilonet.protocols.gcs.phase3_local_frames import reference_candidates
 from kilonet.protocols.gcs.phase5_merging_groups import find_groups
 from kilonet.scenarios.topology import failure_cases, rigidity_facts
-
-from kilonet.params import Params
 
 __all__ = ["predict_from_seeds"]
 

@@ -46,11 +46,10 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from kilonet.scenarios.base import RunResult, Scenario, ScenarioError
-
 from kilonet.errors import ProgramFault, exception_line, read_text
 from kilonet.message import PayloadError
 from kilonet.robot import RESERVED_PREFIX, Kilobot
+from kilonet.scenarios.base import RunResult, Scenario, ScenarioError
 from kilonet.watchdog import BusyCallError
 
 if TYPE_CHECKING:

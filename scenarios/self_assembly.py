@@ -29,12 +29,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from kilonet.protocols.self_assembly.program import AssemblyStage, SelfAssembly
-from kilonet.protocols.self_assembly.rules import Shape
-from kilonet.scenarios.base import RunResult, Scenario
 
 from kilonet.errors import read_text
 from kilonet.params import ParamError, param
+from kilonet.protocols.self_assembly.program import AssemblyStage, SelfAssembly
+from kilonet.protocols.self_assembly.rules import Shape
+from kilonet.scenarios.base import RunResult, Scenario
 
 if TYPE_CHECKING:
     import pandas as pd

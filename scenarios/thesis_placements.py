@@ -33,6 +33,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+
 from kilonet.scenarios.placement import hex_lattice
 
 __all__ = [

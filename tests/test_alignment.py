@@ -14,6 +14,9 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation, Slerp
+
+from kilonet.message import KILOLIB, Layout
 from kilonet.protocols.common.alignment import (
     _LEVEL_UP,
     QUATERNION_MAX_ANGLE_ERROR_RAD,
@@ -25,9 +28,6 @@ from kilonet.protocols.common.alignment import (
     words_matrix,
 )
 from kilonet.protocols.common.geometry import GeometryError
-from scipy.spatial.transform import Rotation, Slerp
-
-from kilonet.message import KILOLIB, Layout
 
 coord = st.floats(-300.0, 300.0, allow_nan=False)
 point = st.tuples(coord, coord)

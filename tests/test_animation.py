@@ -14,6 +14,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from PIL import Image
+
+import kilonet.cli as cli
+from kilonet import scenarios
 from kilonet.protocols.common.alignment import procrustes_rmse
 from kilonet.viz.animation import (
     AnimationError,
@@ -23,10 +27,6 @@ from kilonet.viz.animation import (
     frame_times,
     load_run,
 )
-from PIL import Image
-
-import kilonet.cli as cli
-from kilonet import scenarios
 
 _PATH_COLOUR = (31, 119, 180)
 

@@ -31,6 +31,10 @@ SMOKE = {
     "bench_localize.py": (["--sizes", "30", "--seeds", "1"], r'"localized_fraction": 1\.0'),
     "bench_math.py": (["--repeat", "1", "--crlb-robots", "30"], r"crlb_rmse_mm, 30 robots"),
     "bench_medium.py": (["--sizes", "30", "--sim-s", "5", "--repeat", "1"], r"^\s+30\s"),
+    "bench_scenarios.py": (
+        ["--rows", "gcs", "localize", "--sizes", "20", "--duration", "5"],
+        r'"ratio"',
+    ),
     "bench_startup.py": (["--robots", "20", "--repeat", "1"], r"first event after"),
     "bench_sweep.py": (
         ["--workers", "1", "--seeds", "1", "--robots", "10", "--sim-s", "2"],

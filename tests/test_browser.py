@@ -17,10 +17,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from kilonet.protocols.localize.program import LocalizeRobot
 
 import kilonet.cli
 from kilonet import scenarios
+from kilonet.protocols.localize.program import LocalizeRobot
 
 pytestmark = pytest.mark.browser
 

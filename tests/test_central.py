@@ -6,11 +6,11 @@ import math
 
 import numpy as np
 import pytest
+
 from kilonet.protocols.common.alignment import procrustes_rmse
 from kilonet.scenarios.bounds import crlb_rmse_mm
 from kilonet.scenarios.central import central_reference, optimum_agreement_mm, solve_positions
 from kilonet.scenarios.placement import c_shape, corridor, hex_lattice, random_uniform
-
 from kilonet.visibility import pairs_in_range
 
 

@@ -13,11 +13,11 @@ from importlib.metadata import entry_points, version
 from pathlib import Path
 
 import pytest
-from kilonet.protocols.gcs.base import PHASES
 
 from kilonet import scenarios
 from kilonet.cli import COMMANDS, main
 from kilonet.placement import save_csv
+from kilonet.protocols.gcs.base import PHASES
 from kilonet.simulation import Simulation
 
 ROOT = Path(__file__).resolve().parents[1]

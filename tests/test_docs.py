@@ -7,10 +7,10 @@ import re
 from pathlib import Path
 
 import pytest
-from kilonet.scenarios.base import RunResult, write_run_files
-from kilonet.scenarios.program import program_scenario
 
 from kilonet import scenarios
+from kilonet.scenarios.base import RunResult, write_run_files
+from kilonet.scenarios.program import program_scenario
 
 OUTPUTS = Path(__file__).resolve().parents[1] / "docs" / "outputs.md"
 

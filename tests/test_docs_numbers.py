@@ -7,10 +7,9 @@ import math
 import re
 from pathlib import Path
 
+from kilonet import scenarios
 from kilonet.protocols.gcs.program import phase_windows_s
 from kilonet.scenarios.base import build_params
-
-from kilonet import scenarios
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -8,6 +8,7 @@ import re
 from pathlib import Path
 
 import pytest
+
 from kilonet.experiments import publish
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -19,6 +19,11 @@ import dask
 import numpy as np
 import pandas as pd
 import pytest
+from matplotlib.figure import Figure
+from scipy import stats
+
+import kilonet.cli
+from kilonet import scenarios
 from kilonet.experiments import cli as experiments_cli
 from kilonet.experiments.report import (
     ReportError,
@@ -32,11 +37,6 @@ from kilonet.experiments.report import (
 from kilonet.experiments.runner import _record_of, execute_run, run_sweep
 from kilonet.experiments.store import DB_NAME, ResultStore, RunRecord, StoreError
 from kilonet.experiments.sweep import SweepError, load_sweep, parse_sweep
-from matplotlib.figure import Figure
-from scipy import stats
-
-import kilonet.cli
-from kilonet import scenarios
 
 # Small and short runs: 20 robots, 5 simulated seconds (a few hundredths of a second each).
 SMALL = """

@@ -6,11 +6,11 @@ import math
 
 import numpy as np
 import pytest
-from kilonet.scenarios.placement import line
 
 from kilonet.message import Message
 from kilonet.params import Params
 from kilonet.robot import Kilobot
+from kilonet.scenarios.placement import line
 from kilonet.simulation import Simulation
 
 

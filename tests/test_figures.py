@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
-from kilonet.scenarios.estimates import ALIGNED_COLUMNS, with_alignment
-from kilonet.scenarios.figures import MAX_LEGEND_FRAMES, error_magnification, frames_figure
 from matplotlib.collections import LineCollection
 from PIL import Image
 
 from kilonet import scenarios
+from kilonet.scenarios.estimates import ALIGNED_COLUMNS, with_alignment
+from kilonet.scenarios.figures import MAX_LEGEND_FRAMES, error_magnification, frames_figure
 
 
 @pytest.fixture(scope="module", params=["gcs", "localize"])

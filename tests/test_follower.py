@@ -8,6 +8,10 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+
+from kilonet.message import PayloadError
+from kilonet.params import ParamError
+from kilonet.placement import save_csv
 from kilonet.protocols.common.geometry import place_references, trilaterate_linear
 from kilonet.protocols.follower.follower import (
     FRAME_BYTE,
@@ -22,6 +26,7 @@ from kilonet.protocols.follower.follower import (
     turn_angle,
 )
 from kilonet.protocols.follower.turn_calibration import TurnCalibration
+from kilonet.robot import Kilobot
 from kilonet.scenarios.base import ScenarioError, build_params, run, write_outputs
 from kilonet.scenarios.follower import (
     SCENARIO,
@@ -30,11 +35,6 @@ from kilonet.scenarios.follower import (
     run_many,
     trajectory,
 )
-
-from kilonet.message import PayloadError
-from kilonet.params import ParamError
-from kilonet.placement import save_csv
-from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
 
 #: An equilateral frame with 75 mm sides, robot 3 on the left of the 1→2 axis.

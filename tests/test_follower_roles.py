@@ -7,6 +7,9 @@ from __future__ import annotations
 import math
 
 import pytest
+
+from kilonet.message import LIMITS
+from kilonet.params import MediumParams
 from kilonet.protocols.common.geometry import place_references
 from kilonet.protocols.follower.follower import (
     FRAME_BYTE,
@@ -20,9 +23,6 @@ from kilonet.protocols.follower.follower import (
     XAxisRobot,
     encode,
 )
-
-from kilonet.message import LIMITS
-from kilonet.params import MediumParams
 
 _MEDIUM = MediumParams()
 #: One message's airtime on the default medium: its bytes at the bit rate, plus the preamble.

@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from kilonet.protocols.gcs.frame_keys import EDGE_BIT, MAX_HOPS, FrameKey, Rank, Root
 
 uids = st.integers(0, (1 << 15) - 1)  # gcs.id_bits is at most 15

@@ -12,15 +12,15 @@ import json
 import networkx as nx
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+
+from kilonet import scenarios
 from kilonet.protocols.common.alignment import half_map, procrustes_rmse
 from kilonet.protocols.gcs.base import GcsParams
 from kilonet.protocols.gcs.phase1_unique_ids import ID
 from kilonet.protocols.gcs.phase6_merging import TF_ROT, quaternion_fields, rotation_from_fields
 from kilonet.protocols.gcs.program import phase_windows_s
 from kilonet.scenarios.neighbourhood import trusted_links
-from scipy.spatial.transform import Rotation
-
-from kilonet import scenarios
 
 GCS = scenarios.get("gcs")
 #: The full-size runs check the pipeline's machinery, so they take well-conditioned references:
@@ -305,9 +305,8 @@ def test_an_isolated_seeds_root_ranks_last_so_it_wins_no_robot_of_a_merged_frame
     (docs/gcs.md, "On the robot model"). Their roots rank last, as edge seeds' do: a robot whose
     frames include one that can merge never takes an isolated seed's root (before, the smaller
     key won, and an isolated seed's references left the merged frame with it)."""
-    from kilonet.scenarios.base import build_params, place
-
     from kilonet import Simulation
+    from kilonet.scenarios.base import build_params, place
 
     # Seed 4: isolated seeds with smaller keys than the frames their references share.
     params = build_params(GCS, {"placement.robots": 40}, seed=4)
@@ -334,9 +333,8 @@ def test_a_partner_that_never_answers_stops_holding_up_done():
     """A seed crashes just before merging, so no member ever holds its transform: rounds
     about it time out, and after gcs.merge_silent_rounds of them its partners are done
     without it (before, they ran rounds until gcs.merge_max_rounds and the run never ended)."""
-    from kilonet.scenarios.base import build_params, place
-
     from kilonet import Simulation
+    from kilonet.scenarios.base import build_params, place
 
     # The thesis's premise (bodies block links) keeps every other seed's partners answering.
     settings = {"placement.robots": 40, "gcs.merge_max_rounds": 300, "medium.occlusion": "block"}
@@ -448,10 +446,9 @@ def test_failures_section_names_the_lone_robot_and_its_isolated_frame():
 
 
 def test_analyze_predicts_the_lone_robot_before_a_full_run(tmp_path, capsys):
-    from kilonet.scenarios.placement import hex_lattice
-
     from kilonet.cli import main
     from kilonet.placement import save_csv
+    from kilonet.scenarios.placement import hex_lattice
 
     placement = tmp_path / "swarm.csv"
     save_csv(np.vstack([hex_lattice(19, spacing_mm=40.0), [[500.0, 0.0]]]), placement)

@@ -4,6 +4,7 @@ from a run."""
 from __future__ import annotations
 
 import pytest
+
 from kilonet.experiments.studies.gcs_measured import THIN_DEG, gcs_run
 
 

@@ -7,6 +7,9 @@ import math
 import typing
 
 import pytest
+
+from kilonet import scenarios
+from kilonet.message import PayloadError
 from kilonet.protocols.common.layouts import discover
 from kilonet.protocols.common.neighbours import NeighbourTable
 from kilonet.protocols.gcs.base import LAYOUTS as GCS_LAYOUTS
@@ -25,9 +28,6 @@ from kilonet.protocols.gcs.program import (
 from kilonet.protocols.gcs.recovery import adopts_epoch
 from kilonet.protocols.gcs.split_detection import distance_mismatch_mm
 from kilonet.scenarios.gcs import estimates_frame, run_outcomes
-
-from kilonet import scenarios
-from kilonet.message import PayloadError
 
 #: Every layout of the protocol, as its modules register them (phase 7's GPOS types and the
 #: refinement's DIST included).

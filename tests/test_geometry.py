@@ -11,6 +11,9 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from scipy.linalg import lstsq, svdvals
+from scipy.optimize import least_squares
+
 from kilonet.protocols.common.alignment import procrustes_rmse
 from kilonet.protocols.common.geometry import (
     FIX_REASONS,
@@ -30,9 +33,6 @@ from kilonet.protocols.common.geometry import (
 )
 from kilonet.scenarios.bounds import crlb_rmse_mm
 from kilonet.scenarios.placement import hex_lattice
-from scipy.linalg import lstsq, svdvals
-from scipy.optimize import least_squares
-
 from kilonet.visibility import pairs_in_range
 
 coord = st.floats(-200.0, 200.0, allow_nan=False)

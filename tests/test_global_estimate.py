@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+
 from kilonet.protocols.gcs.frame_keys import FrameKey, Rank, Root
 from kilonet.protocols.gcs.global_estimate import GlobalEstimate
 from kilonet.protocols.gcs.transforms import Transform, version_byte
-from scipy.spatial.transform import Rotation
 
 A, B, C = FrameKey(3, 1), FrameKey(5, 2), FrameKey(8, 0)
 ROOT_1 = Rank.own(FrameKey(1, 0), edge=False)

@@ -8,6 +8,8 @@ from collections import Counter
 
 import numpy as np
 import pytest
+
+from kilonet import scenarios
 from kilonet.protocols.gcs.base import GcsParams
 from kilonet.protocols.gcs.frame_keys import FrameKey, Root
 from kilonet.protocols.gcs.global_estimate import GlobalEstimate
@@ -22,8 +24,6 @@ from kilonet.protocols.gcs.phase7_refinement import (
 )
 from kilonet.protocols.gcs.program import GcsRobot, phase_sequence
 from kilonet.scenarios.base import build_params, place
-
-from kilonet import scenarios
 from kilonet.simulation import Simulation
 
 GCS = scenarios.get("gcs")

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import networkx as nx
 import pytest
-from kilonet.scenarios.gradient import hop_distances
 
 from kilonet import scenarios
 from kilonet.radio import MIN_RECEPTION
+from kilonet.scenarios.gradient import hop_distances
 
 GRADIENT = scenarios.get("gradient")
 

@@ -6,10 +6,10 @@ from __future__ import annotations
 import networkx as nx
 import pytest
 from hypothesis import given, settings
-from kilonet.protocols.gradient import GRADIENT, UNKNOWN, Gradient
 
 from kilonet.message import LIMITS
 from kilonet.params import MediumParams
+from kilonet.protocols.gradient import GRADIENT, UNKNOWN, Gradient
 from kilonet.testing.strategies import connected_placements, loss_settings
 from kilonet.visibility import LinkModel, communication_graph
 

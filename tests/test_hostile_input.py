@@ -23,10 +23,10 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from kilonet.scenarios.base import build_params
 
 import kilonet.cli
 from kilonet import scenarios
+from kilonet.scenarios.base import build_params
 
 SCENARIOS = ("gradient", "localize", "follower", "gcs", "maze")
 

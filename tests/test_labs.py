@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from kilonet.scenarios.gradient import hop_distances
 
 from examples.labs import measures, world
 from examples.labs.blink_led import BlinkLed
@@ -27,6 +26,7 @@ from examples.labs.simple_movement import SimpleMovement
 from examples.labs.speaker_listener import SpeakerListener
 from examples.labs.sync import Sync, c_div, c_mod
 from kilonet.robot import Kilobot
+from kilonet.scenarios.gradient import hop_distances
 
 
 def run(lab: str, program: type[Kilobot], *, seed: int = 1, **overrides):
@@ -81,9 +81,8 @@ def test_lab_worlds_carry_the_uids_the_labs_need():
 
 def test_the_cli_runs_a_lab_file_on_its_placement_with_the_uids_it_gives(tmp_path):
     # kilonet run --program examples/labs/gradient_simple.py --placement .../gradient_simple.csv
-    from kilonet.scenarios.program import program_scenario
-
     from kilonet import scenarios
+    from kilonet.scenarios.program import program_scenario
 
     lab = Path(world.__file__).parent
     spec = str(lab / "gradient_simple.py")

@@ -6,9 +6,9 @@ gcs registers every layout its modules hold. The inventories come from the code
 from __future__ import annotations
 
 import pytest
-from kilonet.protocols.common.layouts import LayoutClash, ProtocolLayouts, discover, protocol_names
 
 from kilonet.message import Layout
+from kilonet.protocols.common.layouts import LayoutClash, ProtocolLayouts, discover, protocol_names
 
 
 def test_every_protocol_is_found():

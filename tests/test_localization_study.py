@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pandas as pd
 import pytest
+
 from kilonet.experiments.studies.localization_study import (
     base_table,
     comparison,

@@ -12,12 +12,15 @@ import json
 import math
 from pathlib import Path
 
-import kilonet.protocols.localize.program as localize_module
 import numpy as np
 import pandas as pd
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
+import kilonet.protocols.localize.program as localize_module
+from kilonet import scenarios
+from kilonet.message import Message
 from kilonet.protocols.common import refinement
 from kilonet.protocols.common.refinement import (
     DIST,
@@ -63,9 +66,6 @@ from kilonet.protocols.localize.phase3_termination import gives_up, subtree_comp
 from kilonet.protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR
 from kilonet.protocols.localize.stages import LocalizingPhase
 from kilonet.scenarios.neighbourhood import noise_free_estimate_mm, trusted_links
-
-from kilonet import scenarios
-from kilonet.message import Message
 
 LOCALIZE = scenarios.get("localize")
 
@@ -880,7 +880,6 @@ def test_protocol_modules_import_only_the_robot_api_and_math():
 
 def test_protocol_runs_on_the_robot_api_alone():
     from kilonet.scenarios.base import build_params, place
-
     from kilonet.simulation import Simulation
 
     params = build_params(LOCALIZE, {"placement.robots": 25})

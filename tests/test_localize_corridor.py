@@ -12,9 +12,11 @@ here on their own; the issue's corridors run end to end in tests/test_localize_s
 
 from __future__ import annotations
 
-import kilonet.protocols.localize.program as localize_module
 import numpy as np
 import pytest
+
+import kilonet.protocols.localize.program as localize_module
+from kilonet import scenarios
 from kilonet.protocols.localize.base import (
     LOCALIZED,
     MAX_HOPS,
@@ -26,8 +28,6 @@ from kilonet.protocols.localize.base import (
 )
 from kilonet.protocols.localize.phase1_election import ELECT
 from kilonet.protocols.localize.phase2_spread import POS
-
-from kilonet import scenarios
 
 LOCALIZE = scenarios.get("localize")
 

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from kilonet.scenarios.placement import c_shape
 
 from kilonet import scenarios
+from kilonet.scenarios.placement import c_shape
 
 LOCALIZE = scenarios.get("localize")
 

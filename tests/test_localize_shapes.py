@@ -7,11 +7,13 @@ robots, with and without loss) are marked slow (``pytest -m slow``).
 
 from __future__ import annotations
 
-import kilonet.protocols.localize.program as localize_module
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
+import kilonet.protocols.localize.program as localize_module
+from kilonet import scenarios
 from kilonet.protocols.common.refinement import DIST
 from kilonet.protocols.localize.base import (
     COORDINATE_PERIOD_MM,
@@ -24,8 +26,6 @@ from kilonet.protocols.localize.base import (
 from kilonet.protocols.localize.phase2_spread import CAND, POS
 from kilonet.protocols.localize.stages import LocalizingPhase
 from kilonet.scenarios.localize import estimates_frame
-
-from kilonet import scenarios
 
 LOCALIZE = scenarios.get("localize")
 

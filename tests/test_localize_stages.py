@@ -8,9 +8,11 @@ import ast
 import inspect
 from pathlib import Path
 
-import kilonet.protocols.localize.program as localize_module
 import numpy as np
 import pytest
+
+import kilonet.protocols.localize.program as localize_module
+from kilonet import scenarios
 from kilonet.protocols.localize.base import LOCALIZED
 from kilonet.protocols.localize.phase1_election import ELECT
 from kilonet.protocols.localize.phase2_spread import POS
@@ -22,8 +24,6 @@ from kilonet.protocols.localize.stages import (
     LocalizeStage,
     LocalizingPhase,
 )
-
-from kilonet import scenarios
 
 LOCALIZE = scenarios.get("localize")
 

@@ -8,6 +8,8 @@ import matplotlib.figure
 import networkx as nx
 import numpy as np
 import pytest
+
+from kilonet.params import ParamError, Params
 from kilonet.protocols.common.geometry import GeometryError, trilaterate_linear
 from kilonet.protocols.maze.hardware import (
     DIRECTIONS,
@@ -38,8 +40,6 @@ from kilonet.scenarios.maze import (
     step_table,
 )
 from kilonet.scenarios.maze_hardware import MazeHardware, fit_maze_hardware
-
-from kilonet.params import ParamError, Params
 from kilonet.simulation import Simulation
 
 TWO_CELLS = """

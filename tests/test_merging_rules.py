@@ -4,6 +4,7 @@ values."""
 from __future__ import annotations
 
 import pytest
+
 from kilonet.protocols.gcs.frame_keys import MAX_HOPS, FrameKey, Rank, Root
 from kilonet.protocols.gcs.merging_rules import (
     all_partners_heard,

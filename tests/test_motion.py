@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from kilonet.scenarios.placement import hex_lattice
 from scipy.spatial.distance import pdist
 
 from kilonet.message import Message
 from kilonet.motion import motor_drive
 from kilonet.params import Params
 from kilonet.robot import Kilobot
+from kilonet.scenarios.placement import hex_lattice
 from kilonet.simulation import Simulation
 
 #: One hard radius (85 mm) and iid ranging noise: where a test needs the range to be one number.

@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from kilonet.scenarios.base import run, write_outputs
 from scipy import stats
 
 from kilonet import scenarios
 from kilonet.cli import main
+from kilonet.scenarios.base import run, write_outputs
 
 GRADIENT = ["run", "gradient", "--robots", "6", "--duration", "3"]
 ROOT = Path(__file__).resolve().parents[1]
@@ -344,9 +344,10 @@ def test_the_band_of_a_time_stops_at_zero_and_other_bands_are_unchanged():
 
 # -- kilonet analyze's figure -------------------------------------------------------------------
 def test_the_analyze_figure_draws_the_frames_and_the_boundary_robots():
+    from matplotlib.colors import to_rgba
+
     from kilonet.scenarios.analyze import predict, prediction_figure
     from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS
-    from matplotlib.colors import to_rgba
 
     pos = NAMED_PLACEMENTS["thesis-7.1c"]()
     report = predict("thesis-7.1c")

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+
 from kilonet.scenarios.output_dir import OutputDir, OutputDirError, _exchange
 
 

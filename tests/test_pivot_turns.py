@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 
 import pytest
+
+from kilonet.motion import pose_after
 from kilonet.protocols.follower.pivot_turns import (
     PIVOT_LEG_MM,
     best_pivot_move,
@@ -16,8 +18,6 @@ from kilonet.protocols.follower.pivot_turns import (
     swing_vote,
     turn_rate_ratio,
 )
-
-from kilonet.motion import pose_after
 
 LEG_RADIUS_MM = math.hypot(*PIVOT_LEG_MM)
 

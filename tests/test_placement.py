@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from kilonet.scenarios.placement import generate, hex_lattice, line, random_uniform
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist
 
@@ -21,6 +20,7 @@ from kilonet.placement import (
     save_csv,
     validate_positions,
 )
+from kilonet.scenarios.placement import generate, hex_lattice, line, random_uniform
 
 # ------------------------------------------------------------------------------------- line
 
@@ -444,9 +444,8 @@ def test_a_uid_that_is_not_a_uint16_is_refused_with_file_and_line(tmp_path, bad)
 
 
 def _placed(overrides: dict, seed: int = 1) -> np.ndarray:
-    from kilonet.scenarios.base import build_params, place
-
     from kilonet import scenarios
+    from kilonet.scenarios.base import build_params, place
 
     localize = scenarios.get("localize")
     return place(localize, build_params(localize, overrides, seed=seed))

@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pandas as pd
+
 from kilonet.protocols.common.geometry import multilaterate
 from kilonet.protocols.localize.phase2_spread import side_is_clear
 from kilonet.scenarios.placement_audit import MISPLACED_MM, frame_handedness, placement_errors

@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+
+from kilonet import scenarios
 from kilonet.protocols.common.geometry import (
     GeometryError,
     choose_references_max_angle,
@@ -18,8 +20,6 @@ from kilonet.protocols.gcs.phase3_local_frames import reference_candidates
 from kilonet.scenarios.base import build_params
 from kilonet.scenarios.neighbourhood import RECEPTION_NOISE_MM, held_estimates_mm, trusted_links
 from kilonet.scenarios.prediction import _final_frames, predict_from_seeds
-
-from kilonet import scenarios
 
 #: Seed 0 with robots 1 and 2 on opposite sides, 176° apart seen from it: |BC| = 72.54 mm reaches
 #: the seed as 73 mm, longer than |AB| + |AC| = 72.59 mm, so the triangle the seed holds does not

@@ -10,6 +10,9 @@ import json
 
 import pandas as pd
 import pytest
+
+from kilonet import scenarios
+from kilonet.cli import main
 from kilonet.experiments.runner import execute_run, run_sweep
 from kilonet.experiments.store import ResultStore
 from kilonet.experiments.sweep import SweepError, load_sweep
@@ -19,9 +22,6 @@ from kilonet.scenarios.program import (
     load_program,
     program_scenario,
 )
-
-from kilonet import scenarios
-from kilonet.cli import main
 
 LEADER = """\
 from kilonet.message import Message

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+
 from kilonet.experiments import publish
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from kilonet.protocols.common.ranging_limit import TABLES_END_MM, trusted_range
 from kilonet.protocols.follower.follower import FollowerParams
 from kilonet.protocols.gcs.base import GcsParams
 from kilonet.protocols.localize.base import LocalizeParams
-
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
 

@@ -7,6 +7,7 @@ import math
 from types import SimpleNamespace
 
 import pytest
+
 from kilonet.protocols.common.refinement import (
     Refiner,
     agreed_range_mm,

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
+import kilonet.cli
+from kilonet import scenarios
 from kilonet.protocols.self_assembly.program import (
     ASSEMBLY,
     LOST_AFTER_S,
@@ -19,9 +22,6 @@ from kilonet.scenarios.self_assembly import (
     read_bitmap,
     shipped_shapes,
 )
-
-import kilonet.cli
-from kilonet import scenarios
 from kilonet.testing import ScriptedWorld
 
 

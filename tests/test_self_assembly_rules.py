@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from kilonet.protocols.self_assembly.rules import (
     DESIRED_MM,
     EDGE_MM,

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from kilonet.scenarios.placement import hex_lattice
 
 from kilonet.counters import LOSS_CAUSES
 from kilonet.message import Layout, Message
 from kilonet.params import Params
 from kilonet.placement import PlacementError
 from kilonet.robot import Kilobot
+from kilonet.scenarios.placement import hex_lattice
 from kilonet.simulation import STREAMS, Simulation, stream_for
 
 

@@ -14,14 +14,14 @@ behaviour is covered by tests/test_thesis_cases.py.
 from __future__ import annotations
 
 import pytest
+
+from kilonet import scenarios
 from kilonet.protocols.gcs.phase6_merging import TF_ROT, TF_SHIFT
 from kilonet.protocols.gcs.program import GcsRobot, phase_windows_s
 from kilonet.protocols.gcs.recovery import RECOVER
 from kilonet.protocols.gcs.split_detection import POS
 from kilonet.scenarios.base import build_params
 from kilonet.scenarios.placement import hex_lattice
-
-from kilonet import scenarios
 
 GCS = scenarios.get("gcs")
 STRANGER = 300  # an ID no robot here draws (gcs.id_bits = 8)

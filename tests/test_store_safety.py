@@ -20,14 +20,14 @@ import time
 from pathlib import Path
 
 import pytest
-from kilonet.experiments.runner import _terminate_local, run_sweep
-from kilonet.experiments.store import DB_NAME, ResultStore, lock_directory
-from kilonet.experiments.sweep import parse_sweep
-from kilonet.scenarios.output_dir import DirectoryInUse, OutputDir, OutputDirError
 from test_experiments import SMALL  # four runs of 20 robots for 5 s
 from test_sweep_faults import _kilonet
 
 import kilonet.cli
+from kilonet.experiments.runner import _terminate_local, run_sweep
+from kilonet.experiments.store import DB_NAME, ResultStore, lock_directory
+from kilonet.experiments.sweep import parse_sweep
+from kilonet.scenarios.output_dir import DirectoryInUse, OutputDir, OutputDirError
 
 _CLI = "import sys, kilonet.cli as c; sys.exit(c.main(sys.argv[1:]))"
 #: Two runs of 10 robots for 2 s: a sweep that finishes in a moment.

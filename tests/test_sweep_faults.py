@@ -16,6 +16,9 @@ import time
 from pathlib import Path
 
 import pytest
+from test_experiments import SMALL  # four runs of 20 robots for 5 s
+
+import kilonet.cli
 from kilonet.experiments.runner import WorkerWatch, run_sweep
 from kilonet.experiments.store import (
     DB_NAME,
@@ -26,9 +29,6 @@ from kilonet.experiments.store import (
     row_checksum,
 )
 from kilonet.experiments.sweep import parse_sweep
-from test_experiments import SMALL  # four runs of 20 robots for 5 s
-
-import kilonet.cli
 
 _CLI = "import sys, kilonet.cli as c; sys.exit(c.main(sys.argv[1:]))"
 

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from kilonet.scenarios.placement import hex_lattice
 
 from kilonet.message import KILOLIB, THESIS, Layout, Message
 from kilonet.params import Params
 from kilonet.robot import Kilobot
+from kilonet.scenarios.placement import hex_lattice
 from kilonet.testing import ScriptError, run_swarm
 from kilonet.testing.strategies import (
     channel_settings,

@@ -13,6 +13,10 @@ import json
 
 import numpy as np
 import pytest
+
+from kilonet import scenarios
+from kilonet.cli import main
+from kilonet.placement import validate_positions
 from kilonet.scenarios.analyze import predict
 from kilonet.scenarios.base import build_params, place
 from kilonet.scenarios.gcs import estimates_frame
@@ -26,10 +30,6 @@ from kilonet.scenarios.thesis_placements import (
     thesis_7_1b,
     thesis_7_1c,
 )
-
-from kilonet import scenarios
-from kilonet.cli import main
-from kilonet.placement import validate_positions
 from kilonet.visibility import LinkModel, communication_graph
 
 GCS = scenarios.get("gcs")

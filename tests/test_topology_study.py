@@ -6,6 +6,7 @@ import json
 
 import pandas as pd
 import pytest
+
 from kilonet.experiments.studies.topology_study import (
     RANGE,
     RECOVERY,

@@ -5,11 +5,11 @@ rules, and scripted neighbours in the real medium that announce a duplicate ID."
 from __future__ import annotations
 
 import pytest
+
+from kilonet import scenarios
 from kilonet.protocols.gcs.phase1_unique_ids import CONFLICT, ID
 from kilonet.protocols.gcs.program import GcsRobot
 from kilonet.scenarios.base import build_params
-
-from kilonet import scenarios
 
 GCS = scenarios.get("gcs")
 LAYOUTS = [ID, CONFLICT]

@@ -41,6 +41,8 @@ import math
 from collections.abc import Iterable
 from pathlib import Path
 
+from matplotlib.animation import FFMpegWriter
+
 from kilonet.viz.replay import render_html, replay_data
 from kilonet.viz.run_data import (
     FORMATS,
@@ -56,7 +58,6 @@ from kilonet.viz.run_data import (
     load_run,
 )
 from kilonet.viz.video import FrameRenderer, render_video
-from matplotlib.animation import FFMpegWriter
 
 __all__ = [
     "FORMATS",

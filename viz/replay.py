@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from kilonet.viz.run_data import (
     CRASHED_RGB,
     EDGE_RGB,

@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from kilonet.protocols.common.alignment import procrustes_rmse
 
 from kilonet.placement import ROBOT_DIAMETER_MM
+from kilonet.protocols.common.alignment import procrustes_rmse
 from kilonet.visibility import LinkModel
 
 #: Overlay names accepted by the renderers and ``kilonet animate --overlay``.

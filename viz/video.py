@@ -10,6 +10,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.animation import FFMpegWriter, PillowWriter
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import EllipseCollection, LineCollection
+from matplotlib.figure import Figure
+from PIL import Image
+
 from kilonet.viz.run_data import (
     BOX_RGB,
     CRASHED_RGB,
@@ -28,11 +34,6 @@ from kilonet.viz.run_data import (
     atomic_output,
     level_to_rgb,
 )
-from matplotlib.animation import FFMpegWriter, PillowWriter
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.collections import EllipseCollection, LineCollection
-from matplotlib.figure import Figure
-from PIL import Image
 
 # --------------------------------------------------------------------------- rendering
 

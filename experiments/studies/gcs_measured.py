@@ -165,6 +165,7 @@ def _reference_angle_deg(references: Sequence[tuple[int, float, float]]) -> floa
 
 def _error_bands(sim: Any, outcomes: Any) -> tuple[tuple[int, int, int, float], ...]:
     import numpy as np
+
     from kilonet.protocols.common.alignment import procrustes_rmse
 
     localized = outcomes.estimates[outcomes.estimates.localized]
@@ -325,9 +326,8 @@ def last_events(n: int, seed: int, overrides: dict[str, Any]) -> dict[str, Any]:
     Times are read on each robot's own clock, as its windows run: with drifting clocks a
     robot's phase 3 opens and closes up to a second or so away from the nominal times.
     """
-    from kilonet.protocols.gcs.program import phase_windows_s
-
     from kilonet import scenarios
+    from kilonet.protocols.gcs.program import phase_windows_s
 
     result = scenarios.run(
         scenarios.get("gcs"),

@@ -36,6 +36,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+
 from kilonet.experiments.report import _markdown_table, load
 
 __all__ = [

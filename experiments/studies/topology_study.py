@@ -27,6 +27,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+
 from kilonet.experiments.report import _markdown_table, load
 
 __all__ = ["detection_scores", "one_frame_shares", "prediction_confusion", "write_report"]

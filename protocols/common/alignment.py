@@ -29,8 +29,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from kilonet.protocols.common.geometry import GeometryError, collinear
 from scipy.spatial.transform import Rotation
+
+from kilonet.protocols.common.geometry import GeometryError, collinear
 
 __all__ = [
     "QUATERNION_MAX_ANGLE_ERROR_RAD",

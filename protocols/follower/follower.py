@@ -91,6 +91,8 @@ from dataclasses import dataclass
 from statistics import median
 from typing import Literal
 
+from kilonet.message import Message
+from kilonet.params import ParamError, param
 from kilonet.protocols.common.geometry import (
     GeometryError,
     circle_intersections,
@@ -132,9 +134,6 @@ from kilonet.protocols.follower.planning import (
     turn_angle,
 )
 from kilonet.protocols.follower.turn_calibration import TurnCalibration
-
-from kilonet.message import Message
-from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
 
 __all__ = [

@@ -12,12 +12,11 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from kilonet.message import Layout, Message
 from kilonet.protocols.common.geometry import (
     GeometryError,
     place_references,
 )
-
-from kilonet.message import Layout, Message
 from kilonet.robot import Kilobot
 
 ORIGIN, X_AXIS, THIRD, FOLLOWER = 1, 2, 3, 4

@@ -21,6 +21,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+
 from kilonet.protocols.common.geometry import rotate, wrap_angle
 
 __all__ = [

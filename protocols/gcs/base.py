@@ -18,12 +18,11 @@ import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
+from kilonet.message import Layout, Message
+from kilonet.params import param
 from kilonet.protocols.common.layouts import ProtocolLayouts
 from kilonet.protocols.common.phases import Phase as BasePhase
 from kilonet.protocols.common.phases import Stage
-
-from kilonet.message import Layout, Message
-from kilonet.params import param
 
 if TYPE_CHECKING:
     from collections.abc import Callable

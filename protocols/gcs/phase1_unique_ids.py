@@ -23,9 +23,8 @@ are repeated at three transmit opportunities.
 
 from __future__ import annotations
 
-from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
-
 from kilonet.message import Message
+from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 
 __all__ = ["CONFLICT", "ID", "UniqueIds", "is_duplicate"]
 

@@ -21,9 +21,8 @@ Message (type 20 ELECT, 4 bytes)::
 
 from __future__ import annotations
 
-from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
-
 from kilonet.message import Message
+from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 
 __all__ = ["ELECT", "SeedElection", "seed_condition_met"]
 

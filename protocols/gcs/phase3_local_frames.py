@@ -30,6 +30,7 @@ Messages (16-bit IDs; distances whole mm; coordinates int16 in 0.1 mm)::
 
 from __future__ import annotations
 
+from kilonet.message import Message
 from kilonet.protocols.common.geometry import (
     GeometryError,
     choose_references_best_conditioned,
@@ -37,8 +38,6 @@ from kilonet.protocols.common.geometry import (
     place_references,
 )
 from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
-
-from kilonet.message import Message
 
 __all__ = [
     "ASK",

@@ -24,13 +24,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
+
+from kilonet.message import Message
 from kilonet.protocols.common.geometry import multilaterate
 from kilonet.protocols.common.neighbours import NeighbourTable
 from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 from kilonet.protocols.gcs.frame_keys import FrameKey
 from kilonet.protocols.gcs.phase3_local_frames import announce_reference, receive_reference
-
-from kilonet.message import Message
 
 __all__ = [
     "POS",

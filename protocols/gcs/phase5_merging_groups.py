@@ -24,11 +24,10 @@ import math
 from collections.abc import Mapping
 from typing import TypeVar
 
+from kilonet.message import Message
 from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 from kilonet.protocols.gcs.frame_keys import FrameKey
 from kilonet.protocols.gcs.phase4_localization import announce_position, receive_position
-
-from kilonet.message import Message
 
 __all__ = ["REGISTER", "MergingGroups", "find_groups"]
 

@@ -61,6 +61,9 @@ shifts int16 in 0.25 mm; frames by their seed's ID and salt,
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
+from kilonet.message import Message
 from kilonet.protocols.common.alignment import (
     half_map,
 )
@@ -90,9 +93,6 @@ from kilonet.protocols.gcs.transforms import (
     version_byte,
     version_number,
 )
-from scipy.spatial.transform import Rotation
-
-from kilonet.message import Message
 
 __all__ = [
     "ANS_ERROR",

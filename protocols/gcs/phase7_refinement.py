@@ -87,6 +87,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from kilonet.message import Message
 from kilonet.protocols.common.geometry import multilaterate
 from kilonet.protocols.common.refinement import (
     DIST,
@@ -109,8 +111,6 @@ from kilonet.protocols.gcs.replacement_wave import (
     wave_reached,
 )
 from kilonet.protocols.gcs.split_detection import POS
-
-from kilonet.message import Message
 
 if TYPE_CHECKING:
     from collections.abc import Iterable

@@ -39,6 +39,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from kilonet.message import Message
 from kilonet.protocols.common.neighbours import NeighbourTable
 from kilonet.protocols.common.ranging_limit import trusted_range
 from kilonet.protocols.gcs.base import PHASES, SENDER, GcsParams, Phase
@@ -53,8 +54,6 @@ from kilonet.protocols.gcs.phase6_merging import FrameMerging
 from kilonet.protocols.gcs.phase7_refinement import GlobalRefinement
 from kilonet.protocols.gcs.recovery import RECOVER, EdgeSeeds, RecoveryFlood
 from kilonet.protocols.gcs.split_detection import POS, SplitCheck
-
-from kilonet.message import Message
 from kilonet.robot import Kilobot
 
 __all__ = [

@@ -30,10 +30,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from kilonet.message import Message
 from kilonet.protocols.common.phases import Stage
 from kilonet.protocols.gcs.base import GcsParams, Phase, gcs_layout
-
-from kilonet.message import Message
 
 if TYPE_CHECKING:
     from kilonet.protocols.gcs.program import GcsRobot

@@ -32,10 +32,9 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
+from kilonet.message import Message
 from kilonet.protocols.gcs.base import gcs_layout
 from kilonet.protocols.gcs.frame_keys import Root
-
-from kilonet.message import Message
 
 if TYPE_CHECKING:
     from kilonet.protocols.gcs.program import GcsRobot

@@ -8,13 +8,14 @@ only phase 6 makes them.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
 from kilonet.protocols.common.alignment import (
     level_matrix,
     pack_quaternion,
     unpack_quaternion,
     words_matrix,
 )
-from scipy.spatial.transform import Rotation
 
 __all__ = [
     "Transform",

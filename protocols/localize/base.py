@@ -31,6 +31,8 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+from kilonet.message import Layout, Message
+from kilonet.params import param
 from kilonet.protocols.common import neighbours as common_neighbours
 from kilonet.protocols.common.neighbours import NeighbourTable
 from kilonet.protocols.common.refinement import (
@@ -40,9 +42,6 @@ from kilonet.protocols.common.refinement import (
     distance_code,
     unwrap_distance,
 )
-
-from kilonet.message import Layout, Message
-from kilonet.params import param
 
 __all__ = [
     "COMPLETE",

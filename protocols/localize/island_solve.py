@@ -46,6 +46,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
 from kilonet.protocols.common.geometry import (
     MIRROR_SIGMAS,
     GeometryError,

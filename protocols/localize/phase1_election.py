@@ -37,6 +37,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
+from kilonet.message import Layout, Message
 from kilonet.protocols.localize.base import (
     MAX_HOPS,
     NO_ID,
@@ -44,8 +45,6 @@ from kilonet.protocols.localize.base import (
     children_complete,
     choose_parent,
 )
-
-from kilonet.message import Layout, Message
 
 if TYPE_CHECKING:
     from kilonet.protocols.localize.program import LocalizeRobot

@@ -51,6 +51,8 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from kilonet.message import Layout, Message
 from kilonet.protocols.common.geometry import GeometryError, multilaterate, place_references
 from kilonet.protocols.localize.base import (
     LOCALIZED,
@@ -75,8 +77,6 @@ from kilonet.protocols.localize.spread_rules import (
     separation,
     side_is_clear,
 )
-
-from kilonet.message import Layout, Message
 
 if TYPE_CHECKING:
     from kilonet.protocols.localize.program import LocalizeRobot

@@ -56,10 +56,9 @@ from collections import deque
 from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
+from kilonet.message import Layout, Message
 from kilonet.protocols.localize.base import Neighbour, unwrap_coordinate, wrapped_position
 from kilonet.protocols.localize.island_solve import Tolerances, solve_island
-
-from kilonet.message import Layout, Message
 
 if TYPE_CHECKING:
     from kilonet.protocols.localize.program import LocalizeRobot

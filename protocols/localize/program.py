@@ -42,6 +42,7 @@ from __future__ import annotations
 import math
 import struct
 
+from kilonet.message import Message, PayloadError
 from kilonet.protocols.common.phases import PhaseDriver
 from kilonet.protocols.common.ranging_limit import trusted_range
 from kilonet.protocols.common.refinement import DIST, Refiner, next_report
@@ -64,8 +65,6 @@ from kilonet.protocols.localize.phase2_spread import CAND, POS, ROOT, VOTE, Spre
 from kilonet.protocols.localize.phase3_termination import Termination
 from kilonet.protocols.localize.phase4_island import Island
 from kilonet.protocols.localize.stages import ElectionPhase, LocalizeStage
-
-from kilonet.message import Message, PayloadError
 from kilonet.robot import Kilobot
 
 __all__ = ["LocalizeRobot"]

@@ -68,6 +68,7 @@ import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+
 from kilonet.protocols.common.geometry import (
     MIRROR_SIGMAS,
     Fix,

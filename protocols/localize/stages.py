@@ -32,9 +32,8 @@ from kilonet.protocols.localize.phase2_spread import CAND, POS, ROOT
 from kilonet.protocols.localize.phase4_island import ISLAND_FULL, ISLAND_LINK, ISLAND_PAIR
 
 if TYPE_CHECKING:
-    from kilonet.protocols.localize.program import LocalizeRobot
-
     from kilonet.message import Message
+    from kilonet.protocols.localize.program import LocalizeRobot
 
 __all__ = ["DonePhase", "ElectionPhase", "IslandPhase", "LocalizePhase", "LocalizeStage"]
 

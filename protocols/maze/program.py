@@ -47,6 +47,9 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
+
+from kilonet.message import Layout, Message
+from kilonet.params import ParamError, param
 from kilonet.protocols.common.geometry import GeometryError, multilaterate, trilaterate_linear
 from kilonet.protocols.common.phases import Stage
 from kilonet.protocols.common.ranging_limit import trusted_range
@@ -57,9 +60,6 @@ from kilonet.protocols.maze.hardware import (
     MazeKilobot,
     parse_size,
 )
-
-from kilonet.message import Layout, Message
-from kilonet.params import ParamError, param
 from kilonet.robot import Kilobot
 
 if TYPE_CHECKING:  # networkx is imported where used, so that listing scenarios stays fast

@@ -24,6 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from kilonet.message import Layout, Message
 from kilonet.protocols.common.phases import Stage
 from kilonet.protocols.common.ranging_limit import trusted_range
 from kilonet.protocols.self_assembly.rules import (
@@ -39,8 +41,6 @@ from kilonet.protocols.self_assembly.rules import (
     must_yield,
     on_edge,
 )
-
-from kilonet.message import Layout, Message
 from kilonet.robot import Kilobot
 
 __all__ = ["ASSEMBLY", "LOST_AFTER_S", "AssemblyStage", "Neighbour", "SelfAssembly"]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kilonet.geometry import linear_position
+from kilonet.protocols.common.geometry import linear_position
 
 __all__ = [
     "DESIRED_MM",
@@ -53,7 +53,8 @@ EDGE_MM = 47.0
 #: inside the group has six).
 EDGE_MAX_NEIGHBOURS = 4
 #: The first fix needs anchors that condition the linear solve at least this well
-#: (:func:`kilonet.geometry.linear_position`); fewer or nearly collinear anchors wait.
+#: (:func:`kilonet.protocols.common.geometry.linear_position`); fewer or nearly collinear
+#: anchors wait.
 MIN_CONDITIONING = 0.15
 
 

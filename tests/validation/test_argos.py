@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from kilonet.experiments.studies import validation as v
 
 #: Largest accepted |kilonet - real| of the mean reception rate per distance bin (mm). The

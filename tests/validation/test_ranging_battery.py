@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from kilonet.experiments.studies import validation as v
 
 from kilonet import Kilobot, Params, Simulation
+from kilonet.experiments.studies import validation as v
 
 
 @pytest.fixture(scope="module")
