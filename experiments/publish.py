@@ -60,6 +60,7 @@ _BLOCK = re.compile(r"<!-- publish:([\w.-]+) -->\n(.*?)<!-- /publish:\1 -->", re
 
 
 #: What publications write: changes there are the publications' own, not uncommitted code.
+#: (Every publication's ``writes`` count too: :func:`code_changes`.)
 OUTPUTS = ("docs/", "experiments/reports/", "README.md")
 
 
@@ -84,7 +85,8 @@ def code_changes(root: Path | None = None) -> list[str]:
     """
     status = _git(root or ROOT, "status", "--porcelain", "--untracked-files=no", "-z")
     changed = [entry[3:] for entry in status.split("\0") if entry]
-    return [path for path in changed if not path.startswith(OUTPUTS)]
+    outputs = OUTPUTS + tuple(path for p in PUBLICATIONS.values() for path in p.writes)
+    return [path for path in changed if not path.startswith(outputs)]
 
 
 def stamp(command: str) -> str:

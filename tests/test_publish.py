@@ -97,7 +97,8 @@ def _git(root, *args):
 
 
 def test_code_changes_name_changed_code_but_not_the_publications_own_outputs(tmp_path):
-    for name in ("kilonet/medium.py", "docs/model.md", "experiments/reports/loss.md", "x.py"):
+    files = ("kilonet/medium.py", "docs/model.md", "experiments/reports/loss.md", "x.py")
+    for name in (*files, "examples/labs/README.md"):
         (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / name).write_text("one\n")
     _git(tmp_path, "init", "-q")
@@ -106,6 +107,7 @@ def test_code_changes_name_changed_code_but_not_the_publications_own_outputs(tmp
     assert publish.code_changes(tmp_path) == []
     (tmp_path / "docs" / "model.md").write_text("two\n")
     (tmp_path / "experiments" / "reports" / "loss.md").write_text("two\n")
+    (tmp_path / "examples" / "labs" / "README.md").write_text("two\n")  # docs' labs block
     (tmp_path / "new_untracked.py").write_text("not code of the commit's\n")
     assert publish.code_changes(tmp_path) == []
     (tmp_path / "kilonet" / "medium.py").write_text("two\n")
