@@ -382,79 +382,88 @@ class KernelEnvironment(simpy.Environment):
     def _run_to(self, at: float) -> None:
         """The step loop of :meth:`step` inline, up to (not including) time ``at``: the window
         of recurring calls and the queue merged by key."""
-        queue, eids, calls, alive, ids = (
+        queue, eids = self._kqueue, self._keids
+        while True:
+            pos, win_k = self._kpos, self._kwin_k
+            if pos == len(win_k) or self._kdirty:
+                if self._kidle and not self._kdirty:
+                    if self._run_queue_alone(at):
+                        return
+                    continue  # an event added a recurring call: build its window
+                self._window()
+                continue
+            t = self._kwin_t[pos]
+            if queue:
+                head = queue[0]
+                if head[0] < t or (head[0] == t and head < (t, NORMAL, eids[win_k[pos]])):
+                    if head[0] >= at:
+                        return
+                    self._fire(heappop(queue))
+                    continue
+            if t >= at:
+                return
+            self._run_recurring(at)
+
+    def _run_queue_alone(self, at: float) -> bool:
+        """Process queued events before ``at`` while no recurring call is pending: True when
+        done (``at`` or an empty queue reached), False as soon as an event adds a recurring
+        call."""
+        queue = self._kqueue
+        while queue and queue[0][0] < at:
+            self._fire(heappop(queue))
+            if self._kdirty:
+                return False
+        return True
+
+    def _fire(self, entry: tuple[float, int, int, Any]) -> None:
+        """Process one event taken off the queue: its time becomes now, its callbacks run."""
+        self._kt, _, _, event = entry
+        callbacks, event.callbacks = event.callbacks, None
+        for callback in callbacks:
+            callback(event)
+        if not event.ok and not event.defused:
+            _raise_failed(event)
+
+    def _run_recurring(self, at: float) -> None:
+        """Run the window's recurring calls from its position on, back to back, while they fall
+        strictly before the queue's next event and ``at`` (the first of them has already won
+        against the queue's head by key, ties included). A call that raises is cancelled,
+        then the exception goes on."""
+        queue, calls, alive, eids, ids = (
             self._kqueue,
-            self._keids,
             self._kcalls,
             self._kalive,
+            self._keids,
             self._kids,
         )
         win_t, win_k, pos = self._kwin_t, self._kwin_k, self._kpos
         n_win = len(win_k)
+        limit = queue[0][0] if queue and queue[0][0] < at else at
+        t = win_t[pos]
+        k = -1
         try:
             while True:
-                if pos == n_win or self._kdirty:
-                    if self._kidle and not self._kdirty:
-                        win_t, win_k, pos, n_win = (), (), 0, 0
-                    else:
-                        self._kpos = pos
-                        self._window()
-                        win_t, win_k, pos = self._kwin_t, self._kwin_k, 0
-                        n_win = len(win_k)
-                        continue
-                if pos < n_win:
-                    t = win_t[pos]
-                    if queue:
-                        head = queue[0]
-                        event_first = head[0] < t or (
-                            head[0] == t and head < (t, NORMAL, eids[win_k[pos]])
-                        )
-                    else:
-                        event_first = False
-                elif queue:
-                    event_first = True
-                else:
-                    return
-                if event_first:
-                    if queue[0][0] >= at:
+                k = win_k[pos]
+                pos += 1
+                if alive[k]:
+                    self._kt = t
+                    calls[k]()
+                    if alive[k]:
+                        eids[k] = next(ids)
+                    if self._kdirty:
                         return
-                    self._kt, _, _, event = heappop(queue)
-                    callbacks, event.callbacks = event.callbacks, None
-                    for callback in callbacks:
-                        callback(event)
-                    if not event.ok and not event.defused:
-                        _raise_failed(event)
-                    continue
-                if t >= at:
+                    if queue and queue[0][0] < limit:
+                        limit = queue[0][0]
+                if pos == n_win:
                     return
-                # Recurring calls strictly before the queue's next event and `at` run back to
-                # back here; a tie or anything else goes round the outer loop.
-                # The first of them won against the queue's head by key, ties included.
-                limit = queue[0][0] if queue and queue[0][0] < at else at
-                k = -1
-                try:
-                    while True:
-                        k = win_k[pos]
-                        pos += 1
-                        if alive[k]:
-                            self._kt = t
-                            calls[k]()
-                            if alive[k]:
-                                eids[k] = next(ids)
-                            if self._kdirty:
-                                break
-                            if queue and queue[0][0] < limit:
-                                limit = queue[0][0]
-                        if pos == n_win:
-                            break
-                        t = win_t[pos]
-                        if t >= limit:
-                            break
-                except BaseException:
-                    self.cancel(k)
-                    raise
+                t = win_t[pos]
+                if t >= limit:
+                    return
+        except BaseException:
+            self.cancel(k)
+            raise
         finally:
-            if self._kwin_k is win_k:
+            if self._kwin_k is win_k:  # a call may have rebuilt the window (peek)
                 self._kpos = pos
 
 
