@@ -477,8 +477,8 @@ def _localization_runs(context: Context):
 
 
 def _localization_block(table: Callable) -> Callable[[Context], str]:
-    """A block of docs/localize.md: ``table(joined, localize_results)`` as Markdown, with the
-    study named."""
+    """A block of docs/results/localize.md: ``table(joined, localize_results)`` as Markdown,
+    with the study named."""
 
     def make(context: Context) -> str:
         from kilonet.experiments.report import _markdown_table
@@ -530,15 +530,18 @@ def _labs():
 
 
 #: Generated blocks by name.
+_PERFORMANCE = "docs/results/performance.md"
+_LOCALIZE = "docs/results/localize.md"
+
 BLOCKS: dict[str, Block] = {
     "clock-drift": Block("docs/results/model.md", _clock_drift_block),
     "argos-occlusion": Block("docs/results/model.md", _occlusion_block),
-    "medium-throughput": Block("docs/performance.md", _medium_block),
-    "startup": Block("docs/performance.md", _startup_block),
-    "testkit-speed": Block("docs/performance.md", _testkit_block),
-    "localize-speed": Block("docs/performance.md", _localize_speed_block),
-    "kilombo": Block("docs/performance.md", _kilombo_block),
-    "large-runs": Block("docs/performance.md", _large_runs_block),
+    "medium-throughput": Block(_PERFORMANCE, _medium_block),
+    "startup": Block(_PERFORMANCE, _startup_block),
+    "testkit-speed": Block(_PERFORMANCE, _testkit_block),
+    "localize-speed": Block(_PERFORMANCE, _localize_speed_block),
+    "kilombo": Block(_PERFORMANCE, _kilombo_block),
+    "large-runs": Block(_PERFORMANCE, _large_runs_block),
     "math-speed": Block("docs/results/math.md", _math_block),
     # docs/results/gcs.md: experiments/studies/gcs_measured.py
     "gcs-robot-model": _gcs_page(gcs_measured.robot_model_block),
@@ -547,10 +550,10 @@ BLOCKS: dict[str, Block] = {
     "gcs-error-by-distance": _gcs_page(gcs_measured.error_by_distance_block),
     "gcs-merging-choices": _gcs_page(gcs_measured.merging_choices_block),
     "gcs-windows": _gcs_page(gcs_measured.windows_block),
-    "localize-lattice": Block("docs/localize.md", _localization_block(_localize_lattice)),
-    "localize-random": Block("docs/localize.md", _localization_block(_localize_random)),
-    "localize-compared": Block("docs/localize.md", _localization_block(_localize_compared)),
-    "localize-shapes": Block("docs/localize.md", _localization_block(_localize_shapes)),
+    "localize-lattice": Block(_LOCALIZE, _localization_block(_localize_lattice)),
+    "localize-random": Block(_LOCALIZE, _localization_block(_localize_random)),
+    "localize-compared": Block(_LOCALIZE, _localization_block(_localize_compared)),
+    "localize-shapes": Block(_LOCALIZE, _localization_block(_localize_shapes)),
     # docs/results/follower.md: experiments/studies/follower_measured.py
     "follower-success": Block(
         "docs/results/follower.md", lambda _context: follower_measured.success_block()
@@ -579,8 +582,6 @@ def _blocks(
         path.write_text(text)
 
 
-_PERFORMANCE = "docs/performance.md"
-_LOCALIZE = "docs/localize.md"
 #: Pages whose blocks another publication than ``docs`` makes, by page.
 _PAGE_PUBLICATION = {_PERFORMANCE: "performance", _LOCALIZE: "localization"}
 
@@ -639,7 +640,7 @@ PUBLICATIONS: dict[str, Publication] = {
     ),
     "performance": Publication(
         "performance",
-        "the benchmarks' figures in docs/performance.md (run it on a quiet machine)",
+        "the benchmarks' figures in docs/results/performance.md (run it on a quiet machine)",
         (_PERFORMANCE,),
         lambda context: _blocks(context, pages_wanted={_PERFORMANCE}),
     ),

@@ -15,7 +15,7 @@ on the ``handedness`` side of the 1→2 axis (``right`` makes the follower's fra
 of the floor) and the follower at ``[start_min_mm, start_max_mm]`` from the goal
 (``start_max_mm`` 0: anywhere it ranges all three), not touching any robot. ``start_min_mm``
 defaults to 20 mm: a follower that starts within a few millimetres of the goal has nothing to
-show (the default run of seed 1 used to start 2.6 mm from it and take no step). With
+show: it would reach the goal without a step. With
 ``direct_start`` (default) the straight line from the start to the goal must be passable (clear
 of the robots' bodies and of line-of-sight shadows): with the hardware range the follower then
 starts beside an edge long enough to pass or inside the triangle, never behind a robot.

@@ -263,8 +263,7 @@ def consistent_subset_fix(
     links to the others then carry the seam's stress into the refinement, which closes it
     (docs/localize.md, rule 1). Three anchors are not enough: they leave one distance to
     check the fit, and three anchors of a seam can meet near a wrong point within the
-    residual bound (measured: subsets of three folded the sparse swarm of 400 robots with
-    20 % loss, seed 1).
+    residual bound.
 
     Subsets are tried from the largest (one anchor left out) down to ``min_anchors``, at most
     ``max_fits`` multilaterations in all; of the largest size with a passing fix, the one of
