@@ -59,8 +59,8 @@ if TYPE_CHECKING:
     from kilonet.clock import KernelEnvironment, RobotClocks
     from kilonet.params import MediumParams, RobotParams
     from kilonet.radio import Transceivers
-    from kilonet.simulation import World
     from kilonet.trace import Trace
+    from kilonet.world import World
 
 __all__ = ["LOSS_CAUSES", "InfraredMedium", "RandomBlock"]
 

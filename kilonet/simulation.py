@@ -20,7 +20,6 @@ import inspect
 import math
 import time
 from collections.abc import Callable, Generator, Mapping, Sequence
-from dataclasses import dataclass, field
 from numbers import Real
 from typing import TYPE_CHECKING, Any
 
@@ -35,7 +34,7 @@ from kilonet.medium import InfraredMedium
 from kilonet.message import Message
 from kilonet.motion import Motion
 from kilonet.params import Params
-from kilonet.placement import ROBOT_DIAMETER_MM, validate_positions
+from kilonet.placement import validate_positions
 from kilonet.radio import Transceivers, reach_of
 from kilonet.ranging import calibration_tables, measurement_for, read_calibration
 from kilonet.reception import ModelContext, reception_model
@@ -48,6 +47,7 @@ from kilonet.robot import (
 )
 from kilonet.sensors import Sensors
 from kilonet.trace import Trace
+from kilonet.world import World
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -55,7 +55,7 @@ if TYPE_CHECKING:
     from kilonet.reception import ReceptionModel
     from kilonet.visibility import LinkModel
 
-__all__ = ["ESTIMATE_CHANGE_MM", "STREAMS", "Simulation", "World", "stream_for"]
+__all__ = ["ESTIMATE_CHANGE_MM", "STREAMS", "Simulation", "stream_for"]
 
 #: A held position estimate is recorded again once it has moved this far (mm): finer steps
 #: (a refinement's last digits) would not show in an animation and would fill the table.
@@ -87,29 +87,6 @@ def stream_for(seed: int, name: str) -> np.random.Generator:
     """
     model_seq, _ = np.random.SeedSequence(seed).spawn(2)
     return np.random.Generator(np.random.PCG64(model_seq.spawn(len(STREAMS))[STREAMS.index(name)]))
-
-
-@dataclass
-class World:
-    """Ground truth: where the robots are. Only the medium, motion, sensors and metrics read it."""
-
-    positions_mm: np.ndarray
-    heading_rad: np.ndarray
-    diameter_mm: float = ROBOT_DIAMETER_MM
-    present: np.ndarray = field(default=None)  # on the table (removal clears it)
-    running: np.ndarray = field(default=None)  # executing its program
-
-    def __post_init__(self) -> None:
-        n = len(self.positions_mm)
-        if self.present is None:
-            self.present = np.ones(n, dtype=bool)
-        if self.running is None:
-            self.running = np.ones(n, dtype=bool)
-
-    @property
-    def radius_mm(self) -> float:
-        """Body radius, mm."""
-        return self.diameter_mm / 2
 
 
 class Simulation:
