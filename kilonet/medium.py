@@ -23,9 +23,11 @@ The medium itself is the event flow that joins them, with kilolib's transmit sem
   reception that overlaps another at a receiver is corrupted there.
 * **CRC.** A message whose ``crc`` is wrong goes on the air (it occupies the channel and
   collides) but every receiver drops it, counted as ``lost_crc``.
-* **Receive modes.** ``callback``: ``message_rx`` is called on arrival. ``polled``: the message
-  joins a buffer of ``robot.rx_buffer`` messages that drops the oldest on overflow (a program
-  with a ``message_rx`` gets what its ``loop()`` leaves there through it after each call).
+* **Delivery.** At the end of the airtime each reception that is neither lost nor collided
+  goes to its receiver's port (:mod:`kilonet.port`), which owns the rest of the way to the
+  program: a receiver fault's delay, watchers, ranging and the receive mode (``callback``:
+  ``message_rx``; ``polled``: a buffer of ``robot.rx_buffer`` messages that drops the oldest).
+  The medium calls each robot's ``ports.entries[robot]`` and never writes it.
 
 Why it is fast: two SimPy events per transmission (the offer and the end of airtime, both
 callbacks on pre-bound functions, no processes); receiver and handler lists precomputed per
@@ -50,7 +52,6 @@ from kilonet.mac import Channel
 from kilonet.message import LIMITS, Message, PayloadLimit
 from kilonet.radio import MIN_RECEPTION, reception_probability
 from kilonet.reception import CAUSES, RANDOM, LossShares, ReceptionModel
-from kilonet.robot import Kilobot
 from kilonet.visibility import LinkModel
 
 if TYPE_CHECKING:
@@ -58,6 +59,7 @@ if TYPE_CHECKING:
 
     from kilonet.clock import KernelEnvironment, RobotClocks
     from kilonet.params import MediumParams, RobotParams
+    from kilonet.port import ReceivePorts
     from kilonet.radio import Transceivers
     from kilonet.trace import Trace
     from kilonet.world import World
@@ -168,8 +170,16 @@ class InfraredMedium:
         Each robot's oscillator (its transmit timing runs on it).
     radio : Transceivers
         Each robot's emitter strength and receiver sensitivity.
-    programs : sequence of Kilobot
-        The robots' programs, whose ``message_tx`` and ``message_tx_success`` it calls.
+    message_tx : sequence of callable
+        Per robot, what it calls at a transmit opportunity (the program's ``message_tx``):
+        a :class:`~kilonet.message.Message` or ``None``.
+    tx_success : sequence of callable or None
+        Per robot, what it calls after a message went on the air (the program's
+        ``message_tx_success``), or ``None`` where that has no effect (saves a call per
+        message).
+    ports : ReceivePorts
+        The robots' receive ports: a delivery to robot ``r`` is a call of
+        ``ports.entries[r](message, distance_mm)``.
     reception : ReceptionModel
         Distance estimates and losses of the receptions.
     rng : numpy.random.Generator
@@ -190,7 +200,9 @@ class InfraredMedium:
         world: World,
         clocks: RobotClocks,
         radio: Transceivers,
-        programs: Sequence[Kilobot],
+        message_tx: Sequence[Callable[[], Message | None]],
+        tx_success: Sequence[Callable[[], None] | None],
+        ports: ReceivePorts,
         reception: ReceptionModel,
         rng: np.random.Generator,
         trace: Trace,
@@ -204,7 +216,7 @@ class InfraredMedium:
         self._robot_params = robot
         self._world = world
         self._trace = trace
-        n = len(programs)
+        n = len(message_tx)
         self.n = n
         self.radio = radio
         self._edge_mm = self.radio.reach.edge_mm
@@ -243,17 +255,10 @@ class InfraredMedium:
         self._loss_fault = np.zeros(n)
         self._trace_messages = trace_messages
         self._running = [True] * n
-        robots = programs
-        self._message_tx = [r.message_tx for r in robots]
-        # An empty message_tx_success() has no effect; not calling it saves a call per message.
-        self._tx_success = [
-            None
-            if type(r).message_tx_success is Kilobot.message_tx_success
-            else r.message_tx_success
-            for r in robots
-        ]
+        self._message_tx = list(message_tx)
+        self._tx_success = list(tx_success)
         self._range_factor = [1.0] * n
-        self._handlers: list[Callable[[Message, int], None]] = [_drop] * n
+        self._entries = ports.entries  # read only: the ports write it and tell _reroute
         self._last_checked: list[Message | None] = [None] * n
         self._crc_ok = [True] * n
         self._message_bytes = [0] * n
@@ -290,6 +295,7 @@ class InfraredMedium:
         # reception model may keep what it derives from them while they are the same object).
         self._shares: list[LossShares | None] = [None] * n
         self.rebuild_topology()
+        ports.on_reroute(self._reroute)
 
     # -- topology ----------------------------------------------------------------------------
     def rebuild_topology(self) -> None:
@@ -332,7 +338,7 @@ class InfraredMedium:
         ids = self._ids
         self._rx_r[s] = [ids[k] for k in r.tolist()]
         self._rx_at[s] = {rx: at for at, rx in enumerate(self._rx_r[s])}
-        self._rx_h[s] = [self._handlers[k] for k in self._rx_r[s]]
+        self._rx_h[s] = [self._entries[k] for k in self._rx_r[s]]
         self._row_count[s] = self._row_next[s] = 0  # rows drawn for the old lists are void
         self._shares[s] = None
 
@@ -412,16 +418,10 @@ class InfraredMedium:
             )
         self._period[robot] = period_s / self._factor[robot]
 
-    def set_handlers(self, handlers: list[Callable[[Message, int], None]]) -> None:
-        """Route deliveries to every robot at once (``handlers[robot](message, distance_mm)``)."""
-        self._handlers = list(handlers)
-        for s in range(self.n):
-            self._derive(s)
-
-    def set_handler(self, robot: int, handler: Callable[[Message, int], None]) -> None:
-        """Route deliveries to ``robot`` through ``handler(message, distance_mm)``."""
-        self._handlers[robot] = handler
-        for s in self._senders_reaching(robot):
+    def _reroute(self, robot: int | None) -> None:
+        """The ports changed ``robot``'s entry (``None``: every robot's): rebuild the handler
+        lists of the senders that reach it."""
+        for s in range(self.n) if robot is None else self._senders_reaching(robot):
             self._derive(s)
 
     def set_tx_source(self, robot: int, source: Callable[[], Message | None]) -> None:
@@ -692,7 +692,7 @@ class InfraredMedium:
             -1,
             message,
             [self._ids[receiver]],
-            [self._handlers[receiver]],
+            [self._entries[receiver]],
             outcome.estimates[0].tobytes() if estimate_mm is None else bytes([estimate_mm]),
             bytes([code]),
             [0] if code else [],
@@ -705,7 +705,6 @@ class InfraredMedium:
 
     def forget_receiver(self, robot: int) -> None:
         """Take a stopped robot out of the topology (and so of the messages still on the air)."""
-        self._handlers[robot] = _drop
         self._running[robot] = False
         self.rebuild_topology()
 
@@ -716,7 +715,3 @@ class InfraredMedium:
     def receiving(self, robot: int) -> bool:
         """Whether a reception is in progress at ``robot`` now (kilolib's ``rx_busy``)."""
         return self.channel.busy(robot, self.env.now)
-
-
-def _drop(message: Message, distance_mm: int) -> None:
-    """Handler of a robot that has stopped or not started: the message reaches nobody."""
