@@ -51,7 +51,7 @@ from kilonet.counters import LOSS_CAUSES, MediumCounters
 from kilonet.mac import Channel
 from kilonet.message import LIMITS, Message, PayloadLimit
 from kilonet.radio import MIN_RECEPTION, reception_probability
-from kilonet.reception import CAUSES, RANDOM, LossShares, ReceptionModel
+from kilonet.reception import CAUSES, LossShares, ReceptionModel
 from kilonet.visibility import LinkModel
 
 if TYPE_CHECKING:
@@ -70,6 +70,7 @@ _BLOCK = 1 << 11
 _MAX_ROWS_PER_REFILL = 64
 _CRC = max(CAUSES) + 1  # the loss code of a reception dropped for a wrong CRC
 _CODE_CAUSE = {**CAUSES, _CRC: "crc"}
+_CAUSE_CODE = {cause: code for code, cause in _CODE_CAUSE.items()}
 #: Least ``medium.backoff_max_s`` (s): one count of kilolib's 8 MHz / 1024 = 7,812.5 Hz timer,
 #: the shortest wait its ``OCR0A = rand() & 0xFF`` retry can make (its longest: 255 counts,
 #: 32.6 ms); the parameter's lower bound.
@@ -225,7 +226,7 @@ class InfraredMedium:
         )
         self.reception = reception
         # One channel slot per robot and one more, the last, for senders outside the swarm
-        # (a test's scripted messages, see arrive()): it is a sender's slot only, never
+        # (a test's scripted messages, see hear_from_outside()): it is a sender's slot only, never
         # a receiver's.
         self.channel = Channel(n + 1, p.sense_delay_s)
         self._outside = n
@@ -595,7 +596,7 @@ class InfraredMedium:
 
     def _deliver_carefully(self, tx: _Transmission) -> None:
         """End of airtime of a message whose receiver lists changed while it was on the air,
-        or that came from outside the swarm (:meth:`arrive`): receiver by receiver."""
+        or that came from outside the swarm (:meth:`hear_from_outside`): receiver by receiver."""
         message = tx.message
         corrupted = tx.corrupted or ()
         counters = self.counts
@@ -622,78 +623,37 @@ class InfraredMedium:
         if self._trace_messages:
             self._trace.message(self.env.now, tx.sender, len(tx.receivers), delivered)
 
-    def arrive(
-        self,
-        receiver: int,
-        message: Message,
-        distance_mm: float,
-        *,
-        estimate_mm: int | None = None,
-        lose: bool = False,
-    ) -> str | None:
-        """A message from a sender outside the swarm begins arriving at ``receiver`` now.
-
-        This is how :mod:`kilonet.testing`'s scripted world makes a robot hear what a test
-        decides. The message goes through the same parts as any transmission, from
-        ``receiver``'s side: it must fit the payload limit; it occupies the receiver's channel
-        for the airtime (the receiver senses a carrier; it collides with whatever else arrives
-        there meanwhile, and with the receiver's own transmission); the reception model gives
-        its distance estimate at true ``distance_mm`` and whether it is lost, with the
-        receiver's loss shares; a wrong CRC drops it. At the end of the airtime it reaches the
-        receiver's handler unless lost or collided, and the counters (and the trace, with
-        sender -1) count it as any reception. A receiver that has stopped hears nothing.
-
-        Parameters
-        ----------
-        receiver : int
-            The robot that hears it.
-        message : Message
-            What arrives.
-        distance_mm : float
-            True centre-to-centre distance of the (imaginary) sender, mm.
-        estimate_mm : int, optional
-            The distance estimate the receiver gets (whole mm, 0-255) instead of the
-            reception model's.
-        lose : bool
-            Lose the reception for sure (counted as ``lost_random``).
-
-        Returns
-        -------
-        str or None
-            The cause the reception is lost to already (``"random"``, ``"crc"``, ...; see
-            :data:`LOSS_CAUSES`), or ``None``: it is delivered at the end of the airtime
-            unless it collides there.
-
-        Raises
-        ------
-        kilonet.message.PayloadError
-            If the message does not fit the payload limit.
-        """
-        self.limit.check(message)
-        if not self._running[receiver]:
-            return "stopped"
+    def outside_shares(self, receiver: int) -> LossShares:
+        """The loss shares of a reception at ``receiver`` from a sender outside the swarm
+        (:mod:`kilonet.testing`'s scripted messages): the medium's loss probability and the
+        receiver's battery and fault shares; no link of its own, so no occlusion and a full
+        signal."""
         at = np.array([receiver])
-        shares = LossShares(
+        return LossShares(
             self.params.loss_prob,
             np.zeros(1),
             self._loss_battery[at],
             self._loss_fault[at],
             np.zeros(1),
         )
-        outcome = self.reception.draw(-1, at, np.array([float(distance_mm)]), shares, 1)
-        if not message.crc_ok:
-            code = _CRC
-        elif lose:
-            code = RANDOM
-        else:
-            code = 0 if outcome.losses is None else int(outcome.losses[0, 0])
+
+    def hear_from_outside(
+        self, receiver: int, message: Message, estimate_mm: int, cause: str | None
+    ) -> None:
+        """Put ``message``, from a sender outside the swarm, on the air at ``receiver`` now,
+        its reception's fate decided by the caller: the distance estimate (whole mm, 0-255)
+        and the cause it is lost to (a :data:`LOSS_CAUSES` name or ``"crc"``), or ``None``.
+        It occupies the receiver's channel for the airtime, collides there as any reception,
+        and at the end of the airtime reaches the receiver's port unless lost or collided,
+        counted (and traced, with sender -1) as any reception."""
+        code = _CAUSE_CODE[cause] if cause else 0
         now = self.env.now
         tx = _Transmission(
             -1,
             message,
             [self._ids[receiver]],
             [self._entries[receiver]],
-            outcome.estimates[0].tobytes() if estimate_mm is None else bytes([estimate_mm]),
+            bytes([estimate_mm]),
             bytes([code]),
             [0] if code else [],
             self._epoch,
@@ -701,7 +661,6 @@ class InfraredMedium:
         )
         self.channel.occupy(tx, self._outside, tx.receivers, now, now + self.airtime_s)
         self.env.schedule_at(tx, now + self.airtime_s)
-        return _CODE_CAUSE[code] if code else None
 
     def forget_receiver(self, robot: int) -> None:
         """Take a stopped robot out of the topology (and so of the messages still on the air)."""

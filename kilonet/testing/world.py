@@ -22,6 +22,7 @@ from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
 from kilonet.testing.errors import ScriptError
 from kilonet.testing.explain import condition_text, describe, fields_text
+from kilonet.testing.outside import arrive
 from kilonet.testing.record import (
     Change,
     Heard,
@@ -416,8 +417,8 @@ class ScriptedWorld:
             return
         entry.at_s = now
         estimate = None if entry.noise else min(255, round(entry.distance_mm))
-        cause = medium.arrive(
-            0, entry.message, entry.distance_mm, estimate_mm=estimate, lose=entry.lost
+        cause = arrive(
+            self.sim, 0, entry.message, entry.distance_mm, estimate_mm=estimate, lose=entry.lost
         )
         entry.end_s = self.sim.env.now + medium.airtime_s
         entry.fate = "on air" if cause is None else "lost" if entry.lost else cause
