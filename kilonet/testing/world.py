@@ -306,7 +306,7 @@ class ScriptedWorld:
         """Make the robot under test hear ``message`` from ``sender`` at ``distance_mm``.
 
         The message begins arriving at ``at_s`` (default: now) and takes the airtime; it goes
-        through the medium's own reception path (:meth:`kilonet.medium.InfraredMedium.arrive`):
+        through the medium's own reception path (:func:`kilonet.testing.outside.arrive`):
         the robot senses the carrier meanwhile, it collides with whatever else arrives then,
         and at the end of the airtime the program gets it through its receive mode (callback
         or polled buffer, estimate or raw readings), with the distance estimate
