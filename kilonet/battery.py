@@ -26,8 +26,8 @@ if TYPE_CHECKING:
 
     from kilonet.medium import InfraredMedium
     from kilonet.params import BatteryParams
-    from kilonet.simulation import World
     from kilonet.trace import Trace
+    from kilonet.world import World
 
 __all__ = ["Battery", "degradation"]
 

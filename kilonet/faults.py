@@ -18,14 +18,13 @@ from typing import TYPE_CHECKING
 
 from simpy.events import Timeout
 
-from kilonet.message import Message
-
 if TYPE_CHECKING:
     import numpy as np
     import simpy
 
     from kilonet.medium import InfraredMedium
     from kilonet.params import FaultParams
+    from kilonet.port import ReceivePorts
 
 __all__ = ["FaultInjector"]
 
@@ -46,9 +45,9 @@ class FaultInjector:
     stop : callable
         ``stop(robot, cause, remove=False)``: stop a robot (crash) or lift it off the table.
     medium : InfraredMedium
-        Whose receiver losses and delivery routes a faulty receiver changes.
-    deliver : callable
-        ``deliver(robot, message, distance)``: hand a reception to a robot's program late.
+        Whose receiver losses a faulty receiver raises.
+    ports : ReceivePorts
+        The robots' receive ports, where a faulty receiver's delays plug in.
     """
 
     def __init__(
@@ -60,10 +59,10 @@ class FaultInjector:
         *,
         stop: Callable[..., None],
         medium: InfraredMedium,
-        deliver: Callable[[int, Message, int], None],
+        ports: ReceivePorts,
     ) -> None:
         self.params, self.env, self.rng, self.n_robots = params, env, rng, n_robots
-        self._stop, self._medium, self._deliver = stop, medium, deliver
+        self._stop, self._medium, self._ports = stop, medium, ports
         self.faulty_receivers: set[int] = set()
 
     def start(self) -> None:
@@ -106,22 +105,6 @@ class FaultInjector:
         """Make ``robot``'s receiver drop ``drop_prob`` of its receptions (counted as fault
         losses) and delay ``delay_prob`` of the others by ``U(0, delay_s)`` seconds."""
         self.faulty_receivers.add(robot)
-        medium = self._medium
-        medium.set_extra_loss(robot, fault=drop_prob)
+        self._medium.set_extra_loss(robot, fault=drop_prob)
         if delay_prob > 0 and delay_s > 0:
-            medium.set_handler(robot, self._delaying(robot, delay_prob, delay_s))
-
-    def _delaying(
-        self, robot: int, delay_prob: float, delay_s: float
-    ) -> Callable[[Message, int], None]:
-        env, rng, late = self.env, self.rng, self._deliver
-
-        def deliver(message: Message, distance_mm: int) -> None:
-            if rng.random() < delay_prob:
-                Timeout(env, float(rng.uniform(0, delay_s))).callbacks.append(
-                    lambda _e: late(robot, message, distance_mm)
-                )
-            else:
-                late(robot, message, distance_mm)
-
-        return deliver
+            self._ports.delay(robot, delay_prob, delay_s, self.rng)

@@ -23,9 +23,11 @@ The medium itself is the event flow that joins them, with kilolib's transmit sem
   reception that overlaps another at a receiver is corrupted there.
 * **CRC.** A message whose ``crc`` is wrong goes on the air (it occupies the channel and
   collides) but every receiver drops it, counted as ``lost_crc``.
-* **Receive modes.** ``callback``: ``message_rx`` is called on arrival. ``polled``: the message
-  joins a buffer of ``robot.rx_buffer`` messages that drops the oldest on overflow (a program
-  with a ``message_rx`` gets what its ``loop()`` leaves there through it after each call).
+* **Delivery.** At the end of the airtime each reception that is neither lost nor collided
+  goes to its receiver's port (:mod:`kilonet.port`), which owns the rest of the way to the
+  program: a receiver fault's delay, watchers, ranging and the receive mode (``callback``:
+  ``message_rx``; ``polled``: a buffer of ``robot.rx_buffer`` messages that drops the oldest).
+  The medium calls each robot's ``ports.entries[robot]`` and never writes it.
 
 Why it is fast: two SimPy events per transmission (the offer and the end of airtime, both
 callbacks on pre-bound functions, no processes); receiver and handler lists precomputed per
@@ -49,8 +51,7 @@ from kilonet.counters import LOSS_CAUSES, MediumCounters
 from kilonet.mac import Channel
 from kilonet.message import LIMITS, Message, PayloadLimit
 from kilonet.radio import MIN_RECEPTION, reception_probability
-from kilonet.reception import CAUSES, RANDOM, LossShares, ReceptionModel
-from kilonet.robot import Kilobot
+from kilonet.reception import CAUSES, LossShares, ReceptionModel
 from kilonet.visibility import LinkModel
 
 if TYPE_CHECKING:
@@ -58,9 +59,10 @@ if TYPE_CHECKING:
 
     from kilonet.clock import KernelEnvironment, RobotClocks
     from kilonet.params import MediumParams, RobotParams
+    from kilonet.port import ReceivePorts
     from kilonet.radio import Transceivers
-    from kilonet.simulation import World
     from kilonet.trace import Trace
+    from kilonet.world import World
 
 __all__ = ["LOSS_CAUSES", "InfraredMedium", "RandomBlock"]
 
@@ -68,6 +70,7 @@ _BLOCK = 1 << 11
 _MAX_ROWS_PER_REFILL = 64
 _CRC = max(CAUSES) + 1  # the loss code of a reception dropped for a wrong CRC
 _CODE_CAUSE = {**CAUSES, _CRC: "crc"}
+_CAUSE_CODE = {cause: code for code, cause in _CODE_CAUSE.items()}
 #: Least ``medium.backoff_max_s`` (s): one count of kilolib's 8 MHz / 1024 = 7,812.5 Hz timer,
 #: the shortest wait its ``OCR0A = rand() & 0xFF`` retry can make (its longest: 255 counts,
 #: 32.6 ms); the parameter's lower bound.
@@ -168,8 +171,16 @@ class InfraredMedium:
         Each robot's oscillator (its transmit timing runs on it).
     radio : Transceivers
         Each robot's emitter strength and receiver sensitivity.
-    programs : sequence of Kilobot
-        The robots' programs, whose ``message_tx`` and ``message_tx_success`` it calls.
+    message_tx : sequence of callable
+        Per robot, what it calls at a transmit opportunity (the program's ``message_tx``):
+        a :class:`~kilonet.message.Message` or ``None``.
+    tx_success : sequence of callable or None
+        Per robot, what it calls after a message went on the air (the program's
+        ``message_tx_success``), or ``None`` where that has no effect (saves a call per
+        message).
+    ports : ReceivePorts
+        The robots' receive ports: a delivery to robot ``r`` is a call of
+        ``ports.entries[r](message, distance_mm)``.
     reception : ReceptionModel
         Distance estimates and losses of the receptions.
     rng : numpy.random.Generator
@@ -190,7 +201,9 @@ class InfraredMedium:
         world: World,
         clocks: RobotClocks,
         radio: Transceivers,
-        programs: Sequence[Kilobot],
+        message_tx: Sequence[Callable[[], Message | None]],
+        tx_success: Sequence[Callable[[], None] | None],
+        ports: ReceivePorts,
         reception: ReceptionModel,
         rng: np.random.Generator,
         trace: Trace,
@@ -204,7 +217,7 @@ class InfraredMedium:
         self._robot_params = robot
         self._world = world
         self._trace = trace
-        n = len(programs)
+        n = len(message_tx)
         self.n = n
         self.radio = radio
         self._edge_mm = self.radio.reach.edge_mm
@@ -213,7 +226,7 @@ class InfraredMedium:
         )
         self.reception = reception
         # One channel slot per robot and one more, the last, for senders outside the swarm
-        # (a test's scripted messages, see arrive()): it is a sender's slot only, never
+        # (a test's scripted messages, see hear_from_outside()): it is a sender's slot only, never
         # a receiver's.
         self.channel = Channel(n + 1, p.sense_delay_s)
         self._outside = n
@@ -243,17 +256,10 @@ class InfraredMedium:
         self._loss_fault = np.zeros(n)
         self._trace_messages = trace_messages
         self._running = [True] * n
-        robots = programs
-        self._message_tx = [r.message_tx for r in robots]
-        # An empty message_tx_success() has no effect; not calling it saves a call per message.
-        self._tx_success = [
-            None
-            if type(r).message_tx_success is Kilobot.message_tx_success
-            else r.message_tx_success
-            for r in robots
-        ]
+        self._message_tx = list(message_tx)
+        self._tx_success = list(tx_success)
         self._range_factor = [1.0] * n
-        self._handlers: list[Callable[[Message, int], None]] = [_drop] * n
+        self._entries = ports.entries  # read only: the ports write it and tell _reroute
         self._last_checked: list[Message | None] = [None] * n
         self._crc_ok = [True] * n
         self._message_bytes = [0] * n
@@ -290,6 +296,7 @@ class InfraredMedium:
         # reception model may keep what it derives from them while they are the same object).
         self._shares: list[LossShares | None] = [None] * n
         self.rebuild_topology()
+        ports.on_reroute(self._reroute)
 
     # -- topology ----------------------------------------------------------------------------
     def rebuild_topology(self) -> None:
@@ -332,7 +339,7 @@ class InfraredMedium:
         ids = self._ids
         self._rx_r[s] = [ids[k] for k in r.tolist()]
         self._rx_at[s] = {rx: at for at, rx in enumerate(self._rx_r[s])}
-        self._rx_h[s] = [self._handlers[k] for k in self._rx_r[s]]
+        self._rx_h[s] = [self._entries[k] for k in self._rx_r[s]]
         self._row_count[s] = self._row_next[s] = 0  # rows drawn for the old lists are void
         self._shares[s] = None
 
@@ -412,16 +419,10 @@ class InfraredMedium:
             )
         self._period[robot] = period_s / self._factor[robot]
 
-    def set_handlers(self, handlers: list[Callable[[Message, int], None]]) -> None:
-        """Route deliveries to every robot at once (``handlers[robot](message, distance_mm)``)."""
-        self._handlers = list(handlers)
-        for s in range(self.n):
-            self._derive(s)
-
-    def set_handler(self, robot: int, handler: Callable[[Message, int], None]) -> None:
-        """Route deliveries to ``robot`` through ``handler(message, distance_mm)``."""
-        self._handlers[robot] = handler
-        for s in self._senders_reaching(robot):
+    def _reroute(self, robot: int | None) -> None:
+        """The ports changed ``robot``'s entry (``None``: every robot's): rebuild the handler
+        lists of the senders that reach it."""
+        for s in range(self.n) if robot is None else self._senders_reaching(robot):
             self._derive(s)
 
     def set_tx_source(self, robot: int, source: Callable[[], Message | None]) -> None:
@@ -595,7 +596,7 @@ class InfraredMedium:
 
     def _deliver_carefully(self, tx: _Transmission) -> None:
         """End of airtime of a message whose receiver lists changed while it was on the air,
-        or that came from outside the swarm (:meth:`arrive`): receiver by receiver."""
+        or that came from outside the swarm (:meth:`hear_from_outside`): receiver by receiver."""
         message = tx.message
         corrupted = tx.corrupted or ()
         counters = self.counts
@@ -622,78 +623,37 @@ class InfraredMedium:
         if self._trace_messages:
             self._trace.message(self.env.now, tx.sender, len(tx.receivers), delivered)
 
-    def arrive(
-        self,
-        receiver: int,
-        message: Message,
-        distance_mm: float,
-        *,
-        estimate_mm: int | None = None,
-        lose: bool = False,
-    ) -> str | None:
-        """A message from a sender outside the swarm begins arriving at ``receiver`` now.
-
-        This is how :mod:`kilonet.testing`'s scripted world makes a robot hear what a test
-        decides. The message goes through the same parts as any transmission, from
-        ``receiver``'s side: it must fit the payload limit; it occupies the receiver's channel
-        for the airtime (the receiver senses a carrier; it collides with whatever else arrives
-        there meanwhile, and with the receiver's own transmission); the reception model gives
-        its distance estimate at true ``distance_mm`` and whether it is lost, with the
-        receiver's loss shares; a wrong CRC drops it. At the end of the airtime it reaches the
-        receiver's handler unless lost or collided, and the counters (and the trace, with
-        sender -1) count it as any reception. A receiver that has stopped hears nothing.
-
-        Parameters
-        ----------
-        receiver : int
-            The robot that hears it.
-        message : Message
-            What arrives.
-        distance_mm : float
-            True centre-to-centre distance of the (imaginary) sender, mm.
-        estimate_mm : int, optional
-            The distance estimate the receiver gets (whole mm, 0-255) instead of the
-            reception model's.
-        lose : bool
-            Lose the reception for sure (counted as ``lost_random``).
-
-        Returns
-        -------
-        str or None
-            The cause the reception is lost to already (``"random"``, ``"crc"``, ...; see
-            :data:`LOSS_CAUSES`), or ``None``: it is delivered at the end of the airtime
-            unless it collides there.
-
-        Raises
-        ------
-        kilonet.message.PayloadError
-            If the message does not fit the payload limit.
-        """
-        self.limit.check(message)
-        if not self._running[receiver]:
-            return "stopped"
+    def outside_shares(self, receiver: int) -> LossShares:
+        """The loss shares of a reception at ``receiver`` from a sender outside the swarm
+        (:mod:`kilonet.testing`'s scripted messages): the medium's loss probability and the
+        receiver's battery and fault shares; no link of its own, so no occlusion and a full
+        signal."""
         at = np.array([receiver])
-        shares = LossShares(
+        return LossShares(
             self.params.loss_prob,
             np.zeros(1),
             self._loss_battery[at],
             self._loss_fault[at],
             np.zeros(1),
         )
-        outcome = self.reception.draw(-1, at, np.array([float(distance_mm)]), shares, 1)
-        if not message.crc_ok:
-            code = _CRC
-        elif lose:
-            code = RANDOM
-        else:
-            code = 0 if outcome.losses is None else int(outcome.losses[0, 0])
+
+    def hear_from_outside(
+        self, receiver: int, message: Message, estimate_mm: int, cause: str | None
+    ) -> None:
+        """Put ``message``, from a sender outside the swarm, on the air at ``receiver`` now,
+        its reception's fate decided by the caller: the distance estimate (whole mm, 0-255)
+        and the cause it is lost to (a :data:`LOSS_CAUSES` name or ``"crc"``), or ``None``.
+        It occupies the receiver's channel for the airtime, collides there as any reception,
+        and at the end of the airtime reaches the receiver's port unless lost or collided,
+        counted (and traced, with sender -1) as any reception."""
+        code = _CAUSE_CODE[cause] if cause else 0
         now = self.env.now
         tx = _Transmission(
             -1,
             message,
             [self._ids[receiver]],
-            [self._handlers[receiver]],
-            outcome.estimates[0].tobytes() if estimate_mm is None else bytes([estimate_mm]),
+            [self._entries[receiver]],
+            bytes([estimate_mm]),
             bytes([code]),
             [0] if code else [],
             self._epoch,
@@ -701,11 +661,9 @@ class InfraredMedium:
         )
         self.channel.occupy(tx, self._outside, tx.receivers, now, now + self.airtime_s)
         self.env.schedule_at(tx, now + self.airtime_s)
-        return _CODE_CAUSE[code] if code else None
 
     def forget_receiver(self, robot: int) -> None:
         """Take a stopped robot out of the topology (and so of the messages still on the air)."""
-        self._handlers[robot] = _drop
         self._running[robot] = False
         self.rebuild_topology()
 
@@ -716,7 +674,3 @@ class InfraredMedium:
     def receiving(self, robot: int) -> bool:
         """Whether a reception is in progress at ``robot`` now (kilolib's ``rx_busy``)."""
         return self.channel.busy(robot, self.env.now)
-
-
-def _drop(message: Message, distance_mm: int) -> None:
-    """Handler of a robot that has stopped or not started: the message reaches nobody."""

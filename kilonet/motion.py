@@ -50,8 +50,8 @@ if TYPE_CHECKING:
     from kilonet.battery import Battery
     from kilonet.clock import KernelEnvironment
     from kilonet.params import MotionParams
-    from kilonet.simulation import World
     from kilonet.trace import Trace
+    from kilonet.world import World
 
 __all__ = [
     "Calibration",

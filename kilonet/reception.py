@@ -146,7 +146,7 @@ class ReceptionModel(ABC):
     ) -> Outcomes:
         """Outcomes of ``sender``'s next ``rows`` transmissions to ``receivers`` (robot
         indices) at true ``distance_mm``; ``sender`` is -1 for a message from outside the
-        swarm (:meth:`kilonet.medium.InfraredMedium.arrive`)."""
+        swarm (:func:`kilonet.testing.outside.arrive`)."""
 
 
 class GaussianRanging(ReceptionModel):

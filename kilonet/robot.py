@@ -40,7 +40,7 @@ from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from types import FunctionType
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -56,7 +56,6 @@ if TYPE_CHECKING:
     from kilonet.motion import Motion
     from kilonet.params import RobotParams
     from kilonet.sensors import Sensors
-    from kilonet.simulation import Simulation
     from kilonet.trace import Trace
 
 __all__ = [
@@ -66,6 +65,7 @@ __all__ = [
     "RGB",
     "TICKS_PER_SEC",
     "TIMER_COUNTS_PER_S",
+    "HasRobotServices",
     "Kilobot",
     "RobotServices",
     "RobotStopped",
@@ -144,6 +144,14 @@ class RobotServices:
     medium: InfraredMedium
     motion: Motion
     sensors: Sensors
+
+
+class HasRobotServices(Protocol):
+    """What :meth:`Kilobot._attach` needs of a run (a :class:`~kilonet.simulation.Simulation`):
+    its :class:`RobotServices`. Named by this protocol so that the robot API does not import
+    the simulation, which imports it."""
+
+    robot_services: RobotServices
 
 
 class RobotStopped(RuntimeError):
@@ -246,7 +254,7 @@ class Kilobot:
     # -- attachment (the simulation calls this) ----------------------------------------------
     def _attach(
         self,
-        sim: Simulation,
+        sim: HasRobotServices,
         index: int,
         rng: np.random.Generator,
         hardware: Mapping[str, Any] | None = None,

@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from kilonet.params import LightParams
-    from kilonet.simulation import World
+    from kilonet.world import World
 
 __all__ = ["Sensors", "temperature_mv", "voltage_reading"]
 

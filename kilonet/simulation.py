@@ -20,7 +20,6 @@ import inspect
 import math
 import time
 from collections.abc import Callable, Generator, Mapping, Sequence
-from dataclasses import dataclass, field
 from numbers import Real
 from typing import TYPE_CHECKING, Any
 
@@ -35,9 +34,10 @@ from kilonet.medium import InfraredMedium
 from kilonet.message import Message
 from kilonet.motion import Motion
 from kilonet.params import Params
-from kilonet.placement import ROBOT_DIAMETER_MM, validate_positions
+from kilonet.placement import validate_positions
+from kilonet.port import ReceivePorts
 from kilonet.radio import Transceivers, reach_of
-from kilonet.ranging import calibration_tables, measurement_for, read_calibration
+from kilonet.ranging import calibration_tables, read_calibration
 from kilonet.reception import ModelContext, reception_model
 from kilonet.robot import (
     Kilobot,
@@ -48,6 +48,7 @@ from kilonet.robot import (
 )
 from kilonet.sensors import Sensors
 from kilonet.trace import Trace
+from kilonet.world import World
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -55,7 +56,7 @@ if TYPE_CHECKING:
     from kilonet.reception import ReceptionModel
     from kilonet.visibility import LinkModel
 
-__all__ = ["ESTIMATE_CHANGE_MM", "STREAMS", "Simulation", "World", "stream_for"]
+__all__ = ["ESTIMATE_CHANGE_MM", "STREAMS", "Simulation", "stream_for"]
 
 #: A held position estimate is recorded again once it has moved this far (mm): finer steps
 #: (a refinement's last digits) would not show in an animation and would fill the table.
@@ -87,29 +88,6 @@ def stream_for(seed: int, name: str) -> np.random.Generator:
     """
     model_seq, _ = np.random.SeedSequence(seed).spawn(2)
     return np.random.Generator(np.random.PCG64(model_seq.spawn(len(STREAMS))[STREAMS.index(name)]))
-
-
-@dataclass
-class World:
-    """Ground truth: where the robots are. Only the medium, motion, sensors and metrics read it."""
-
-    positions_mm: np.ndarray
-    heading_rad: np.ndarray
-    diameter_mm: float = ROBOT_DIAMETER_MM
-    present: np.ndarray = field(default=None)  # on the table (removal clears it)
-    running: np.ndarray = field(default=None)  # executing its program
-
-    def __post_init__(self) -> None:
-        n = len(self.positions_mm)
-        if self.present is None:
-            self.present = np.ones(n, dtype=bool)
-        if self.running is None:
-            self.running = np.ones(n, dtype=bool)
-
-    @property
-    def radius_mm(self) -> float:
-        """Body radius, mm."""
-        return self.diameter_mm / 2
 
 
 class Simulation:
@@ -215,6 +193,7 @@ class Simulation:
                 self.transceivers,
             )
         )
+        self.ports = ReceivePorts(rp, self.env, self.world.running, self.calibration_tables)
         self.medium = InfraredMedium(
             self.params.medium,
             rp,
@@ -222,7 +201,15 @@ class Simulation:
             self.world,
             self.clocks,
             self.transceivers,
-            self.robots,
+            [r.message_tx for r in self.robots],
+            # An empty message_tx_success() has no effect: the medium need not call it.
+            [
+                None
+                if type(r).message_tx_success is Kilobot.message_tx_success
+                else r.message_tx_success
+                for r in self.robots
+            ],
+            self.ports,
             self.reception,
             self.stream("medium"),
             self.trace,
@@ -252,7 +239,7 @@ class Simulation:
             n,
             stop=self.stop_robot,
             medium=self.medium,
-            deliver=self.deliver,
+            ports=self.ports,
         )
         self.robot_services = RobotServices(
             self.env,
@@ -276,8 +263,11 @@ class Simulation:
         self._started = False
         self._estimating: list[int] = []  # robots whose position_estimate() is sampled
         self._held: dict[int, tuple[float, float, str]] = {}  # what each held when last sampled
-        self._handlers = [self._handler(i) for i in range(n)]
-        self.medium.set_handlers(self._handlers)
+        self.ports.connect(
+            [r.message_rx for r in self.robots],
+            [r._krx for r in self.robots],
+            self.medium.count_overflow,
+        )
 
     def stream(self, name: str) -> np.random.Generator:
         """The run's random stream ``name`` (one of :data:`STREAMS`)."""
@@ -530,55 +520,21 @@ class Simulation:
         self.wall_time_s += time.perf_counter() - started
 
     # -- receptions and stops ------------------------------------------------------------------
-    def _handler(self, i: int) -> Callable[[Message, int], None]:
-        """How a reception reaches robot ``i``: its ``message_rx`` or its polled buffer, with
-        the distance as an estimate or as a raw measurement (``robot.rx_mode``,
-        ``robot.rx_distance``)."""
-        robot = self.robots[i]
-        rp = self.params.robot
-        if rp.rx_mode == "polled":
-            buffer, size, medium = robot._krx, robot._krx.maxlen, self.medium
-
-            def push(message: Message, distance: Any) -> None:
-                if len(buffer) == size:
-                    medium.count_overflow(i)
-                buffer.append((message, distance))
-
-            deliver = push
-        else:
-            deliver = robot.message_rx
-        if rp.rx_distance == "estimate":
-            return deliver
-        tables = self.calibration_tables[i]
-        return lambda message, estimate_mm: deliver(message, measurement_for(estimate_mm, tables))
-
     def watch_receptions(self, robot: int, listener: Callable[[Message, Any], None]) -> None:
         """Call ``listener(message, distance)`` with every reception handed to ``robot``'s
-        program (its ``message_rx`` or its polled buffer), just before the program gets it:
-        after the medium's losses and collisions and any receiver fault's delay, with the
-        distance as the program receives it. :mod:`kilonet.testing` records runs with it.
+        program (see :meth:`kilonet.port.ReceivePorts.watch`). :mod:`kilonet.testing` records
+        runs with it.
 
         Raises
         ------
         RuntimeError
-            If the simulation has started (a receiver fault may have rerouted the robot's
-            deliveries by then).
+            If the simulation has started: rerouting a robot's deliveries voids the reception
+            outcomes the medium drew ahead, so a run watched from midway would not be the run
+            it watches.
         """
         if self._started:
             raise RuntimeError("watch_receptions() must be called before the simulation starts")
-        program = self._handlers[robot]
-
-        def watched(message: Message, distance: Any) -> None:
-            listener(message, distance)
-            program(message, distance)
-
-        self._handlers[robot] = watched
-        self.medium.set_handler(robot, watched)
-
-    def deliver(self, robot: int, message: Message, distance_mm: int) -> None:
-        """Hand a (possibly delayed) reception to ``robot`` as its receive mode says."""
-        if self.world.running[robot]:
-            self._handlers[robot](message, distance_mm)
+        self.ports.watch(robot, listener)
 
     def stop_robot(self, robot: int, cause: str, *, remove: bool = False) -> None:
         """Stop ``robot`` (``cause``: crash, removed, battery); ``remove`` lifts it off the
@@ -593,6 +549,7 @@ class Simulation:
             self.world.present[robot] = False
         self.stop_causes.setdefault(robot, cause)
         self.trace.stop(self.env.now, robot, cause)
+        self.ports.stop(robot)
         self.medium.forget_receiver(robot)
 
     # -- results -------------------------------------------------------------------------------

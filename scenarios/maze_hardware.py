@@ -25,7 +25,8 @@ from kilonet.protocols.maze.hardware import Maze, MazeError, RangeSensor, WallSe
 
 if TYPE_CHECKING:
     from kilonet.motion import Motion
-    from kilonet.simulation import Simulation, World
+    from kilonet.simulation import Simulation
+    from kilonet.world import World
 
 __all__ = ["MazeBody", "MazeHardware", "fit_maze_hardware"]
 

@@ -25,6 +25,7 @@ from kilonet.params import Params
 from kilonet.reception import GaussianRanging
 from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
+from kilonet.testing.outside import arrive
 
 THESIS_TIMING = {
     "robot.clock_sd": 0.0,
@@ -958,8 +959,8 @@ def test_a_swapped_in_reception_model_decides_the_losses():
 
 
 def test_a_message_from_outside_is_a_reception_like_any_other():
-    """InfraredMedium.arrive (the test kit's scripted messages): airtime, carrier, collisions
-    with the swarm's own messages, CRC, loss, counters and trace (sender -1)."""
+    """kilonet.testing.outside.arrive (the test kit's scripted messages): airtime, carrier,
+    collisions with the swarm's own messages, CRC, loss, counters and trace (sender -1)."""
     log: list = []
     params = quiet_params({"trace.messages": True, "ranging.sigma_mm": 0.0})
     sim = build([[0, 0], [50, 0]], params, log, r1={"after_s": 1.0, "max_messages": 1})
@@ -970,7 +971,7 @@ def test_a_message_from_outside_is_a_reception_like_any_other():
 
     def at(t_s, *args, **kwargs):
         env.timeout(t_s).callbacks.append(
-            lambda _e: outcomes.append(medium.arrive(0, *args, **kwargs))
+            lambda _e: outcomes.append(arrive(sim, 0, *args, **kwargs))
         )
 
     at(0.1, Message(b"\x09\x01\x00"), 61.7)  # estimate from the model: round(61.7)
@@ -993,9 +994,9 @@ def test_a_message_from_outside_is_a_reception_like_any_other():
     run_and_drain(sim, 2.0)
     assert [e[2] for e in entries(log, "rx", 0)] == [9, 9, 1]
     sim.stop_robot(0, "crash")
-    assert medium.arrive(0, Message(b"\x09"), 50.0) == "stopped"
+    assert arrive(sim, 0, Message(b"\x09"), 50.0) == "stopped"
     with pytest.raises(PayloadError, match="exceeds the kilolib limit"):
-        medium.arrive(1, Message(bytes(range(1, 11))), 50.0)
+        arrive(sim, 1, Message(bytes(range(1, 11))), 50.0)
 
 
 def test_a_tx_source_replaces_what_the_medium_asks_at_opportunities():

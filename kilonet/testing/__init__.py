@@ -15,7 +15,7 @@ Three ways to put a program to the test, each a real :class:`~kilonet.simulation
   parameters and a stop condition in; DataFrames and each robot's final state out.
 
 **How a scripted message reaches the robot.** It is injected through the medium's own
-reception path, :meth:`kilonet.medium.InfraredMedium.arrive`, from a sender outside the swarm,
+reception path, :func:`kilonet.testing.outside.arrive`, from a sender outside the swarm,
 rather than sent by a scripted robot standing on the table. A scripted robot would have to
 wait for its transmit opportunities (the test could not choose the time to the millisecond),
 its distance would come with ranging noise (the test could not choose the estimate), and its

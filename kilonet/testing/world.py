@@ -22,6 +22,7 @@ from kilonet.robot import Kilobot
 from kilonet.simulation import Simulation
 from kilonet.testing.errors import ScriptError
 from kilonet.testing.explain import condition_text, describe, fields_text
+from kilonet.testing.outside import arrive
 from kilonet.testing.record import (
     Change,
     Heard,
@@ -305,7 +306,7 @@ class ScriptedWorld:
         """Make the robot under test hear ``message`` from ``sender`` at ``distance_mm``.
 
         The message begins arriving at ``at_s`` (default: now) and takes the airtime; it goes
-        through the medium's own reception path (:meth:`kilonet.medium.InfraredMedium.arrive`):
+        through the medium's own reception path (:func:`kilonet.testing.outside.arrive`):
         the robot senses the carrier meanwhile, it collides with whatever else arrives then,
         and at the end of the airtime the program gets it through its receive mode (callback
         or polled buffer, estimate or raw readings), with the distance estimate
@@ -416,8 +417,8 @@ class ScriptedWorld:
             return
         entry.at_s = now
         estimate = None if entry.noise else min(255, round(entry.distance_mm))
-        cause = medium.arrive(
-            0, entry.message, entry.distance_mm, estimate_mm=estimate, lose=entry.lost
+        cause = arrive(
+            self.sim, 0, entry.message, entry.distance_mm, estimate_mm=estimate, lose=entry.lost
         )
         entry.end_s = self.sim.env.now + medium.airtime_s
         entry.fate = "on air" if cause is None else "lost" if entry.lost else cause
