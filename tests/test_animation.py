@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-import kilonet.cli as cli
+import kilonet.app.cli as cli
 from kilonet import scenarios
 from kilonet.protocols.common.alignment import procrustes_rmse
 from kilonet.viz.animation import (

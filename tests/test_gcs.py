@@ -446,7 +446,7 @@ def test_failures_section_names_the_lone_robot_and_its_isolated_frame():
 
 
 def test_analyze_predicts_the_lone_robot_before_a_full_run(tmp_path, capsys):
-    from kilonet.cli import main
+    from kilonet.app.cli import main
     from kilonet.placement import save_csv
     from kilonet.scenarios.placement import hex_lattice
 

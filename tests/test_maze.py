@@ -449,7 +449,7 @@ def test_directions_are_the_seeds_order():
 
 
 def test_cli_run_writes_the_summary_and_figures(tmp_path, capsys):
-    from kilonet.cli import main
+    from kilonet.app.cli import main
 
     out = tmp_path / "run"
     assert main(["run", "maze", "--set", "maze.size=3x3", "--out", str(out), "--json"]) == 0

@@ -35,8 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from kilonet import scenarios
-from kilonet.cli import UsageError
-from kilonet.errors import UserError
+from kilonet.errors import UsageError, UserError
 from kilonet.params import ParamError, Params, describe
 from kilonet.scenarios.base import Scenario, ScenarioOption, build_params, json_safe
 from kilonet.scenarios.progress import MODES
