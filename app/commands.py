@@ -215,7 +215,8 @@ def _parse_set(items: list[str]) -> dict[str, str]:
 
 def run_file_overrides(scenario: Scenario, path: str | Path, overrides: dict[str, Any]) -> None:
     """Check a run file's parameters on their own, so that an error names the file and, for
-    one bad key, its line (``run.toml:4: unknown parameter 'medium.los'; ...``).
+    one bad key, its line (``run.toml:4: unknown parameter 'medium.los'; ...``). ``kilonet
+    run`` calls it only when the run's parameters cannot be built, to say where the fault is.
 
     Raises
     ------
@@ -360,8 +361,6 @@ def _run_command(args: argparse.Namespace) -> int:
     from kilonet.scenarios.progress import StageProgress
 
     scenario, file_overrides, run_file = _resolve(args)
-    if run_file is not None:
-        run_file_overrides(scenario, run_file, file_overrides)
     given = _parse_set(args.set)
     if args.program is not None:  # program.* keys are the program's own settings (_resolve)
         given = {k: v for k, v in given.items() if not k.startswith("program.")}
@@ -377,7 +376,7 @@ def _run_command(args: argparse.Namespace) -> int:
     if args.replace and args.out is None:
         raise UsageError("--replace needs --out DIR: it replaces that directory")
     _check_placement(args)
-    params = build_params(scenario, overrides, seed=args.seed)  # every value, before the run
+    params = _run_params(scenario, overrides, args, run_file, file_overrides)
     check_watchdog_s(args.watchdog, "--watchdog")
     if args.program is not None and args.placement is None and not params.placement.robots:
         raise UsageError("--program needs --placement F.csv or --robots N (a hex lattice)")
@@ -385,9 +384,7 @@ def _run_command(args: argparse.Namespace) -> int:
     reserved = OutputDir(args.out, replace=args.replace) if args.out is not None else None
     failed: AfterRunError | None = None  # a step after the run, reported after its summary
     with reserved or nullcontext() as out:
-        result = _guarded(args)(
-            scenario, overrides, seed=args.seed, placement=args.placement, progress=progress
-        )
+        result = _guarded(args)(scenario, params, placement=args.placement, progress=progress)
         if args.out is not None:
             with StageProgress(scenario.name, enabled=progress) as display:
                 try:
@@ -421,6 +418,30 @@ def _run_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_params(
+    scenario: Scenario,
+    overrides: dict[str, Any],
+    args: argparse.Namespace,
+    run_file: Path | None,
+    file_overrides: dict[str, Any],
+) -> Params:
+    """The run's parameters, every value checked before the run and built once: the run gets
+    them as they are (:func:`kilonet.scenarios.base.run_with_params`).
+
+    Raises
+    ------
+    ParamError
+        If they cannot be built; a fault of the run file names the file and, for one key, its
+        line (:func:`run_file_overrides`).
+    """
+    try:
+        return build_params(scenario, overrides, seed=args.seed, placement=args.placement)
+    except ParamError:
+        if run_file is not None:
+            run_file_overrides(scenario, run_file, file_overrides)
+        raise
+
+
 def _animator():
     """``kilonet run --animate``'s animator (``kilonet.viz.cli.animate_after_run``): the
     ``gif`` entry point of ``kilonet.animators``. The pictures' layer (``kilonet.viz``) sits
@@ -434,12 +455,12 @@ def _animator():
 
 
 def _guarded(args: argparse.Namespace):
-    """``kilonet.scenarios.base.run`` under the busy-call watchdog (``--watchdog``), with
-    ``print()`` of a program sent to stderr under ``--json``, a Ctrl-C naming the robot and callback
-    it stopped, and a user program's exceptions reported as one-line errors."""
+    """``kilonet.scenarios.base.run_with_params`` under the busy-call watchdog (``--watchdog``),
+    with ``print()`` of a program sent to stderr under ``--json``, a Ctrl-C naming the robot and
+    callback it stopped, and a user program's exceptions reported as one-line errors."""
     from contextlib import ExitStack, redirect_stdout
 
-    from kilonet.scenarios.base import run
+    from kilonet.scenarios.base import run_with_params
     from kilonet.scenarios.program import parse_spec, reported_as_user_errors
     from kilonet.watchdog import busy_watchdog, describe_call, robot_frame
 
@@ -451,7 +472,7 @@ def _guarded(args: argparse.Namespace):
                 stack.enter_context(redirect_stdout(sys.stderr))  # stdout is the JSON's
             stack.enter_context(busy_watchdog(args.watchdog))
             try:
-                return run(*a, **k)
+                return run_with_params(*a, **k)
             except KeyboardInterrupt as exc:
                 tb = exc.__traceback__
                 while tb is not None and tb.tb_next is not None:

@@ -46,6 +46,7 @@ __all__ = [
     "place",
     "placement_uids",
     "run",
+    "run_with_params",
     "write_outputs",
     "write_run_files",
 ]
@@ -199,9 +200,18 @@ class RunResult:
 
 
 def build_params(
-    scenario: Scenario, overrides: dict[str, Any] | None = None, *, seed: int | None = None
+    scenario: Scenario,
+    overrides: dict[str, Any] | None = None,
+    *,
+    seed: int | None = None,
+    placement: str | Path | np.ndarray | None = None,
 ) -> Params:
-    """Default parameters, then the scenario's defaults, then ``overrides`` (dotted keys).
+    """Default parameters, then the scenario's defaults, then ``overrides`` (dotted keys): the
+    parameters of a run, built once and passed to :func:`run_with_params`.
+
+    A ``placement`` that names one of :data:`~kilonet.scenarios.thesis_placements.NAMED_PLACEMENTS`
+    brings the thesis's premise along (:data:`~kilonet.scenarios.thesis_placements.PREMISE`,
+    under ``overrides``): its cases assume it.
 
     Raises
     ------
@@ -209,6 +219,8 @@ def build_params(
         For an unknown key or an invalid value, or a value the scenario's programs are not
         written for (:attr:`Scenario.supports`).
     """
+    if isinstance(placement, str) and placement in NAMED_PLACEMENTS:
+        overrides = {**PREMISE, **(overrides or {})}
     params = Params(scenario=scenario.section() if scenario.section else None)
     params = params.with_overrides(scenario.defaults)
     params = params.with_overrides(dict(overrides or {}))
@@ -312,7 +324,8 @@ def run(
     placement: str | Path | np.ndarray | None = None,
     progress: bool | str = False,
 ) -> RunResult:
-    """Run ``scenario`` once and return its result.
+    """Run ``scenario`` once and return its result: :func:`build_params`, then
+    :func:`run_with_params`.
 
     Parameters
     ----------
@@ -329,11 +342,29 @@ def run(
         (:class:`kilonet.scenarios.progress.RunProgress`): a mode of
         :data:`kilonet.scenarios.progress.MODES`, ``True`` for the bar, ``False`` for nothing.
     """
+    params = build_params(scenario, overrides, seed=seed, placement=placement)
+    return run_with_params(scenario, params, placement=placement, progress=progress)
+
+
+def run_with_params(
+    scenario: Scenario,
+    params: Params,
+    *,
+    placement: str | Path | np.ndarray | None = None,
+    progress: bool | str = False,
+) -> RunResult:
+    """Run ``scenario`` once with ``params`` as :func:`build_params` built them (for the same
+    ``placement``), so that a caller that checks them first (``kilonet run``) builds them once.
+
+    ``placement`` and ``progress`` are :func:`run`'s.
+
+    Raises
+    ------
+    kilonet.placement.PlacementError, kilonet.params.ParamError
+        If the placement is not valid or does not fit the parameters (:func:`place`).
+    """
     from kilonet.simulation import Simulation
 
-    if isinstance(placement, str) and placement in NAMED_PLACEMENTS:
-        overrides = {**PREMISE, **(overrides or {})}  # the thesis's cases assume it
-    params = build_params(scenario, overrides, seed=seed)
     # A placement given is read (and refused) before anything is shown; a generated one is a
     # set-up stage, which can be long for a large swarm.
     positions = None if placement is None else place(scenario, params, placement)
