@@ -153,16 +153,17 @@ def _owners() -> dict[str, list[tuple[Scenario, ScenarioOption]]]:
     owners: dict[str, list[tuple[Scenario, ScenarioOption]]] = {}
     for name in scenarios.names():
         scenario = scenarios.get(name)
-        for option in scenario.options:
+        for option in scenario.setup.options:
             owners.setdefault(option.flag, []).append((scenario, option))
     return owners
 
 
 def _field_of(scenario: Scenario, key: str):
     section, _, name = key.partition(".")
-    if scenario.section is None or getattr(scenario.section, "section_name", "") != section:
+    own = scenario.setup.section
+    if own is None or getattr(own, "section_name", "") != section:
         raise TypeError(f"scenario {scenario.name}: option key {key!r} is not in its section")
-    return next(f for f in fields(scenario.section) if f.name == name)
+    return next(f for f in fields(own) if f.name == name)
 
 
 def _add_scenario_options(run: argparse.ArgumentParser) -> None:
@@ -172,7 +173,7 @@ def _add_scenario_options(run: argparse.ArgumentParser) -> None:
         for scenario, option in declared:
             f = _field_of(scenario, option.key)
             helps.append(f"{scenario.name}: {option.help} ({option.key}, default {f.default})")
-            tp = typing.get_type_hints(scenario.section)[f.name]
+            tp = typing.get_type_hints(scenario.setup.section)[f.name]
             if len(declared) == 1 and typing.get_origin(tp) is typing.Literal:
                 choices = list(typing.get_args(tp))
         group.add_argument(flag, dest=_dest(flag), choices=choices, help="; ".join(helps))

@@ -496,6 +496,6 @@ def test_a_run_reaches_its_first_event_without_pandas_or_matplotlib():
         "from kilonet.scenarios.base import build_params, place\n"
         "from kilonet.simulation import Simulation\n"
         "s = scenarios.get('gradient'); p = build_params(s); x = place(s, p)\n"
-        "sim = Simulation(x, s.program(p, x), p); sim.start(); sim.env.step()"
+        "sim = Simulation(x, s.setup.program(p, x), p); sim.start(); sim.env.step()"
     )
     assert _heavy_modules_after(code) == ["scipy"]  # the medium's k-d tree

@@ -426,9 +426,9 @@ def test_the_filter_can_assume_another_wall_sensor_than_the_true_one():
     positions = place(SCENARIO, params)
     sim = Simulation(
         positions,
-        SCENARIO.program(params, positions),
+        SCENARIO.setup.program(params, positions),
         params,
-        hardware=SCENARIO.hardware(params, positions),
+        hardware=SCENARIO.setup.hardware(params, positions),
     )
     robot = sim.robots[0]
     assert robot.hardware("maze").spec.wall_sensor == WallSensor(p_open=0.6, p_wall=0.95)
