@@ -12,13 +12,14 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from kilonet.errors import UsageError
 from kilonet.scenarios.analyze import predict, prediction_figure
 from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["register"]
 
