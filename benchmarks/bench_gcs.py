@@ -115,9 +115,12 @@ def run_floors(n: int, seed: int, overrides: dict[str, str], gcs: dict) -> list[
         floor = type(program.__name__, (program,), {"tx_share": share})
         scenario = dataclasses.replace(
             gcs_scenario,
-            program=lambda _params, _positions, floor=floor: floor,
-            metrics=None,
-            stop_when=None,
+            setup=dataclasses.replace(
+                gcs_scenario.setup,
+                program=lambda _params, _positions, floor=floor: floor,
+                stop_when=None,
+            ),
+            reporting=dataclasses.replace(gcs_scenario.reporting, metrics=None),
         )
         cpu = time.process_time()
         result = scenarios.run(

@@ -57,12 +57,12 @@ def run_one(n: int, seed: int, overrides: dict[str, str]) -> dict:
     scenario = scenarios.get("localize")
     params = build_params(scenario, {"placement.robots": n, **overrides}, seed=seed)
     positions = place(scenario, params)
-    sim = Simulation(positions, scenario.program(params, positions), params)
+    sim = Simulation(positions, scenario.setup.program(params, positions), params)
     cpu, wall = time.process_time(), time.perf_counter()
-    sim.run(params.duration_s, stop_when=lambda: scenario.stop_when(sim))
+    sim.run(params.duration_s, stop_when=lambda: scenario.setup.stop_when(sim))
     sim_cpu, sim_wall = time.process_time() - cpu, time.perf_counter() - wall
     cpu = time.process_time()
-    summary = {**sim.summary(), **scenario.metrics(sim)}
+    summary = {**sim.summary(), **scenario.reporting.metrics(sim)}
     figures = {"seed": seed, **{key: summary.get(key) for key in FIELDS}}
     figures["sim_cpu_s"] = round(sim_cpu, 2)
     figures["sim_wall_s"] = round(sim_wall, 2)

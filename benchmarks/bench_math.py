@@ -205,7 +205,7 @@ def crlb_seconds(n: int) -> tuple[float, float]:
 
 def gcs_calls() -> dict[str, int]:
     """How many times ``kilonet run gcs --seed 1`` calls each counted function."""
-    from kilonet.cli import main
+    from kilonet.app.cli import main
 
     profile = cProfile.Profile()
     quiet = contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO())

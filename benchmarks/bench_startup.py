@@ -5,7 +5,7 @@
 2. ``kilonet run SCENARIO --robots N``, stopped at its first simulated event: wall time from
    starting the process to that event, the process's CPU time and peak memory then, and which
    heavy libraries (pandas, matplotlib, scipy, networkx, tqdm) it had imported by then. The run
-   goes through the real command line (``kilonet.cli.main``); the child process replaces the
+   goes through the real command line (``kilonet.app.cli.main``); the child process replaces the
    kernel environment's ``run`` and ``step`` with a function that records the time and exits,
    so nothing of the run itself is measured. Best of ``--repeat`` (the least disturbed run).
 
@@ -51,7 +51,10 @@ if hasattr(kilonet.clock, "KernelEnvironment"):  # the kernel's own step loop
     kilonet.clock.KernelEnvironment.step = first_event
 else:  # a checkout from before it
     simpy.Environment.step = first_event
-from kilonet.cli import main
+try:
+    from kilonet.app.cli import main
+except ModuleNotFoundError:  # a checkout from before the application layer
+    from kilonet.cli import main
 main(sys.argv[1:])
 """.replace("HEAVY_NAMES", repr(HEAVY))
 

@@ -90,7 +90,7 @@ def register_report(subparsers: Any) -> None:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from kilonet.cli import UsageError
+    from kilonet.errors import UsageError
     from kilonet.experiments.runner import (
         SchedulerAddressError,
         SweepAborted,
@@ -180,7 +180,7 @@ def _stored(out: Path) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from kilonet.cli import UsageError
+    from kilonet.errors import UsageError
     from kilonet.experiments.report import ReportError, write_report
     from kilonet.experiments.store import StoreError
 

@@ -525,7 +525,7 @@ class _Validator:
             for values in itertools.product(*grid.values()):
                 cell = {**case, **dict(zip(grid, values, strict=True))}
                 params = check(f"cell {json.dumps(cell)}: ", {**fixed, **cell})
-                if not (params.placement.robots or scenario.robots):
+                if not (params.placement.robots or scenario.setup.robots):
                     raise self.fail(
                         f"cell {json.dumps(cell)}: placement.robots is not set and "
                         f"{scenario.summary} has no swarm of its own; set it in [fixed] or "

@@ -2,7 +2,7 @@
 
 import sys
 
-from kilonet.cli import main
+from kilonet.app.cli import main
 
 if __name__ == "__main__":
     sys.exit(main())

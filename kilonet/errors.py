@@ -19,6 +19,7 @@ __all__ = [
     "ProgramFault",
     "ProgramRuntimeError",
     "ProgramTypeError",
+    "UsageError",
     "UserError",
     "exception_line",
     "one_line",
@@ -29,6 +30,10 @@ __all__ = [
 
 class UserError(Exception):
     """Input the user can fix; ``str()`` is one line saying what is wrong and where."""
+
+
+class UsageError(UserError):
+    """A command-line option or argument the user must change (exit status 2)."""
 
 
 class ProgramFault(UserError):

@@ -3,8 +3,9 @@
 A scenario registers itself as an entry point of the group ``kilonet.scenarios``
 (``[project.entry-points."kilonet.scenarios"]`` in ``pyproject.toml``; a package of your own
 can add scenarios the same way): the entry's name is the scenario's name, its value the
-:class:`Scenario` object (``"kilonet.scenarios.gcs:SCENARIO"``). A scenario's module is imported
-only when the scenario is asked for.
+:class:`Scenario` object (``"kilonet.scenarios.gcs:SCENARIO"``), made of its :class:`Setup`
+(what builds a run), :class:`Reporting` (what reports it) and :class:`Drawing` (what draws it).
+A scenario's module is imported only when the scenario is asked for.
 
 A researcher's own program file is a scenario too, under the name a sweep stores for it
 (``program:/path/to/FILE.py:ClassName@SHA256``, :func:`kilonet.scenarios.program.program_key`):
@@ -15,17 +16,31 @@ from __future__ import annotations
 
 from importlib.metadata import entry_points
 
-from kilonet.scenarios.base import RunResult, Scenario, ScenarioError, run, write_outputs
+from kilonet.scenarios.base import (
+    Drawing,
+    Reporting,
+    RunResult,
+    Scenario,
+    ScenarioError,
+    Setup,
+    run,
+    run_with_params,
+    write_outputs,
+)
 
 __all__ = [
     "DEFAULT",
     "GROUP",
+    "Drawing",
+    "Reporting",
     "RunResult",
     "Scenario",
     "ScenarioError",
+    "Setup",
     "get",
     "names",
     "run",
+    "run_with_params",
     "write_outputs",
 ]
 

@@ -1,10 +1,13 @@
 """Named scenarios: a placement, parameters and robot programs, glued into a runnable whole.
 
-A :class:`Scenario` says which program each robot runs, its own parameter section, its default
-swarm size and duration, the metrics it reports against ground truth, and what the command line
-needs to know of it (its own options, when a run is expected to end). :func:`run` builds the
-parameters and the placement, runs the simulation and returns a :class:`RunResult`;
-:func:`write_outputs` writes a run directory. The CLI and the sweep runner call these.
+A :class:`Scenario` is three parts: what builds a run (:class:`Setup`: which program each robot
+runs, its own parameter section, its default swarm size and duration, its placement, when it
+stops, its ``kilonet run`` options), what reports it (:class:`Reporting`: the metrics against
+ground truth, the robots table's columns, what the progress display says) and what draws it
+(:class:`Drawing`: its figures). :func:`build_params` builds a run's parameters once;
+:func:`run_with_params` places the robots, runs the simulation and returns a :class:`RunResult`
+(:func:`run` does both); :func:`write_outputs` writes a run directory. The command line and the
+sweep runner call these.
 """
 
 from __future__ import annotations
@@ -36,16 +39,20 @@ if TYPE_CHECKING:
 
 __all__ = [
     "AfterRunError",
+    "Drawing",
+    "Reporting",
     "RunResult",
     "Scenario",
     "ScenarioError",
     "ScenarioOption",
+    "Setup",
     "after_the_run",
     "build_params",
     "json_safe",
     "place",
     "placement_uids",
     "run",
+    "run_with_params",
     "write_outputs",
     "write_run_files",
 ]
@@ -116,35 +123,63 @@ ProgramFactory = Callable[[int], Kilobot]
 
 
 @dataclass(frozen=True)
-class Scenario:
-    """A runnable experiment setting.
+class Setup:
+    """What builds a run of a scenario: its programs, parameters and placement.
 
     Parameters
     ----------
-    name, summary : str
-        Name on the command line and a one-line description.
     program : callable
         ``program(params, positions_mm) -> (index -> Kilobot)``: the programs to flash.
+    hardware : callable, optional
+        ``hardware(params, positions_mm) -> {name: fit}``: extra hardware the robots carry
+        (a maze robot's camera, wall sensor and drive), the ``hardware`` argument of
+        :class:`~kilonet.simulation.Simulation`; called after ``program``.
     section : type, optional
         Frozen dataclass of the scenario's own parameters (class attribute ``section_name``).
     robots : int
         Default swarm size.
     defaults : dict
         Kernel parameter defaults this scenario changes (dotted keys), e.g. its duration.
+    supports : dict
+        Parameters whose values its programs are written for, each with those values
+        (dotted key -> tuple); any other value is refused when the parameters are built. E.g.
+        ``{"medium.message_format": ("kilolib",)}``: the thesis's 23 bits hold no type byte
+        and too few bytes for the messages; ``{"robot.rx_mode": ("callback",)}``: a program
+        that only implements ``message_rx`` hears nothing from a polled buffer.
     placement : callable, optional
         ``placement(params, n, rng) -> positions_mm`` used when ``placement.kind`` is
         ``scenario`` (default: a jittered hex lattice).
-    metrics : callable, optional
-        ``metrics(sim) -> dict`` of scenario figures against ground truth, added to the summary.
     stop_when : callable, optional
         ``stop_when(sim) -> bool`` ends the run early (checked every simulated second).
-    outputs : callable, optional
-        ``outputs(result, out_dir)`` writes scenario files (figures, extra tables).
+    options : tuple of ScenarioOption
+        Options of ``kilonet run`` that set this scenario's parameters (``--until``).
+    """
+
+    program: Callable[[Params, np.ndarray], ProgramFactory]
+    hardware: (
+        Callable[[Params, np.ndarray], Mapping[str, Callable[[Simulation, int], Any]]] | None
+    ) = None
+    section: type | None = None
+    robots: int = 100
+    defaults: dict[str, Any] = field(default_factory=dict)
+    supports: dict[str, tuple[Any, ...]] = field(default_factory=dict)
+    placement: Callable[[Params, int, np.random.Generator], np.ndarray] | None = None
+    stop_when: Callable[[Simulation], bool] | None = None
+    options: tuple[ScenarioOption, ...] = ()
+
+
+@dataclass(frozen=True)
+class Reporting:
+    """What reports a run of a scenario: its figures in the summary and the robots table, and
+    what the progress display says while it runs.
+
+    Parameters
+    ----------
+    metrics : callable, optional
+        ``metrics(sim) -> dict`` of scenario figures against ground truth, added to the summary.
     robot_columns : callable, optional
         ``robot_columns(sim) -> DataFrame`` with a ``robot`` column: scenario columns joined
         to the robots table (one named like a kernel column, ``uid``, replaces it).
-    options : tuple of ScenarioOption
-        Options of ``kilonet run`` that set this scenario's parameters (``--until``).
     expected_end_s : callable, optional
         ``expected_end_s(params) -> float or None``: the simulated time the run will end at,
         when the scenario knows it before the run (``None``: only ``stop_when`` will tell).
@@ -155,37 +190,50 @@ class Scenario:
     progress_note : callable, optional
         ``progress_note(sim) -> str``: where the run is (the current phase), for the progress
         display.
-    hardware : callable, optional
-        ``hardware(params, positions_mm) -> {name: fit}``: extra hardware the robots carry
-        (a maze robot's camera, wall sensor and drive), the ``hardware`` argument of
-        :class:`~kilonet.simulation.Simulation`; called after ``program``.
-    supports : dict
-        Parameters whose values its programs are written for, each with those values
-        (dotted key -> tuple); any other value is refused when the parameters are built. E.g.
-        ``{"medium.message_format": ("kilolib",)}``: the thesis's 23 bits hold no type byte
-        and too few bytes for the messages; ``{"robot.rx_mode": ("callback",)}``: a program
-        that only implements ``message_rx`` hears nothing from a polled buffer.
+    """
+
+    metrics: Callable[[Simulation], dict[str, Any]] | None = None
+    robot_columns: Callable[[Simulation], Any] | None = None
+    expected_end_s: Callable[[Params], float | None] | None = None
+    ends_when: str = ""
+    progress_note: Callable[[Simulation], str] | None = None
+
+
+@dataclass(frozen=True)
+class Drawing:
+    """What draws a finished run of a scenario.
+
+    Parameters
+    ----------
+    figures : callable, optional
+        ``figures(result, out_dir)`` writes the scenario's own files into the run directory
+        (figures, extra tables); a failure costs only these (:func:`after_the_run`).
+    """
+
+    figures: Callable[[RunResult, Path], None] | None = None
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A runnable experiment setting: what builds a run, what reports it and what draws it.
+
+    Parameters
+    ----------
+    name, summary : str
+        Name on the command line and a one-line description.
+    setup : Setup
+        Its programs, parameters and placement.
+    reporting : Reporting
+        Its summary figures, robots table columns and progress display.
+    drawing : Drawing
+        Its figures.
     """
 
     name: str
     summary: str
-    program: Callable[[Params, np.ndarray], ProgramFactory]
-    section: type | None = None
-    robots: int = 100
-    defaults: dict[str, Any] = field(default_factory=dict)
-    placement: Callable[[Params, int, np.random.Generator], np.ndarray] | None = None
-    metrics: Callable[[Simulation], dict[str, Any]] | None = None
-    stop_when: Callable[[Simulation], bool] | None = None
-    outputs: Callable[[RunResult, Path], None] | None = None
-    robot_columns: Callable[[Simulation], Any] | None = None
-    options: tuple[ScenarioOption, ...] = ()
-    expected_end_s: Callable[[Params], float | None] | None = None
-    ends_when: str = ""
-    progress_note: Callable[[Simulation], str] | None = None
-    hardware: (
-        Callable[[Params, np.ndarray], Mapping[str, Callable[[Simulation, int], Any]]] | None
-    ) = None
-    supports: dict[str, tuple[Any, ...]] = field(default_factory=dict)
+    setup: Setup
+    reporting: Reporting = field(default_factory=Reporting)
+    drawing: Drawing = field(default_factory=Drawing)
 
 
 @dataclass
@@ -199,23 +247,35 @@ class RunResult:
 
 
 def build_params(
-    scenario: Scenario, overrides: dict[str, Any] | None = None, *, seed: int | None = None
+    scenario: Scenario,
+    overrides: dict[str, Any] | None = None,
+    *,
+    seed: int | None = None,
+    placement: str | Path | np.ndarray | None = None,
 ) -> Params:
-    """Default parameters, then the scenario's defaults, then ``overrides`` (dotted keys).
+    """Default parameters, then the scenario's defaults, then ``overrides`` (dotted keys): the
+    parameters of a run, built once and passed to :func:`run_with_params`.
+
+    A ``placement`` that names one of :data:`~kilonet.scenarios.thesis_placements.NAMED_PLACEMENTS`
+    brings the thesis's premise along (:data:`~kilonet.scenarios.thesis_placements.PREMISE`,
+    under ``overrides``): its cases assume it.
 
     Raises
     ------
     kilonet.params.ParamError
         For an unknown key or an invalid value, or a value the scenario's programs are not
-        written for (:attr:`Scenario.supports`).
+        written for (:attr:`Setup.supports`).
     """
-    params = Params(scenario=scenario.section() if scenario.section else None)
-    params = params.with_overrides(scenario.defaults)
+    if isinstance(placement, str) and placement in NAMED_PLACEMENTS:
+        overrides = {**PREMISE, **(overrides or {})}
+    setup = scenario.setup
+    params = Params(scenario=setup.section() if setup.section else None)
+    params = params.with_overrides(setup.defaults)
     params = params.with_overrides(dict(overrides or {}))
     if seed is not None:
         params = params.with_overrides({"seed": seed})
     flat = params.to_flat_dict()
-    for key, allowed in scenario.supports.items():
+    for key, allowed in setup.supports.items():
         if flat[key] not in allowed:
             raise ParamError(
                 f"{key} = {flat[key]!r}: the {scenario.name} scenario's programs are written "
@@ -253,11 +313,11 @@ def place(
     from kilonet.simulation import stream_for
 
     p = params.placement
-    n = p.robots or scenario.robots
+    n = p.robots or scenario.setup.robots
     rng = stream_for(params.seed, "placement")
     try:
-        if p.kind == "scenario" and scenario.placement is not None:
-            return scenario.placement(params, n, rng)
+        if p.kind == "scenario" and scenario.setup.placement is not None:
+            return scenario.setup.placement(params, n, rng)
         return generate_from(p, "hex" if p.kind == "scenario" else p.kind, n, rng)
     except ParamError:
         raise  # already names the parameters
@@ -312,7 +372,8 @@ def run(
     placement: str | Path | np.ndarray | None = None,
     progress: bool | str = False,
 ) -> RunResult:
-    """Run ``scenario`` once and return its result.
+    """Run ``scenario`` once and return its result: :func:`build_params`, then
+    :func:`run_with_params`.
 
     Parameters
     ----------
@@ -329,11 +390,29 @@ def run(
         (:class:`kilonet.scenarios.progress.RunProgress`): a mode of
         :data:`kilonet.scenarios.progress.MODES`, ``True`` for the bar, ``False`` for nothing.
     """
+    params = build_params(scenario, overrides, seed=seed, placement=placement)
+    return run_with_params(scenario, params, placement=placement, progress=progress)
+
+
+def run_with_params(
+    scenario: Scenario,
+    params: Params,
+    *,
+    placement: str | Path | np.ndarray | None = None,
+    progress: bool | str = False,
+) -> RunResult:
+    """Run ``scenario`` once with ``params`` as :func:`build_params` built them (for the same
+    ``placement``), so that a caller that checks them first (``kilonet run``) builds them once.
+
+    ``placement`` and ``progress`` are :func:`run`'s.
+
+    Raises
+    ------
+    kilonet.placement.PlacementError, kilonet.params.ParamError
+        If the placement is not valid or does not fit the parameters (:func:`place`).
+    """
     from kilonet.simulation import Simulation
 
-    if isinstance(placement, str) and placement in NAMED_PLACEMENTS:
-        overrides = {**PREMISE, **(overrides or {})}  # the thesis's cases assume it
-    params = build_params(scenario, overrides, seed=seed)
     # A placement given is read (and refused) before anything is shown; a generated one is a
     # set-up stage, which can be long for a large swarm.
     positions = None if placement is None else place(scenario, params, placement)
@@ -342,15 +421,16 @@ def run(
         scenario.name,
         expected_end_s=_expected_end_s(scenario, params),
         cap_s=params.duration_s,
-        ends_when=scenario.ends_when,
+        ends_when=scenario.reporting.ends_when,
         enabled=progress,
     ) as bar:
         if positions is None:
             bar.stage("placing robots")
             positions = place(scenario, params)
         bar.stage(f"building {len(positions):,} robots")
-        program = scenario.program(params, positions)
-        hardware = scenario.hardware(params, positions) if scenario.hardware else None
+        setup = scenario.setup
+        program = setup.program(params, positions)
+        hardware = setup.hardware(params, positions) if setup.hardware else None
         sim = Simulation(positions, program, params, uids=uids, hardware=hardware)
         bar.stage("starting")
         sim.start()  # every robot's setup(), also for a run of zero seconds
@@ -358,22 +438,22 @@ def run(
         _run(sim, scenario, params.duration_s, bar)
         bar.stage("scoring")  # the summary and the scenario's metrics take long for a big swarm
         summary = {"scenario": scenario.name, **sim.summary()}
-        if scenario.metrics is not None:
-            summary.update(scenario.metrics(sim))
+        if scenario.reporting.metrics is not None:
+            summary.update(scenario.reporting.metrics(sim))
     return RunResult(scenario, params, sim, summary)
 
 
 def _expected_end_s(scenario: Scenario, params: Params) -> float | None:
-    if scenario.expected_end_s is not None:
-        end = scenario.expected_end_s(params)
+    if scenario.reporting.expected_end_s is not None:
+        end = scenario.reporting.expected_end_s(params)
     else:
-        end = None if scenario.stop_when is not None else params.duration_s
+        end = None if scenario.setup.stop_when is not None else params.duration_s
     return None if end is None else min(end, params.duration_s)
 
 
 def _run(sim: Simulation, scenario: Scenario, duration_s: float, bar: RunProgress) -> None:
-    stop_when = scenario.stop_when
-    note = scenario.progress_note
+    stop_when = scenario.setup.stop_when
+    note = scenario.reporting.progress_note
     # Check the stop condition every simulated second; otherwise update about 200 times.
     step = 1.0 if stop_when is not None else max(duration_s / 200, 0.5)
     while sim.env.now < duration_s:
@@ -436,8 +516,9 @@ def write_run_files(
     stage("writing tables")
     robots = sim.robots_frame()
     robots.insert(1, "uid", _final_uids(sim))
-    if result.scenario.robot_columns is not None:
-        robots = _with_scenario_columns(robots, result.scenario.robot_columns(sim))
+    robot_columns = result.scenario.reporting.robot_columns
+    if robot_columns is not None:
+        robots = _with_scenario_columns(robots, robot_columns(sim))
     traces = sim.trace.frames()
     if not result.params.trace.messages:
         del traces["messages"]  # recorded only with trace.messages: an empty table misleads
@@ -450,10 +531,11 @@ def write_run_files(
     (out / "summary.json").write_text(json.dumps(json_safe(result.summary), indent=2) + "\n")
     flat = result.params.to_flat_dict()
     (out / "params.json").write_text(json.dumps(flat, indent=2, default=str) + "\n")
-    if result.scenario.outputs is not None:
+    figures = result.scenario.drawing.figures
+    if figures is not None:
         stage(f"writing the {result.scenario.name} scenario's figures")
         with after_the_run(out, f"the {result.scenario.name} scenario's figures"):
-            result.scenario.outputs(result, out)
+            figures(result, out)
     return sorted(out.iterdir())
 
 

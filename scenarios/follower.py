@@ -53,7 +53,15 @@ from kilonet.protocols.follower.follower import (
     reachable_goal,
 )
 from kilonet.protocols.follower.turn_calibration import TimedTurns, TurnCalibration
-from kilonet.scenarios.base import RunResult, Scenario, ScenarioError, run
+from kilonet.scenarios.base import (
+    Drawing,
+    Reporting,
+    RunResult,
+    Scenario,
+    ScenarioError,
+    Setup,
+    run,
+)
 from kilonet.simulation import Simulation, stream_for
 from kilonet.visibility import LinkModel
 
@@ -551,20 +559,26 @@ def _outputs(result: RunResult, out_dir: Path) -> None:
 
 SCENARIO = Scenario(
     name="follower",
-    supports={
-        "medium.message_format": ("kilolib",),
-        "robot.rx_distance": ("estimate",),
-    },
     summary="trilateration: three robots build a frame, a fourth walks to their centroid",
-    program=_program,
-    section=FollowerParams,
-    robots=4,
-    defaults={"duration_s": 600.0},
-    placement=_generate,
-    metrics=_metrics,
-    stop_when=_stop_when,
-    ends_when="the follower arrives or gives up",
-    outputs=_outputs,
+    setup=Setup(
+        program=_program,
+        section=FollowerParams,
+        robots=4,
+        defaults={"duration_s": 600.0},
+        supports={
+            "medium.message_format": ("kilolib",),
+            "robot.rx_distance": ("estimate",),
+        },
+        placement=_generate,
+        stop_when=_stop_when,
+    ),
+    reporting=Reporting(
+        metrics=_metrics,
+        ends_when="the follower arrives or gives up",
+    ),
+    drawing=Drawing(
+        figures=_outputs,
+    ),
 )
 
 

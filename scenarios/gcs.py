@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from kilonet.protocols.gcs.base import PHASES, GcsParams
-from kilonet.scenarios.base import RunResult, Scenario, ScenarioOption
+from kilonet.scenarios.base import Drawing, Reporting, RunResult, Scenario, ScenarioOption, Setup
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
     import pandas as pd
@@ -540,30 +540,36 @@ def _figure_title(summary: dict[str, Any]) -> str:
 
 SCENARIO = Scenario(
     name="gcs",
-    supports={"medium.message_format": ("kilolib",), "robot.rx_distance": ("estimate",)},
     summary="Rubenstein's global coordinate system, phases 1-6 (IDs, seeds, frames, "
     "localization, merging groups, merging)",
-    program=_program,
-    section=GcsParams,
-    robots=100,
-    defaults={
-        "duration_s": 3600.0,
-        "robot.hardware_uids": False,
-        # The thesis's library: a message every 200 ms with jitter, CSMA/CA back-off, a send
-        # buffer that is sampled once a period; its loop only needs to run every other tick.
-        "robot.tx_period_s": 0.2,
-        "robot.tx_jitter_s": 0.02,
-        "robot.tx_retry": "period",
-        "medium.backoff_max_s": 0.01,
-        "robot.loop_ticks": 2,
-        "placement.jitter_mm": 2.0,
-    },
-    metrics=_metrics,
-    stop_when=_stop_when,
-    outputs=_outputs,
-    robot_columns=estimates_frame,
-    options=(ScenarioOption("--until", "gcs.until", "stop after this phase"),),
-    expected_end_s=_expected_end_s,
-    ends_when="merging (or with gcs.refine, refining) is done",
-    progress_note=_phase_note,
+    setup=Setup(
+        program=_program,
+        section=GcsParams,
+        robots=100,
+        defaults={
+            "duration_s": 3600.0,
+            "robot.hardware_uids": False,
+            # The thesis's library: a message every 200 ms with jitter, CSMA/CA back-off, a send
+            # buffer that is sampled once a period; its loop only needs to run every other tick.
+            "robot.tx_period_s": 0.2,
+            "robot.tx_jitter_s": 0.02,
+            "robot.tx_retry": "period",
+            "medium.backoff_max_s": 0.01,
+            "robot.loop_ticks": 2,
+            "placement.jitter_mm": 2.0,
+        },
+        supports={"medium.message_format": ("kilolib",), "robot.rx_distance": ("estimate",)},
+        stop_when=_stop_when,
+        options=(ScenarioOption("--until", "gcs.until", "stop after this phase"),),
+    ),
+    reporting=Reporting(
+        metrics=_metrics,
+        robot_columns=estimates_frame,
+        expected_end_s=_expected_end_s,
+        ends_when="merging (or with gcs.refine, refining) is done",
+        progress_note=_phase_note,
+    ),
+    drawing=Drawing(
+        figures=_outputs,
+    ),
 )

@@ -16,7 +16,7 @@ import numpy as np
 
 from kilonet.params import ParamError, param
 from kilonet.protocols.gradient import UNKNOWN, Gradient
-from kilonet.scenarios.base import RunResult, Scenario
+from kilonet.scenarios.base import Drawing, Reporting, RunResult, Scenario, Setup
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
     from kilonet.simulation import Simulation
@@ -139,12 +139,18 @@ def _figure(result: RunResult, out_dir: Path) -> None:
 
 SCENARIO = Scenario(
     name="gradient",
-    supports={"medium.message_format": ("kilolib",)},
     summary="hop-count gradient from one source robot (Kilobot self-assembly building block)",
-    program=_program,
-    section=GradientParams,
-    robots=100,
-    defaults={"duration_s": 30.0},
-    metrics=_metrics,
-    outputs=_figure,
+    setup=Setup(
+        program=_program,
+        section=GradientParams,
+        robots=100,
+        defaults={"duration_s": 30.0},
+        supports={"medium.message_format": ("kilolib",)},
+    ),
+    reporting=Reporting(
+        metrics=_metrics,
+    ),
+    drawing=Drawing(
+        figures=_figure,
+    ),
 )

@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from kilonet.protocols.localize.base import LocalizeParams
-from kilonet.scenarios.base import RunResult, Scenario
+from kilonet.scenarios.base import Drawing, Reporting, RunResult, Scenario, Setup
 from kilonet.scenarios.neighbourhood import trusted_links
 from kilonet.scenarios.reference import LISTED_ROBOTS
 
@@ -277,20 +277,26 @@ def _mm(value: float | None) -> str:
 
 SCENARIO = Scenario(
     name="localize",
-    supports={"medium.message_format": ("kilolib",), "robot.rx_distance": ("estimate",)},
     summary="one global frame by root election, multilateration spreading outward and "
     "distributed refinement, ended by the swarm itself",
-    program=_program,
-    section=LocalizeParams,
-    robots=100,
-    defaults={
-        "duration_s": 600.0,
-        "robot.hardware_uids": False,
-        "robot.tx_period_s": 0.2,
-        "placement.jitter_mm": 2.0,
-    },
-    metrics=_metrics,
-    stop_when=_stop_when,
-    outputs=_outputs,
-    robot_columns=estimates_frame,
+    setup=Setup(
+        program=_program,
+        section=LocalizeParams,
+        robots=100,
+        defaults={
+            "duration_s": 600.0,
+            "robot.hardware_uids": False,
+            "robot.tx_period_s": 0.2,
+            "placement.jitter_mm": 2.0,
+        },
+        supports={"medium.message_format": ("kilolib",), "robot.rx_distance": ("estimate",)},
+        stop_when=_stop_when,
+    ),
+    reporting=Reporting(
+        metrics=_metrics,
+        robot_columns=estimates_frame,
+    ),
+    drawing=Drawing(
+        figures=_outputs,
+    ),
 )

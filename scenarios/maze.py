@@ -54,7 +54,7 @@ from kilonet.protocols.maze.program import (
     MazeRobot,
     MazeStage,
 )
-from kilonet.scenarios.base import RunResult, Scenario, run
+from kilonet.scenarios.base import Drawing, Reporting, RunResult, Scenario, Setup, run
 from kilonet.scenarios.maze_hardware import MazeBody, MazeHardware, fit_maze_hardware
 from kilonet.simulation import Simulation, stream_for
 
@@ -369,18 +369,24 @@ def _figures(result: RunResult, out_dir: Path) -> None:
 
 SCENARIO = Scenario(
     name="maze",
-    supports={"robot.rx_distance": ("estimate",)},
     summary="a robot trilaterates, covers a grid maze and localizes from walls (lab seed)",
-    program=_program,
-    hardware=_hardware,
-    section=MazeParams,
-    robots=1 + len(_LANDMARKS),
-    defaults={"duration_s": 20_000.0},
-    placement=_placement,
-    metrics=_metrics,
-    stop_when=_stop_when,
-    ends_when="the robot covers the maze or gives up",
-    outputs=_figures,
+    setup=Setup(
+        program=_program,
+        hardware=_hardware,
+        section=MazeParams,
+        robots=1 + len(_LANDMARKS),
+        defaults={"duration_s": 20_000.0},
+        supports={"robot.rx_distance": ("estimate",)},
+        placement=_placement,
+        stop_when=_stop_when,
+    ),
+    reporting=Reporting(
+        metrics=_metrics,
+        ends_when="the robot covers the maze or gives up",
+    ),
+    drawing=Drawing(
+        figures=_figures,
+    ),
 )
 
 

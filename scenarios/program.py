@@ -49,7 +49,7 @@ from typing import TYPE_CHECKING, Any
 from kilonet.errors import ProgramFault, exception_line, read_text
 from kilonet.message import PayloadError
 from kilonet.robot import RESERVED_PREFIX, Kilobot
-from kilonet.scenarios.base import RunResult, Scenario, ScenarioError
+from kilonet.scenarios.base import Drawing, Reporting, RunResult, Scenario, ScenarioError, Setup
 from kilonet.watchdog import BusyCallError
 
 if TYPE_CHECKING:
@@ -562,13 +562,19 @@ def program_scenario(
     return Scenario(
         name="program",
         summary=f"your program {label} on every robot",
-        program=program,
-        section=section,
-        robots=0,
-        defaults={f"program.{name}": value for name, value in values.items()},
-        metrics=metrics,
-        outputs=outputs,
-        robot_columns=robot_columns if reporting else None,
+        setup=Setup(
+            program=program,
+            section=section,
+            robots=0,
+            defaults={f"program.{name}": value for name, value in values.items()},
+        ),
+        reporting=Reporting(
+            metrics=metrics,
+            robot_columns=robot_columns if reporting else None,
+        ),
+        drawing=Drawing(
+            figures=outputs,
+        ),
     )
 
 

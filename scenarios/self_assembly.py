@@ -34,7 +34,7 @@ from kilonet.errors import read_text
 from kilonet.params import ParamError, param
 from kilonet.protocols.self_assembly.program import AssemblyStage, SelfAssembly
 from kilonet.protocols.self_assembly.rules import Shape
-from kilonet.scenarios.base import RunResult, Scenario
+from kilonet.scenarios.base import Drawing, Reporting, RunResult, Scenario, Setup
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -392,17 +392,23 @@ def _figure(result: RunResult, out_dir: Path) -> None:
 
 SCENARIO = Scenario(
     name="self-assembly",
-    supports={"medium.message_format": ("kilolib",), "robot.rx_distance": ("estimate",)},
     summary="programmable self-assembly: robots edge-follow from a packed start into a shape",
-    program=_program,
-    section=SelfAssemblyParams,
-    robots=100,
-    defaults={"duration_s": 7200.0, "robot.loop_ticks": 4, "motion.step_s": 0.2},
-    placement=_generate,
-    metrics=_metrics,
-    stop_when=_stop_when,
-    ends_when="every robot has joined the shape or is lost",
-    progress_note=_progress,
-    outputs=_figure,
-    robot_columns=_robot_columns,
+    setup=Setup(
+        program=_program,
+        section=SelfAssemblyParams,
+        robots=100,
+        defaults={"duration_s": 7200.0, "robot.loop_ticks": 4, "motion.step_s": 0.2},
+        supports={"medium.message_format": ("kilolib",), "robot.rx_distance": ("estimate",)},
+        placement=_generate,
+        stop_when=_stop_when,
+    ),
+    reporting=Reporting(
+        metrics=_metrics,
+        robot_columns=_robot_columns,
+        ends_when="every robot has joined the shape or is lost",
+        progress_note=_progress,
+    ),
+    drawing=Drawing(
+        figures=_figure,
+    ),
 )

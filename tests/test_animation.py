@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-import kilonet.cli as cli
+import kilonet.app.cli as cli
 from kilonet import scenarios
 from kilonet.protocols.common.alignment import procrustes_rmse
 from kilonet.viz.animation import (
@@ -528,7 +528,7 @@ def test_a_real_run_records_what_robots_held_without_changing_the_run(tmp_path: 
     end = sampled.sim.env.now
     assert set(np.round(table.t_s[table.t_s < end] % 1.0, 9)) == {0.0}
     last = table.groupby("robot").last()
-    final = scenarios.get("localize").robot_columns(sampled.sim).set_index("robot")
+    final = scenarios.get("localize").reporting.robot_columns(sampled.sim).set_index("robot")
     np.testing.assert_allclose(last.x_mm, final.est_x_mm[last.index], atol=0.05)
     np.testing.assert_allclose(last.y_mm, final.est_y_mm[last.index], atol=0.05)
     assert (last.frame == final.frame[last.index]).all()

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-import kilonet.cli
+import kilonet.app.cli
 from kilonet import scenarios
 from kilonet.protocols.localize.program import LocalizeRobot
 
@@ -117,7 +117,7 @@ def replay_file(tmp_path_factory) -> Path:
     result = scenarios.run(scenarios.get("localize"), {"placement.robots": 14}, seed=4)
     scenarios.write_outputs(result, tmp / "run")
     out = tmp / "replay.html"
-    assert kilonet.cli.main(["animate", str(tmp / "run"), "--out", str(out)]) == 0
+    assert kilonet.app.cli.main(["animate", str(tmp / "run"), "--out", str(out)]) == 0
     return out
 
 
@@ -222,9 +222,9 @@ def test_the_sweep_report_renders_its_figures_and_tables(browser, tmp_path):
     sweep_file.write_text(SWEEP)
     out = tmp_path / "sweep"
     argv = ["sweep", str(sweep_file), "--out", str(out), "--workers", "1", "--no-progress"]
-    assert kilonet.cli.main(argv) == 0
+    assert kilonet.app.cli.main(argv) == 0
     report = tmp_path / "report.html"
-    assert kilonet.cli.main(["report", str(out), "--out", str(report)]) == 0
+    assert kilonet.app.cli.main(["report", str(out), "--out", str(report)]) == 0
     page = Page(browser, report)
     p = page.page
     assert p.locator("h1").inner_text() == "Sweep browser"

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from kilonet import scenarios
-from kilonet.cli import COMMANDS, main
+from kilonet.app.cli import COMMANDS, main
 from kilonet.placement import save_csv
 from kilonet.protocols.gcs.base import PHASES
 from kilonet.simulation import Simulation
@@ -364,7 +364,7 @@ def test_help_lists_every_registered_command(capsys):
 def test_each_command_entry_point_registers_its_own_name(name):
     import argparse
 
-    from kilonet.cli import CommandParser
+    from kilonet.app.cli import CommandParser
 
     (ep,) = [ep for ep in entry_points(group=COMMANDS) if ep.name == name]
     sub = argparse.ArgumentParser().add_subparsers(parser_class=CommandParser)
@@ -401,7 +401,7 @@ def test_params_shows_types_and_allowed_values(capsys):
 
 def test_output_into_a_closed_pipe_ends_quietly():
     child = subprocess.Popen(
-        [sys.executable, "-m", "kilonet.cli", "params", "gcs"],
+        [sys.executable, "-m", "kilonet.app.cli", "params", "gcs"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
     )
@@ -469,13 +469,15 @@ def _heavy_modules_after(code: str) -> list[str]:
 
 @pytest.mark.parametrize("argv", [["--help"], ["scenarios"], ["params"], ["run", "--help"]])
 def test_listing_commands_import_no_heavy_library(argv):
-    code = f"from kilonet.cli import main\ntry:\n    main({argv!r})\nexcept SystemExit:\n    pass"
+    code = (
+        f"from kilonet.app.cli import main\ntry:\n    main({argv!r})\nexcept SystemExit:\n    pass"
+    )
     assert _heavy_modules_after(code) == []
 
 
 def test_the_top_level_help_loads_no_protocol_and_run_help_lists_the_scenario_options(capsys):
     code = (
-        "import sys\nfrom kilonet.cli import main\ntry:\n    main(['--help'])\n"
+        "import sys\nfrom kilonet.app.cli import main\ntry:\n    main(['--help'])\n"
         "except SystemExit:\n    pass\n"
         "print(sorted(m for m in sys.modules if m.startswith('kilonet.protocols')))"
     )
@@ -494,6 +496,6 @@ def test_a_run_reaches_its_first_event_without_pandas_or_matplotlib():
         "from kilonet.scenarios.base import build_params, place\n"
         "from kilonet.simulation import Simulation\n"
         "s = scenarios.get('gradient'); p = build_params(s); x = place(s, p)\n"
-        "sim = Simulation(x, s.program(p, x), p); sim.start(); sim.env.step()"
+        "sim = Simulation(x, s.setup.program(p, x), p); sim.start(); sim.env.step()"
     )
     assert _heavy_modules_after(code) == ["scipy"]  # the medium's k-d tree

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from kilonet.cli import main
+from kilonet.app.cli import main
 
 
 def one_error(capsys) -> str:

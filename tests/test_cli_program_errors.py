@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from kilonet.cli import main
+from kilonet.app.cli import main
 
 
 def program(tmp_path: Path, body: str) -> Path:

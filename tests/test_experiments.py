@@ -22,7 +22,7 @@ import pytest
 from matplotlib.figure import Figure
 from scipy import stats
 
-import kilonet.cli
+import kilonet.app.cli
 from kilonet import scenarios
 from kilonet.experiments import cli as experiments_cli
 from kilonet.experiments.report import (
@@ -351,7 +351,7 @@ def test_a_task_lost_by_the_executor_is_stored_as_failed(tmp_path):
         assert store.records() == [rec]
 
 
-_CLI = "import sys, kilonet.cli as c; sys.exit(c.main(sys.argv[1:]))"
+_CLI = "import sys, kilonet.app.cli as c; sys.exit(c.main(sys.argv[1:]))"
 
 
 def _as_from_a_terminal() -> None:
@@ -436,13 +436,13 @@ def test_sweep_on_a_local_dask_cluster_stores_what_the_local_pool_stores(tmp_pat
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
     ) as cluster:
         argv = ["sweep", str(sweep_file), "--out", str(tmp_path / "dask"), "--no-progress"]
-        assert kilonet.cli.main([*argv, "--scheduler", cluster.scheduler_address]) == 0
+        assert kilonet.app.cli.main([*argv, "--scheduler", cluster.scheduler_address]) == 0
         with ResultStore.open(tmp_path / "dask") as store:
             workers = {r.worker for r in store.records()}
     assert "sweep small: 4 runs; 4 run now (0 failed)" in capsys.readouterr().err
     assert all(int(w.rpartition(":")[2]) != os.getpid() for w in workers)  # not in this process
     local = ["sweep", str(sweep_file), "--out", str(tmp_path / "local"), "--no-progress"]
-    assert kilonet.cli.main([*local, "--workers", "2"]) == 0
+    assert kilonet.app.cli.main([*local, "--workers", "2"]) == 0
     on_dask, on_pool = _stored_results(tmp_path / "dask"), _stored_results(tmp_path / "local")
     assert sorted(on_dask) == sorted(r.run_id for r in parse_sweep(SMALL, name="small").runs())
     assert on_dask == on_pool
@@ -456,7 +456,7 @@ def test_sweep_with_an_unreachable_scheduler_stops_with_one_line(tmp_path, capsy
     argv = ["sweep", str(sweep_file), "--out", str(tmp_path / "out"), "--no-progress"]
     # A port nothing listens on; the client retries for its connect time-out (30 s by default).
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
-        assert kilonet.cli.main([*argv, "--scheduler", "tcp://127.0.0.1:9"]) == 1
+        assert kilonet.app.cli.main([*argv, "--scheduler", "tcp://127.0.0.1:9"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("kilonet: sweep stopped: cannot reach the Dask scheduler at tcp://")
     assert "Traceback" not in err
@@ -552,7 +552,7 @@ def test_register_adds_sweep_and_report_sub_commands():
 
 @pytest.fixture
 def kilonet_main():
-    return kilonet.cli.main
+    return kilonet.app.cli.main
 
 
 def test_cli_sweep_then_report(tmp_path, kilonet_main, capsys):

@@ -304,9 +304,9 @@ def test_goal_behind_the_robot():
     params = build_params(SCENARIO, seed=4)
     pos = np.vstack([FRAME, [[37.5, -25.0]]])  # 90 mm from robot 3: it ranges all three
     sim = Simulation(
-        pos, SCENARIO.program(params, pos), params, headings_rad=[0, 0, 0, -math.pi / 2]
+        pos, SCENARIO.setup.program(params, pos), params, headings_rad=[0, 0, 0, -math.pi / 2]
     )
-    sim.run(stop_when=lambda: SCENARIO.stop_when(sim))
+    sim.run(stop_when=lambda: SCENARIO.setup.stop_when(sim))
     follower = sim.robots[3]
     assert follower.outcome == "reached"
     assert np.linalg.norm(sim.world.positions_mm[3] - GOAL) < 8.0
@@ -352,7 +352,7 @@ def test_saturated_distances_walk_to_the_nearest_robot_first():
     possible, so the follower walks by the changes of its nearest distance."""
     params = build_params(SCENARIO, seed=3)
     pos = np.vstack([FRAME, [[GOAL[0], GOAL[1] + 90.0]]])
-    sim = Simulation(pos, SCENARIO.program(params, pos), params)
+    sim = Simulation(pos, SCENARIO.setup.program(params, pos), params)
     follower = sim.robots[3]
     fixes = lambda: sim.trace.events_frame().query("robot == 3 and event == 'fix'")  # noqa: E731
     sim.run(120.0, stop_when=lambda: len(fixes()) > 0)
@@ -378,7 +378,7 @@ def test_never_uses_readings_from_before_its_listening_window():
     from kilonet.scenarios.base import place
 
     pos = place(SCENARIO, params)
-    sim = Simulation(pos, SCENARIO.program(params, pos), params)
+    sim = Simulation(pos, SCENARIO.setup.program(params, pos), params)
     follower = sim.robots[3]
     sim.start()
     while follower.phase != "step":

@@ -311,7 +311,7 @@ def test_an_isolated_seeds_root_ranks_last_so_it_wins_no_robot_of_a_merged_frame
     # Seed 4: isolated seeds with smaller keys than the frames their references share.
     params = build_params(GCS, {"placement.robots": 40}, seed=4)
     positions = place(GCS, params, None)
-    sim = Simulation(positions, GCS.program(params, positions), params)
+    sim = Simulation(positions, GCS.setup.program(params, positions), params)
     sim.run(phase_windows_s(params.scenario)[-1][1] + 10.0)  # 10 s into merging
     isolated = {r.own_key for r in sim.robots if r.is_seed and not r.partners}
     assert len(isolated) >= 3
@@ -340,7 +340,7 @@ def test_a_partner_that_never_answers_stops_holding_up_done():
     settings = {"placement.robots": 40, "gcs.merge_max_rounds": 300, "medium.occlusion": "block"}
     params = build_params(GCS, settings, seed=1)
     positions = place(GCS, params, None)
-    sim = Simulation(positions, GCS.program(params, positions), params)
+    sim = Simulation(positions, GCS.setup.program(params, positions), params)
     merge_start = phase_windows_s(params.scenario)[-1][1]
     sim.run(merge_start - 0.5)
     seeds = [i for i, r in enumerate(sim.robots) if r.is_seed]
@@ -349,7 +349,7 @@ def test_a_partner_that_never_answers_stops_holding_up_done():
     waiting = [i for i in seeds if crashed_key in sim.robots[i].partners]
     assert waiting
     sim.faults.crash_at(crashed, merge_start - 0.4)
-    sim.run(merge_start + 600.0, stop_when=lambda: GCS.stop_when(sim))
+    sim.run(merge_start + 600.0, stop_when=lambda: GCS.setup.stop_when(sim))
     assert sim.env.now < merge_start + 600.0  # the swarm ended merging by itself
     events = sim.trace.events_frame()
     silent = events[events.event == "merge_partner_silent"]
@@ -446,7 +446,7 @@ def test_failures_section_names_the_lone_robot_and_its_isolated_frame():
 
 
 def test_analyze_predicts_the_lone_robot_before_a_full_run(tmp_path, capsys):
-    from kilonet.cli import main
+    from kilonet.app.cli import main
     from kilonet.placement import save_csv
     from kilonet.scenarios.placement import hex_lattice
 

@@ -70,7 +70,7 @@ def test_the_refinement_runs_only_when_asked():
 def test_a_recovery_epoch_refines_again():
     params = build_params(GCS, {"placement.robots": 7, "gcs.refine": True})
     positions = place(GCS, params)
-    sim = Simulation(positions, GCS.program(params, positions), params)
+    sim = Simulation(positions, GCS.setup.program(params, positions), params)
     robot: GcsRobot = sim.robots[0]
     sim.run(100.0)  # into merging
     assert robot.phase_name == "merge"
@@ -82,7 +82,7 @@ def test_a_recovery_epoch_refines_again():
 def test_a_robot_located_in_no_frame_leaves_merging_for_the_wave():
     params = build_params(GCS, {"placement.robots": 7, "gcs.refine": True})
     positions = place(GCS, params)
-    sim = Simulation(positions, GCS.program(params, positions), params)
+    sim = Simulation(positions, GCS.setup.program(params, positions), params)
     sim.run(100.0)  # into merging
     robot: GcsRobot = next(r for r in sim.robots if not r.is_seed)
     assert robot.phase_name == "merge"
@@ -181,7 +181,7 @@ def test_placed_neighbours_count_placed_positions_heard_lately():
 def test_a_merging_robot_the_wave_reached_refines_and_awaits_no_recovery():
     params = build_params(GCS, {"placement.robots": 7, "gcs.refine": True})
     positions = place(GCS, params)
-    sim = Simulation(positions, GCS.program(params, positions), params)
+    sim = Simulation(positions, GCS.setup.program(params, positions), params)
     sim.run(100.0)  # into merging
     robot: GcsRobot = next(r for r in sim.robots if r.phase_name == "merge")
     robot.check.boundary_since = robot.kilo_ticks  # a split boundary holds its merging back
@@ -213,7 +213,7 @@ def test_summary_reports_the_reference_and_both_bounds(refined):
 
 
 def test_robots_csv_holds_the_refined_estimates(refined):
-    est = scenarios.get("gcs").robot_columns(refined.sim)
+    est = scenarios.get("gcs").reporting.robot_columns(refined.sim)
     outcomes = [r.outcome() for r in refined.sim.robots]
     refined_xy = np.array([o.position for o in outcomes])
     merged_xy = np.array([o.merged_position for o in outcomes])

@@ -3,7 +3,7 @@ on stderr with exit 2, never a traceback, a hang or a half-written output.
 
 The regression tests pin the cases found by hand and by the fuzz campaign; the Hypothesis tests
 draw placements, ``--set`` values and sweep files and run the real ``kilonet`` entry point
-(:func:`kilonet.cli.main`) in-process on tiny swarms. ``test_cli_fuzz_campaign`` is the long
+(:func:`kilonet.app.cli.main`) in-process on tiny swarms. ``test_cli_fuzz_campaign`` is the long
 campaign (``-m slow``; ``KILONET_FUZZ_EXAMPLES`` cases, default 2000).
 """
 
@@ -24,7 +24,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import kilonet.cli
+import kilonet.app.cli
 from kilonet import scenarios
 from kilonet.scenarios.base import build_params
 
@@ -32,7 +32,7 @@ SCENARIOS = ("gradient", "localize", "follower", "gcs", "maze")
 
 
 def _kilonet(argv: list[str], capsys) -> tuple[int, str]:
-    status = kilonet.cli.main(argv)
+    status = kilonet.app.cli.main(argv)
     return status, capsys.readouterr().err
 
 
@@ -433,7 +433,7 @@ def check_case(case: tuple[list[str], dict[str, bytes]]) -> None:
             contextlib.redirect_stdout(out),
         ):
             try:
-                status = kilonet.cli.main(argv)
+                status = kilonet.app.cli.main(argv)
             except SystemExit as exc:  # argparse
                 status = exc.code
         text = err.getvalue()

@@ -4,8 +4,9 @@ One package, ``kilonet``; the repository's top-level folders are its layers (fol
 ``kilonet.F``; ``kilonet/`` itself is the kernel). The kernel imports no protocol, scenario,
 picture or experiment; ``kilonet.protocols`` use only the robot API and pure math;
 ``kilonet.scenarios`` glue the two; ``kilonet.viz`` draws finished runs; ``kilonet.experiments``
-and the command line's sub-commands sit on top. An import counts wherever it is written: at the
-top of a module, inside a function or a ``TYPE_CHECKING`` block, by name
+sweep and report; ``kilonet.app``, the command line, sits on top and nothing imports it. An
+import counts wherever it is written: at the top of a module, inside a function or a
+``TYPE_CHECKING`` block, by name
 (``importlib.import_module("kilonet.experiments.cli")``, ``__import__``), or as a string that
 names a module of the project (``"kilonet.scenarios.analyze:register"``); docstrings do not
 count.
@@ -25,11 +26,14 @@ from kilonet.robot import RESERVED_PREFIX
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The layers above the kernel: each is a top-level folder, installed as ``kilonet.<folder>``.
-SUBLAYERS = ("protocols", "scenarios", "viz", "experiments")
+SUBLAYERS = ("protocols", "scenarios", "viz", "experiments", "app")
 #: The test kit (``kilonet/testing/``): a tool for users' tests that builds swarms with the
 #: scenarios' placement generators, so it sits above the scenarios though it lives in the
 #: kernel's folder; nothing but tests imports it.
 TEST_KIT = "kilonet.testing"
+#: ``python -m kilonet``: the command line's launcher, in the kernel's folder because Python
+#: looks for ``__main__`` there; it belongs to the application (it runs ``kilonet.app.cli``).
+LAUNCHER = "kilonet.__main__"
 
 #: What a protocol may use of the kernel: the robot API (the Kilobot base class, messages,
 #: parameter declarations). Its math is its own (``kilonet.protocols.common.geometry``, …).
@@ -41,7 +45,7 @@ _IMPORT_FUNCTIONS = {"import_module", "__import__", "find_spec"}
 
 
 def module_name(path: Path) -> str:
-    """``kilonet/cli.py`` -> ``kilonet.cli``; ``scenarios/__init__.py`` -> ``kilonet.scenarios``."""
+    """``app/cli.py`` -> ``kilonet.app.cli``; ``scenarios/__init__.py`` -> ``kilonet.scenarios``."""
     parts = list(path.relative_to(ROOT).with_suffix("").parts)
     if parts[-1] == "__init__":
         parts.pop()
@@ -52,7 +56,7 @@ def module_name(path: Path) -> str:
 
 def source_path(name: str) -> Path:
     """Where the dotted project module ``name`` lives, less its suffix: ``kilonet.scenarios.gcs``
-    -> ``ROOT/scenarios/gcs``, ``kilonet.cli`` -> ``ROOT/kilonet/cli``."""
+    -> ``ROOT/scenarios/gcs``, ``kilonet.medium`` -> ``ROOT/kilonet/medium``."""
     parts = name.split(".")
     if len(parts) > 1 and parts[0] == "kilonet" and parts[1] in SUBLAYERS:
         parts = parts[1:]
@@ -78,6 +82,8 @@ def layer_of(name: str) -> str | None:
         return None
     if name == TEST_KIT or name.startswith(TEST_KIT + "."):
         return "testing"
+    if name == LAUNCHER:
+        return "app"
     return parts[1] if len(parts) > 1 and parts[1] in SUBLAYERS else "kernel"
 
 
@@ -158,7 +164,11 @@ def layer_rule_broken(importer: str, imported: str) -> str | None:
     if top in SUBLAYERS:
         return f"{top} is not installed top-level: import kilonet.{top}"
     if layer == "kernel" and other in (*SUBLAYERS, "testing"):
-        return "the kernel imports no protocol, scenario, picture, experiment or test kit"
+        return (
+            "the kernel imports no protocol, scenario, picture, experiment, application or test kit"
+        )
+    if other == "app" and layer != "app":
+        return "nothing imports the application (kilonet.app): it is the top layer"
     if other == "testing" and layer != "testing":
         return "only tests import the test kit"
     if layer == "testing" and other in ("protocols", "viz", "experiments"):
@@ -214,7 +224,7 @@ def test_the_checker_sees_static_imports_in_functions_and_type_checking_blocks()
         "def f():\n"
         "    import kilonet.experiments.sweep\n"
     )
-    broken = [line for line, why in _check(source, "kilonet.cli") if why]
+    broken = [line for line, why in _check(source, "kilonet.simulation") if why]
     assert broken == [3, 5]  # kilonet.scenarios.base, kilonet.experiments.sweep
 
 
@@ -226,12 +236,12 @@ def test_the_checker_sees_imports_by_name_and_module_strings():
         '__import__("kilonet.protocols.gcs.program")\n'
         'PLUGINS = ["kilonet.scenarios.analyze:register", "not.a.module", "scenarios"]\n'
     )
-    found = [(line, name) for line, name in imports_of(source, "kilonet.cli")]
+    found = [(line, name) for line, name in imports_of(source, "kilonet.simulation")]
     assert (3, "kilonet.experiments.cli") in found
     assert (4, "kilonet.protocols.gcs.program") in found
     assert (5, "kilonet.scenarios.analyze") in found
     assert all(line != 1 for line, _ in found)
-    assert [line for line, why in _check(source, "kilonet.cli") if why] == [3, 4, 5]
+    assert [line for line, why in _check(source, "kilonet.simulation") if why] == [3, 4, 5]
 
 
 @pytest.mark.parametrize(
@@ -260,10 +270,10 @@ def test_protocols_use_only_the_robot_api_and_pure_math(imported, allowed):
 
 def test_a_violation_names_file_line_and_rule():
     source = "def main():\n    import kilonet.scenarios\n    import scenarios\n"
-    assert violations_in(ROOT / "kilonet" / "cli.py", source) == [
-        "kilonet/cli.py:2: imports kilonet.scenarios: the kernel imports no protocol, scenario, "
-        "picture, experiment or test kit",
-        "kilonet/cli.py:3: imports scenarios: scenarios is not installed top-level: "
+    assert violations_in(ROOT / "kilonet" / "simulation.py", source) == [
+        "kilonet/simulation.py:2: imports kilonet.scenarios: the kernel imports no protocol, "
+        "scenario, picture, experiment, application or test kit",
+        "kilonet/simulation.py:3: imports scenarios: scenarios is not installed top-level: "
         "import kilonet.scenarios",
     ]
 
@@ -355,3 +365,19 @@ def test_protocols_never_touch_the_kernels_handles():
         (3, "_known"),
     ]
     assert kernel_names_in("self._index = self.kilo_uid") == []
+
+
+@pytest.mark.parametrize(
+    ("importer", "imported", "allowed"),
+    [
+        ("kilonet.app.commands", "kilonet.experiments.sweep", True),
+        ("kilonet.app.commands", "kilonet.viz.cli", True),
+        ("kilonet.__main__", "kilonet.app.cli", True),  # the launcher is the app's
+        ("kilonet.experiments.cli", "kilonet.app.cli", False),
+        ("kilonet.viz.cli", "kilonet.app.commands", False),
+        ("kilonet.scenarios.base", "kilonet.app", False),
+        ("kilonet.errors", "kilonet.app.cli", False),
+    ],
+)
+def test_the_application_is_the_top_layer_and_nothing_imports_it(importer, imported, allowed):
+    assert (layer_rule_broken(importer, imported) is None) is allowed

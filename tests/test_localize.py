@@ -884,9 +884,9 @@ def test_protocol_runs_on_the_robot_api_alone():
 
     params = build_params(LOCALIZE, {"placement.robots": 25})
     positions = place(LOCALIZE, params)
-    sim = Simulation(positions, LOCALIZE.program(params, positions), params)
+    sim = Simulation(positions, LOCALIZE.setup.program(params, positions), params)
     # A robot holds no simulation (tests/test_simulation.py), so all it reaches is its API.
-    sim.run(60.0, stop_when=lambda: LOCALIZE.stop_when(sim))
+    sim.run(60.0, stop_when=lambda: LOCALIZE.setup.stop_when(sim))
     assert all(r.stage == "done" for r in sim.robots)
     assert all(r.in_frame for r in sim.robots)
 

@@ -426,9 +426,9 @@ def test_the_filter_can_assume_another_wall_sensor_than_the_true_one():
     positions = place(SCENARIO, params)
     sim = Simulation(
         positions,
-        SCENARIO.program(params, positions),
+        SCENARIO.setup.program(params, positions),
         params,
-        hardware=SCENARIO.hardware(params, positions),
+        hardware=SCENARIO.setup.hardware(params, positions),
     )
     robot = sim.robots[0]
     assert robot.hardware("maze").spec.wall_sensor == WallSensor(p_open=0.6, p_wall=0.95)
@@ -449,7 +449,7 @@ def test_directions_are_the_seeds_order():
 
 
 def test_cli_run_writes_the_summary_and_figures(tmp_path, capsys):
-    from kilonet.cli import main
+    from kilonet.app.cli import main
 
     out = tmp_path / "run"
     assert main(["run", "maze", "--set", "maze.size=3x3", "--out", str(out), "--json"]) == 0

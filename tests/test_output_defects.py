@@ -16,7 +16,7 @@ import pytest
 from scipy import stats
 
 from kilonet import scenarios
-from kilonet.cli import main
+from kilonet.app.cli import main
 from kilonet.scenarios.base import run, write_outputs
 
 GRADIENT = ["run", "gradient", "--robots", "6", "--duration", "3"]

@@ -88,7 +88,7 @@ def test_a_run_directory_gets_the_mode_the_umask_gives(tmp_path, capsys):
     import os
     import stat
 
-    from kilonet.cli import main
+    from kilonet.app.cli import main
 
     old = os.umask(0o027)
     try:

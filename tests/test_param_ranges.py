@@ -7,7 +7,7 @@ import dataclasses
 
 import pytest
 
-import kilonet.cli
+import kilonet.app.cli
 from kilonet.medium import BACKOFF_MAX_FLOOR_S
 from kilonet.message import Message
 from kilonet.params import MediumParams, Params
@@ -19,7 +19,7 @@ from kilonet.simulation import Simulation
 def test_a_back_off_shorter_than_one_kilolib_timer_count_is_refused(tmp_path, capsys, value):
     argv = ["run", "gradient", "--robots", "3", "--duration", "1"]
     argv += ["--set", f"medium.backoff_max_s={value}", "--out", str(tmp_path / "out")]
-    assert kilonet.cli.main(argv) == 2
+    assert kilonet.app.cli.main(argv) == 2
     err = capsys.readouterr().err
     assert err == (
         f"kilonet: error: medium.backoff_max_s = {float(value)} is out of range [0.000128, 10.0]\n"

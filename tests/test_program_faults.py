@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from kilonet.cli import main
+from kilonet.app.cli import main
 
 HEADER = (
     "import math, sys, threading\nimport numpy, simpy\n"
@@ -415,7 +415,7 @@ def test_a_program_left_running_a_thread_does_not_keep_kilonet_waiting(tmp_path)
     out = tmp_path / "out"
     argv = ["run", "--program", str(path), "--robots", "1", "--duration", "1"]
     done = subprocess.run(
-        [sys.executable, "-m", "kilonet.cli", *argv, "--progress", "none", "--out", str(out)],
+        [sys.executable, "-m", "kilonet.app.cli", *argv, "--progress", "none", "--out", str(out)],
         capture_output=True,
         text=True,
         timeout=60,

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from kilonet import scenarios
-from kilonet.cli import main
+from kilonet.app.cli import main
 from kilonet.experiments.runner import execute_run, run_sweep
 from kilonet.experiments.store import ResultStore
 from kilonet.experiments.sweep import SweepError, load_sweep

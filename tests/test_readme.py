@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from kilonet import scenarios
-from kilonet.cli import COMMANDS
+from kilonet.app.cli import COMMANDS
 
 ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text()

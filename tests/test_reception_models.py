@@ -7,7 +7,7 @@ import json
 import pytest
 
 from kilonet import Kilobot, Params, Simulation
-from kilonet.cli import main
+from kilonet.app.cli import main
 from kilonet.reception import GaussianRanging, TableRanging
 
 MODEL = '''

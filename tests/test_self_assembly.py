@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import kilonet.cli
+import kilonet.app.cli
 from kilonet import scenarios
 from kilonet.protocols.self_assembly.program import (
     ASSEMBLY,
@@ -26,7 +26,7 @@ from kilonet.testing import ScriptedWorld
 
 
 def _kilonet(argv: list[str], capsys) -> tuple[int, str]:
-    status = kilonet.cli.main(argv)
+    status = kilonet.app.cli.main(argv)
     return status, capsys.readouterr().err
 
 
@@ -211,7 +211,7 @@ def test_the_run_directory_holds_the_figure_and_a_replay(small_run, tmp_path, ca
     robots = (out / "robots.csv").read_text().splitlines()
     assert robots[0].split(",")[-4:] == ["stage", "est_x_mm", "est_y_mm", "localization_error_mm"]
     assert (out / "self_assembly.png").stat().st_size > 10_000
-    assert kilonet.cli.main(["animate", str(out), "--out", str(out / "replay.html")]) == 0
+    assert kilonet.app.cli.main(["animate", str(out), "--out", str(out / "replay.html")]) == 0
     page = (out / "replay.html").read_text()
     assert "<title>self-assembly — kilonet replay</title>" in page
 

@@ -23,13 +23,13 @@ import pytest
 from test_experiments import SMALL  # four runs of 20 robots for 5 s
 from test_sweep_faults import _kilonet
 
-import kilonet.cli
+import kilonet.app.cli
 from kilonet.experiments.runner import _terminate_local, run_sweep
 from kilonet.experiments.store import DB_NAME, ResultStore, lock_directory
 from kilonet.experiments.sweep import parse_sweep
 from kilonet.scenarios.output_dir import DirectoryInUse, OutputDir, OutputDirError
 
-_CLI = "import sys, kilonet.cli as c; sys.exit(c.main(sys.argv[1:]))"
+_CLI = "import sys, kilonet.app.cli as c; sys.exit(c.main(sys.argv[1:]))"
 #: Two runs of 10 robots for 2 s: a sweep that finishes in a moment.
 TINY = 'scenario = "gradient"\nseeds = 2\n[fixed]\nduration_s = 2.0\n"placement.robots" = 10\n'
 
@@ -72,7 +72,7 @@ def test_a_run_never_replaces_the_directory_of_a_running_sweep(tmp_path, finishe
     argv = ["run", "gradient", "--robots", "10", "--duration", "2", "--out", str(out)]
     with lock_directory(out):  # the running sweep
         before = _snapshot(out)
-        assert kilonet.cli.main(argv + (["--replace"] if replace else [])) == 2
+        assert kilonet.app.cli.main(argv + (["--replace"] if replace else [])) == 2
         _one_line_error(
             capsys.readouterr().err,
             f"{out} is in use by a running sweep (pid {os.getpid()}) holding its lock "
@@ -188,7 +188,7 @@ def test_an_edited_definition_is_refused_in_one_line(tmp_path, finished, capsys,
         "sweep": ["sweep", str(tmp_path / "s.toml"), "--out", str(out), "--no-progress"],
         "report": ["report", str(out), "--out", str(tmp_path / "r.html")],
     }[command]
-    assert kilonet.cli.main(argv) == 2
+    assert kilonet.app.cli.main(argv) == 2
     _one_line_error(
         capsys.readouterr().err,
         f"{out / DB_NAME}: the stored sweep definition does not match its checksum",
@@ -210,7 +210,7 @@ def test_a_damaged_store_is_refused_without_a_byte_written(tmp_path, finished, d
         "resume": ["sweep", "--resume", "--out", str(out), "--no-progress"],
         "report": ["report", str(out), "--out", str(tmp_path / "r.html")],
     }[command]
-    assert kilonet.cli.main(argv) == 2
+    assert kilonet.app.cli.main(argv) == 2
     assert _snapshot(out) == before  # same bytes, and no -wal / -shm beside it
 
 
@@ -285,7 +285,7 @@ def test_a_bad_scheduler_address_is_one_line_no_hang_nothing_left(tmp_path, addr
 def test_a_seed_beyond_the_store_is_refused_before_running(tmp_path, capsys, seeds, needle):
     (tmp_path / "s.toml").write_text(TINY.replace("seeds = 2", f"seeds = {seeds}"))
     argv = ["sweep", str(tmp_path / "s.toml"), "--out", str(tmp_path / "out")]
-    assert kilonet.cli.main(argv) == 2
+    assert kilonet.app.cli.main(argv) == 2
     err = capsys.readouterr().err
     _one_line_error(err, needle)
     assert err.endswith("; seeds are integers from 0 to 9223372036854775807\n"), err
@@ -302,7 +302,7 @@ def test_the_largest_seed_is_stored_and_read_back(tmp_path):
 
 def test_a_metric_that_is_not_a_number_is_refused(tmp_path, finished, capsys):
     argv = ["report", str(finished), "--out", str(tmp_path / "r.html"), "--metric", "scenario"]
-    assert kilonet.cli.main(argv) == 2
+    assert kilonet.app.cli.main(argv) == 2
     err = capsys.readouterr().err
     _one_line_error(err, "--metric 'scenario' is not a numeric result (a run reports 'gradient')")
     assert "numeric results: " in err and "last_change_s" in err

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 from test_experiments import SMALL  # four runs of 20 robots for 5 s
 
-import kilonet.cli
+import kilonet.app.cli
 from kilonet.experiments.runner import WorkerWatch, run_sweep
 from kilonet.experiments.store import (
     DB_NAME,
@@ -30,7 +30,7 @@ from kilonet.experiments.store import (
 )
 from kilonet.experiments.sweep import parse_sweep
 
-_CLI = "import sys, kilonet.cli as c; sys.exit(c.main(sys.argv[1:]))"
+_CLI = "import sys, kilonet.app.cli as c; sys.exit(c.main(sys.argv[1:]))"
 
 
 def _one_line_error(err: str, needle: str) -> None:
@@ -85,7 +85,7 @@ def test_a_damaged_store_is_one_line_exit_2(tmp_path, finished, capsys, damage, 
         "resume": ["sweep", "--resume", "--out", str(out), "--no-progress"],
         "report": ["report", str(out), "--out", str(tmp_path / "r.html")],
     }[command]
-    assert kilonet.cli.main(argv) == 2
+    assert kilonet.app.cli.main(argv) == 2
     err = capsys.readouterr().err
     _one_line_error(err, f"{out / DB_NAME}: not a readable sweep store")
     assert not (tmp_path / "r.html").exists()
@@ -98,11 +98,11 @@ def test_an_edited_digit_in_a_summary_is_refused_not_reported(tmp_path, finished
         figures = json.loads(summary)
         figures["messages_sent"] += 1
         db.execute("UPDATE runs SET summary = ? WHERE run_id = ?", (json.dumps(figures), run_id))
-    assert kilonet.cli.main(["report", str(out), "--out", str(tmp_path / "r.html")]) == 2
+    assert kilonet.app.cli.main(["report", str(out), "--out", str(tmp_path / "r.html")]) == 2
     _one_line_error(capsys.readouterr().err, f"row of run {run_id} does not match its checksum")
     assert not (tmp_path / "r.html").exists()
     # resuming on top of a changed row is refused too
-    assert kilonet.cli.main(["sweep", "--resume", "--out", str(out), "--no-progress"]) == 2
+    assert kilonet.app.cli.main(["sweep", "--resume", "--out", str(out), "--no-progress"]) == 2
     _one_line_error(capsys.readouterr().err, "does not match its checksum")
 
 
@@ -182,7 +182,8 @@ def test_a_new_sweep_on_a_full_disk_leaves_nothing_behind(tmp_path):
     assert not (tmp_path / "out").exists()
     # with space again the same command works: no half-made store blocks the directory
     assert (
-        kilonet.cli.main(["sweep", str(tmp_path / "s.toml"), "--out", str(tmp_path / "out")]) == 0
+        kilonet.app.cli.main(["sweep", str(tmp_path / "s.toml"), "--out", str(tmp_path / "out")])
+        == 0
     )
 
 
@@ -218,7 +219,7 @@ def test_a_report_on_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, finish
 def test_a_refused_second_sweep_changes_nothing_of_the_running_one(tmp_path, capsys):
     out = tmp_path / "out"
     (tmp_path / "s.toml").write_text(SMALL)
-    assert kilonet.cli.main(["sweep", str(tmp_path / "s.toml"), "--out", str(out)]) == 0
+    assert kilonet.app.cli.main(["sweep", str(tmp_path / "s.toml"), "--out", str(out)]) == 0
     capsys.readouterr()
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     with ResultStore.open(out) as store:
@@ -226,7 +227,7 @@ def test_a_refused_second_sweep_changes_nothing_of_the_running_one(tmp_path, cap
     (tmp_path / "v2.toml").write_text('description = "v2"\n' + SMALL + '[report]\nxscale = "log"\n')
     with lock_directory(out):  # the running sweep
         argv = ["sweep", str(tmp_path / "v2.toml"), "--out", str(out), "--no-progress"]
-        assert kilonet.cli.main(argv) == 2
+        assert kilonet.app.cli.main(argv) == 2
     _one_line_error(capsys.readouterr().err, f"{out} is in use by a running sweep (pid ")
     with ResultStore.open(out) as store:
         assert (store.sweep(), store.source()) == meta_before
@@ -406,7 +407,7 @@ def test_a_cluster_without_workers_stops_the_sweep_with_one_line(tmp_path, capsy
     with LocalCluster(n_workers=0, processes=True, dashboard_address=None) as cluster:
         argv = ["sweep", str(sweep_file), "--out", str(out), "--no-progress"]
         argv += ["--scheduler", cluster.scheduler_address, "--no-workers-timeout", "1.5"]
-        assert kilonet.cli.main(argv) == 1
+        assert kilonet.app.cli.main(argv) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1, err
     assert err.startswith(
@@ -437,7 +438,7 @@ def test_worker_watch_resets_when_workers_come_back():
 def test_no_workers_timeout_must_be_positive(tmp_path, capsys, value):
     (tmp_path / "s.toml").write_text(SMALL)
     argv = ["sweep", str(tmp_path / "s.toml"), "--out", str(tmp_path / "out")]
-    assert kilonet.cli.main([*argv, "--no-workers-timeout", value]) == 2
+    assert kilonet.app.cli.main([*argv, "--no-workers-timeout", value]) == 2
     _one_line_error(capsys.readouterr().err, "--no-workers-timeout must be a number of seconds")
     assert not (tmp_path / "out").exists()
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from kilonet import scenarios
-from kilonet.cli import main
+from kilonet.app.cli import main
 from kilonet.placement import validate_positions
 from kilonet.scenarios.analyze import predict
 from kilonet.scenarios.base import build_params, place

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from kilonet.cli import UsageError
+from kilonet.errors import UsageError
 
 __all__ = ["animate_after_run", "register"]
 

@@ -27,14 +27,10 @@ from typing import Any
 from kilonet import __version__
 from kilonet.errors import UserError, one_line
 
-__all__ = ["COMMANDS", "CommandParser", "UsageError", "main"]
+__all__ = ["COMMANDS", "CommandParser", "main"]
 
 #: Entry-point group of the sub-commands.
 COMMANDS = "kilonet.commands"
-
-
-class UsageError(UserError):
-    """A command-line option or argument the user must change (exit status 2)."""
 
 
 class CommandParser(argparse.ArgumentParser):

@@ -35,8 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from kilonet import scenarios
-from kilonet.cli import UsageError
-from kilonet.errors import UserError
+from kilonet.errors import UsageError, UserError
 from kilonet.params import ParamError, Params, describe
 from kilonet.scenarios.base import Scenario, ScenarioOption, build_params, json_safe
 from kilonet.scenarios.progress import MODES
@@ -154,16 +153,17 @@ def _owners() -> dict[str, list[tuple[Scenario, ScenarioOption]]]:
     owners: dict[str, list[tuple[Scenario, ScenarioOption]]] = {}
     for name in scenarios.names():
         scenario = scenarios.get(name)
-        for option in scenario.options:
+        for option in scenario.setup.options:
             owners.setdefault(option.flag, []).append((scenario, option))
     return owners
 
 
 def _field_of(scenario: Scenario, key: str):
     section, _, name = key.partition(".")
-    if scenario.section is None or getattr(scenario.section, "section_name", "") != section:
+    own = scenario.setup.section
+    if own is None or getattr(own, "section_name", "") != section:
         raise TypeError(f"scenario {scenario.name}: option key {key!r} is not in its section")
-    return next(f for f in fields(scenario.section) if f.name == name)
+    return next(f for f in fields(own) if f.name == name)
 
 
 def _add_scenario_options(run: argparse.ArgumentParser) -> None:
@@ -173,7 +173,7 @@ def _add_scenario_options(run: argparse.ArgumentParser) -> None:
         for scenario, option in declared:
             f = _field_of(scenario, option.key)
             helps.append(f"{scenario.name}: {option.help} ({option.key}, default {f.default})")
-            tp = typing.get_type_hints(scenario.section)[f.name]
+            tp = typing.get_type_hints(scenario.setup.section)[f.name]
             if len(declared) == 1 and typing.get_origin(tp) is typing.Literal:
                 choices = list(typing.get_args(tp))
         group.add_argument(flag, dest=_dest(flag), choices=choices, help="; ".join(helps))
@@ -216,7 +216,8 @@ def _parse_set(items: list[str]) -> dict[str, str]:
 
 def run_file_overrides(scenario: Scenario, path: str | Path, overrides: dict[str, Any]) -> None:
     """Check a run file's parameters on their own, so that an error names the file and, for
-    one bad key, its line (``run.toml:4: unknown parameter 'medium.los'; ...``).
+    one bad key, its line (``run.toml:4: unknown parameter 'medium.los'; ...``). ``kilonet
+    run`` calls it only when the run's parameters cannot be built, to say where the fault is.
 
     Raises
     ------
@@ -361,8 +362,6 @@ def _run_command(args: argparse.Namespace) -> int:
     from kilonet.scenarios.progress import StageProgress
 
     scenario, file_overrides, run_file = _resolve(args)
-    if run_file is not None:
-        run_file_overrides(scenario, run_file, file_overrides)
     given = _parse_set(args.set)
     if args.program is not None:  # program.* keys are the program's own settings (_resolve)
         given = {k: v for k, v in given.items() if not k.startswith("program.")}
@@ -378,7 +377,7 @@ def _run_command(args: argparse.Namespace) -> int:
     if args.replace and args.out is None:
         raise UsageError("--replace needs --out DIR: it replaces that directory")
     _check_placement(args)
-    params = build_params(scenario, overrides, seed=args.seed)  # every value, before the run
+    params = _run_params(scenario, overrides, args, run_file, file_overrides)
     check_watchdog_s(args.watchdog, "--watchdog")
     if args.program is not None and args.placement is None and not params.placement.robots:
         raise UsageError("--program needs --placement F.csv or --robots N (a hex lattice)")
@@ -386,9 +385,7 @@ def _run_command(args: argparse.Namespace) -> int:
     reserved = OutputDir(args.out, replace=args.replace) if args.out is not None else None
     failed: AfterRunError | None = None  # a step after the run, reported after its summary
     with reserved or nullcontext() as out:
-        result = _guarded(args)(
-            scenario, overrides, seed=args.seed, placement=args.placement, progress=progress
-        )
+        result = _guarded(args)(scenario, params, placement=args.placement, progress=progress)
         if args.out is not None:
             with StageProgress(scenario.name, enabled=progress) as display:
                 try:
@@ -422,6 +419,30 @@ def _run_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_params(
+    scenario: Scenario,
+    overrides: dict[str, Any],
+    args: argparse.Namespace,
+    run_file: Path | None,
+    file_overrides: dict[str, Any],
+) -> Params:
+    """The run's parameters, every value checked before the run and built once: the run gets
+    them as they are (:func:`kilonet.scenarios.base.run_with_params`).
+
+    Raises
+    ------
+    ParamError
+        If they cannot be built; a fault of the run file names the file and, for one key, its
+        line (:func:`run_file_overrides`).
+    """
+    try:
+        return build_params(scenario, overrides, seed=args.seed, placement=args.placement)
+    except ParamError:
+        if run_file is not None:
+            run_file_overrides(scenario, run_file, file_overrides)
+        raise
+
+
 def _animator():
     """``kilonet run --animate``'s animator (``kilonet.viz.cli.animate_after_run``): the
     ``gif`` entry point of ``kilonet.animators``. The pictures' layer (``kilonet.viz``) sits
@@ -435,12 +456,12 @@ def _animator():
 
 
 def _guarded(args: argparse.Namespace):
-    """``kilonet.scenarios.base.run`` under the busy-call watchdog (``--watchdog``), with
-    ``print()`` of a program sent to stderr under ``--json``, a Ctrl-C naming the robot and callback
-    it stopped, and a user program's exceptions reported as one-line errors."""
+    """``kilonet.scenarios.base.run_with_params`` under the busy-call watchdog (``--watchdog``),
+    with ``print()`` of a program sent to stderr under ``--json``, a Ctrl-C naming the robot and
+    callback it stopped, and a user program's exceptions reported as one-line errors."""
     from contextlib import ExitStack, redirect_stdout
 
-    from kilonet.scenarios.base import run
+    from kilonet.scenarios.base import run_with_params
     from kilonet.scenarios.program import parse_spec, reported_as_user_errors
     from kilonet.watchdog import busy_watchdog, describe_call, robot_frame
 
@@ -452,7 +473,7 @@ def _guarded(args: argparse.Namespace):
                 stack.enter_context(redirect_stdout(sys.stderr))  # stdout is the JSON's
             stack.enter_context(busy_watchdog(args.watchdog))
             try:
-                return run(*a, **k)
+                return run_with_params(*a, **k)
             except KeyboardInterrupt as exc:
                 tb = exc.__traceback__
                 while tb is not None and tb.tb_next is not None:
