@@ -465,8 +465,7 @@ def test_long_range_success_rate(seeds):
     from kilonet.experiments.studies.follower_measured import CONDITIONS
 
     (what_if,) = (overrides for label, overrides in CONDITIONS if label.startswith("what-if"))
-    table = run_many(
-        range(1, seeds + 1), what_if
-    )  # the 300 mm disc of docs/results/follower.md's table
+    # The 300 mm disc of docs/results/follower.md's table.
+    table = run_many(range(1, seeds + 1), what_if)
     ok = (table["outcome"] == "reached") & (table["final_distance_mm"] <= 10.0)
     assert ok.mean() >= 0.95
