@@ -16,3 +16,12 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 # them, and NumPy's compiled modules cannot be loaded twice: load SciPy's spatial module (and
 # the NumPy parts it pulls in) once, up front.
 import scipy.spatial  # noqa: E402, F401
+
+
+def pytest_configure(config) -> None:
+    """Register ``twin_of``: the default-tier twin of a slow test (tests/test_slow_twins.py)."""
+    config.addinivalue_line(
+        "markers",
+        "twin_of(name): this default-tier test makes the assertions of the slow test `name` "
+        "(same file) on a smaller run (docs/testing.md, 'Slow tests and their twins')",
+    )

@@ -149,9 +149,16 @@ def test_a_run_ended_by_a_signal_leaves_nothing(tmp_path, signame):
     assert not (tmp_path / "runs").exists()
 
 
-@pytest.mark.slow
-def test_the_default_run_reports_no_split_beside_one_frame(capsys):
-    assert main(["run", "--json"]) == 0
+@pytest.mark.parametrize(
+    "robots",
+    [
+        pytest.param([], marks=pytest.mark.slow, id="default"),
+        # The default tier's twin: 40 robots also end in one frame beside isolated seeds.
+        pytest.param(["--robots", "40"], id="40"),
+    ],
+)
+def test_the_default_run_reports_no_split_beside_one_frame(robots, capsys):
+    assert main(["run", *robots, "--json"]) == 0
     summary = __import__("json").loads(capsys.readouterr().out)
     assert summary["frames"] == 1 and summary["failures"]["isolated_seeds"]
     assert summary["failures"]["split_frames"] == 0

@@ -445,22 +445,27 @@ def test_start_heading_in_the_trajectory_is_the_true_one():
 # ---------------------------------------------------------------------- the claims
 
 
-@pytest.mark.slow
-def test_real_medium_success_rate():
+# The default tier's twins run the first seeds of each claim's hundred (about 0.4 s of CPU a
+# seed): 9 of 10 on the fitted medium (seed 8 misses), 5 of 5 on the 300 mm disc.
+
+
+@pytest.mark.parametrize("seeds", [pytest.param(100, marks=pytest.mark.slow), 10])
+def test_real_medium_success_rate(seeds):
     # docs/results/follower.md's second row. On the fitted medium each link keeps a systematic
     # ranging error of about 2 mm and the frame ranges only to 100 mm: 92 % of these seeds,
     # where the 85 mm disc with iid noise gave 97 %.
-    table = run_many(range(1, 101), {"medium.loss_prob": 0.1})
+    table = run_many(range(1, seeds + 1), {"medium.loss_prob": 0.1})
     ok = (table["outcome"] == "reached") & (table["final_distance_mm"] <= 8.0)
     assert ok.mean() >= 0.90
     assert table["mirrored_frame_true"].any() and (~table["mirrored_frame_true"]).any()
 
 
-@pytest.mark.slow
-def test_long_range_success_rate():
+@pytest.mark.parametrize("seeds", [pytest.param(100, marks=pytest.mark.slow), 5])
+def test_long_range_success_rate(seeds):
     from kilonet.experiments.studies.follower_measured import CONDITIONS
 
     (what_if,) = (overrides for label, overrides in CONDITIONS if label.startswith("what-if"))
-    table = run_many(range(1, 101), what_if)  # the 300 mm disc of docs/results/follower.md's table
+    # The 300 mm disc of docs/results/follower.md's table.
+    table = run_many(range(1, seeds + 1), what_if)
     ok = (table["outcome"] == "reached") & (table["final_distance_mm"] <= 10.0)
     assert ok.mean() >= 0.95

@@ -8,7 +8,6 @@ import pytest
 from kilonet.experiments.studies.gcs_measured import THIN_DEG, gcs_run
 
 
-@pytest.mark.slow
 @pytest.mark.xfail(
     strict=True,
     reason="issue-29 medium: 6 of the 7 isolated seeds (seed 1) have references >= THIN_DEG; "

@@ -456,6 +456,7 @@ _FUZZ = {
 }
 
 
+@pytest.mark.twin_of("test_cli_fuzz_campaign")
 @settings(max_examples=40, **_FUZZ)
 @given(CASES)
 def test_cli_fuzz(case):

@@ -35,6 +35,19 @@ def run(lab: str, program: type[Kilobot], *, seed: int = 1, **overrides):
     return sim
 
 
+def over_seeds(short_s: float | None = None) -> list:
+    """``(seed, duration_s)`` for the over-seeds claims: seeds 2-6 at the lab's full length
+    (slow), and seed 2 in the default tier as their twin, cut to ``short_s`` simulated seconds
+    where the claim already holds by then (None: the full length)."""
+    slow = [pytest.param(seed, None, marks=pytest.mark.slow) for seed in (2, 3, 4, 5, 6)]
+    return [*slow, pytest.param(2, short_s, id=f"2-{short_s or 'full'}-twin")]
+
+
+def lasting(duration_s: float | None) -> dict:
+    """The run's overrides for a length in simulated seconds (None: the lab's own)."""
+    return {} if duration_s is None else {"duration_s": duration_s}
+
+
 # -------------------------------------------------------------------------------- measures
 
 
@@ -212,15 +225,15 @@ def test_orbit_planet_circles_the_star_at_the_desired_distance():
     assert planet["distance_p5_mm"] > 48.0 and planet["distance_p95_mm"] < 72.0
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", [2, 3, 4, 5, 6])
-def test_orbit_over_seeds(seed):
-    (planet,) = measures.orbit(run("orbit", Orbit, seed=seed)).values()
+@pytest.mark.parametrize(("seed", "duration_s"), over_seeds())
+def test_orbit_over_seeds(seed, duration_s):
+    (planet,) = measures.orbit(run("orbit", Orbit, seed=seed, **lasting(duration_s))).values()
     assert planet["laps_clockwise"] >= 5.0
     assert planet["distance_mean_mm"] == pytest.approx(DESIRED_DISTANCE, abs=3.0)
     assert planet["distance_p5_mm"] > 48.0 and planet["distance_p95_mm"] < 72.0
 
 
+@pytest.mark.twin_of("test_disperse_over_seeds")
 def test_disperse_ends_with_nobody_in_range_of_anybody():
     sim = run("disperse", Disperse)
     figures = measures.disperse(sim)
@@ -232,6 +245,7 @@ def test_disperse_ends_with_nobody_in_range_of_anybody():
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [2, 3, 4, 5, 6])
 def test_disperse_over_seeds(seed):
+    # Its twin is the seed-1 test above (the same assertions; a run takes 9 s of CPU).
     figures = measures.disperse(run("disperse", Disperse, seed=seed))
     assert figures["alone"] == 20 and figures["still_moving"] == 0
 
@@ -245,10 +259,10 @@ def test_move_to_light_gets_closer_to_the_light():
         assert robot["within_50_mm_at_s"] < 35.0
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", [2, 3, 4, 5, 6])
-def test_move_to_light_over_seeds(seed):
-    for robot in measures.move_to_light(run("move_to_light", MoveToLight, seed=seed)).values():
+@pytest.mark.parametrize(("seed", "duration_s"), over_seeds(short_s=40.0))
+def test_move_to_light_over_seeds(seed, duration_s):
+    sim = run("move_to_light", MoveToLight, seed=seed, **lasting(duration_s))
+    for robot in measures.move_to_light(sim).values():
         assert robot["end_mm"] < 50.0 and robot["within_50_mm_at_s"] < 40.0
 
 
@@ -272,18 +286,17 @@ def test_sync_flashes_fall_together_with_drifting_clocks():
     assert figures["moved_mean_mm"] == 0.0
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", [2, 3, 4, 5, 6])
-def test_sync_over_seeds(seed):
-    figures = measures.sync(run("sync", Sync, seed=seed))
+@pytest.mark.parametrize(("seed", "duration_s"), over_seeds(short_s=90.0))
+def test_sync_over_seeds(seed, duration_s):
+    figures = measures.sync(run("sync", Sync, seed=seed, **lasting(duration_s)))
     assert figures["spread_start_s"] > 0.6
     assert figures["spread_end_s"] < 0.45 and figures["end_over_start"] < 0.45
 
 
-@pytest.mark.slow
-def test_sync_is_tighter_when_every_robot_hears_every_other():
+@pytest.mark.parametrize("duration_s", [pytest.param(None, marks=pytest.mark.slow), 90.0])
+def test_sync_is_tighter_when_every_robot_hears_every_other(duration_s):
     """sync.c's adjustment is the summed discrepancy over 120 per period: with all 18
     neighbours in range (the table's reach in ARGoS's data, 14 cm) it corrects more per
-    period, and the flashes fall closer together."""
-    figures = measures.sync(run("sync", Sync, **{"medium.range_mm": 140.0}))
+    period, and the flashes fall closer together (the default tier's twin: by 90 s)."""
+    figures = measures.sync(run("sync", Sync, **{"medium.range_mm": 140.0}, **lasting(duration_s)))
     assert figures["spread_end_s"] < 0.25

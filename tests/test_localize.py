@@ -969,22 +969,37 @@ REAL_MEDIUM_MISSES = pytest.mark.xfail(
 )
 
 
-@pytest.mark.slow
+#: The default tier's twins of the two tests below: smaller random swarms miss the same
+#: targets (seed 1: 40 robots end at done_over_hop_limit 29.2, 31.1 with 20 % loss; 60 robots
+#: with loss 38.3), so they stay strict xfails.
+SMALL_RANDOM_SWARM = 40
+
+
 @REAL_MEDIUM_MISSES
-@pytest.mark.parametrize("loss", [0.0, 0.2])
-@pytest.mark.parametrize("seed", [1, 3, 5])
-def test_random_placements_reach_the_targets(seed, loss):
-    s = run(150, seed, **{"placement.kind": "random", "medium.loss_prob": loss}).summary
+@pytest.mark.parametrize(
+    ("robots", "seed", "loss"),
+    [
+        *(
+            pytest.param(150, seed, loss, marks=pytest.mark.slow)
+            for seed in (1, 3, 5)
+            for loss in (0.0, 0.2)
+        ),
+        (SMALL_RANDOM_SWARM, 1, 0.0),
+        (SMALL_RANDOM_SWARM, 1, 0.2),
+    ],
+)
+def test_random_placements_reach_the_targets(robots, seed, loss):
+    s = run(robots, seed, **{"placement.kind": "random", "medium.loss_prob": loss}).summary
     assert s["mean_neighbours"] >= 6
     assert s["at_optimum_over_central"] >= 0.95
     assert s["rmse_over_crlb"] <= 1.5
     assert s["done_over_hop_limit"] <= 20
 
 
-@pytest.mark.slow
 @REAL_MEDIUM_MISSES
-def test_300_random_robots_with_loss_reach_the_targets():
-    s = run(300, 1, **{"placement.kind": "random", "medium.loss_prob": 0.2}).summary
+@pytest.mark.parametrize("robots", [pytest.param(300, marks=pytest.mark.slow), 60])
+def test_random_robots_with_loss_reach_the_targets_in_one_frame(robots):
+    s = run(robots, 1, **{"placement.kind": "random", "medium.loss_prob": 0.2}).summary
     assert s["frames"] == 1
     assert s["at_optimum_over_central"] >= 0.95
     assert s["rmse_over_crlb"] <= 1.5

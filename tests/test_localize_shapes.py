@@ -2,7 +2,8 @@
 corridors (coordinates beyond one int16 field), sparse random swarms and non-convex C shapes.
 
 The coordinate rules and small runs are in the default suite; the issue's swarms (300–600
-robots, with and without loss) are marked slow (``pytest -m slow``).
+robots, with and without loss) are marked slow (``pytest -m slow``), each beside a smaller
+default-tier twin with its assertions.
 """
 
 from __future__ import annotations
@@ -241,15 +242,23 @@ def _reference_is_the_optimum(result):
         assert cost <= float((residuals(from_truth) ** 2).sum()) * (1 + 1e-4)
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize(
-    ("seed", "loss"),
+    ("robots", "seed", "loss"),
     [
-        *((seed, loss) for seed in (1, 2, 3, 4) for loss in (0.0, 0.2)),
+        *(
+            pytest.param(400, seed, loss, marks=pytest.mark.slow)
+            for seed in (1, 2, 3, 4)
+            for loss in (0.0, 0.2)
+        ),
+        # The default tier's twin. 40 robots are too few: the disc's edge thins them to 5.75
+        # neighbours (seed 1). 60 robots hold every claim; without loss their central
+        # reference costs 11 s of CPU, with loss 1 s.
+        (60, 1, 0.2),
     ],
 )
-def test_sparse_swarms_reach_the_central_reference(seed, loss):
-    s = scenarios.run(LOCALIZE, {**SPARSE, "medium.loss_prob": loss}, seed=seed).summary
+def test_sparse_swarms_reach_the_central_reference(robots, seed, loss):
+    overrides = {**SPARSE, "placement.robots": robots, "medium.loss_prob": loss}
+    s = scenarios.run(LOCALIZE, overrides, seed=seed).summary
     assert 6.0 <= s["mean_neighbours"] <= 7.5
     assert s["frames"] == 1
     # The issue's measure: the largest frame places at the optimum at least 95 % of the
@@ -318,9 +327,14 @@ def _reaches_the_root(sim) -> float:
     return reached / len(robots)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", [1, 2, 3])
-def test_the_issues_corridor_runs_to_the_end_in_one_frame(seed):
+@pytest.mark.parametrize(
+    ("robots", "length_mm", "seed"),
+    [
+        *(pytest.param(600, 5000.0, seed, marks=pytest.mark.slow) for seed in (1, 2, 3)),
+        (120, 1000.0, 1),  # the default tier's twin: the same density, a fifth of the length
+    ],
+)
+def test_the_issues_corridor_runs_to_the_end_in_one_frame(robots, length_mm, seed):
     # 600 robots, 5 m x 0.2 m: the corridor whose runs ended in a PayloadError. Seed 3 then
     # ended with 131 robots unplaced (localized 0.78, DONE at 42.4 s while the front was
     # 2.8 m out: robots hung below parent cycles; test_localize_corridor.py). Seed 2 twisted
@@ -332,7 +346,7 @@ def test_the_issues_corridor_runs_to_the_end_in_one_frame(seed):
     # 5 mm apart (docs/localize.md, Limits).
     from kilonet.scenarios.placement import corridor
 
-    positions = corridor(600, length_mm=5000.0, width_mm=200.0, rng=np.random.default_rng(5))
+    positions = corridor(robots, length_mm=length_mm, width_mm=200.0, rng=np.random.default_rng(5))
     result = scenarios.run(LOCALIZE, {}, seed=seed, placement=positions)
     s = result.summary
     _sound(s)
@@ -340,18 +354,23 @@ def test_the_issues_corridor_runs_to_the_end_in_one_frame(seed):
     assert s["localized_fraction"] >= 0.95
     assert s["misplaced_fixes"] == {}
     assert _reaches_the_root(result.sim) >= 0.95
-    assert sum(s["unplaced_why"].values()) == round(600 * (1 - s["localized_fraction"]))
+    assert sum(s["unplaced_why"].values()) == round(robots * (1 - s["localized_fraction"]))
     _reference_is_the_optimum(result)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", [1, 2, 3])
-def test_the_studys_corridor_is_placed_to_its_far_end(seed):
+@pytest.mark.parametrize(
+    ("robots", "length_mm", "seed"),
+    [
+        *(pytest.param(400, 3400.0, seed, marks=pytest.mark.slow) for seed in (1, 2, 3)),
+        (80, 680.0, 1),  # the default tier's twin: the same density, a fifth of the length
+    ],
+)
+def test_the_studys_corridor_is_placed_to_its_far_end(robots, length_mm, seed):
     overrides = {
         "placement.kind": "corridor",
-        "placement.length_mm": 3400.0,
+        "placement.length_mm": length_mm,
         "placement.width_mm": 200.0,
-        "placement.robots": 400,
+        "placement.robots": robots,
     }
     s = scenarios.run(LOCALIZE, overrides, seed=seed).summary
     _sound(s)
@@ -379,13 +398,20 @@ def test_a_frame_grows_past_one_coordinate_field():
     assert s["misplaced_fixes"] == {}
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", [1, 2])
-def test_a_c_shape_localizes_and_its_reference_is_the_optimum(seed):
+@pytest.mark.parametrize(
+    ("robots", "outer_mm", "inner_mm", "seed"),
+    [
+        *(pytest.param(300, 700.0, 450.0, seed, marks=pytest.mark.slow) for seed in (1, 2)),
+        # The default tier's twin, denser (683 robots/m² against 443): at the issue's density
+        # a small C (75 robots, radii 350 and 225 mm, seed 1) places only 77 % at the optimum.
+        (90, 280.0, 150.0, 1),
+    ],
+)
+def test_a_c_shape_localizes_and_its_reference_is_the_optimum(robots, outer_mm, inner_mm, seed):
     from kilonet.scenarios.placement import c_shape
 
     positions = c_shape(
-        300, outer_radius_mm=700.0, inner_radius_mm=450.0, rng=np.random.default_rng(33)
+        robots, outer_radius_mm=outer_mm, inner_radius_mm=inner_mm, rng=np.random.default_rng(33)
     )
     result = scenarios.run(LOCALIZE, {}, seed=seed, placement=positions)
     s = result.summary

@@ -388,11 +388,13 @@ def test_planner_covers_every_maze_and_beats_the_random_walk_fast():
     assert table.loc["bfs", "mean_steps"] < table.loc["random", "mean_steps"]
 
 
-@pytest.mark.slow
-def test_planner_covers_all_cells_in_50_random_mazes():
-    study = coverage_study(50)
+#: The default tier's twins run 1 maze (a study of 4×4 mazes costs about 2.5 s of CPU a maze,
+#: most of it the random walk's) and 10 runs of the belief filter.
+@pytest.mark.parametrize("mazes", [pytest.param(50, marks=pytest.mark.slow), 1])
+def test_planner_covers_all_cells_in_random_mazes(mazes):
+    study = coverage_study(mazes)
     table = coverage_table(study)
-    assert table.loc["bfs", "covered_all"] == 50
+    assert table.loc["bfs", "covered_all"] == mazes
     assert (study.loc[study["planner"] == "bfs", "cells_visited"] == 16).all()
     assert table.loc["bfs", "mean_steps"] < 0.3 * table.loc["random", "mean_steps"]
 
@@ -408,13 +410,13 @@ def test_belief_accuracy_by_noise_fast():
     assert accurate > 0.9 and noisy < accurate
 
 
-@pytest.mark.slow
-def test_default_sensor_model_localizes_in_90_percent_of_steps_after_the_first_five():
+@pytest.mark.parametrize("runs", [pytest.param(50, marks=pytest.mark.slow), 10])
+def test_default_sensor_model_localizes_in_90_percent_of_steps_after_the_first_five(runs):
     default = MazeParams()
     assert default.wall_p_open == 0.7  # the seed's p(z=0 | s=0)
     assert default.filter_table == (default.wall_p_open, default.wall_p_wall)
-    frame, _fig = belief_accuracy_by_noise(((default.wall_p_open, default.wall_p_wall),), runs=50)
-    assert frame.loc[frame["step"] == 0, "runs"].item() == 50
+    frame, _fig = belief_accuracy_by_noise(((default.wall_p_open, default.wall_p_wall),), runs=runs)
+    assert frame.loc[frame["step"] == 0, "runs"].item() == runs
     summary = belief_accuracy_summary(frame, burn_in_steps=5)
     assert summary["p_correct_after_burn_in"].item() >= 0.9
 

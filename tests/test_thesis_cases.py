@@ -152,7 +152,6 @@ def test_cli_unknown_placement_lists_the_names(capsys):
     assert "thesis-7.1z" in err and all(name in err for name in NAMED_PLACEMENTS)
 
 
-@pytest.mark.slow
 def test_7_1c_full_run_ends_with_two_global_frames():
     result = scenarios.run(GCS, {}, seed=1, placement="thesis-7.1c")
     assert result.summary["localized_fraction"] == 1.0
