@@ -77,8 +77,8 @@ PHASE_SEQUENCE: tuple[type[Phase], ...] = (
     FrameMerging,
     GlobalRefinement,
 )
-#: gcs_base.sender_of without its Python call: every reception reads the sender, and the call
-#: showed in a run's instruction count (docs/gcs.md, "Speed").
+#: gcs_base.sender_of without its Python call: every reception reads the sender, so the call
+#: would sit on the path of every reception (docs/gcs.md, "Speed").
 _read_sender = SENDER.unpack_from
 #: What a recovery epoch runs: edge seeds, then phases 3-6 again (and the refinement after them
 #: when the run refines, :func:`phase_sequence`).

@@ -49,8 +49,8 @@ def settled_at(
     The settled wave needs every robot of a subtree settled at once. On kilolib's ranging the
     distances a robot fits keep changing by tenths of a millimetre (new samples, new reports
     of the far end's mean), and a robot that has converged still creeps past ``settle_mm``
-    over a window now and then: each such moment broke the wave, and a swarm placed in
-    20 s ran until ``settle_timeout_s`` (120 s).
+    over a window now and then: without hysteresis each such moment would break the wave,
+    and a swarm long placed would run until ``settle_timeout_s``.
 
     Examples
     --------

@@ -208,8 +208,8 @@ class Island:
         neighbour); it joins at once if two unplaced neighbours hear each other. A robot
         placed moments before DONE reached it, and not yet settled, stays awake too and
         finishes as a placed member does (:meth:`finished`): a robot placed after the root's
-        DONE, from an island's new positions, heard DONE a round later and froze two
-        refinement steps after its fix, 14 mm from where its four neighbours put it."""
+        DONE, from an island's new positions, hears DONE a round later, and frozen then it would
+        keep a fix only a refinement step or two old."""
         r = self.robot
         self.unplaced_near = any(n.x_mm is None for n in fresh)
         if self.reports.capacity == 0:

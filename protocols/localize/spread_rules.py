@@ -31,7 +31,7 @@ have one (their announced positions, the distances both ends agree on):
    whenever those do or the candidates lapse.
 3. *Anchors and neighbours' candidates* (off unless ``localize.max_candidate_neighbours`` is
    set: a candidate from two anchors carries their errors magnified, and on kilolib's ranging,
-   with a systematic error on every link, the rule chose mirror images that folded sparse
+   with a systematic error on every link, the rule chooses mirror images that fold sparse
    frames; docs/localize.md): a robot combines its anchors with the candidate pairs
    of up to ``localize.max_candidate_neighbours`` neighbours and tries every choice of one
    candidate each (:func:`fix_with_candidates`); a pair mirrored across (nearly) the robot's
@@ -218,10 +218,10 @@ def candidate_version(
     ``last_version`` only while the robot holds candidates from the same ordered ``pair``
     without a break (``held_pair``: the pair of the candidates it holds now, None when it holds
     none), and otherwise moves on from the last version it ever announced (``last_version``,
-    -1 for none), modulo 256 — never back to a number that named another pair's sides. Before,
-    a robot whose candidates lapsed (a third anchor for a moment, one anchor gone stale) began
-    again at 0, and votes cast for an earlier pair's version 0 chose a side of the new pair's
-    line: the vote that folded a sparse swarm and a C (docs/localize.md, rule 4).
+    -1 for none), modulo 256 — never back to a number that named another pair's sides: a
+    robot whose candidates lapse (a third anchor for a moment, one anchor gone stale) and
+    come back from another pair must not take votes cast for the earlier pair's version,
+    which choose a side of another line (docs/localize.md, rule 4).
 
     Examples
     --------
