@@ -300,7 +300,9 @@ class InfraredMedium:
 
     # -- topology ----------------------------------------------------------------------------
     def rebuild_topology(self) -> None:
-        """Recompute who hears whom from the world's present positions and running robots."""
+        """Recompute who hears whom from the world's present positions and running robots;
+        a sender whose links stay as they were keeps its lists and the outcomes drawn ahead
+        for them (a moving robot changes only its own links and its neighbours')."""
         world = self._world
         links = self.link_model.links(world.positions_mm, world.present)
         sender = np.concatenate([links.i, links.j])
@@ -316,12 +318,21 @@ class InfraredMedium:
         if self.link_model.occlusion == "graded":  # each body crossed shortens the reach
             reach = reach * self.link_model.range_factor ** bodies[keep][order]
         cuts = np.searchsorted(sender, np.arange(self.n + 1))[1:-1]
-        self._link_r = np.split(receiver, cuts)
-        self._link_d = np.split(dist, cuts)
-        self._link_reach = np.split(reach, cuts)
-        self._link_loss = np.split(loss, cuts)
+        links = [np.split(a, cuts) for a in (receiver, dist, reach, loss)]
+        before = self._link_r, self._link_d, self._link_reach, self._link_loss
+        self._link_r, self._link_d, self._link_reach, self._link_loss = links
+        if not before[0]:  # the first build
+            for s in range(self.n):
+                self._derive(s)
+            return
         for s in range(self.n):
-            self._derive(s)
+            if not all(
+                np.array_equal(new[s], old[s]) for new, old in zip(links, before, strict=True)
+            ):
+                # A sender whose links change at every step of a robot's motion uses one row
+                # of a block: draw blocks from small again.
+                self._refill_rows[s] = 1
+                self._derive(s)
 
     def _derive(self, s: int) -> None:
         """Rebuild sender ``s``'s receiver, distance and handler lists; drop its drawn rows."""

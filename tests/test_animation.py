@@ -520,9 +520,16 @@ def test_a_real_run_records_what_robots_held_without_changing_the_run(tmp_path: 
         pd.testing.assert_frame_equal(
             quiet.sim.trace.frames()[name], sampled.sim.trace.frames()[name]
         )
-    assert {k: v for k, v in quiet.summary.items() if k != "wall_time_s"} == {
-        k: v for k, v in sampled.summary.items() if k != "wall_time_s"
+    # The run is the same bit for bit (the frames above); the centralized solver that scores
+    # it after the run may differ in the last digits (NumPy's SIMD sums depend on how arrays
+    # happen to be aligned in memory).
+    scored = {k for k in quiet.summary if k.startswith("central_") or k.endswith("_central")}
+    assert {k: v for k, v in quiet.summary.items() if k not in scored | {"wall_time_s"}} == {
+        k: v for k, v in sampled.summary.items() if k not in scored | {"wall_time_s"}
     }
+    assert {k: quiet.summary[k] for k in scored} == pytest.approx(
+        {k: sampled.summary[k] for k in scored}, rel=1e-6
+    )
     # Samples start at 0 s, one a second, and one where the run stopped: the last row of each
     # robot is what it ended with (within the recording threshold), in robots.csv's frame.
     end = sampled.sim.env.now
