@@ -395,9 +395,9 @@ def central_reference(
     A robot counts as localized when the solver places it right among its neighbours
     (:func:`neighbourhood_errors` at most ``within_mm``), not when it lies near the truth after
     one alignment of the whole swarm: on a long or bent shape the measurements' own errors
-    bend the optimum itself by more than any local test (a 3.4 m corridor: 15 mm RMSE with
-    a Cramér–Rao bound of 14.6 mm), and the whole-swarm test then says the solver localized a
-    few per cent of robots it placed exactly where the measurements put them.
+    bend the optimum itself by more than any local test (on a corridor the Cramér–Rao bound
+    itself grows to the order of the RMSE), and the whole-swarm test would then call robots
+    unlocalized that the solver placed exactly where the measurements put them.
 
     Parameters
     ----------

@@ -29,9 +29,9 @@ if TYPE_CHECKING:
 __all__ = ["MISPLACED_MM", "frame_handedness", "placement_errors"]
 
 #: A fix farther than this from where its references' truth puts it counts as misplaced, mm.
-#: A right fix is off by its anchors' own relative errors: a few millimetres, up to about
-#: 25 mm from three anchors placed moments before and not yet refined. A mirror image lies
-#: twice the robot's height above its anchors' line from the right place.
+#: A right fix is off by its anchors' own relative errors, which are largest for anchors placed
+#: moments before and not yet refined. A mirror image lies twice the robot's height above its
+#: anchors' line from the right place.
 MISPLACED_MM = 30.0
 
 

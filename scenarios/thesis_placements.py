@@ -114,9 +114,8 @@ def thesis_7_1a() -> np.ndarray:
     never located, whoever is elected: it cannot trilaterate (it sees no third robot), no seed
     can take it as a reference, and if it is elected itself it has no pair of references and
     builds no frame (it is then also listed as an isolated seed). The robots it sees are
-    located in the lattice's frames, as in the figure. Measured with ``kilonet analyze``'s
-    prediction for run seeds 1-100: robots 0 and 1, and only they, cannot be located in all
-    100; the lattice's frames merge into one in 94.
+    located in the lattice's frames, as in the figure (``kilonet analyze`` predicts it;
+    tests/test_thesis_cases.py checks it).
 
     Returns
     -------
@@ -156,10 +155,9 @@ def thesis_7_1b() -> np.ndarray:
     merge among themselves into one.
 
     The case needs robot 0 to be elected, as the figure takes the seeds as given. It sees only
-    two robots, so as a non-seed it asks for re-elections until both of them are seeds; in the
-    prediction for run seeds 1-100 it was elected 64 times (seed 1, the default, among them)
-    and was then an isolated seed every time, the lattice's frames merging into one in 60 of
-    them. The other 36 times it is a robot that cannot be located (case 1) instead.
+    two robots, so as a non-seed it asks for re-elections until both of them are seeds; when
+    it is elected (as with seed 1, the default) it is an isolated seed, and otherwise it is a
+    robot that cannot be located (case 1) instead.
 
     Returns
     -------
@@ -196,7 +194,7 @@ def thesis_7_1c() -> np.ndarray:
     that square (the other reference, or the members it trilaterates from) — unless it were a
     reference whose partner is from its own square, and then the seed would see two robots
     across. No merging group spans the squares, whoever is elected: two global frames, one
-    per square (predicted for all run seeds 1-100).
+    per square.
     A new seed election at the squares' edges (the thesis's remedy) cannot join them either,
     for the same reason.
 
