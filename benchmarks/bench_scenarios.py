@@ -12,6 +12,8 @@ Rows (``--rows``, all by default):
   4x Kilombo's CPU time. With ``--kilombo DIR`` the reference is Kilombo itself, built from
   that source tree; otherwise it is kilonet's own channel-off run of the workload, and the
   row says so.
+* ``tests``: the README's test command without its install step, ``python -m pytest -n auto``
+  in the repository; its target is 180 s of *wall* time on two cores (a quiet machine).
 
 The command-line rows run in a child process: their CPU time is the child's user + system time
 (``RUSAGE_CHILDREN``), the whole process from interpreter start to exit. The ``kilombo`` row's
@@ -45,7 +47,18 @@ ROOT = Path(__file__).resolve().parent.parent
 CLI_TARGETS_S = {"default": 10.0, "gcs": 60.0, "localize": 20.0}
 #: Target ratio of kilonet's CPU time to Kilombo's on the gradient workload.
 KILOMBO_TARGET_RATIO = 4.0
-ROWS = ("default", "gcs", "localize", "kilombo")
+#: Target wall seconds of the README's test command on two cores.
+TESTS_TARGET_WALL_S = 180.0
+ROWS = ("default", "gcs", "localize", "kilombo", "tests")
+#: Where issue 44 found each row when it was filed (CPU s; the kilombo row a ratio, the tests
+#: row wall s on a quiet machine), printed beside today's figures.
+BEFORE = {
+    "default": "32–40 s",
+    "gcs": "286 s",
+    "localize": "170 s",
+    "kilombo": "7.4–14×",
+    "tests": "~6 min (28 min loaded)",
+}
 
 
 def cli_argv(row: str, robots: int, duration_s: float | None) -> list[str]:
@@ -61,9 +74,9 @@ def cli_argv(row: str, robots: int, duration_s: float | None) -> list[str]:
     return argv
 
 
-def run_cli(argv: list[str]) -> dict:
-    """Run ``python -m kilonet ARGV`` in a child process: its CPU (user + system) and wall
-    seconds, and its exit status.
+def run_cli(argv: list[str], module: str = "kilonet") -> dict:
+    """Run ``python -m MODULE ARGV`` in a child process: its CPU (user + system, the child and
+    its own children) and wall seconds.
 
     Raises
     ------
@@ -73,7 +86,7 @@ def run_cli(argv: list[str]) -> dict:
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     wall = time.perf_counter()
     done = subprocess.run(
-        [sys.executable, "-m", "kilonet", *argv],
+        [sys.executable, "-m", module, *argv],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -83,7 +96,7 @@ def run_cli(argv: list[str]) -> dict:
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
         last = (done.stderr.strip().splitlines() or ["(no stderr)"])[-1]
-        raise RuntimeError(f"kilonet {' '.join(argv)}: exit {done.returncode}: {last}")
+        raise RuntimeError(f"{module} {' '.join(argv)}: exit {done.returncode}: {last}")
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return {"cpu_s": round(cpu, 3), "wall_s": round(wall, 3)}
 
@@ -100,6 +113,19 @@ def cli_row(row: str, robots: int, duration_s: float | None) -> dict:
         **figures,
         "target_cpu_s": target,
         "ratio": round(figures["cpu_s"] / target, 3),
+    }
+
+
+def tests_row() -> dict:
+    """The README's test command (less its install step): wall and CPU seconds, target wall."""
+    argv = ["-n", "auto", "-q", "-p", "no:cacheprovider"]
+    figures = run_cli(argv, module="pytest")
+    return {
+        "row": "tests",
+        "command": "python -m pytest " + " ".join(argv),
+        **figures,
+        "target_wall_s": TESTS_TARGET_WALL_S,
+        "ratio": round(figures["wall_s"] / TESTS_TARGET_WALL_S, 3),
     }
 
 
@@ -139,6 +165,8 @@ def plan(rows: list[str], sizes: list[int], args: argparse.Namespace) -> list[Ca
             calls.append(lambda: cli_row("default", 100, args.duration))
         elif row == "kilombo":
             calls += [lambda n=n: kilombo_row(n, args.kilombo) for n in sizes]
+        elif row == "tests":
+            calls.append(tests_row)
         else:
             calls += [lambda row=row, n=n: cli_row(row, n, args.duration) for n in sizes]
     return calls

@@ -47,3 +47,23 @@ def test_default_row_is_the_readme_run(bench) -> None:
 def test_failed_run_is_one_line_error(bench) -> None:
     with pytest.raises(RuntimeError, match=r"^kilonet run nosuch: exit 2: .*nosuch"):
         bench.run_cli(["run", "nosuch"])
+
+
+def test_tests_row_is_the_readme_test_command_less_its_install(bench, monkeypatch) -> None:
+    readme = (BENCHMARKS.parent / "README.md").read_text()
+    assert "python -m pytest -n auto" in readme
+    seen = []
+    monkeypatch.setattr(
+        bench,
+        "run_cli",
+        lambda argv, module: seen.append((module, argv)) or {"cpu_s": 300.0, "wall_s": 90.0},
+    )
+    row = bench.tests_row()
+    assert seen == [("pytest", ["-n", "auto", "-q", "-p", "no:cacheprovider"])]
+    assert row["command"].startswith("python -m pytest -n auto")
+    assert row["ratio"] == 0.5 and row["target_wall_s"] == 180.0
+
+
+def test_a_failing_child_names_its_module(bench) -> None:
+    with pytest.raises(RuntimeError, match=r"^pytest --no-such-option: exit 4"):
+        bench.run_cli(["--no-such-option"], module="pytest")
