@@ -44,6 +44,7 @@ __all__ = [
     "PUBLICATIONS",
     "STUDY_SWEEPS",
     "Block",
+    "BlockNotMade",
     "Publication",
     "UncommittedCode",
     "blocks_in",
@@ -62,6 +63,10 @@ _BLOCK = re.compile(r"<!-- publish:([\w.-]+) -->\n(.*?)<!-- /publish:\1 -->", re
 #: What publications write: changes there are the publications' own, not uncommitted code.
 #: (Every publication's ``writes`` count too: :func:`code_changes`.)
 OUTPUTS = ("docs/", "experiments/reports/", "README.md")
+
+
+class BlockNotMade(Exception):
+    """A block was asked for with publications none of which makes it."""
 
 
 class UncommittedCode(Exception):
@@ -700,24 +705,31 @@ def publish(
     workers: int | None = None,
     blocks: list[str] | None = None,
 ) -> None:
-    """Make the publications ``names`` (all by default), in registry order; ``docs`` makes only
-    the generated ``blocks`` if they are given (and then only ``docs`` by default).
+    """Make the publications ``names`` (all by default), in registry order; with ``blocks``,
+    only those generated blocks (and by default the publications that make them).
 
     Raises
     ------
     KeyError
         For a name that is not in :data:`PUBLICATIONS`, or a block not in :data:`BLOCKS`.
+    BlockNotMade
+        If a block is asked for beside publications none of which makes it (it would
+        silently not be made).
     UncommittedCode
         If code differs from its commit (:func:`code_changes`): the stamps could not say which
         code made the figures. Nothing is written then.
     """
-    chosen = names or (["docs"] if blocks else list(PUBLICATIONS))
-    for name in chosen:
-        if name not in PUBLICATIONS:
-            raise KeyError(name)
     for name in blocks or []:
         if name not in BLOCKS:
             raise KeyError(name)
+    owners = [_publication_of(BLOCKS[name]) for name in blocks or []]
+    chosen = names or (sorted(set(owners)) if blocks else list(PUBLICATIONS))
+    for name in chosen:
+        if name not in PUBLICATIONS:
+            raise KeyError(name)
+    for block, owner in zip(blocks or [], owners, strict=True):
+        if owner not in chosen:
+            raise BlockNotMade(f"block {block!r} is made by publication {owner!r}, not asked for")
     changed = code_changes()
     if changed:
         shown = ", ".join(changed[:5]) + (
@@ -741,7 +753,7 @@ def main(argv: list[str] | None = None) -> int:
         "--block",
         action="append",
         metavar="NAME",
-        help="with docs: make only this generated block (repeatable; see BLOCKS)",
+        help="make only this generated block (repeatable; see BLOCKS)",
     )
     args = parser.parse_args(argv)
     if args.list:
@@ -764,7 +776,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         publish(args.names, workers=args.workers, blocks=args.block)
-    except UncommittedCode as exc:
+    except (UncommittedCode, BlockNotMade) as exc:
         print(f"publish: error: {exc}", file=sys.stderr)
         return 2
     return 0

@@ -131,3 +131,13 @@ def test_publishing_from_uncommitted_code_is_refused_before_anything_is_written(
         "so the stamps name the code\n"
     )
     assert made == [] and "old" in page.read_text()
+
+
+def test_a_block_asked_of_a_publication_that_does_not_make_it_is_refused(capsys):
+    with pytest.raises(
+        publish.BlockNotMade, match="'scenario-targets' is made by publication 'performance'"
+    ):
+        publish.publish(["docs"], blocks=["scenario-targets"])
+    assert publish.main(["docs", "--block", "scenario-targets"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("publish: error: block 'scenario-targets'") and err.count("\n") == 1
