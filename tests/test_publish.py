@@ -141,3 +141,29 @@ def test_a_block_asked_of_a_publication_that_does_not_make_it_is_refused(capsys)
     assert publish.main(["docs", "--block", "scenario-targets"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("publish: error: block 'scenario-targets'") and err.count("\n") == 1
+
+
+def test_the_scenario_targets_block_formats_every_kind_of_row(monkeypatch):
+    import types
+
+    rows = [
+        {"row": "gcs", "command": "kilonet run gcs --robots 1000 --quiet", "cpu_s": 454.2,
+         "target_cpu_s": 60.0, "ratio": 7.57},
+        {"row": "kilombo", "robots": 1000, "ratio_to_reference": 1.0,
+         "reference": "kilonet_channel_off", "target_ratio": 4.0, "ratio": 0.25},
+        {"row": "tests", "command": "python -m pytest -n auto", "wall_s": 135.0,
+         "target_wall_s": 180.0, "ratio": 0.75},
+    ]  # fmt: skip
+    fake = types.SimpleNamespace(
+        ROWS=("gcs", "kilombo", "tests"),
+        BEFORE={"gcs": "286 s", "kilombo": "7.4–14×", "tests": "~6 min"},
+        plan=lambda names, sizes, args: [lambda r=r: r for r in rows],
+    )
+    monkeypatch.setattr(publish, "_benchmark", lambda name: fake)
+    table = publish._scenario_targets_block(None).splitlines()
+    assert table[2] == "| `kilonet run gcs --robots 1000 --quiet` | 286 s | 454.2 s | ≤ 60 s | no |"
+    assert table[3] == (
+        "| Kilombo's gradient workload, 1,000 robots | 7.4–14× | 1.0× (kilonet channel off) "
+        "| ≤ 4× | yes |"
+    )
+    assert table[4] == "| `python -m pytest -n auto` | ~6 min | 135 s wall | ≤ 180 s wall | yes |"
