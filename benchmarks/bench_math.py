@@ -203,14 +203,20 @@ def crlb_seconds(n: int) -> tuple[float, float]:
     return cholesky_s, eig_s
 
 
-def gcs_calls() -> dict[str, int]:
-    """How many times ``kilonet run gcs --seed 1`` calls each counted function."""
+def gcs_argv(robots: int | None = None) -> list[str]:
+    """The gcs run whose calls are counted: ``kilonet run gcs --seed 1``, on ``robots`` robots
+    when given (else the scenario's default)."""
+    return ["run", "gcs", "--seed", "1", *([] if robots is None else ["--robots", str(robots)])]
+
+
+def gcs_calls(robots: int | None = None) -> dict[str, int]:
+    """How many times the run :func:`gcs_argv` names calls each counted function."""
     from kilonet.app.cli import main
 
     profile = cProfile.Profile()
     quiet = contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO())
     with tempfile.TemporaryDirectory() as out, quiet[0], quiet[1]:
-        profile.runcall(main, ["run", "gcs", "--seed", "1", "--out", out])
+        profile.runcall(main, [*gcs_argv(robots), "--out", out])
     return {
         name: calls
         for (path, _, name), (_, calls, *_) in pstats.Stats(profile).stats.items()

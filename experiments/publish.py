@@ -469,15 +469,23 @@ def _kilombo_block(context: Context) -> str:
 #: process started with one BLAS thread (OpenBLAS's idle threads spin, and process time counts
 #: them; the thread count is fixed when numpy loads).
 _MATH_FIGURES = (
-    "import json, bench_math as b; "
-    "print(json.dumps({'costs': b.costs(5), 'calls': b.gcs_calls(), 'crlb': b.crlb_seconds(1000)}))"
+    "import json, bench_math as b; print(json.dumps({{'costs': b.costs({repeat}), "
+    "'calls': b.gcs_calls({gcs_robots}), 'crlb': b.crlb_seconds({crlb_robots}), "
+    "'argv': b.gcs_argv({gcs_robots})}}))"
 )
 
 
-def _math_block(context: Context) -> str:
+def _math_block(
+    context: Context, *, repeat: int = 5, crlb_robots: int = 1000, gcs_robots: int | None = None
+) -> str:
+    """The hand-written math against the library route (``benchmarks/bench_math.py``): CPU µs
+    per call, best of ``repeat`` rounds, the calls of a gcs run (on ``gcs_robots`` robots, or
+    the scenario's default), and the bound's CPU seconds on ``crlb_robots`` robots (the
+    published block: 5 rounds, the default run, 1,000 robots)."""
+    script = _MATH_FIGURES.format(repeat=repeat, crlb_robots=crlb_robots, gcs_robots=gcs_robots)
     figures = json.loads(
         subprocess.run(
-            [sys.executable, "-c", _MATH_FIGURES],
+            [sys.executable, "-c", script],
             cwd=ROOT / "benchmarks",
             env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},
             capture_output=True,
@@ -486,7 +494,8 @@ def _math_block(context: Context) -> str:
         ).stdout
     )
     lines = [
-        "| function | hand-written µs | library route µs | calls in `kilonet run gcs --seed 1` |",
+        "| function | hand-written µs | library route µs "
+        f"| calls in `kilonet {' '.join(figures['argv'])}` |",
         "|---|---:|---:|---:|",
     ]
     saved_s, counted = 0.0, set()
@@ -504,8 +513,9 @@ def _math_block(context: Context) -> str:
     lines += [
         "",
         f"Calls × difference: the hand-written versions save {saved_s:.2f} CPU s on that run. "
-        f"`crlb_rmse_mm` on 1,000 robots: {cholesky_s:.2f} CPU s by Cholesky, {eig_s:.2f} s by "
-        "the eigen-decomposition. CPU time per call, best of 5 rounds, one BLAS thread "
+        f"`crlb_rmse_mm` on {crlb_robots:,} robots: {cholesky_s:.2f} CPU s by Cholesky, "
+        f"{eig_s:.2f} s by the eigen-decomposition. CPU time per call, best of {repeat} rounds, "
+        "one BLAS thread "
         "(`OPENBLAS_NUM_THREADS=1 python benchmarks/bench_math.py --calls` prints the same).",
     ]
     return "\n".join(lines)

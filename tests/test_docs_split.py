@@ -63,9 +63,19 @@ def test_every_relative_link_of_a_results_page_points_to_a_shipped_file(page):
             assert (page.parent / target).exists(), f"{page.name} links to a missing {target}"
 
 
-@pytest.mark.slow
-def test_the_math_block_times_every_function_and_counts_the_gcs_runs_calls():
-    lines = publish._math_block(publish.Context(runs=ROOT / "runs", workers=1)).splitlines()
+@pytest.mark.parametrize(
+    ("repeat", "crlb_robots", "gcs_robots"),
+    [pytest.param(5, 1000, None, marks=pytest.mark.slow), (1, 100, 20)],
+    ids=["published", "small"],
+)
+def test_the_math_block_times_every_function_and_counts_the_gcs_runs_calls(
+    repeat, crlb_robots, gcs_robots
+):
+    context = publish.Context(runs=ROOT / "runs", workers=1)
+    sizes = {"repeat": repeat, "crlb_robots": crlb_robots, "gcs_robots": gcs_robots}
+    lines = publish._math_block(context, **sizes).splitlines()
+    robots = "" if gcs_robots is None else f" --robots {gcs_robots}"
+    assert lines[0].endswith(f"| calls in `kilonet run gcs --seed 1{robots}` |")
     rows = [line.split("|")[1:-1] for line in lines if line.startswith("| `")]
     names = [cells[0].strip() for cells in rows]
     assert names[:2] == ["`half_map (3 members)`", "`level_matrix`"] and len(names) == 10
@@ -73,7 +83,8 @@ def test_the_math_block_times_every_function_and_counts_the_gcs_runs_calls():
     calls = {name: cells[3].strip() for name, cells in zip(names, rows, strict=True)}
     assert int(calls["`half_map (3 members)`"].replace(",", "")) > 0
     assert lines[-1].startswith("Calls × difference: the hand-written versions save ")
-    assert "`crlb_rmse_mm` on 1,000 robots: " in lines[-1]
+    assert f"`crlb_rmse_mm` on {crlb_robots:,} robots: " in lines[-1]
+    assert f"best of {repeat} rounds" in lines[-1]
 
 
 def test_the_occlusion_block_reads_the_shipped_argos_runs():

@@ -259,7 +259,6 @@ def test_a_changed_program_does_not_resume_into_its_old_sweep(sweep_file, leader
         assert store.counts()["ok"] == 4
 
 
-@pytest.mark.slow  # a scheduler and two worker processes: about 8 s
 def test_a_program_sweep_on_a_local_dask_cluster(sweep_file, tmp_path, capsys):
     from distributed import LocalCluster
 

@@ -35,15 +35,6 @@ UNTWINNED: dict[str, str] = {
         "at 300 robots per m² smaller discs place too few robots: 60 robots 63, 83 and 83 % "
         "(seeds 1-3), 100 robots 38 % (seed 3), against the floor of 95 %"
     ),
-    "tests/test_docs_split.py::"
-    "test_the_math_block_times_every_function_and_counts_the_gcs_runs_calls": (
-        "the claim is the published block itself, whose sizes (the gcs run's calls, "
-        "crlb_rmse_mm on 1,000 robots) are fixed in kilonet.experiments.publish"
-    ),
-    "tests/test_program_scenario.py::test_a_program_sweep_on_a_local_dask_cluster": (
-        "the claim is that programs reach worker processes: starting the scheduler and two "
-        "processes is the run's cost, and a threaded cluster would not test it"
-    ),
 }
 
 #: A pytest plugin for the collecting subprocess: every collected test, slow or not, its marks.
