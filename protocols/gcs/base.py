@@ -226,3 +226,8 @@ class Phase(BasePhase):
         super().__init_subclass__(**kwargs)
         if not callable(getattr(cls, "window_s", None)):
             raise TypeError(f"phase {cls.__name__} must define window_s(params) -> float")
+
+    def following(self) -> Phase | None:
+        """The next phase of the robot's plan, with its window
+        (:meth:`~kilonet.protocols.gcs.program.GcsRobot.next_phase`)."""
+        return self.robot.next_phase()
