@@ -2,9 +2,10 @@
 runs one stage on one robot, and the driver that holds the running phase.
 
 Every protocol here that runs in stages names them in a :class:`Stage` subclass, in the order
-they run: gcs (:class:`kilonet.protocols.gcs.base.GcsStage`, one :class:`Phase` object per stage,
-run from a window table), ``localize`` (:class:`kilonet.protocols.localize.stages.LocalizeStage`,
-one phase per stage, run by a :class:`PhaseDriver`) and the maze robot
+they run: gcs (:class:`kilonet.protocols.gcs.base.GcsStage`, one :class:`Phase` per stage, each
+in a window, run by a :class:`PhaseDriver`), ``localize``
+(:class:`kilonet.protocols.localize.stages.LocalizeStage`, one phase per stage, run by a
+:class:`PhaseDriver` too) and the maze robot
 (:class:`kilonet.protocols.maze.program.MazeStage`). A member's value is its name:
 the trace, the summaries and the parameters (``gcs.until``) write stages as those strings, and a
 member compares equal to its name.

@@ -25,16 +25,27 @@ recovery epoch: edge seeds (phase ``edges``) and phases 3-6 again (and 7, when i
 phases hold their own working state. LED (:func:`led_colour`): phase 1 white, 2 blue (seeds red),
 3 references yellow, located robots green, merged robots cyan.
 
-To add a phase: write its module (a :class:`~kilonet.protocols.gcs.base.Phase` subclass with a
-``name`` and a ``window_s``), add the name to :data:`kilonet.protocols.gcs.base.PHASES` and the
-class to :data:`PHASE_SEQUENCE` at the same place (and to :data:`RECOVERY_SEQUENCE` if a recovery
-epoch must run it again), and give its window a parameter in
-:class:`~kilonet.protocols.gcs.base.GcsParams`. A phase after one whose window never closes starts
-when that phase's :meth:`~kilonet.protocols.gcs.base.Phase.finished` says so.
+The robot holds its phases in a :class:`~kilonet.protocols.common.phases.PhaseDriver`: the
+running phase, the receive handlers by message type byte (RECOVER in every phase, merging's POS
+for the split check) and every transition. The windows still to come are the robot's plan; a
+phase hands on to the next one with its window (:meth:`GcsRobot.next_phase`) when its own closes,
+or, for a window that never closes, when the phase reports itself
+:meth:`~kilonet.protocols.gcs.base.Phase.finished` (asked from ``loop()``). A recovery epoch
+plans anew and moves the running phase's close.
+
+To add a phase (two files): write its module, a :class:`~kilonet.protocols.gcs.base.Phase`
+subclass naming its stage (``name = GcsStage.X``), with a ``window_s`` that reads its window's
+parameter and the callbacks it needs; then, in :mod:`kilonet.protocols.gcs.base`, add its line
+(stage name and ``module:Class``) to :data:`~kilonet.protocols.gcs.base.SEQUENCE` at its place,
+which makes its stage, its ``gcs.until`` choice and its place in :data:`PHASE_SEQUENCE`, and its
+window's parameter to :class:`~kilonet.protocols.gcs.base.GcsParams`. A recovery epoch runs it
+again only if :data:`RECOVERY_SEQUENCE` lists it too. A phase after one whose window never closes
+starts when that phase's :meth:`~kilonet.protocols.gcs.base.Phase.finished` says so.
 """
 
 from __future__ import annotations
 
+import importlib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -43,11 +54,9 @@ from kilonet.message import Message
 from kilonet.protocols.common.neighbours import NeighbourTable
 from kilonet.protocols.common.phases import PhaseDriver
 from kilonet.protocols.common.ranging_limit import trusted_range
-from kilonet.protocols.gcs.base import PHASES, SENDER, GcsParams, Phase
+from kilonet.protocols.gcs.base import SENDER, SEQUENCE, GcsParams, GcsStage, Phase
 from kilonet.protocols.gcs.frame_keys import FrameKey, Root
 from kilonet.protocols.gcs.global_estimate import GlobalEstimate
-from kilonet.protocols.gcs.phase1_unique_ids import UniqueIds
-from kilonet.protocols.gcs.phase2_seed_election import SeedElection
 from kilonet.protocols.gcs.phase3_local_frames import LocalFrames
 from kilonet.protocols.gcs.phase4_localization import Localization
 from kilonet.protocols.gcs.phase5_merging_groups import MergingGroups
@@ -68,16 +77,25 @@ __all__ = [
     "phase_windows_s",
 ]
 
-#: The phases in the order they run, one per name of :data:`kilonet.protocols.gcs.base.PHASES`.
-PHASE_SEQUENCE: tuple[type[Phase], ...] = (
-    UniqueIds,
-    SeedElection,
-    LocalFrames,
-    Localization,
-    MergingGroups,
-    FrameMerging,
-    GlobalRefinement,
-)
+
+def _phase_class(name: str, path: str) -> type[Phase]:
+    """The class ``path`` (``module:Class`` in this package) that runs phase ``name``, as
+    :data:`kilonet.protocols.gcs.base.SEQUENCE` names them.
+
+    Raises
+    ------
+    TypeError
+        If it is no phase, or runs another stage than ``name``.
+    """
+    module, _, attribute = path.partition(":")
+    cls = getattr(importlib.import_module(f"{__package__}.{module}"), attribute)
+    if not (isinstance(cls, type) and issubclass(cls, Phase)) or cls.name != name:
+        raise TypeError(f"gcs SEQUENCE: {path} is no phase of stage {name!r}")
+    return cls
+
+
+#: The phases in the order they run: the classes of :data:`kilonet.protocols.gcs.base.SEQUENCE`.
+PHASE_SEQUENCE: tuple[type[Phase], ...] = tuple(_phase_class(*entry) for entry in SEQUENCE)
 #: gcs_base.sender_of without its Python call: every reception reads the sender, so the call
 #: would sit on the path of every reception (docs/gcs.md, "Speed").
 _read_sender = SENDER.unpack_from
@@ -107,8 +125,8 @@ def phase_sequence(p: GcsParams) -> tuple[type[Phase], ...]:
     >>> phase_sequence(GcsParams())[-1].name, phase_sequence(GcsParams(until="refine"))[-1].name
     (<GcsStage.MERGE: 'merge'>, <GcsStage.REFINE: 'refine'>)
     """
-    last = "refine" if p.refine and p.until == "merge" else p.until
-    return PHASE_SEQUENCE[: PHASES.index(last) + 1]
+    last = GcsStage.REFINE if p.refine and p.until == GcsStage.MERGE else p.until
+    return PHASE_SEQUENCE[: [cls.name for cls in PHASE_SEQUENCE].index(last) + 1]
 
 
 def phase_windows_s(p: GcsParams) -> list[tuple[str, float, float]]:
@@ -149,9 +167,9 @@ def led_colour(
     """
     if seed:
         return (3, 0, 0)
-    if phase in ("", "ids"):
+    if phase in ("", GcsStage.IDS):
         return (1, 1, 1)
-    if phase == "seeds":
+    if phase == GcsStage.SEEDS:
         return (0, 0, 2)
     if merged:
         return (0, 3, 3)
@@ -424,7 +442,9 @@ class GcsRobot(Kilobot):
         record, but nothing there requests a recovery for it."""
         check = self.check
         boundary = (
-            check is not None and check.boundary_since is not None and self.phase_name == "merge"
+            check is not None
+            and check.boundary_since is not None
+            and self.phase_name == GcsStage.MERGE
         )
         return self.recovery.pending or (boundary and self.epoch < self.params.recoveries)
 
@@ -486,7 +506,7 @@ class GcsRobot(Kilobot):
             if self._may_finish and self.driver.advance(self.kilo_ticks):
                 self._show()
             check = self.check
-            merging = phase.name == "merge"
+            merging = phase.name == GcsStage.MERGE
             if merging and check and not self.recovery.pending and check.wants_recovery():
                 self.recovery.request()
             self._loops += 1
@@ -504,7 +524,7 @@ class GcsRobot(Kilobot):
         # While merging, the check takes its turn first (one opportunity in a few, once
         # settled): seeds always have something of their own to send.
         message = None
-        if self.check is not None and phase.name == "merge":
+        if self.check is not None and phase.name == GcsStage.MERGE:
             message = self.check.message_tx()
         return message if message is not None else phase.message_tx()
 
