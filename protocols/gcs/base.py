@@ -19,6 +19,7 @@ any of them.
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
@@ -224,11 +225,12 @@ class Phase(BasePhase):
     :meth:`start`, then the callbacks, then :meth:`finish`.
     """
 
-    __slots__ = ("__dict__", "params", "robot")  # see GcsRobot.__slots__
+    __slots__ = ("__dict__", "params", "robot", "until")  # see GcsRobot.__slots__
 
     def __init__(self, robot: GcsRobot) -> None:
         self.robot = robot
         self.params: GcsParams = robot.params
+        self.until = math.inf  # the robot's plan sets its window (GcsRobot.next_phase)
 
     #: ``window_s(p: GcsParams) -> float``, a static method every phase defines: the length of
     #: its window for parameters ``p``, s (``inf``: it never closes; an open-ended phase's
