@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from kilonet.protocols.gcs.base import PHASES, GcsParams
+from kilonet.protocols.gcs.base import PHASES, GcsParams, GcsStage
 from kilonet.scenarios.base import Drawing, Reporting, RunResult, Scenario, ScenarioOption, Setup
 
 if TYPE_CHECKING:  # the rest is imported where used, so that listing scenarios stays fast
@@ -91,7 +91,7 @@ def _stop_when(sim: Simulation) -> bool:
         return False
     running = sim.world.running
     robots = [r for i, r in enumerate(sim.robots) if running[i]]  # a crashed seed is never done
-    if name == "refine":
+    if name == GcsStage.REFINE:
         return _refinement_over(robots)
     seeds = [r for r in robots if r.is_seed]
     return _merging_over(robots, seeds) and now - max(r.merge_done_at_s for r in seeds) >= _CHECK_S
@@ -108,15 +108,15 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
         return False
     for r in robots:
         name = r.phase_name
-        if name == "refine" and not r.phase.done:
+        if name == GcsStage.REFINE and not r.phase.done:
             return False
-        if name == "merge" and (
+        if name == GcsStage.MERGE and (
             r.phase.settled_since is not None or (r.is_seed and not r.merge_done)
         ):
             return False
         if name and name not in OPEN_ENDED:
             return False
-    return any(r.phase_name != "merge" for r in robots) or not any(
+    return any(r.phase_name != GcsStage.MERGE for r in robots) or not any(
         r.estimate.settled() for r in robots
     )
 
@@ -129,7 +129,7 @@ def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
         return False
     if len({r.epoch for r in robots}) > 1:
         return False
-    return not any(r.phase_name != "merge" or r.awaiting_recovery() for r in robots)
+    return not any(r.phase_name != GcsStage.MERGE or r.awaiting_recovery() for r in robots)
 
 
 def _expected_end_s(params: Params) -> float | None:
@@ -150,7 +150,7 @@ def _phase_note(sim: Simulation) -> str:
         ((k, w) for k, w in enumerate(windows) if now < w[2]), (len(windows) - 1, windows[-1])
     )
     until = f" (to {end:g} s)" if math.isfinite(end) else ""
-    phases = len(PHASES) if windows[-1][0] == "refine" else len(PHASES) - 1  # 7 with phase 7
+    phases = len(PHASES) if windows[-1][0] == GcsStage.REFINE else len(PHASES) - 1  # 7 with 7
     return f"phase {k + 1}/{phases} {name}{until}"
 
 
@@ -427,7 +427,7 @@ def _reference_metrics(run: _Run, out: dict[str, Any]) -> None:
         )
     )
     events = sim.trace.events_frame()
-    last = "refine_done" if out["phases_run"][-1] == "refine" else "merge_done"
+    last = "refine_done" if out["phases_run"][-1] == GcsStage.REFINE else "merge_done"
     times = events.t_s[events.event == last] if len(events) else []
     stopped = sim.env.now < sim.params.duration_s  # the run ended by itself
     out["done_s"] = round(float(max(times)), 3) if len(times) and stopped else math.nan
@@ -453,13 +453,13 @@ def _refine_metrics(run: _Run, out: dict[str, Any]) -> None:
 
 #: The metrics of each phase, added to the summary once the run has reached the phase.
 _PHASE_METRICS = (
-    ("seeds", _seed_metrics),
-    ("frames", _frame_metrics),
-    ("localization", _localization_metrics),
-    ("groups", _group_metrics),
-    ("merge", _merge_metrics),
-    ("merge", _reference_metrics),
-    ("refine", _refine_metrics),
+    (GcsStage.SEEDS, _seed_metrics),
+    (GcsStage.FRAMES, _frame_metrics),
+    (GcsStage.LOCALIZATION, _localization_metrics),
+    (GcsStage.GROUPS, _group_metrics),
+    (GcsStage.MERGE, _merge_metrics),
+    (GcsStage.MERGE, _reference_metrics),
+    (GcsStage.REFINE, _refine_metrics),
 )
 
 
@@ -498,8 +498,8 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
         "ids_redraws": run.count("id"),
     }
     names = {name for name, _, _ in reached}
-    if "merge" in names and windows[-1][0] == "refine":
-        names.add("refine")  # its window opens on each robot when merging is over there
+    if GcsStage.MERGE in names and windows[-1][0] == GcsStage.REFINE:
+        names.add(GcsStage.REFINE)  # its window opens on each robot when merging is over there
     for phase, section in _PHASE_METRICS:
         if phase in names:
             section(run, out)

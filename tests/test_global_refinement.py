@@ -75,7 +75,7 @@ def test_a_recovery_epoch_refines_again():
     sim.run(100.0)  # into merging
     assert robot.phase_name == "merge"
     robot.schedule_recovery(1, robot.kilo_ticks + 10)
-    names = [cls.name for cls, _, _ in robot._windows]
+    names = [cls.name for cls, _, _ in robot._plan]
     assert names[-6:] == ["edges", "frames", "localization", "groups", "merge", "refine"]
 
 

@@ -2,9 +2,10 @@
 runs one stage on one robot, and the driver that holds the running phase.
 
 Every protocol here that runs in stages names them in a :class:`Stage` subclass, in the order
-they run: gcs (:class:`kilonet.protocols.gcs.base.GcsStage`, one :class:`Phase` object per stage,
-run from a window table), ``localize`` (:class:`kilonet.protocols.localize.stages.LocalizeStage`,
-one phase per stage, run by a :class:`PhaseDriver`) and the maze robot
+they run: gcs (:class:`kilonet.protocols.gcs.base.GcsStage`, one :class:`Phase` per stage, each
+in a window, run by a :class:`PhaseDriver`), ``localize``
+(:class:`kilonet.protocols.localize.stages.LocalizeStage`, one phase per stage, run by a
+:class:`PhaseDriver` too) and the maze robot
 (:class:`kilonet.protocols.maze.program.MazeStage`). A member's value is its name:
 the trace, the summaries and the parameters (``gcs.until``) write stages as those strings, and a
 member compares equal to its name.
@@ -17,8 +18,12 @@ A :class:`PhaseDriver` holds a robot's running phase and its receive handlers by
 byte: the protocol's own, with the running phase's (:meth:`Phase.handlers`) in place of them for
 the types it names. The table is rebuilt when a phase begins, so a reception costs one lookup,
 not a call into every phase. A phase ends when its window closes (the ``until`` tick it was
-entered with) or when it reports itself :meth:`~Phase.finished`; :meth:`PhaseDriver.advance`
-then starts the phase it hands on to (:meth:`Phase.following`).
+entered with: by default its own :attr:`Phase.until`, which a protocol that runs its phases in
+windows sets on each phase it makes) or when it reports itself :meth:`~Phase.finished`;
+:meth:`PhaseDriver.advance` then starts the phase it hands on to (:meth:`Phase.following`).
+A protocol that asks its phases whether they are over only at one point of its work advances
+by windows alone elsewhere (``ask=False``), and one that logs or shows each phase it enters
+gives the driver an ``entered`` callback.
 
 Examples
 --------
@@ -103,6 +108,10 @@ class Phase:
     name: ClassVar[Stage | str] = ""
     #: Whether the phase ends by itself (the robots agree it is over), not by a window.
     open_ended: ClassVar[bool] = False
+    #: The tick at which this phase's window closes, as the protocol that made it set it
+    #: (``inf``, the default: it has none, it ends when it reports itself finished); the
+    #: driver enters a phase with it unless told otherwise.
+    until: float = math.inf
 
     def start(self) -> None:
         """Called when the phase begins on this robot."""
@@ -144,6 +153,9 @@ class PhaseDriver:
     handlers : mapping
         The protocol's receive handlers by message type byte, for every phase; a phase's own
         (:meth:`Phase.handlers`) replace them for the types it names while it runs.
+    entered : callable, optional
+        Called with each phase the driver enters, once the phase before it has finished and
+        before the new one starts (a protocol logs its phases there).
 
     Attributes
     ----------
@@ -154,11 +166,17 @@ class PhaseDriver:
         reports itself finished).
     """
 
-    __slots__ = ("_common", "_table", "phase", "until")
+    __slots__ = ("_common", "_entered", "_table", "phase", "until")
 
-    def __init__(self, handlers: Mapping[int, Handler]) -> None:
+    def __init__(
+        self,
+        handlers: Mapping[int, Handler],
+        *,
+        entered: Callable[[Phase], None] | None = None,
+    ) -> None:
         self._common: dict[int, Handler] = dict(handlers)
         self._table = self._common
+        self._entered = entered
         self.phase: Phase | None = None
         self.until = math.inf
 
@@ -172,23 +190,35 @@ class PhaseDriver:
         handles."""
         return self._table.get(kind)
 
-    def enter(self, phase: Phase | None, *, until: float = math.inf) -> None:
+    def enter(self, phase: Phase | None, *, until: float | None = None) -> None:
         """Finish the running phase, if any, and start ``phase`` (``None``: run none), whose
-        window closes at tick ``until``."""
+        window closes at tick ``until`` (default: the phase's own :attr:`Phase.until`)."""
         if self.phase is not None:
             self.phase.finish()
         self.phase = phase
-        self.until = until
-        self._table = self._common if phase is None else {**self._common, **phase.handlers()}
-        if phase is not None:
-            phase.start()
+        if phase is None:
+            self.until = math.inf
+            self._table = self._common
+            return
+        self.until = phase.until if until is None else until
+        self._table = {**self._common, **phase.handlers()}
+        if self._entered is not None:
+            self._entered(phase)
+        phase.start()
 
-    def advance(self, tick: float) -> bool:
-        """At ``tick``, move on from every phase whose window has closed or that reports itself
-        finished, to the phase it hands on to (its window open-ended); whether the phase
-        changed."""
+    def advance(self, tick: float, *, ask: bool = True) -> bool:
+        """At ``tick``, move on from every phase whose window has closed or (``ask``) that
+        reports itself finished, to the phase it hands on to, with that phase's own window
+        (:attr:`Phase.until`); whether the phase changed. With ``ask`` false only windows end
+        phases: a protocol whose phases may be asked only at one point of its work (asking
+        can cost, or count time) passes it everywhere else."""
         moved = False
-        while self.phase is not None and (tick >= self.until or self.phase.finished()):
+        while self.phase is not None and (tick >= self.until or (ask and self.phase.finished())):
             self.enter(self.phase.following())
             moved = True
         return moved
+
+    def reschedule(self, until: float) -> None:
+        """The running phase's window closes at tick ``until`` instead (a protocol that plans
+        its phases again while one runs, as gcs's recovery epochs do)."""
+        self.until = until

@@ -6,6 +6,11 @@ the overhead controller starts all robots together, so fixed windows keep the sw
 without any message. Inside its window each phase runs its own message protocol, and a robot
 that has nothing to say stays silent (which keeps the channel free for those that do).
 
+The phases, in order, are one list, :data:`SEQUENCE`: each one's stage name and the class that
+runs it. :class:`GcsStage`, :data:`PHASES` (``gcs.until``'s choices) and
+:data:`kilonet.protocols.gcs.program.PHASE_SEQUENCE` all derive from it. A phase's window has its
+parameter in :class:`GcsParams`, here too.
+
 Every message starts with the sender's 16-bit ID field (values drawn from ``id_bits`` bits), so
 each reception also refines the distance table (:mod:`kilonet.protocols.common.neighbours`): layouts
 are built with :func:`gcs_layout`, which puts that field first, and :func:`sender_of` reads it from
@@ -14,6 +19,7 @@ any of them.
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
@@ -33,6 +39,7 @@ __all__ = [
     "LAYOUTS",
     "PHASES",
     "SENDER",
+    "SEQUENCE",
     "GcsParams",
     "GcsStage",
     "Phase",
@@ -41,17 +48,23 @@ __all__ = [
 ]
 
 
-class GcsStage(Stage):
-    """The protocol's phases in order: the thesis's six, then kilonet's refinement (phase 7)."""
+#: The protocol's phases in the order they run: the thesis's six, then kilonet's refinement
+#: (phase 7). Each is its stage's name and the class that runs it (``module:Class`` in this
+#: package, imported when a robot program is built, so that listing the parameters imports no
+#: phase). To add a phase, add its line here and its window's parameter to :class:`GcsParams`.
+SEQUENCE: tuple[tuple[str, str], ...] = (
+    ("ids", "phase1_unique_ids:UniqueIds"),
+    ("seeds", "phase2_seed_election:SeedElection"),
+    ("frames", "phase3_local_frames:LocalFrames"),
+    ("localization", "phase4_localization:Localization"),
+    ("groups", "phase5_merging_groups:MergingGroups"),
+    ("merge", "phase6_merging:FrameMerging"),
+    ("refine", "phase7_refinement:GlobalRefinement"),
+)
 
-    IDS = "ids"
-    SEEDS = "seeds"
-    FRAMES = "frames"
-    LOCALIZATION = "localization"
-    GROUPS = "groups"
-    MERGE = "merge"
-    REFINE = "refine"
-
+#: The protocol's stages, one per phase of :data:`SEQUENCE`, in its order (``GcsStage.IDS`` is
+#: ``"ids"``): what each phase class names as its own (``name``).
+GcsStage = Stage("GcsStage", [(name.upper(), name) for name, _ in SEQUENCE], module=__name__)
 
 #: Phase names in order; ``gcs.until`` names the last one to run. The refinement runs only
 #: when ``gcs.refine`` is on or ``gcs.until`` names it
@@ -207,15 +220,17 @@ class Phase(BasePhase):
     A subclass sets ``name`` (a :class:`GcsStage`, or recovery's
     :class:`~kilonet.protocols.gcs.recovery.RecoveryStage`), ``open_ended = True`` if its window
     never closes (it ends by itself), defines :meth:`window_s` and overrides the callbacks it uses;
-    :class:`kilonet.protocols.gcs.program.GcsRobot` creates it when its window opens and calls
+    :class:`kilonet.protocols.gcs.program.GcsRobot` creates it, with the tick its window closes
+    (``until``), when the phase before hands on to it (:meth:`following`), and its driver calls
     :meth:`start`, then the callbacks, then :meth:`finish`.
     """
 
-    __slots__ = ("__dict__", "params", "robot")  # see GcsRobot.__slots__
+    __slots__ = ("__dict__", "params", "robot", "until")  # see GcsRobot.__slots__
 
     def __init__(self, robot: GcsRobot) -> None:
         self.robot = robot
         self.params: GcsParams = robot.params
+        self.until = math.inf  # the robot's plan sets its window (GcsRobot.next_phase)
 
     #: ``window_s(p: GcsParams) -> float``, a static method every phase defines: the length of
     #: its window for parameters ``p``, s (``inf``: it never closes; an open-ended phase's
@@ -226,3 +241,8 @@ class Phase(BasePhase):
         super().__init_subclass__(**kwargs)
         if not callable(getattr(cls, "window_s", None)):
             raise TypeError(f"phase {cls.__name__} must define window_s(params) -> float")
+
+    def following(self) -> Phase | None:
+        """The next phase of the robot's plan, with its window
+        (:meth:`~kilonet.protocols.gcs.program.GcsRobot.next_phase`)."""
+        return self.robot.next_phase()

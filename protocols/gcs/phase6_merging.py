@@ -60,6 +60,8 @@ shifts int16 in 0.25 mm; frames by their seed's ID and salt,
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -68,6 +70,7 @@ from kilonet.protocols.common.alignment import (
     half_map,
 )
 from kilonet.protocols.common.geometry import GeometryError
+from kilonet.protocols.common.phases import Handler
 from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
 from kilonet.protocols.gcs.frame_keys import FrameKey, Rank
 from kilonet.protocols.gcs.merging_rules import (
@@ -85,7 +88,7 @@ from kilonet.protocols.gcs.merging_rules import (
     seed_message,
 )
 from kilonet.protocols.gcs.replacement_wave import PlacedNeighbours
-from kilonet.protocols.gcs.split_detection import SplitCheck
+from kilonet.protocols.gcs.split_detection import POS, SplitCheck
 from kilonet.protocols.gcs.transforms import (
     Transform,
     quaternion_fields,
@@ -225,6 +228,14 @@ class FrameMerging(Phase):
         self.seed: SeedRounds | None = SeedRounds(self) if r.is_seed else None
         if self.seed is not None:
             self.seed.start()
+
+    def handlers(self) -> Mapping[int, Handler]:
+        """While merging (only), a settled neighbour's POS goes to the split check too
+        (:mod:`kilonet.protocols.gcs.split_detection`)."""
+        return {POS.type: self._check_position}
+
+    def _check_position(self, message: Message) -> None:
+        self.robot.check.message_rx(message)
 
     def finished(self) -> bool:
         """Whether merging is over for this robot, so that the refinement (phase 7) may start:

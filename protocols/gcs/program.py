@@ -25,35 +25,45 @@ recovery epoch: edge seeds (phase ``edges``) and phases 3-6 again (and 7, when i
 phases hold their own working state. LED (:func:`led_colour`): phase 1 white, 2 blue (seeds red),
 3 references yellow, located robots green, merged robots cyan.
 
-To add a phase: write its module (a :class:`~kilonet.protocols.gcs.base.Phase` subclass with a
-``name`` and a ``window_s``), add the name to :data:`kilonet.protocols.gcs.base.PHASES` and the
-class to :data:`PHASE_SEQUENCE` at the same place (and to :data:`RECOVERY_SEQUENCE` if a recovery
-epoch must run it again), and give its window a parameter in
-:class:`~kilonet.protocols.gcs.base.GcsParams`. A phase after one whose window never closes starts
-when that phase's :meth:`~kilonet.protocols.gcs.base.Phase.finished` says so.
+The robot holds its phases in a :class:`~kilonet.protocols.common.phases.PhaseDriver`: the
+running phase, the receive handlers by message type byte (RECOVER in every phase, merging's POS
+for the split check) and every transition. The windows still to come are the robot's plan; a
+phase hands on to the next one with its window (:meth:`GcsRobot.next_phase`) when its own closes,
+or, for a window that never closes, when the phase reports itself
+:meth:`~kilonet.protocols.gcs.base.Phase.finished` (asked from ``loop()``). A recovery epoch
+plans anew and moves the running phase's close.
+
+To add a phase (two files): write its module, a :class:`~kilonet.protocols.gcs.base.Phase`
+subclass naming its stage (``name = GcsStage.X``), with a ``window_s`` that reads its window's
+parameter and the callbacks it needs; then, in :mod:`kilonet.protocols.gcs.base`, add its line
+(stage name and ``module:Class``) to :data:`~kilonet.protocols.gcs.base.SEQUENCE` at its place,
+which makes its stage, its ``gcs.until`` choice and its place in :data:`PHASE_SEQUENCE`, and its
+window's parameter to :class:`~kilonet.protocols.gcs.base.GcsParams`. A recovery epoch runs it
+again only if :data:`RECOVERY_SEQUENCE` lists it too. A phase after one whose window never closes
+starts when that phase's :meth:`~kilonet.protocols.gcs.base.Phase.finished` says so.
 """
 
 from __future__ import annotations
 
+import importlib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 from kilonet.message import Message
 from kilonet.protocols.common.neighbours import NeighbourTable
+from kilonet.protocols.common.phases import PhaseDriver
 from kilonet.protocols.common.ranging_limit import trusted_range
-from kilonet.protocols.gcs.base import PHASES, SENDER, GcsParams, Phase
+from kilonet.protocols.gcs.base import SENDER, SEQUENCE, GcsParams, GcsStage, Phase
 from kilonet.protocols.gcs.frame_keys import FrameKey, Root
 from kilonet.protocols.gcs.global_estimate import GlobalEstimate
-from kilonet.protocols.gcs.phase1_unique_ids import UniqueIds
-from kilonet.protocols.gcs.phase2_seed_election import SeedElection
 from kilonet.protocols.gcs.phase3_local_frames import LocalFrames
 from kilonet.protocols.gcs.phase4_localization import Localization
 from kilonet.protocols.gcs.phase5_merging_groups import MergingGroups
 from kilonet.protocols.gcs.phase6_merging import FrameMerging
 from kilonet.protocols.gcs.phase7_refinement import GlobalRefinement
 from kilonet.protocols.gcs.recovery import RECOVER, EdgeSeeds, RecoveryFlood
-from kilonet.protocols.gcs.split_detection import POS, SplitCheck
+from kilonet.protocols.gcs.split_detection import SplitCheck
 from kilonet.robot import Kilobot
 
 __all__ = [
@@ -67,16 +77,25 @@ __all__ = [
     "phase_windows_s",
 ]
 
-#: The phases in the order they run, one per name of :data:`kilonet.protocols.gcs.base.PHASES`.
-PHASE_SEQUENCE: tuple[type[Phase], ...] = (
-    UniqueIds,
-    SeedElection,
-    LocalFrames,
-    Localization,
-    MergingGroups,
-    FrameMerging,
-    GlobalRefinement,
-)
+
+def _phase_class(name: str, path: str) -> type[Phase]:
+    """The class ``path`` (``module:Class`` in this package) that runs phase ``name``, as
+    :data:`kilonet.protocols.gcs.base.SEQUENCE` names them.
+
+    Raises
+    ------
+    TypeError
+        If it is no phase, or runs another stage than ``name``.
+    """
+    module, _, attribute = path.partition(":")
+    cls = getattr(importlib.import_module(f"{__package__}.{module}"), attribute)
+    if not (isinstance(cls, type) and issubclass(cls, Phase)) or cls.name != name:
+        raise TypeError(f"gcs SEQUENCE: {path} is no phase of stage {name!r}")
+    return cls
+
+
+#: The phases in the order they run: the classes of :data:`kilonet.protocols.gcs.base.SEQUENCE`.
+PHASE_SEQUENCE: tuple[type[Phase], ...] = tuple(_phase_class(*entry) for entry in SEQUENCE)
 #: gcs_base.sender_of without its Python call: every reception reads the sender, so the call
 #: would sit on the path of every reception (docs/gcs.md, "Speed").
 _read_sender = SENDER.unpack_from
@@ -106,8 +125,8 @@ def phase_sequence(p: GcsParams) -> tuple[type[Phase], ...]:
     >>> phase_sequence(GcsParams())[-1].name, phase_sequence(GcsParams(until="refine"))[-1].name
     (<GcsStage.MERGE: 'merge'>, <GcsStage.REFINE: 'refine'>)
     """
-    last = "refine" if p.refine and p.until == "merge" else p.until
-    return PHASE_SEQUENCE[: PHASES.index(last) + 1]
+    last = GcsStage.REFINE if p.refine and p.until == GcsStage.MERGE else p.until
+    return PHASE_SEQUENCE[: [cls.name for cls in PHASE_SEQUENCE].index(last) + 1]
 
 
 def phase_windows_s(p: GcsParams) -> list[tuple[str, float, float]]:
@@ -148,9 +167,9 @@ def led_colour(
     """
     if seed:
         return (3, 0, 0)
-    if phase in ("", "ids"):
+    if phase in ("", GcsStage.IDS):
         return (1, 1, 1)
-    if phase == "seeds":
+    if phase == GcsStage.SEEDS:
         return (0, 0, 2)
     if merged:
         return (0, 3, 3)
@@ -249,15 +268,14 @@ class GcsRobot(Kilobot):
     # shared-key kind, and every delivery and loop reads several attributes, robot after robot
     # (docs/gcs.md, "Speed").
     __slots__ = (
-        "_due_tick",
         "_loops",
         "_may_finish",
         "_neighbour_keys",
-        "_phase_index",
+        "_plan",
         "_polled",
-        "_windows",
         "announced",
         "check",
+        "driver",
         "edge_seed",
         "epoch",
         "estimate",
@@ -268,7 +286,6 @@ class GcsRobot(Kilobot):
         "own_key",
         "params",
         "partners",
-        "phase",
         "pos_turn",
         "recovery",
         "ref_turn",
@@ -313,17 +330,19 @@ class GcsRobot(Kilobot):
         self.refined: tuple[float, float] | None = None  # phase 7's estimate, mm
         self.refined_root: Root | None = None  # and the frame it is in
         tps = self.ticks_per_s
-        self._windows = [
+        # The windows still to come, in ticks: (phase, first tick, tick the window closes).
+        self._plan = [
             (cls, _start_tick(start * tps), end * tps)
             for cls, (_, start, end) in zip(
                 phase_sequence(self.params), phase_windows_s(self.params), strict=True
             )
         ]
-        self._phase_index = -1
         self._may_finish = False
         self._loops = 0
-        self.phase: Phase | None = None
-        self._due_tick: float = 0
+        # RECOVER is heard in every phase; merging adds the split check's POS (its handlers).
+        self.driver = PhaseDriver({RECOVER.type: self.recovery.message_rx}, entered=self._entered)
+        self.driver.enter(self.next_phase())
+        self._show()
         self._advance()
 
     # -- identity and frame keys ---------------------------------------------------------------
@@ -346,56 +365,40 @@ class GcsRobot(Kilobot):
         return FrameKey.from_wire(seed_uid, 0) if key is None else key
 
     # -- phases --------------------------------------------------------------------------------
+    @property
+    def phase(self) -> Phase | None:
+        """The running phase (``None`` after the last phase asked for: the robot is silent)."""
+        return self.driver.phase
+
+    def next_phase(self) -> Phase | None:
+        """The next phase of the plan (``None`` past the last), made with the tick its window
+        closes (:attr:`~kilonet.protocols.common.phases.Phase.until`): when the phase after it
+        starts, or its own end if it is the last. When the running phase reports itself
+        finished before its window closes, the next window opens now, for its usual length;
+        the windows after it keep their starts. The phases' :meth:`Phase.following`."""
+        ticks, plan = self.kilo_ticks, self._plan
+        if not plan:
+            return None
+        cls, _, end = plan.pop(0)
+        if ticks < self.driver.until and self.driver.phase is not None:
+            end = ticks + cls.window_s(self.params) * self.ticks_per_s
+        phase = cls(self)
+        phase.until = plan[0][1] if plan else end
+        return phase
+
+    def _entered(self, phase: Phase) -> None:
+        """The driver enters ``phase``: it goes to the trace, and a window that never closes,
+        with a phase after it, ends when the phase reports itself finished (asked in
+        :meth:`loop`)."""
+        self.log("phase", name=phase.name)
+        self._may_finish = bool(self._plan) and self.driver.until == math.inf
+
     def _advance(self) -> None:
-        ticks = self.kilo_ticks
-        if ticks < self._due_tick:  # called on every loop and transmit opportunity
-            return
-        while (
-            self._phase_index + 1 < len(self._windows)
-            and ticks >= self._windows[self._phase_index + 1][1]
-        ):
-            if self.phase is not None:
-                self.phase.finish()
-            self._phase_index += 1
-            cls = self._windows[self._phase_index][0]
-            self.phase = cls(self)
-            self.log("phase", name=cls.name)
-            self.phase.start()
+        """Move on from a phase whose window has closed (asked on every loop and transmit
+        opportunity)."""
+        driver, ticks = self.driver, self.kilo_ticks
+        if ticks >= driver.until and driver.advance(ticks, ask=False) and driver.phase is not None:
             self._show()
-            # A window that never closes, with a phase after it: the phase ends by itself.
-            following = self._phase_index + 1 < len(self._windows)
-            self._may_finish = following and self._windows[self._phase_index][2] == math.inf
-        if self.phase is not None and ticks >= self._windows[self._phase_index][2]:
-            self.phase.finish()
-            self.phase = None  # past the last phase asked for: the robot falls silent
-        self._due_tick = self._next_window_change()
-
-    def _end_phase_now(self) -> None:
-        """The running phase reports itself finished: the next one's window opens now (for
-        its usual length), and the phase after that follows it."""
-        i, ticks = self._phase_index, self.kilo_ticks
-        windows = self._windows
-        if i + 1 >= len(windows):
-            return
-        cls, start, _ = windows[i]
-        following = windows[i + 1][0]
-        end = ticks + following.window_s(self.params) * self.ticks_per_s
-        self._windows = [
-            *windows[:i],
-            (cls, start, ticks),
-            (following, ticks, end),
-            *windows[i + 2 :],
-        ]
-        self._may_finish = False
-        self._due_tick = 0
-        self._advance()
-
-    def _next_window_change(self) -> float:
-        """The tick at which the next phase starts or the running one ends."""
-        i, windows = self._phase_index, self._windows
-        start = windows[i + 1][1] if i + 1 < len(windows) else float("inf")
-        end = windows[i][2] if self.phase is not None else float("inf")
-        return min(start, end)
 
     def schedule_recovery(self, epoch: int, start_tick: int) -> None:
         """Run recovery epoch ``epoch`` from ``start_tick``: the running phase (merging, or the
@@ -403,16 +406,14 @@ class GcsRobot(Kilobot):
         lengths, the refinement after it when the run refines (see
         :mod:`kilonet.protocols.gcs.recovery`)."""
         self.epoch = epoch
-        cls, start, _ = self._windows[self._phase_index]
-        windows = [*self._windows[: self._phase_index], (cls, start, start_tick)]
-        t = start_tick
+        self.driver.reschedule(start_tick)
         refines = phase_sequence(self.params)[-1] is GlobalRefinement
+        plan, t = [], start_tick
         for cls in (*RECOVERY_SEQUENCE, GlobalRefinement) if refines else RECOVERY_SEQUENCE:
             end = t + cls.window_s(self.params) * self.ticks_per_s
-            windows.append((cls, _start_tick(t), end))
+            plan.append((cls, _start_tick(t), end))
             t = end
-        self._windows = windows
-        self._due_tick = self._next_window_change()
+        self._plan = plan
 
     def _show(self) -> None:
         name = self.phase_name
@@ -431,7 +432,7 @@ class GcsRobot(Kilobot):
     @property
     def phase_name(self) -> str:
         """Name of the running phase ('' once done)."""
-        return self.phase.name if self.phase is not None else ""
+        return self.driver.stage
 
     # -- what the run reads ----------------------------------------------------------------------
     def awaiting_recovery(self) -> bool:
@@ -441,7 +442,9 @@ class GcsRobot(Kilobot):
         record, but nothing there requests a recovery for it."""
         check = self.check
         boundary = (
-            check is not None and check.boundary_since is not None and self.phase_name == "merge"
+            check is not None
+            and check.boundary_since is not None
+            and self.phase_name == GcsStage.MERGE
         )
         return self.recovery.pending or (boundary and self.epoch < self.params.recoveries)
 
@@ -497,13 +500,13 @@ class GcsRobot(Kilobot):
         self._advance()
         if self._polled:
             self.drain_messages()
-        phase = self.phase
+        phase = self.driver.phase
         if phase is not None:
             phase.loop()
-            if self._may_finish and phase.finished():
-                self._end_phase_now()
+            if self._may_finish and self.driver.advance(self.kilo_ticks):
+                self._show()
             check = self.check
-            merging = phase.name == "merge"
+            merging = phase.name == GcsStage.MERGE
             if merging and check and not self.recovery.pending and check.wants_recovery():
                 self.recovery.request()
             self._loops += 1
@@ -515,26 +518,27 @@ class GcsRobot(Kilobot):
         flood = self.recovery.message_tx()
         if flood is not None:
             return flood
-        if self.phase is None:
+        phase = self.driver.phase
+        if phase is None:
             return None
         # While merging, the check takes its turn first (one opportunity in a few, once
         # settled): seeds always have something of their own to send.
         message = None
-        if self.check is not None and self.phase_name == "merge":
+        if self.check is not None and phase.name == GcsStage.MERGE:
             message = self.check.message_tx()
-        return message if message is not None else self.phase.message_tx()
+        return message if message is not None else phase.message_tx()
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        phase = self.phase
+        driver = self.driver
+        phase = driver.phase
         if phase is None or not trusted_range(distance_mm, self.params.neighbour_max_mm):
             return  # a robot measured beyond the neighbourhood is none of its neighbours
-        # Recovery floods and POS are rare: dispatch on the type byte, not a call per message.
-        kind = message.type
-        if kind == RECOVER.type:
-            self.recovery.message_rx(message)
+        # Recovery floods and the split check's POS are rare: the driver's table by type byte,
+        # not a call per message.
+        handler = driver.handler(message.type)
+        if handler is not None:
+            handler(message)
         phase.message_rx(message, distance_mm)
-        if kind == POS.type and self.check is not None and phase.name == "merge":
-            self.check.message_rx(message)
         (sender,) = _read_sender(message.data)
         if sender != self.uid:
             self.table.heard(sender, distance_mm)
