@@ -165,6 +165,7 @@ class SelfAssembly(Kilobot):
         self.next_check_s = STARTUP_S
         self.track: list[tuple[float, float, float]] = []  # (t, x, y) of recent estimates
         self.located_s = 0.0  # when the estimate was last updated
+        self.joined_s: float | None = None  # when it joined the shape
         self._message: Message | None = None
         self.set_color(*_COLORS[self.stage])
 
@@ -219,6 +220,10 @@ class SelfAssembly(Kilobot):
             self._move(now, fresh, stationary)
         else:  # joined: it keeps refining its estimate against the shape's other robots
             self._localize(now, stationary)
+
+    def since_joined_s(self) -> float | None:
+        """Seconds of its own clock since it joined the shape (``None``: it has not)."""
+        return None if self.joined_s is None else self._now_s() - self.joined_s
 
     def position_estimate(self) -> tuple[float, float, str] | None:
         if self.estimate is None:
@@ -321,6 +326,7 @@ class SelfAssembly(Kilobot):
     def _join(self, rule: str) -> None:
         self._halt()
         self._set_stage(AssemblyStage.JOINED)
+        self.joined_s = self._now_s()
         x, y = self.estimate
         self.log("joined", rule=rule, gradient=self.gradient, x=x, y=y)
 
