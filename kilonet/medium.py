@@ -295,6 +295,8 @@ class InfraredMedium:
         # Each sender's loss shares while its receiver list and their shares stand (the
         # reception model may keep what it derives from them while they are the same object).
         self._shares: list[LossShares | None] = [None] * n
+        # (positions, present, running) at the last build of the links, copies
+        self._built: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.rebuild_topology()
         ports.on_reroute(self._reroute)
 
@@ -302,7 +304,29 @@ class InfraredMedium:
     def rebuild_topology(self) -> None:
         """Recompute who hears whom from the world's present positions and running robots;
         a sender whose links stay as they were keeps its lists and the outcomes drawn ahead
-        for them (a moving robot changes only its own links and its neighbours')."""
+        for them (a moving robot changes only its own links and its neighbours').
+
+        When only positions changed since the last build and links ignore bodies in between
+        (``medium.occlusion = "none"``), only the links of the robots that moved are
+        recomputed (:meth:`_rebuild_moved`), the same links a full build gives: a moving swarm
+        would otherwise pay for every pair at every motion step."""
+        world = self._world
+        built = self._built
+        if (
+            built is None
+            or self.link_model.occlusion != "none"
+            or not np.array_equal(built[1], world.present)
+            or not np.array_equal(built[2], world.running)
+        ):
+            self._rebuild_all()
+        else:
+            moved = np.flatnonzero((world.positions_mm != built[0]).any(axis=1))
+            if len(moved):
+                self._rebuild_moved(moved, built[0])
+        self._built = (world.positions_mm.copy(), world.present.copy(), world.running.copy())
+
+    def _rebuild_all(self) -> None:
+        """Every sender's links from scratch (see :meth:`rebuild_topology`)."""
         world = self._world
         links = self.link_model.links(world.positions_mm, world.present)
         sender = np.concatenate([links.i, links.j])
@@ -332,6 +356,58 @@ class InfraredMedium:
                 # A sender whose links change at every step of a robot's motion uses one row
                 # of a block: draw blocks from small again.
                 self._refill_rows[s] = 1
+                self._derive(s)
+
+    def _rebuild_moved(self, moved: np.ndarray, was_mm: np.ndarray) -> None:
+        """The links of the robots in ``moved`` (positions changed since ``was_mm``, nothing
+        else), and of the robots in range of them before or now, as :meth:`_rebuild_all` would
+        build them: a link is a pair of present robots whose squared distance is at most the
+        squared range (the k-d tree's test), its distance the ``hypot`` of their difference,
+        its reach from the radio, and no occlusion loss; a sender lists its running receivers
+        in ascending order."""
+        world = self._world
+        pos, present, running = world.positions_mm, world.present, world.running
+        r2 = self.link_model.range_mm**2
+        now = pos[None, :, :] - pos[moved][:, None, :]  # (moved, robot, xy)
+        was = was_mm[None, :, :] - was_mm[moved][:, None, :]
+        near = now[..., 0] * now[..., 0] + now[..., 1] * now[..., 1] <= r2
+        near &= present[None, :] & present[moved][:, None]
+        near[np.arange(len(moved)), moved] = False
+        was_near = was[..., 0] * was[..., 0] + was[..., 1] * was[..., 1] <= r2
+        is_moved = np.zeros(self.n, dtype=bool)
+        is_moved[moved] = True
+        row_of = {m: k for k, m in enumerate(moved.tolist())}
+        affected = np.flatnonzero((near | was_near).any(axis=0) | is_moved)
+        link_r, link_d, link_reach, link_loss = (
+            self._link_r,
+            self._link_d,
+            self._link_reach,
+            self._link_loss,
+        )
+        for s in affected.tolist():
+            if is_moved[s]:
+                k = row_of[s]
+                receivers = np.flatnonzero(near[k] & running)
+                dist = np.hypot(now[k, receivers, 0], now[k, receivers, 1])
+            else:
+                old_r = link_r[s]
+                stay = ~is_moved[old_r]
+                hears = near[:, s] & running[moved]
+                receivers = np.concatenate([old_r[stay], moved[hears]])
+                dist = np.concatenate(
+                    [link_d[s][stay], np.hypot(now[hears, s, 0], now[hears, s, 1])]
+                )
+                order = np.argsort(receivers, kind="stable")
+                receivers, dist = receivers[order], dist[order]
+            reach = self.radio.link_reach_mm(np.full(len(receivers), s), receivers)
+            loss = np.zeros(len(receivers))
+            if not (
+                np.array_equal(receivers, link_r[s])
+                and np.array_equal(dist, link_d[s])
+                and np.array_equal(reach, link_reach[s])
+            ):
+                link_r[s], link_d[s], link_reach[s], link_loss[s] = receivers, dist, reach, loss
+                self._refill_rows[s] = 1  # as in _rebuild_all
                 self._derive(s)
 
     def _derive(self, s: int) -> None:

@@ -65,6 +65,9 @@ JAM_MM = 10.0
 #: radius and a little, so that the packed start just below the seeds lies outside it.
 SEED_MARGIN_MM = 18.0
 JAM_S = 30.0
+#: The run ends when no robot joined for this long, seconds: the assembly has stalled (at a
+#: hundred robots, seed 1, joins come at most 270 s apart until the last few robots jam).
+STALLED_S = 600.0
 #: Characters of a text bitmap: inside, and outside.
 INSIDE, OUTSIDE = "#1", ".0 "
 
@@ -254,8 +257,15 @@ def _stages(sim: Simulation) -> list[AssemblyStage]:
 
 
 def _stop_when(sim: Simulation) -> bool:
+    """Every robot joined or is lost; or the assembly stalled: none joined for
+    :data:`STALLED_S` (the robots still moving find no room in the shape, or circle round
+    the start where the robots still waiting hear them, and the waiting never start)."""
+    stages = _stages(sim)
     done = (AssemblyStage.SEED, AssemblyStage.JOINED, AssemblyStage.LOST)
-    return all(s in done for s in _stages(sim))
+    if all(s in done for s in stages):
+        return True
+    since = [t for r in sim.robots if (t := r.since_joined_s()) is not None]
+    return bool(since) and min(since) > STALLED_S
 
 
 def _progress(sim: Simulation) -> str:
@@ -405,7 +415,7 @@ SCENARIO = Scenario(
     reporting=Reporting(
         metrics=_metrics,
         robot_columns=_robot_columns,
-        ends_when="every robot has joined the shape or is lost",
+        ends_when=f"every robot joined the shape or is lost, or none joined for {STALLED_S:g} s",
         progress_note=_progress,
     ),
     drawing=Drawing(

@@ -21,7 +21,7 @@ robot that heard no stationary robot for :data:`LOST_AFTER_S` stops where it is)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -57,6 +57,7 @@ ASSEMBLY = Layout(
         ("y", "h"),
     ],
 )
+_TYPE = ASSEMBLY.type
 UNKNOWN = 255
 #: A neighbour not heard for this long (three transmit periods) is forgotten, seconds.
 FORGET_S = 1.6
@@ -109,18 +110,17 @@ _COLORS = {
 }
 
 
-@dataclass(slots=True)
-class Neighbour:
+class Neighbour(NamedTuple):
     """The last message heard from one neighbour: when (seconds of the hearer's clock), the
-    distance estimate with it (mm) and what the sender said of itself."""
+    distance estimate with it (mm) and what the sender said of itself (its decoded
+    :data:`ASSEMBLY` record: ``uid``, ``gradient``, ``stage`` number, ``age``, ``x``, ``y``).
+
+    The record is the one the medium decoded once for every receiver of the transmission, so
+    hearing a message costs one small tuple."""
 
     heard_s: float
-    distance_mm: float
-    gradient: int
-    stage: int  # an AssemblyStage number
-    age: int
-    x: float
-    y: float
+    distance_mm: int
+    said: Any
 
 
 class SelfAssembly(Kilobot):
@@ -165,6 +165,7 @@ class SelfAssembly(Kilobot):
         self.next_check_s = STARTUP_S
         self.track: list[tuple[float, float, float]] = []  # (t, x, y) of recent estimates
         self.located_s = 0.0  # when the estimate was last updated
+        self.joined_s: float | None = None  # when it joined the shape
         self._message: Message | None = None
         self.set_color(*_COLORS[self.stage])
 
@@ -189,12 +190,10 @@ class SelfAssembly(Kilobot):
             self._message = None  # a moving robot's age and estimate change
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
-        if not ASSEMBLY.matches(message):
+        if message.type != _TYPE:
             return
-        m = ASSEMBLY.unpack(message)
-        self.neighbours[m.uid] = Neighbour(
-            self._now_s(), float(distance_mm), m.gradient, m.stage, m.age, float(m.x), float(m.y)
-        )
+        said = ASSEMBLY.unpack(message)
+        self.neighbours[said.uid] = Neighbour(self._now_s(), distance_mm, said)
 
     def loop(self) -> None:
         stage = self.stage
@@ -206,11 +205,11 @@ class SelfAssembly(Kilobot):
             return
         self.next_check_s = now + CHECK_S
         fresh = self._fresh(now)
-        stationary = [(uid, n) for uid, n in fresh.items() if n.stage not in _MOVING]
+        stationary = [(uid, n) for uid, n in fresh.items() if n.said.stage not in _MOVING]
         if stationary:
             self.last_stationary_s = now
         level = gradient_from(
-            [n.distance_mm for _, n in stationary], [n.gradient for _, n in stationary]
+            [n.distance_mm for _, n in stationary], [n.said.gradient for _, n in stationary]
         )
         if level is not None and level != self.gradient:
             self.gradient = min(level, UNKNOWN)
@@ -222,6 +221,10 @@ class SelfAssembly(Kilobot):
         else:  # joined: it keeps refining its estimate against the shape's other robots
             self._localize(now, stationary)
 
+    def since_joined_s(self) -> float | None:
+        """Seconds of its own clock since it joined the shape (``None``: it has not)."""
+        return None if self.joined_s is None else self._now_s() - self.joined_s
+
     def position_estimate(self) -> tuple[float, float, str] | None:
         if self.estimate is None:
             return None
@@ -232,9 +235,9 @@ class SelfAssembly(Kilobot):
         if self.gradient == UNKNOWN:
             return
         heard = [
-            Heard(uid, n.gradient, n.stage in _MOVING, n.distance_mm)
+            Heard(uid, n.said.gradient, n.said.stage in _MOVING, n.distance_mm)
             for uid, n in fresh.items()
-            if n.stage not in _LOCALIZED
+            if n.said.stage not in _LOCALIZED
         ]
         edge = on_edge(n.distance_mm for _, n in stationary)
         if may_start(edge, self.gradient, self.kilo_uid, heard):
@@ -255,7 +258,9 @@ class SelfAssembly(Kilobot):
         if located and self._stops(nearest):
             return
         age = int(now - self.moved_since_s)
-        ahead = [(n.age, uid, n.distance_mm) for uid, n in fresh.items() if n.stage in _MOVING]
+        ahead = [
+            (n.said.age, uid, n.distance_mm) for uid, n in fresh.items() if n.said.stage in _MOVING
+        ]
         if nearest is None or must_yield(age, self.kilo_uid, ahead):
             self._drive("")
         else:
@@ -268,9 +273,9 @@ class SelfAssembly(Kilobot):
                 self._set_stage(AssemblyStage.MOVE_INSIDE)
                 self.log("entered", x=self.estimate[0], y=self.estimate[1])
             return False
-        if nearest is not None and nearest[1].stage in _LOCALIZED:
+        if nearest is not None and nearest[1].said.stage in _LOCALIZED:
             uid, n = nearest
-            if meets_own_gradient(self.gradient, Heard(uid, n.gradient, False, n.distance_mm)):
+            if meets_own_gradient(self.gradient, Heard(uid, n.said.gradient, False, n.distance_mm)):
                 self._join("own_gradient")
                 return True
         if about_to_leave(self.shape, self.estimate, self._ahead()):
@@ -284,7 +289,7 @@ class SelfAssembly(Kilobot):
         refs = [
             n
             for _, n in stationary
-            if n.stage in _LOCALIZED
+            if n.said.stage in _LOCALIZED
             and now - n.heard_s <= RANGE_FRESH_S
             and trusted_range(n.distance_mm, RANGE_MM)
         ]
@@ -294,8 +299,8 @@ class SelfAssembly(Kilobot):
             self.track.clear()
         if len(refs) < MIN_ANCHORS:
             return False
-        anchors = np.array([[n.x, n.y] for n in refs])
-        ranges = np.array([n.distance_mm for n in refs])
+        anchors = np.array([[n.said.x, n.said.y] for n in refs], dtype=float)
+        ranges = np.array([n.distance_mm for n in refs], dtype=float)
         if self.estimate is None:
             fix = first_fix(anchors, ranges)
             if fix is None:
@@ -303,8 +308,7 @@ class SelfAssembly(Kilobot):
             self.estimate = fix
             self.log("fix", x=fix[0], y=fix[1], anchors=len(refs))
         else:
-            for _ in range(LOCALIZE_STEPS):
-                self.estimate = localize_step(self.estimate, anchors, ranges)
+            self.estimate = localize_step(self.estimate, anchors, ranges, LOCALIZE_STEPS)
         self.located_s = now
         self.track.append((now, *self.estimate))
         while self.track and self.track[0][0] < now - HEADING_S:
@@ -322,6 +326,7 @@ class SelfAssembly(Kilobot):
     def _join(self, rule: str) -> None:
         self._halt()
         self._set_stage(AssemblyStage.JOINED)
+        self.joined_s = self._now_s()
         x, y = self.estimate
         self.log("joined", rule=rule, gradient=self.gradient, x=x, y=y)
 

@@ -193,27 +193,27 @@ def first_fix(anchors_mm: np.ndarray, ranges_mm: np.ndarray) -> tuple[float, flo
 
 
 def localize_step(
-    estimate_mm: tuple[float, float], anchors_mm: np.ndarray, ranges_mm: np.ndarray
+    estimate_mm: tuple[float, float], anchors_mm: np.ndarray, ranges_mm: np.ndarray, steps: int = 1
 ) -> tuple[float, float]:
-    """One step of the supplement's localization: for each localized stationary neighbour,
-    the point at the measured range from it on the line to the current estimate; the
-    estimate moves a quarter of the way to their mean. Repeated, it descends the squared
+    """``steps`` steps of the supplement's localization: for each localized stationary
+    neighbour, the point at the measured range from it on the line to the current estimate;
+    the estimate moves a quarter of the way to their mean. Repeated, it descends the squared
     range error, and it follows a robot that moves.
 
     >>> a = np.array([[0.0, 0.0], [36.0, 0.0], [18.0, 31.0]])
-    >>> p = (40.0, 40.0)
-    >>> for _ in range(1000):
-    ...     p = localize_step(p, a, np.hypot(*(a - [50.0, 60.0]).T))
+    >>> p = localize_step((40.0, 40.0), a, np.hypot(*(a - [50.0, 60.0]).T), 1000)
     >>> round(p[0], 1), round(p[1], 1)
     (50.0, 60.0)
     """
     est = np.array(estimate_mm, dtype=float)
-    away = est - anchors_mm
-    length = np.hypot(away[:, 0], away[:, 1])
-    length[length < 1e-9] = 1e-9
-    targets = anchors_mm + away * (ranges_mm / length)[:, None]
-    step = (targets.mean(axis=0) - est) / 4.0
-    return float(est[0] + step[0]), float(est[1] + step[1])
+    count = len(anchors_mm)
+    for _ in range(steps):
+        away = est - anchors_mm
+        length = np.hypot(away[:, 0], away[:, 1])
+        length[length < 1e-9] = 1e-9
+        targets = anchors_mm + away * (ranges_mm / length)[:, None]
+        est = est + (targets.sum(axis=0) / count - est) / 4.0
+    return float(est[0]), float(est[1])
 
 
 def about_to_leave(
