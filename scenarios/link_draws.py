@@ -34,9 +34,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from kilonet.medium import directed_links
 from kilonet.radio import MIN_RECEPTION, Transceivers, reach_of, reception_probability
 from kilonet.ranging import calibration_tables, read_calibration
-from kilonet.reception import ModelContext, reception_model
+from kilonet.reception import LossShares, ModelContext, reception_model
 from kilonet.scenarios.neighbourhood import held_estimates_of_links
 from kilonet.visibility import LinkModel
 
@@ -102,16 +103,12 @@ def draw_held_estimates(
         tables = read_calibration(params.ranging.calibration_file, n)
     model = reception_model(ModelContext(params, n, rng, rng, tables, radio))
     link_model = LinkModel.from_params(medium, radius_mm, range_mm=radio.max_distance_mm)
-    links = link_model.links(positions_mm)
-    sender = np.concatenate([links.i, links.j])
-    receiver = np.concatenate([links.j, links.i])
-    distance = np.concatenate([links.distance_mm, links.distance_mm])
-    loss = np.concatenate([links.loss, links.loss])
-    reach = radio.link_reach_mm(sender, receiver)
-    if link_model.occlusion == "graded":  # each body crossed shortens the reach
-        reach = reach * link_model.range_factor ** np.concatenate([links.bodies, links.bodies])
+    sender, receiver, distance, reach, loss = directed_links(link_model, radio, positions_mm)
     signal = reception_probability(distance, reach, radio.reach.edge_mm)
-    delivered = signal * (1.0 - loss) * (1.0 - medium.loss_prob)
+    none = np.zeros(len(sender))
+    shares = LossShares(medium.loss_prob, loss, none, none, 1.0 - signal)
+    lost = model.loss_probability(shares, distance)[-1] if len(sender) else none
+    delivered = np.clip(1.0 - lost, 0.0, 1.0)
     heard = (signal >= MIN_RECEPTION) & (
         rng.random(len(sender)) < link_present_probability(delivered, messages)
     )
