@@ -19,9 +19,10 @@ What one draw draws:
   reception model (:func:`kilonet.reception.reception_model`), whose noise-free estimates are
   each link's systematic error;
 * whether each directed link is in the receiver's table: a message on it arrives with
-  probability ``q``, its reception probability at its distance
-  (:func:`kilonet.radio.reception_probability`) times what occlusion and ``medium.loss_prob``
-  leave, and the link is there if any of the ``k`` messages the sender offers before phase 3
+  probability ``q``, one less the loss the reception model draws it against
+  (:meth:`kilonet.reception.GaussianRanging.loss_probability` of the soft edge's share,
+  :func:`kilonet.radio.reception_probability`, occlusion and ``medium.loss_prob``), and the
+  link is there if any of the ``k`` messages the sender offers before phase 3
   (:func:`messages_before_frames`) arrives: ``1 - (1 - q)**k``.
 
 Collisions are not drawn (they thin the messages a link carries but take none away for good),
