@@ -1,7 +1,10 @@
 """``kilonet analyze``: predict the global coordinate system's failure cases before a full run.
 
-``kilonet analyze PLACEMENT`` prints the prediction (:func:`kilonet.scenarios.analyze.predict`)
-and writes nothing unless asked: ``--out F.png`` draws it
+``kilonet analyze PLACEMENT`` prints the prediction over draws of the robots and their links
+(:func:`kilonet.scenarios.analyze.predict_draws`): the median and 90 % interval of the final
+global frames and of the robots that cannot localize, then the deterministic prediction from
+the links of the run's own robots (:func:`kilonet.scenarios.analyze.predict`). It writes
+nothing unless asked: ``--out F.png`` draws the deterministic prediction
 (:func:`kilonet.scenarios.analyze.prediction_figure`).
 """
 
@@ -14,14 +17,18 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from kilonet.app.commands import _parse_set
 from kilonet.errors import UsageError
-from kilonet.scenarios.analyze import predict, prediction_figure
+from kilonet.scenarios.analyze import predict_draws, prediction_figure
 from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS
 
 if TYPE_CHECKING:
     import numpy as np
 
 __all__ = ["register"]
+
+#: How many draws ``--draws`` makes unless told.
+DRAWS = 200
 
 
 def _cmd(args: argparse.Namespace) -> int:
@@ -36,16 +43,29 @@ def _cmd(args: argparse.Namespace) -> int:
         raise UsageError(
             f"{args.placement}: no such placement file or named placement (named: {named})"
         )
+    if args.draws < 1:
+        raise UsageError(f"--draws {args.draws}: give at least 1 draw")
+    overrides = _parse_set(args.set)  # the keys and values are checked by the run
     figure = None if args.out is None else _figure_target(args.out, args.replace)
     named = args.placement in NAMED_PLACEMENTS  # a name brings the thesis's premise along
-    report = predict(args.placement if named else positions, seed=args.seed)
+    drawn = predict_draws(
+        args.placement if named else positions, args.seed, overrides, draws=args.draws
+    )
+    report = drawn["deterministic"]
     if figure is not None:
         _write_figure(positions, report, figure)
     if args.json:
-        print(json.dumps({k: v for k, v in report.items() if k != "located_in"}, indent=2))
+        out = {k: v for k, v in report.items() if k != "located_in"}
+        out["link_draws"] = {k: v for k, v in drawn.items() if k != "deterministic"}
+        print(json.dumps(out, indent=2))
         return 0
+    frames, lost = drawn["final_frames"], drawn["unlocalizable"]
     print(f"robots                 {report['robots']}")
     print(f"seeds                  {len(report['seeds'])}")
+    print(f"over {drawn['draws']} draws of the robots and their links (median, 90 % interval):")
+    print(f"final global frames    {frames['median']}  [{frames['low']}, {frames['high']}]")
+    print(f"cannot localize        {lost['median']}  [{lost['low']}, {lost['high']}]")
+    print(f"deterministic, the links of seed {args.seed}'s robots:")
     print(f"cannot localize        {len(report['unlocalizable'])}  {report['unlocalizable']}")
     print(f"isolated seeds         {len(report['isolated_seeds'])}  {report['isolated_seeds']}")
     sizes = [len(c) for c in report["frames"]]
@@ -92,14 +112,29 @@ def _write_figure(pos: np.ndarray, report: dict[str, Any], path: Path) -> None:
 
 
 def register(subparsers: Any) -> None:
-    """Add ``kilonet analyze PLACEMENT [--seed S] [--json] [--out F.png [--replace]]``."""
+    """Add ``kilonet analyze PLACEMENT [--seed S] [--set KEY=VALUE ...] [--draws N] [--json]
+    [--out F.png [--replace]]``."""
     parser = subparsers.add_parser(
         "analyze", help="predict the global coordinate system's failure cases for a placement"
     )
     parser.add_argument(
         "placement", help="CSV with columns x_mm,y_mm, or a named placement (thesis-7.1a, ...)"
     )
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--seed", type=int, default=1, help="master seed of phases 1-2's run")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set a parameter as kilonet run does; repeat for more (kilonet params gcs)",
+    )
+    parser.add_argument(
+        "--draws",
+        type=int,
+        default=DRAWS,
+        metavar="N",
+        help=f"draws of the robots and their links (default: {DRAWS})",
+    )
     parser.add_argument("--json", action="store_true", help="print the prediction as JSON")
     parser.add_argument(
         "--out", metavar="F.png", help="also draw the prediction into F.png (default: no file)"

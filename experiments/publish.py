@@ -279,6 +279,13 @@ def _clock_drift_block(context: Context) -> str:
     return "\n".join([*_markdown_table(wide), "", f"Mean over {runs} seeds per row."])
 
 
+def _analyze_coverage_block(context: Context) -> str:
+    """``kilonet analyze``'s 90 % intervals against the topology sweep's runs."""
+    from kilonet.experiments.studies.topology_study import coverage_block
+
+    return coverage_block(_sweep(context, "topology"))
+
+
 def _benchmark(name: str, folder: str = "benchmarks"):
     """The module ``<folder>/<name>.py`` (benchmarks and evidence are scripts, not packages)."""
     import importlib.util
@@ -608,6 +615,7 @@ BLOCKS: dict[str, Block] = {
     "large-runs": Block(_PERFORMANCE, _large_runs_block),
     "scenario-targets": Block(_PERFORMANCE, _scenario_targets_block),
     "math-speed": Block("docs/results/math.md", _math_block),
+    "analyze-coverage": Block("docs/analyze.md", _analyze_coverage_block),
     # docs/results/gcs.md: experiments/studies/gcs_measured.py
     "gcs-robot-model": _gcs_page(gcs_measured.robot_model_block),
     "gcs-isolated-seeds": _gcs_page(gcs_measured.isolated_seeds_block),

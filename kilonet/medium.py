@@ -64,7 +64,7 @@ if TYPE_CHECKING:
     from kilonet.trace import Trace
     from kilonet.world import World
 
-__all__ = ["LOSS_CAUSES", "InfraredMedium", "RandomBlock"]
+__all__ = ["LOSS_CAUSES", "InfraredMedium", "RandomBlock", "directed_links"]
 
 _BLOCK = 1 << 11
 _MAX_ROWS_PER_REFILL = 64
@@ -75,6 +75,38 @@ _CAUSE_CODE = {cause: code for code, cause in _CODE_CAUSE.items()}
 #: the shortest wait its ``OCR0A = rand() & 0xFF`` retry can make (its longest: 255 counts,
 #: 32.6 ms); the parameter's lower bound.
 BACKOFF_MAX_FLOOR_S = 1 / 7812.5
+
+
+def directed_links(
+    link_model: LinkModel,
+    radio: Transceivers,
+    positions_mm: np.ndarray,
+    present: np.ndarray | None = None,
+    running: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every directed link among the ``present`` robots at ``positions_mm`` (mm) to a
+    ``running`` receiver (default: all), as the medium builds its receiver lists: ``sender``,
+    ``receiver`` (sorted by sender, then receiver), true ``distance_mm``, ``reach_mm`` (the
+    radio's reach of the link, shortened by each body on its line of sight under ``"graded"``
+    occlusion) and the occlusion's ``loss`` share. A link's reception probability is
+    :func:`kilonet.radio.reception_probability` of its distance and reach; the medium drops
+    links below :data:`kilonet.radio.MIN_RECEPTION`."""
+    links = link_model.links(positions_mm, present)
+    sender = np.concatenate([links.i, links.j])
+    receiver = np.concatenate([links.j, links.i])
+    dist = np.concatenate([links.distance_mm, links.distance_mm])
+    loss = np.concatenate([links.loss, links.loss])
+    bodies = np.concatenate([links.bodies, links.bodies])
+    if running is not None:
+        keep = running[receiver]
+        sender, receiver, dist, loss = sender[keep], receiver[keep], dist[keep], loss[keep]
+        bodies = bodies[keep]
+    order = np.lexsort((receiver, sender))
+    sender, receiver, dist, loss = sender[order], receiver[order], dist[order], loss[order]
+    reach = radio.link_reach_mm(sender, receiver)
+    if link_model.occlusion == "graded":  # each body crossed shortens the reach
+        reach = reach * link_model.range_factor ** bodies[order]
+    return sender, receiver, dist, reach, loss
 
 
 class RandomBlock:
@@ -328,19 +360,9 @@ class InfraredMedium:
     def _rebuild_all(self) -> None:
         """Every sender's links from scratch (see :meth:`rebuild_topology`)."""
         world = self._world
-        links = self.link_model.links(world.positions_mm, world.present)
-        sender = np.concatenate([links.i, links.j])
-        receiver = np.concatenate([links.j, links.i])
-        dist = np.concatenate([links.distance_mm, links.distance_mm])
-        loss = np.concatenate([links.loss, links.loss])
-        bodies = np.concatenate([links.bodies, links.bodies])
-        keep = world.running[receiver]
-        sender, receiver, dist, loss = sender[keep], receiver[keep], dist[keep], loss[keep]
-        order = np.lexsort((receiver, sender))
-        sender, receiver, dist, loss = sender[order], receiver[order], dist[order], loss[order]
-        reach = self.radio.link_reach_mm(sender, receiver)
-        if self.link_model.occlusion == "graded":  # each body crossed shortens the reach
-            reach = reach * self.link_model.range_factor ** bodies[keep][order]
+        sender, receiver, dist, reach, loss = directed_links(
+            self.link_model, self.radio, world.positions_mm, world.present, world.running
+        )
         cuts = np.searchsorted(sender, np.arange(self.n + 1))[1:-1]
         links = [np.split(a, cuts) for a in (receiver, dist, reach, loss)]
         before = self._link_r, self._link_d, self._link_reach, self._link_loss

@@ -19,11 +19,13 @@ if TYPE_CHECKING:
     import networkx as nx
 
     from kilonet.params import MediumParams
+    from kilonet.reception import ReceptionModel
     from kilonet.simulation import Simulation
 
 __all__ = [
     "RECEPTION_NOISE_MM",
     "held_estimates_mm",
+    "held_estimates_of_links",
     "neighbourhood_mm",
     "noise_free_estimate_mm",
     "trusted_links",
@@ -53,7 +55,11 @@ def noise_free_estimate_mm(
     """The estimate the link ``sender`` -> ``receiver`` gives at ``distance_mm`` without noise,
     mm: :meth:`kilonet.reception.TableRanging.systematic_mm`, the true distance plus the
     receiver's bias for :class:`~kilonet.reception.GaussianRanging`, else the true distance."""
-    model = sim.medium.reception
+    return _noise_free_of(sim.medium.reception, sender, receiver, distance_mm)
+
+
+def _noise_free_of(model: ReceptionModel, sender: int, receiver: int, distance_mm: float) -> float:
+    """:func:`noise_free_estimate_mm` under the reception ``model``, mm."""
     systematic = getattr(model, "systematic_mm", None)
     if systematic is not None:
         return float(systematic(sender, receiver, distance_mm))
@@ -73,7 +79,7 @@ def trusted_links(sim: Simulation, max_mm: float, margin_mm: float = 0.0) -> nx.
     graph.add_nodes_from(range(sim.n_robots))
     links = [(s, r) for s in range(sim.n_robots) for r in sim.medium.receivers_of(s)]
     distances = [float(np.hypot(*(pos[s] - pos[r]))) for s, r in links]
-    estimates = _noise_free_links_mm(sim, links, np.array(distances))
+    estimates = _noise_free_links_mm(sim.medium.reception, links, np.array(distances))
     for (s, r), d, estimate in zip(links, distances, estimates.tolist(), strict=True):
         if estimate <= max_mm - margin_mm:
             graph.add_edge(s, r, distance_mm=d, estimate_mm=estimate)
@@ -81,17 +87,16 @@ def trusted_links(sim: Simulation, max_mm: float, margin_mm: float = 0.0) -> nx.
 
 
 def _noise_free_links_mm(
-    sim: Simulation, links: list[tuple[int, int]], distance_mm: np.ndarray
+    model: ReceptionModel, links: list[tuple[int, int]], distance_mm: np.ndarray
 ) -> np.ndarray:
-    """:func:`noise_free_estimate_mm` of many ``(sender, receiver)`` links, row ``k`` at
-    ``distance_mm[k]`` (a row of distances per link, or one), in one call of the reception
-    model's ``noise_free_mm`` where it has one, mm."""
+    """:func:`noise_free_estimate_mm` of many ``(sender, receiver)`` links under the reception
+    ``model``, row ``k`` at ``distance_mm[k]`` (a row of distances per link, or one), in one
+    call of the model's ``noise_free_mm`` where it has one, mm."""
     distance_mm = np.asarray(distance_mm, dtype=float)
-    model = sim.medium.reception
     if not hasattr(model, "noise_free_mm") or not links:
         return np.array(
             [
-                [noise_free_estimate_mm(sim, s, r, d) for d in np.atleast_1d(row).tolist()]
+                [_noise_free_of(model, s, r, d) for d in np.atleast_1d(row).tolist()]
                 for (s, r), row in zip(links, distance_mm, strict=True)
             ]
         ).reshape(distance_mm.shape)
@@ -142,15 +147,39 @@ def held_estimates_mm(sim: Simulation, max_mm: float) -> np.ndarray:
     :meth:`kilonet.reception.TableRanging.effective_sigma_mm` has it) that are within the
     limit. A link whose noise-free estimate lies up to :data:`RECEPTION_NOISE_MM` beyond the
     limit is held too, at about the limit: the receptions the noise brings within it."""
-    estimates = np.full((sim.n_robots, sim.n_robots), np.nan)
-    spread = 0.5 * sim.params.ranging.intensity_noise
-    edges = list(trusted_links(sim, max_mm, -RECEPTION_NOISE_MM).edges(data="distance_mm"))
-    d = np.array([d for _, _, d in edges], dtype=float)[:, None]
-    sd = spread * (25.0 + np.maximum(d - 33.0, 0.0))
-    readings = _noise_free_links_mm(
-        sim, [(s, r) for s, r, _ in edges], d + sd * np.array(_QUANTILES)
+    pos = sim.world.positions_mm
+    links = [(s, r) for s in range(sim.n_robots) for r in sim.medium.receivers_of(s)]
+    distances = [float(np.hypot(*(pos[s] - pos[r]))) for s, r in links]
+    return held_estimates_of_links(
+        sim.medium.reception,
+        sim.params.ranging.intensity_noise,
+        sim.n_robots,
+        links,
+        np.array(distances, dtype=float),
+        max_mm,
     )
-    for (s, r, _), row in zip(edges, readings, strict=True):
+
+
+def held_estimates_of_links(
+    model: ReceptionModel,
+    intensity_noise: float,
+    n_robots: int,
+    links: list[tuple[int, int]],
+    distance_mm: np.ndarray,
+    max_mm: float,
+) -> np.ndarray:
+    """:func:`held_estimates_mm` of the links ``links[k] = (sender, receiver)`` at true
+    distances ``distance_mm[k]`` (mm) under the reception ``model`` and
+    ``ranging.intensity_noise``, for ``n_robots`` robots: the same estimates of links a caller
+    drew itself (:mod:`kilonet.scenarios.link_draws`) rather than the medium's links now."""
+    estimates = np.full((n_robots, n_robots), np.nan)
+    noise_free = _noise_free_links_mm(model, links, distance_mm)
+    kept = np.flatnonzero(noise_free <= max_mm + RECEPTION_NOISE_MM).tolist()
+    edges = [links[k] for k in kept]
+    d = np.asarray(distance_mm, dtype=float)[kept][:, None]
+    sd = 0.5 * intensity_noise * (25.0 + np.maximum(d - 33.0, 0.0))
+    readings = _noise_free_links_mm(model, edges, d + sd * np.array(_QUANTILES))
+    for (s, r), row in zip(edges, readings, strict=True):
         within = row[row <= max_mm]
         estimates[s, r] = float(np.mean(within)) if len(within) else max_mm
     return estimates

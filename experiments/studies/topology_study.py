@@ -13,13 +13,21 @@ experiments/topology.toml --out DIR``) and writes a Markdown report with:
 * a figure: the probability of one global frame against the mean neighbour count.
 
     python -m kilonet.experiments.studies.topology_study DIR [--out experiments/reports]
+
+With ``--coverage DRAWS`` it checks ``kilonet analyze``'s prediction over link draws instead
+(:func:`draw_coverage`): how often each run's observation lies in the 90 % interval.
+
+    python -m kilonet.experiments.studies.topology_study DIR --coverage 200
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
+from contextlib import nullcontext
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -30,7 +38,15 @@ import pandas as pd
 
 from kilonet.experiments.report import _markdown_table, load
 
-__all__ = ["detection_scores", "one_frame_shares", "prediction_confusion", "write_report"]
+__all__ = [
+    "coverage_block",
+    "coverage_shares",
+    "detection_scores",
+    "draw_coverage",
+    "one_frame_shares",
+    "prediction_confusion",
+    "write_report",
+]
 
 RECOVERY = "gcs.recoveries"
 #: The sweep's range axis: how far a robot's gcs takes its neighbours, mm.
@@ -87,6 +103,101 @@ def detection_scores(results: pd.DataFrame) -> dict[str, float]:
         "flagged": flagged,
         "boundary_robots": truth,
     }
+
+
+def draw_coverage(
+    sweep_dir: str | Path,
+    draws: int = 200,
+    *,
+    workers: int = 1,
+    progress: Callable[[dict[str, Any]], None] | None = None,
+) -> pd.DataFrame:
+    """``kilonet analyze``'s prediction over draws of the robots and their links
+    (:func:`kilonet.scenarios.analyze.predict_draws`) for every finished run without recovery
+    of the sweep in ``sweep_dir``, at the run's placement parameters and seed, next to what the
+    run observed; ``workers`` processes share the runs, ``progress`` is called with each row
+    as it is made (in run order).
+
+    Returns one row per run: the grid's values and ``seed``; ``frames`` and ``unlocalizable``
+    (observed: final global frames, robots in no frame); ``predicted`` (the in-run point
+    prediction of the final frames); ``frames_median``, ``frames_low``, ``frames_high`` and
+    ``unlocalizable_median``, ``unlocalizable_low``, ``unlocalizable_high`` (the draws'
+    median and 90 % interval); ``frames_inside`` and ``unlocalizable_inside``."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    sweep, results = load(sweep_dir)
+    done = _done(results).set_index("run_id")
+    jobs = [
+        (run.cell, run.overrides, run.seed, done.loc[run.run_id].to_dict(), draws)
+        for run in sweep.runs()
+        if run.overrides.get(RECOVERY) == 0 and run.run_id in done.index
+    ]
+    rows = []
+    with ProcessPoolExecutor(workers) if workers > 1 else nullcontext() as pool:
+        for row in pool.map(_coverage_row, jobs) if pool else map(_coverage_row, jobs):
+            if progress is not None:
+                progress(row)
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _coverage_row(job: tuple[dict, dict, int, dict, int]) -> dict[str, Any]:
+    """One row of :func:`draw_coverage`: ``job`` is the run's cell, overrides and seed, its
+    stored results and the number of draws."""
+    from kilonet.scenarios.analyze import predict_draws
+
+    cell, overrides, seed, seen, draws = job
+    drawn = predict_draws(None, seed, overrides, draws=draws)
+    row = {**cell, "seed": seed, "frames": int(seen["frames"])}
+    row["unlocalizable"] = len(json.loads(seen["failures.unlocalizable"]))
+    row["predicted"] = int(seen["predicted.final_frames"])
+    for name in ("frames", "unlocalizable"):
+        spread = drawn["final_frames" if name == "frames" else name]
+        for key in ("median", "low", "high"):
+            row[f"{name}_{key}"] = spread[key]
+        row[f"{name}_inside"] = spread["low"] <= row[name] <= spread["high"]
+    return row
+
+
+def coverage_shares(table: pd.DataFrame) -> dict[str, float]:
+    """From :func:`draw_coverage`'s table: the share of runs whose observed final frames
+    (``frames``) and unlocalizable robots (``unlocalizable``) lie in the draws' 90 % interval,
+    and the share where the in-run point prediction equals the observed final frames
+    (``point_equal``), over ``runs`` runs."""
+    return {
+        "runs": len(table),
+        "frames": float(table["frames_inside"].mean()),
+        "unlocalizable": float(table["unlocalizable_inside"].mean()),
+        "point_equal": float((table["predicted"] == table["frames"]).mean()),
+    }
+
+
+def coverage_block(sweep_dir: str | Path, draws: int = 200) -> str:
+    """The check of ``kilonet analyze``'s intervals on the sweep in ``sweep_dir``
+    (:func:`draw_coverage`, :func:`coverage_shares`) as Markdown: the shares overall and by
+    cell (``docs/analyze.md``'s block ``analyze-coverage``)."""
+    table = draw_coverage(sweep_dir, draws)
+    shares = coverage_shares(table)
+    cells = (
+        table.groupby([RANGE, "placement.density_per_m2"])
+        .agg(
+            runs=("seed", "size"),
+            frames_inside=("frames_inside", "mean"),
+            unlocalizable_inside=("unlocalizable_inside", "mean"),
+        )
+        .reset_index()
+        .round(2)
+    )
+    return "\n".join(
+        [
+            f"{shares['runs']} runs without recovery, {draws} draws each: the observed final "
+            f"frames lie in the 90 % interval in **{shares['frames']:.0%}** of runs, the "
+            f"robots that cannot localize in {shares['unlocalizable']:.0%}; the in-run point "
+            f"prediction equals the observed final frames in {shares['point_equal']:.0%}.",
+            "",
+            *_markdown_table(cells),
+        ]
+    )
 
 
 def _figure(results: pd.DataFrame, path: Path) -> None:
@@ -164,8 +275,25 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sweep_dir", help="output directory of kilonet sweep topology.toml")
     parser.add_argument("--out", default="experiments/reports")
+    parser.add_argument(
+        "--coverage",
+        type=int,
+        metavar="DRAWS",
+        help="instead of the report, check kilonet analyze's 90 %% intervals over DRAWS draws "
+        "against the runs without recovery and print each run and the shares inside",
+    )
+    parser.add_argument("--workers", type=int, default=1, help="processes for --coverage")
     args = parser.parse_args()
-    print(write_report(args.sweep_dir, args.out))
+    if args.coverage is None:
+        print(write_report(args.sweep_dir, args.out))
+        return
+    table = draw_coverage(
+        args.sweep_dir,
+        args.coverage,
+        workers=args.workers,
+        progress=lambda row: print(json.dumps(row), flush=True),
+    )
+    print(json.dumps(coverage_shares(table)))
 
 
 if __name__ == "__main__":
