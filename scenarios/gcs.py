@@ -61,6 +61,7 @@ __all__ = [
     "SCENARIO",
     "RunOutcomes",
     "estimates_frame",
+    "fold_outliers",
     "local_frames_frame",
     "own_components",
     "run_outcomes",
@@ -405,6 +406,44 @@ def _merge_metrics(run: _Run, out: dict[str, Any]) -> None:
         }
     )
     out.setdefault("failures", {})["boundary"] = _boundary(est, run.i, run.j)
+    out["fold_outliers"] = fold_outliers(
+        est, run.truth, run.i, run.j, sim.params.scenario.check_tolerance_mm
+    )
+
+
+def fold_outliers(
+    est: pd.DataFrame, truth_mm: np.ndarray, i: np.ndarray, j: np.ndarray, tolerance_mm: float
+) -> list[int]:
+    """The truth a fold repair is judged by: robots whose estimated distance to their linked
+    neighbours (pairs ``i``, ``j``) in the same final frame differs from the true one by more
+    than ``tolerance_mm`` for a majority, and at least two, of those neighbours
+    (:func:`kilonet.protocols.gcs.fold_rule.is_outlier`, applied to the truth): a frame whose
+    robots disagree with each other beyond the ranging error, not one merely bent.
+
+    Examples
+    --------
+    >>> import pandas as pd
+    >>> truth = np.array([[0.0, 0], [40, 0], [0, 40], [40, 40]])
+    >>> est = pd.DataFrame({"robot": range(4), "frame": ["a"] * 4,
+    ...                     "est_x_mm": [0.0, 40, 0, 140], "est_y_mm": [0.0, 0, 40, 40]})
+    >>> i, j = np.array([0, 0, 0, 1, 1, 2]), np.array([1, 2, 3, 2, 3, 3])
+    >>> fold_outliers(est, truth, i, j, 8.0)
+    [3]
+    """
+    from kilonet.protocols.gcs.fold_rule import is_outlier
+
+    label = est.frame.to_numpy()
+    xy = est[["est_x_mm", "est_y_mm"]].to_numpy()
+    same = (label[i] != "") & (label[i] == label[j])
+    a, b = i[same], j[same]
+    mismatch = np.abs(
+        np.hypot(*(xy[a] - xy[b]).T) - np.hypot(*(truth_mm[a] - truth_mm[b]).T)
+    ).tolist()
+    by_robot: dict[int, dict[int, float]] = {}
+    for p, q, m in zip(a.tolist(), b.tolist(), mismatch, strict=True):
+        by_robot.setdefault(p, {})[q] = m
+        by_robot.setdefault(q, {})[p] = m
+    return sorted(k for k, seen in by_robot.items() if is_outlier(seen, tolerance_mm))
 
 
 def _reference_metrics(run: _Run, out: dict[str, Any]) -> None:
