@@ -615,7 +615,7 @@ BLOCKS: dict[str, Block] = {
     "large-runs": Block(_PERFORMANCE, _large_runs_block),
     "scenario-targets": Block(_PERFORMANCE, _scenario_targets_block),
     "math-speed": Block("docs/results/math.md", _math_block),
-    "analyze-coverage": Block("docs/analyze.md", _analyze_coverage_block),
+    "analyze-coverage": Block("docs/results/analyze.md", _analyze_coverage_block),
     # docs/results/gcs.md: experiments/studies/gcs_measured.py
     "gcs-robot-model": _gcs_page(gcs_measured.robot_model_block),
     "gcs-isolated-seeds": _gcs_page(gcs_measured.isolated_seeds_block),

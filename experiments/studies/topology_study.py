@@ -175,7 +175,7 @@ def coverage_shares(table: pd.DataFrame) -> dict[str, float]:
 def coverage_block(sweep_dir: str | Path, draws: int = 200) -> str:
     """The check of ``kilonet analyze``'s intervals on the sweep in ``sweep_dir``
     (:func:`draw_coverage`, :func:`coverage_shares`) as Markdown: the shares overall and by
-    cell (``docs/analyze.md``'s block ``analyze-coverage``)."""
+    cell (``docs/results/analyze.md``'s block ``analyze-coverage``)."""
     table = draw_coverage(sweep_dir, draws)
     shares = coverage_shares(table)
     cells = (
