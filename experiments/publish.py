@@ -482,6 +482,58 @@ _MATH_FIGURES = (
 )
 
 
+#: The self-assembly runs the results page reports: robots, the shape (a shipped name, or a
+#: text bitmap written to a file for the run), cell width in mm, simulated seconds at most.
+SELF_ASSEMBLY_RUNS = ((20, "####\n" * 4, 40, 2400), (100, "square", 48, 6000))
+
+
+def _self_assembly_block(context: Context) -> str:
+    """Self-assembly's figures, one run (seed 1) per row of :data:`SELF_ASSEMBLY_RUNS`."""
+    import tempfile
+    import time
+
+    from kilonet import scenarios
+
+    lines = [
+        "| robots | shape | joined | IoU | localization error median / max mm | assembled s "
+        "| ended s | moving at once max / mean | jammed | lost | CPU s |",
+        "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    with tempfile.TemporaryDirectory() as folder:
+        for robots, shape, cell_mm, duration_s in SELF_ASSEMBLY_RUNS:
+            name = shape
+            if "\n" in shape:
+                rows = shape.split()
+                name = f"{len(rows)} x {len(rows[0])} bitmap"
+                path = Path(folder) / "shape.txt"
+                path.write_text(shape)
+                shape = str(path)
+            overrides = {
+                "placement.robots": robots,
+                "self_assembly.shape": shape,
+                "self_assembly.cell_mm": cell_mm,
+                "duration_s": duration_s,
+            }
+            cpu = time.process_time()
+            s = scenarios.run(scenarios.get("self-assembly"), overrides, seed=1).summary
+            cpu_s = time.process_time() - cpu
+            lines.append(
+                f"| {robots} | {name}, {cell_mm} mm cells "
+                f"| {s['joined']} ({s['joined_fraction']:.2f}) | {s['iou']:.3f} "
+                f"| {s['localization_error_median_mm']:.1f} / "
+                f"{s['localization_error_max_mm']:.1f} | {s['assembled_s']:.0f} "
+                f"| {s['sim_time_s']:.0f} | {s['moving_at_once_max']} / "
+                f"{s['moving_at_once_mean']:.2f} | {s['jammed_robots']} | {s['lost']} "
+                f"| {cpu_s:.0f} |"
+            )
+    lines += [
+        "",
+        "Seed 1 each; joined counts the robots that could move (the seeds stand). CPU seconds of "
+        "the run in the publishing process, on whatever else the machine was doing.",
+    ]
+    return "\n".join(lines)
+
+
 def _math_block(
     context: Context, *, repeat: int = 5, crlb_robots: int = 1000, gcs_robots: int | None = None
 ) -> str:
@@ -615,6 +667,7 @@ BLOCKS: dict[str, Block] = {
     "large-runs": Block(_PERFORMANCE, _large_runs_block),
     "scenario-targets": Block(_PERFORMANCE, _scenario_targets_block),
     "math-speed": Block("docs/results/math.md", _math_block),
+    "self-assembly-runs": Block("docs/results/self_assembly.md", _self_assembly_block),
     "analyze-coverage": Block("docs/results/analyze.md", _analyze_coverage_block),
     # docs/results/gcs.md: experiments/studies/gcs_measured.py
     "gcs-robot-model": _gcs_page(gcs_measured.robot_model_block),
