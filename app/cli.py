@@ -27,7 +27,7 @@ from typing import Any
 from kilonet import __version__
 from kilonet.errors import UserError, one_line
 
-__all__ = ["COMMANDS", "CommandParser", "main"]
+__all__ = ["BLAS_THREAD_VARIABLES", "COMMANDS", "CommandParser", "main", "one_blas_thread"]
 
 #: Entry-point group of the sub-commands.
 COMMANDS = "kilonet.commands"
@@ -99,12 +99,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     when a thread that is not a daemon still runs (one a robot program started, already
     refused in one line): the interpreter would otherwise wait for it at exit, forever.
     """
+    if argv is None:
+        one_blas_thread()
     status = _main(argv)
     if argv is None and status != 0 and _threads_left():
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(status)
     return status
+
+
+#: Environment variables that set the thread count of the BLAS libraries numpy and scipy load.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def one_blas_thread() -> None:
+    """Ask the BLAS library numpy will load for one thread, unless the user chose a count.
+
+    A run's linear algebra (the scenarios' scoring, the protocols' small least-squares fits)
+    works on matrices far too small for threads to pay: OpenBLAS's threads spin on the other
+    core and cost CPU (``docs/performance.md``), and a threaded sum's order varies, so the
+    reference metrics' last digits would vary between runs of one seed. Only effective before
+    numpy is imported, which the console script does not do before this; sweep workers inherit
+    the setting.
+    """
+    for name in BLAS_THREAD_VARIABLES:
+        os.environ.setdefault(name, "1")
 
 
 def _threads_left() -> bool:
