@@ -10,6 +10,8 @@ import pytest
 from kilonet.protocols.gcs.fold_rule import FoldDecision, fold_decision, is_outlier, refit
 
 TOLERANCE_MM, SIGMA_MM = 8.0, 2.5
+#: The rule's settings in every decision below: confirm time s, tolerance and ranging sigma mm.
+RULE = {"confirm_s": 10.0, "tolerance_mm": TOLERANCE_MM, "sigma_mm": SIGMA_MM}
 
 
 def _patch(bad_offset_mm: tuple[float, float], noise_mm: float = 1.5, seed: int = 1):
@@ -39,28 +41,14 @@ def _patch(bad_offset_mm: tuple[float, float], noise_mm: float = 1.5, seed: int 
 def test_a_bad_fix_is_the_outlier_and_is_repaired_near_its_true_position():
     truth, anchors, mismatches = _patch((117.0, 0.0))
     assert is_outlier(mismatches, TOLERANCE_MM)
-    decision = fold_decision(
-        anchors,
-        mismatches,
-        outlier_for_s=20.0,
-        confirm_s=10.0,
-        tolerance_mm=TOLERANCE_MM,
-        sigma_mm=SIGMA_MM,
-    )
+    decision = fold_decision(anchors, mismatches, outlier_for_s=20.0, **RULE)
     assert decision.action == "repair"
     assert math.hypot(*(np.array(decision.position) - truth[0])) < 3.0
 
 
 def test_a_good_fix_is_kept():
     _, anchors, mismatches = _patch((1.0, -1.0))
-    decision = fold_decision(
-        anchors,
-        mismatches,
-        outlier_for_s=None,
-        confirm_s=10.0,
-        tolerance_mm=TOLERANCE_MM,
-        sigma_mm=SIGMA_MM,
-    )
+    decision = fold_decision(anchors, mismatches, outlier_for_s=None, **RULE)
     assert decision == FoldDecision("keep")
 
 
@@ -88,10 +76,9 @@ def test_the_majority_needs_more_than_half_and_two(mismatches, expected):
 
 def test_the_robot_waits_for_the_confirm_time():
     _, anchors, mismatches = _patch((117.0, 0.0))
-    kwargs = {"confirm_s": 10.0, "tolerance_mm": TOLERANCE_MM, "sigma_mm": SIGMA_MM}
-    assert fold_decision(anchors, mismatches, outlier_for_s=9.9, **kwargs).action == "wait"
-    assert fold_decision(anchors, mismatches, outlier_for_s=None, **kwargs).action == "wait"
-    assert fold_decision(anchors, mismatches, outlier_for_s=10.0, **kwargs).action == "repair"
+    assert fold_decision(anchors, mismatches, outlier_for_s=9.9, **RULE).action == "wait"
+    assert fold_decision(anchors, mismatches, outlier_for_s=None, **RULE).action == "wait"
+    assert fold_decision(anchors, mismatches, outlier_for_s=10.0, **RULE).action == "repair"
 
 
 def test_neighbours_no_point_fits_make_it_split():
@@ -100,14 +87,7 @@ def test_neighbours_no_point_fits_make_it_split():
     _, anchors, mismatches = _patch((117.0, 0.0))
     anchors = {k: (x, y, d + (40.0 if k % 2 else -20.0)) for k, (x, y, d) in anchors.items()}
     assert refit(anchors, tolerance_mm=TOLERANCE_MM, sigma_mm=SIGMA_MM) is None
-    decision = fold_decision(
-        anchors,
-        mismatches,
-        outlier_for_s=20.0,
-        confirm_s=10.0,
-        tolerance_mm=TOLERANCE_MM,
-        sigma_mm=SIGMA_MM,
-    )
+    decision = fold_decision(anchors, mismatches, outlier_for_s=20.0, **RULE)
     assert decision == FoldDecision("split")
 
 
