@@ -51,7 +51,6 @@ def test_a_seam_is_closed_by_robots_placed_from_the_anchors_that_agree(robots):
     assert located.data.str.contains('"rule": "subset"').sum() >= 10 * robots / 400
 
 
-@pytest.mark.slow
 def test_the_sparse_disc_of_150_places_more_and_bends_less():
     # 300 per m², seed 3: 11.12 mm with 92.7 % placed before (7.53 mm before side_is_clear),
     # 8.82 mm with 96.0 % now (the solver 5.7 mm).

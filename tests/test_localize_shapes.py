@@ -379,7 +379,6 @@ def test_the_studys_corridor_is_placed_to_its_far_end(robots, length_mm, seed):
     assert s["at_optimum_over_central"] >= 0.95
 
 
-@pytest.mark.slow
 def test_a_frame_grows_past_one_coordinate_field():
     # 7 m: the frame reaches beyond one int16 field of tenths (±3,276.7 mm) from its root
     # and its messages still pack.

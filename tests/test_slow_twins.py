@@ -19,24 +19,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: Slow tests left without a twin, each with why no smaller run can make its claim. A new slow
-#: test must get a twin or an entry here.
-UNTWINNED: dict[str, str] = {
-    "tests/test_gcs.py::test_merge_300_robots_ends_near_the_central_optimum": (
-        "a strict xfail that holds on smaller swarms: 40, 60 and 100 robots end at 1.7, 6.0 and "
-        "4.95 x the central optimum, under the bound of 8; only a size whose merge takes "
-        "minutes fails it"
-    ),
-    "tests/test_localize_shapes.py::test_a_frame_grows_past_one_coordinate_field": (
-        "the claim is a frame reaching past 3,276.8 mm from its root: a 3.7 m corridor of 330 "
-        "robots (27 s of CPU) reaches only 2,069 mm, so no small swarm can make it"
-    ),
-    "tests/test_localize_folds.py::test_the_sparse_disc_of_150_places_more_and_bends_less": (
-        "at 300 robots per m² smaller discs place too few robots: 60 robots 63, 83 and 83 % "
-        "(seeds 1-3), 100 robots 38 % (seed 3), against the floor of 95 %"
-    ),
-}
-
 #: A pytest plugin for the collecting subprocess: every collected test, slow or not, its marks.
 PLUGIN = textwrap.dedent(
     """
@@ -76,19 +58,17 @@ class Collected:
     strict_xfail: bool
 
 
-def missing_twins(tests: list[Collected], untwinned: dict[str, str]) -> list[str]:
+def missing_twins(tests: list[Collected]) -> list[str]:
     """What breaks the convention, one line each (empty when every slow test is twinned).
 
-    ``untwinned`` maps ``file::function`` of slow tests left without a twin to the reason; an
-    entry that names no slow test is reported too, so the list cannot go stale.
+    There is no exemption: a claim no smaller run can make runs at full size in the default
+    tier instead of being marked slow.
     """
     problems = []
     slow = [t for t in tests if t.slow]
     slow_functions = {(t.file, t.function) for t in slow}
     default = [t for t in tests if not t.slow]
     for s in slow:
-        if f"{s.file}::{s.function}" in untwinned:
-            continue
         twins = [
             t
             for t in default
@@ -102,10 +82,6 @@ def missing_twins(tests: list[Collected], untwinned: dict[str, str]) -> list[str
         for name in t.twin_of:
             if (t.file, name) not in slow_functions:
                 problems.append(f"{t.nodeid}: twin_of({name!r}) names no slow test in {t.file}")
-    for key in untwinned:
-        file, _, function = key.partition("::")
-        if (file, function) not in slow_functions:
-            problems.append(f"{key}: listed as untwinned but is no slow test")
     return problems
 
 
@@ -133,7 +109,7 @@ def collect_all(tmp_path: Path) -> list[Collected]:
 def test_every_slow_test_has_a_default_tier_twin(tmp_path):
     tests = collect_all(tmp_path)
     assert sum(t.slow for t in tests) > 0 and sum(not t.slow for t in tests) > 1000
-    assert missing_twins(tests, UNTWINNED) == []
+    assert missing_twins(tests) == []
 
 
 def _test(function: str, *, slow: bool, twin_of=(), strict_xfail=False, param="") -> Collected:
@@ -145,7 +121,7 @@ def _test(function: str, *, slow: bool, twin_of=(), strict_xfail=False, param=""
 
 def test_the_rule_reports_a_slow_test_without_a_twin():
     tests = [_test("test_big", slow=True), _test("test_other", slow=False)]
-    assert missing_twins(tests, {}) == [
+    assert missing_twins(tests) == [
         "tests/test_x.py::test_big: slow, and no default-tier twin in tests/test_x.py"
     ]
 
@@ -156,7 +132,7 @@ def test_the_rule_takes_a_marked_twin_or_a_smaller_parametrization():
         _test("test_big", slow=True, param="[300]"),
         _test("test_big", slow=False, param="[40]"),
     ]
-    assert missing_twins(marked, {}) == missing_twins(sized, {}) == []
+    assert missing_twins(marked) == missing_twins(sized) == []
 
 
 def test_the_rule_wants_a_strict_xfail_twinned_by_a_strict_xfail():
@@ -164,14 +140,13 @@ def test_the_rule_wants_a_strict_xfail_twinned_by_a_strict_xfail():
         _test("test_big", slow=True, strict_xfail=True),
         _test("test_small", slow=False, twin_of=["test_big"]),
     ]
-    assert missing_twins(tests, {}) == [
+    assert missing_twins(tests) == [
         "tests/test_x.py::test_big: a strict xfail whose twins are not strict xfails"
     ]
 
 
-def test_the_rule_reports_a_dangling_twin_and_a_stale_exemption():
+def test_the_rule_reports_a_dangling_twin():
     tests = [_test("test_small", slow=False, twin_of=["test_gone"])]
-    assert missing_twins(tests, {"tests/test_x.py::test_old": "too big"}) == [
-        "tests/test_x.py::test_small: twin_of('test_gone') names no slow test in tests/test_x.py",
-        "tests/test_x.py::test_old: listed as untwinned but is no slow test",
+    assert missing_twins(tests) == [
+        "tests/test_x.py::test_small: twin_of('test_gone') names no slow test in tests/test_x.py"
     ]
