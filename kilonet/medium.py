@@ -432,25 +432,33 @@ class InfraredMedium:
                 self._refill_rows[s] = 1  # as in _rebuild_all
                 self._derive(s)
 
-    def _derive(self, s: int) -> None:
-        """Rebuild sender ``s``'s receiver, distance and handler lists; drop its drawn rows."""
-        self.counts.fold(s, self._rx_r[s])
-        self._epoch += 1
+    def _derive(self, s: int, *, relist: bool = False) -> None:
+        """Rebuild sender ``s``'s receiver, distance and handler lists; drop its drawn rows.
+
+        When its receivers stay the same (a neighbour moved, the battery shrank the reach a
+        little) only the distances and signal shares change: the receiver and handler lists,
+        the counters folded over them and the messages on the air keep standing, so the
+        in-flight messages keep the fast delivery path (what they deliver is the same).
+        ``relist`` rebuilds the lists anyway (a receiver's handler changed)."""
         r, d, loss = self._link_r[s], self._link_d[s], self._link_loss[s]
         p = reception_probability(d, self._link_reach[s] * self._range_factor[s], self._edge_mm)
         heard = p >= MIN_RECEPTION
         if not heard.all():
             r, d, loss, p = r[heard], d[heard], loss[heard], p[heard]
-        self._rx_idx[s] = r
         self._rx_d[s] = d
         self._rx_loss[s] = loss
         self._rx_signal[s] = 1.0 - p
+        self._row_count[s] = self._row_next[s] = 0  # rows drawn for the old links are void
+        self._shares[s] = None
+        if not relist and np.array_equal(r, self._rx_idx[s]):
+            return
+        self.counts.fold(s, self._rx_r[s])
+        self._epoch += 1
+        self._rx_idx[s] = r
         ids = self._ids
         self._rx_r[s] = [ids[k] for k in r.tolist()]
         self._rx_at[s] = {rx: at for at, rx in enumerate(self._rx_r[s])}
         self._rx_h[s] = [self._entries[k] for k in self._rx_r[s]]
-        self._row_count[s] = self._row_next[s] = 0  # rows drawn for the old lists are void
-        self._shares[s] = None
 
     def _senders_reaching(self, robot: int) -> list[int]:
         """Senders whose receiver lists may contain ``robot`` (links are symmetric)."""
@@ -532,7 +540,7 @@ class InfraredMedium:
         """The ports changed ``robot``'s entry (``None``: every robot's): rebuild the handler
         lists of the senders that reach it."""
         for s in range(self.n) if robot is None else self._senders_reaching(robot):
-            self._derive(s)
+            self._derive(s, relist=True)
 
     def set_tx_source(self, robot: int, source: Callable[[], Message | None]) -> None:
         """Ask ``source()`` instead of ``robot``'s ``message_tx()`` at its transmit
