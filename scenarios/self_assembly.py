@@ -59,6 +59,9 @@ SHAPES_DIR = Path(__file__).with_name("shapes")
 SEEDS = np.array([[0.0, 0.0], [36.0, 0.0], [18.0, 31.18], [54.0, 31.18]])
 #: Spacing of the packed start, mm (bodies 1 mm apart).
 PACKED_MM = 34.0
+#: Largest jitter of a packed robot along each axis, mm: neighbours stay more than the 33 mm
+#: body diameter apart (34 - 2 * sqrt(2) * 0.35 = 33.01).
+JITTER_MM = 0.35
 #: A moving robot whose body advances less than this in ``JAM_S`` seconds is jammed, mm.
 JAM_MM = 10.0
 #: The shape's bitmap starts this far left of and below the origin seed, mm: a seed's body
@@ -186,8 +189,9 @@ def load_shape(name: str, cell_mm: float) -> Shape:
 def _generate(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
     """The four seeds, then ``n - 4`` robots packed on a hex lattice :data:`PACKED_MM` apart to
     the left of and below them, its top-right robot beside the origin seed, each jittered by
-    up to 0.4 mm (bodies stay apart). The start touches the shape only at the seeds: robots
-    edge-follow clockwise along its top into the shape."""
+    up to :data:`JITTER_MM` along each axis, so that two neighbours close in by at most
+    ``2 * sqrt(2) * JITTER_MM`` and their bodies stay apart. The start touches the shape only at
+    the seeds: robots edge-follow clockwise along its top into the shape."""
     if n < 5:
         raise ValueError(f"self-assembly needs the 4 seeds and at least one robot to move, not {n}")
     movers = n - len(SEEDS)
@@ -197,7 +201,7 @@ def _generate(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
     for k in range(movers):
         row, col = divmod(k, cols)
         spots.append((-PACKED_MM * (col + 1) - (row % 2) * PACKED_MM / 2, -row * row_mm))
-    packed = np.array(spots) + rng.uniform(-0.4, 0.4, (movers, 2))
+    packed = np.array(spots) + rng.uniform(-JITTER_MM, JITTER_MM, (movers, 2))
     return np.vstack([SEEDS, packed])
 
 
