@@ -8,8 +8,9 @@ README's animation. One command, so that no number in the repository drifts from
 
 Each publication stamps what it writes with the date, the machine, the Python and kilonet
 versions and the git commit (:func:`stamp`), so a reader sees where a figure came from. Sweeps
-run into ``runs/publish/<name>`` and resume there if interrupted; delete that folder to start a
-sweep afresh.
+run into ``runs/publish/<name>`` and resume there if interrupted, as long as the code that runs
+a simulation is the same (a store made by other code is started afresh); delete that folder to
+start a sweep afresh anyway.
 
 Measured figures inside hand-written pages sit in generated blocks::
 
@@ -26,10 +27,12 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import hashlib
 import json
 import os
 import platform
 import re
+import shutil
 import subprocess
 import sys
 from collections.abc import Callable
@@ -182,13 +185,43 @@ class Block:
     make: Callable[[Context], str]
 
 
+#: The folders whose files decide what a run computes (the kernel, the protocols, the
+#: scenarios): :func:`_sweep` resumes only a store that code of the same files made.
+RUN_CODE = ("kilonet", "protocols", "scenarios")
+
+
+def code_fingerprint(root: Path | None = None) -> str:
+    """SHA-256 over every file under :data:`RUN_CODE` in ``root`` (default: this checkout; its
+    path and its bytes, ``__pycache__`` aside): equal exactly when the code that runs a
+    simulation is."""
+    root = root or ROOT
+    digest = hashlib.sha256()
+    for folder in RUN_CODE:
+        for path in sorted((root / folder).rglob("*")):
+            if path.is_file() and "__pycache__" not in path.parts:
+                digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+                digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
 def _sweep(context: Context, name: str) -> Path:
-    """Run (or resume) the sweep ``experiments/<name>.toml``; its results directory."""
+    """Run (or resume) the sweep ``experiments/<name>.toml``; its results directory.
+
+    A store left by other code (``<name>.code`` beside it names the code that made it: see
+    :func:`code_fingerprint`) is removed and the sweep started afresh: resuming it would publish
+    the old code's figures under a new stamp."""
     from kilonet.experiments.runner import run_sweep
     from kilonet.experiments.sweep import load_sweep
 
     source = ROOT / "experiments" / f"{name}.toml"
     out = context.runs / name
+    mark = context.runs / f"{name}.code"
+    code = code_fingerprint()
+    if out.exists() and (not mark.is_file() or mark.read_text() != code):
+        print(f"publish: {out} holds runs of other code; running {name} afresh", file=sys.stderr)
+        shutil.rmtree(out)
+    context.runs.mkdir(parents=True, exist_ok=True)
+    mark.write_text(code)
     run_sweep(load_sweep(source), out, workers=context.workers, source=source.read_text())
     return out
 

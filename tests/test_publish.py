@@ -172,3 +172,37 @@ def test_the_scenario_targets_block_formats_every_kind_of_row(monkeypatch):
         "| Kilombo's gradient workload, 1,000 robots | 7.4–14× | 14.5× (Kilombo) | ≤ 4× | no |"
     )
     assert table[5] == "| `python -m pytest -n auto` | ~6 min | 135 s wall | ≤ 180 s wall | yes |"
+
+
+def test_a_sweep_store_made_by_other_code_is_started_afresh(tmp_path, monkeypatch, capsys):
+    root = tmp_path / "repo"
+    for folder in publish.RUN_CODE:
+        (root / folder).mkdir(parents=True)
+        (root / folder / "a.py").write_text("one\n")
+    (root / "experiments").mkdir()
+    (root / "experiments" / "s.toml").write_text("sweep\n")
+    monkeypatch.setattr(publish, "ROOT", root)
+    made = []
+
+    def run_sweep(sweep, out, *, workers, source):
+        out.mkdir(exist_ok=True)
+        made.append(sorted(p.name for p in out.iterdir()))
+        (out / "results.db").write_text(source)
+
+    monkeypatch.setattr("kilonet.experiments.runner.run_sweep", run_sweep)
+    monkeypatch.setattr("kilonet.experiments.sweep.load_sweep", lambda path: path)
+    context = publish.Context(runs=tmp_path / "runs", workers=1)
+    first = publish.code_fingerprint(root)
+    publish._sweep(context, "s")
+    publish._sweep(context, "s")  # the same code: resumed
+    assert made == [[], ["results.db"]] and capsys.readouterr().err == ""
+    (root / "protocols" / "a.py").write_text("two\n")
+    (root / "protocols" / "__pycache__").mkdir()
+    (root / "protocols" / "__pycache__" / "a.pyc").write_bytes(b"\0")
+    assert publish.code_fingerprint(root) != first
+    publish._sweep(context, "s")  # other code: afresh
+    assert made[-1] == []
+    assert capsys.readouterr().err == (
+        f"publish: {tmp_path / 'runs' / 's'} holds runs of other code; running s afresh\n"
+    )
+    assert (tmp_path / "runs" / "s.code").read_text() == publish.code_fingerprint(root)
