@@ -151,3 +151,15 @@ def test_a_start_of_the_wrong_shape_is_refused():
 
 def _cost(pos: np.ndarray, pairs: np.ndarray, d: np.ndarray) -> float:
     return float(((np.hypot(*(pos[pairs[:, 0]] - pos[pairs[:, 1]]).T) - d) ** 2).sum())
+
+
+def test_a_localize_summary_reports_the_basin_test_by_cost():
+    # 40 robots on the default lattice: one frame at the optimum, in its basin by cost too,
+    # its own cost above the optimum's (the refinement stops short of the floor).
+    from kilonet import scenarios
+
+    s = scenarios.run(scenarios.get("localize"), {"placement.robots": 40}, seed=1).summary
+    assert s["at_optimum_over_central"] == 1.0
+    assert s["in_optimum_basin"] is True
+    assert abs(s["basin_excess"]) <= BASIN_EXCESS
+    assert s["run_cost_excess"] > BASIN_EXCESS
