@@ -711,7 +711,7 @@ def compare_with_optimum(
     if not parts:
         return OptimumComparison(out, False, math.nan, math.nan, math.nan)
     freedom = max(1, len(dist) - 2 * m + 3 * parts)
-    noise = max(NOISE_FLOOR_MM2, 2.0 * optimum_fit.cost / freedom)
+    noise = max(NOISE_FLOOR_MM2, 2.0 * float(optimum_fit.cost) / freedom)
     # scipy's cost is half the weighted sum of squares: twice its difference over the noise
     # per unit weight is the likelihood-ratio statistic.
     run_cost = 0.5 * float(
@@ -722,7 +722,7 @@ def compare_with_optimum(
         agreement_mm=out,
         in_basin=bool(basin <= max_excess),
         basin_excess=float(basin),
-        run_excess=2.0 * (run_cost - optimum_fit.cost) / noise,
+        run_excess=2.0 * (run_cost - float(optimum_fit.cost)) / noise,
         noise_mm2=noise,
     )
 
