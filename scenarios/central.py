@@ -20,6 +20,7 @@ Pure functions on millimetres; no simulation, scenario or protocol knowledge.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,9 +28,12 @@ import numpy as np
 from kilonet.protocols.common.alignment import procrustes_rmse, rigid_fit
 
 __all__ = [
+    "BASIN_EXCESS",
     "WITHIN_MM",
     "CentralResult",
+    "OptimumComparison",
     "central_reference",
+    "compare_with_optimum",
     "neighbourhood_errors",
     "optimum_agreement_mm",
     "pooled_aligned_rmse",
@@ -46,12 +50,32 @@ MIN_COMPONENT = 3
 #: its neighbours' line: 20 mm or more for any triangle the protocols accept).
 WITHIN_MM = 5.0
 
+#: A frame lies in the optimum's basin when least squares from its estimates ends at a cost
+#: at most this many noise units above the optimum's (:func:`compare_with_optimum`): the
+#: 95 % point of χ² with one degree of freedom, the likelihood-ratio test that the two
+#: configurations fit the measurements equally well. A fold puts a robot tens of
+#: millimetres off on each link it flipped, hundreds of units; two minima of a flat valley
+#: differ by a fraction of one.
+BASIN_EXCESS = 3.84
+
+#: The least noise variance per unit weight a noise unit assumes, mm²: one whole-millimetre
+#: reading's rounding (1/12 mm²). Without it, exact measurements (a fit of zero cost) would
+#: make any rounding of the optimiser's last digits infinitely many noise units.
+NOISE_FLOOR_MM2 = 1.0 / 12.0
+
+#: A start of the caller's replaces the solver's own fit only when its cost is lower by
+#: more than this fraction: least squares ending in the same minimum from two starts agrees
+#: to about this many digits, and the solver's own answer should not change with its last.
+_SAME_COST = 1e-6
+
 
 def solve_positions(
     n: int,
     pairs: np.ndarray,
     distances_mm: np.ndarray,
     weights: np.ndarray | None = None,
+    *,
+    starts: Sequence[np.ndarray] = (),
 ) -> np.ndarray:
     """Weighted least-squares positions of ``n`` robots from measured distances.
 
@@ -67,6 +91,14 @@ def solve_positions(
     weights : (E,) array, optional
         Weight of each measurement (e.g. the number of receptions a mean distance averages:
         its inverse variance up to a constant); default 1 each.
+    starts : sequence of (n, 2) arrays, optional
+        More starts for least squares (e.g. a swarm's own estimates, in any frame; NaN where
+        a robot has none), tried per component beside the solver's two when they hold at
+        least three of its robots off one line; the robots a start lacks start where the
+        MDS start, moved onto it, puts them. The fit of lowest cost is kept (the solver's
+        own on a tie within ``_SAME_COST``). Along a long corridor the optimum lies in a
+        valley so flat that least squares stops wherever it starts: a start nearer its floor
+        reaches a lower cost.
 
     Returns
     -------
@@ -79,7 +111,7 @@ def solve_positions(
     ------
     ValueError
         If shapes disagree, an index is out of range or a self-loop, a distance is not
-        positive and finite, or a weight is negative or not finite.
+        positive and finite, a weight is negative or not finite, or a start is not (n, 2).
 
     Notes
     -----
@@ -99,6 +131,10 @@ def solve_positions(
     0.0
     """
     pairs, dist, w = _checked(n, pairs, distances_mm, weights)
+    extra = [np.asarray(s, dtype=float) for s in starts]
+    for start in extra:
+        if start.shape != (n, 2):
+            raise ValueError(f"a start must be ({n}, 2); got shape {start.shape}")
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -115,7 +151,9 @@ def solve_positions(
         local[members] = np.arange(len(members))
         keep = labels[pairs[:, 0]] == label
         sub = local[pairs[keep]]
-        out[members] = _solve_component(len(members), sub, dist[keep], w[keep])
+        out[members] = _solve_component(
+            len(members), sub, dist[keep], w[keep], [start[members] for start in extra]
+        )
     return out
 
 
@@ -140,9 +178,12 @@ def _checked(n, pairs, distances_mm, weights):
     return pairs, dist, w
 
 
-def _solve_component(m: int, pairs: np.ndarray, dist: np.ndarray, w: np.ndarray) -> np.ndarray:
+def _solve_component(
+    m: int, pairs: np.ndarray, dist: np.ndarray, w: np.ndarray, extra: list[np.ndarray]
+) -> np.ndarray:
     """Positions (m, 2) of one connected component: least squares from two starts (stitched
-    patches, MDS of shortest paths), the lower cost kept."""
+    patches, MDS of shortest paths), the lower cost kept, then from each of ``extra`` (m, 2),
+    kept only if lower by more than ``_SAME_COST``."""
     mds = _mds_start(m, pairs, dist)
     fits = [_least_squares(m, pairs, dist, w, mds)]
     stitched = _patch_start(m, pairs, dist, w)
@@ -152,7 +193,17 @@ def _solve_component(m: int, pairs: np.ndarray, dist: np.ndarray, w: np.ndarray)
         stitched[~placed] = _rigid_onto(mds, stitched, placed)[~placed]
         fits.append(_least_squares(m, pairs, dist, w, stitched))
     # The lower cost is the better optimum: the choice uses the measurements alone.
-    return min(fits, key=lambda f: f.cost).x.reshape(m, 2)
+    best = min(fits, key=lambda f: f.cost)
+    for start in extra:
+        held = np.isfinite(start).all(axis=1)
+        if held.sum() < MIN_COMPONENT or not _wide(start[held]):
+            continue
+        filled = start.copy()
+        filled[~held] = _rigid_onto(mds, start, held)[~held]
+        fit = _least_squares(m, pairs, dist, w, filled)
+        if fit.cost < best.cost * (1.0 - _SAME_COST):
+            best = fit
+    return best.x.reshape(m, 2)
 
 
 def _least_squares(m: int, pairs: np.ndarray, dist: np.ndarray, w: np.ndarray, start):
@@ -389,6 +440,7 @@ def central_reference(
     weights: np.ndarray | None = None,
     *,
     within_mm: float = WITHIN_MM,
+    starts: Sequence[np.ndarray] = (),
 ) -> CentralResult:
     """Solve the positions from the measured distances and score them against the truth.
 
@@ -407,6 +459,8 @@ def central_reference(
         The measurements, as in :func:`solve_positions`.
     within_mm : float
         A robot counts as localized when its local error is at most this, mm.
+    starts : sequence of (n, 2) arrays, optional
+        More starts for the solver (:func:`solve_positions`), chosen between by cost alone.
 
     Returns
     -------
@@ -432,7 +486,7 @@ def central_reference(
     if truth.ndim != 2 or truth.shape[1] != 2 or not np.isfinite(truth).all():
         raise ValueError(f"truth_mm must be a finite (n, 2) array; got shape {truth.shape}")
     n = len(truth)
-    solved = solve_positions(n, pairs, distances_mm, weights)
+    solved = solve_positions(n, pairs, distances_mm, weights, starts=starts)
     pairs_arr = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
     labels = np.where(np.isfinite(solved[:, 0]), _components(n, pairs_arr), -1)
     rmse, aligned = pooled_aligned_rmse(solved, truth, labels)
@@ -527,7 +581,40 @@ def neighbourhood_errors(
     return out
 
 
-def optimum_agreement_mm(
+@dataclass(frozen=True)
+class OptimumComparison:
+    """A frame's estimates against the optimum of the same measurements
+    (:func:`compare_with_optimum`).
+
+    Attributes
+    ----------
+    agreement_mm : (n,) array
+        Per robot, how far the estimates polished to their nearest minimum lie from the
+        optimum after alignment, mm (NaN without both positions, or in a connected part of
+        fewer than three robots).
+    in_basin : bool
+        Whether least squares from the estimates ends at the optimum's cost, within
+        ``basin_excess`` noise units: the estimates lie in the optimum's basin.
+    basin_excess : float
+        The cost least squares from the estimates ends at, above the optimum's, in noise
+        units (NaN without three robots that have both positions and a measurement).
+    run_excess : float
+        The estimates' own cost above the optimum's, in noise units: how far short of the
+        floor the swarm stopped (NaN as ``basin_excess``).
+    noise_mm2 : float
+        The noise unit: the optimum's weighted squared residuals per degree of freedom
+        (measurements less 2 per robot plus 3 per connected part), at least
+        :data:`NOISE_FLOOR_MM2`, mm² per unit weight.
+    """
+
+    agreement_mm: np.ndarray
+    in_basin: bool
+    basin_excess: float
+    run_excess: float
+    noise_mm2: float
+
+
+def compare_with_optimum(
     estimates_mm: np.ndarray,
     optimum_mm: np.ndarray,
     pairs: np.ndarray,
@@ -535,19 +622,30 @@ def optimum_agreement_mm(
     weights: np.ndarray | None = None,
     *,
     within_mm: float = WITHIN_MM,
-) -> np.ndarray:
-    """How far a swarm's estimates lie from the optimum of the same measurements, mm.
+    max_excess: float = BASIN_EXCESS,
+) -> OptimumComparison:
+    """Whether a swarm's estimates lie at the optimum of the same measurements: by position
+    and by cost.
 
     A distributed refinement stops short of the optimum, by more the longer and thinner the
-    shape; a frame that folded or bent stops in another minimum altogether. To tell the two
-    apart, both are polished on the robots that have an estimate and an optimum position:
-    least squares over the measurements among them (:func:`solve_positions`' objective)
-    from the estimates, which ends at the minimum nearest them, and from the optimum, which
-    ends at the optimum of these robots' measurements. Each connected part of the first is
-    aligned onto the second (rigid, reflection allowed) on the robots that agree within
-    ``within_mm`` (so a folded part does not drag the rest). Estimates in the optimum's basin
-    agree to a fraction of a millimetre; the robots of a folded or bent part lie tens of
-    millimetres off.
+    shape; a frame that folded or bent stops in another minimum altogether. Both are polished
+    on the robots that have an estimate and an optimum position: least squares over the
+    measurements among them (:func:`solve_positions`' objective) from the estimates, which
+    ends at the minimum nearest them, and from the optimum, which ends at the optimum of
+    these robots' measurements.
+
+    *By position* (``agreement_mm``): each connected part of the first is aligned onto the
+    second (rigid, reflection allowed) on the robots that agree within ``within_mm`` (so a
+    folded part does not drag the rest). Estimates in the optimum's basin agree to a
+    fraction of a millimetre; the robots of a folded or bent part lie tens of millimetres
+    off. On a long corridor this fails: its optimum lies in a valley so flat along its bend
+    that least squares stops wherever it starts, and two points of the valley lie more than
+    ``within_mm`` apart at the same cost.
+
+    *By cost* (``in_basin``): the polished estimates' cost against the optimum's, in units
+    of the noise the optimum's residuals show. A point of the same flat valley costs what
+    the optimum costs; a fold costs every flipped link's error squared. The cost needs no
+    alignment (it is the same in every frame), and only the measurements judge it.
 
     Parameters
     ----------
@@ -560,12 +658,86 @@ def optimum_agreement_mm(
         The measurements, as in :func:`solve_positions`.
     within_mm : float
         The agreement the alignment is fitted to, mm.
+    max_excess : float
+        The largest ``basin_excess`` that counts as in the basin, noise units.
 
     Returns
     -------
-    (n,) array
-        Per robot the distance between the two polished positions, mm; NaN for robots
-        without both positions or in a connected part of fewer than three robots.
+    OptimumComparison
+
+    Raises
+    ------
+    ValueError
+        As :func:`solve_positions` for bad measurements.
+
+    Examples
+    --------
+    A row of 21 robots 40 mm apart, measured exactly between neighbours and next-neighbours,
+    bent along an arc of 1 m radius: by position it lies up to 55 mm from the straight
+    optimum after the best alignment (least squares from it barely moves), by cost it is
+    the optimum:
+
+    >>> k = np.arange(21)
+    >>> row = np.column_stack([40.0 * k, np.zeros(21)])
+    >>> arc = 1000.0 * np.column_stack([np.sin(k / 25), 1 - np.cos(k / 25)])
+    >>> pairs = np.array([(i, i + 1) for i in range(20)] + [(i, i + 2) for i in range(19)])
+    >>> d = np.hypot(*(row[pairs[:, 0]] - row[pairs[:, 1]]).T)
+    >>> result = compare_with_optimum(arc, row, pairs, d)
+    >>> round(float(np.nanmax(result.agreement_mm))), result.in_basin
+    (55, True)
+    """
+    est = np.asarray(estimates_mm, dtype=float)
+    opt = np.asarray(optimum_mm, dtype=float)
+    pairs, dist, w = _checked(len(est), pairs, distances_mm, weights)
+    both = np.flatnonzero(np.isfinite(est).all(axis=1) & np.isfinite(opt).all(axis=1))
+    out = np.full(len(est), np.nan)
+    local = np.full(len(est), -1)
+    local[both] = np.arange(len(both))
+    keep = (local[pairs[:, 0]] >= 0) & (local[pairs[:, 1]] >= 0)
+    if not keep.any():
+        return OptimumComparison(out, False, math.nan, math.nan, math.nan)
+    sub, m, dist, w = local[pairs[keep]], len(both), dist[keep], w[keep]
+    polished_fit = _least_squares(m, sub, dist, w, est[both])
+    optimum_fit = _least_squares(m, sub, dist, w, opt[both])
+    polished, optimum = polished_fit.x.reshape(m, 2), optimum_fit.x.reshape(m, 2)
+    labels = _components(m, sub)
+    parts = 0
+    for label in np.unique(labels):
+        part = np.flatnonzero(labels == label)
+        if len(part) >= MIN_COMPONENT:
+            parts += 1
+            moved = _aligned_on_agreement(polished[part], optimum[part], within_mm)
+            out[both[part]] = np.hypot(*(moved - optimum[part]).T)
+    if not parts:
+        return OptimumComparison(out, False, math.nan, math.nan, math.nan)
+    freedom = max(1, len(dist) - 2 * m + 3 * parts)
+    noise = max(NOISE_FLOOR_MM2, 2.0 * float(optimum_fit.cost) / freedom)
+    # scipy's cost is half the weighted sum of squares: twice its difference over the noise
+    # per unit weight is the likelihood-ratio statistic.
+    run_cost = 0.5 * float(
+        np.sum(w * (np.hypot(*(est[both][sub[:, 0]] - est[both][sub[:, 1]]).T) - dist) ** 2)
+    )
+    basin = 2.0 * (polished_fit.cost - optimum_fit.cost) / noise
+    return OptimumComparison(
+        agreement_mm=out,
+        in_basin=bool(basin <= max_excess),
+        basin_excess=float(basin),
+        run_excess=2.0 * (run_cost - float(optimum_fit.cost)) / noise,
+        noise_mm2=noise,
+    )
+
+
+def optimum_agreement_mm(
+    estimates_mm: np.ndarray,
+    optimum_mm: np.ndarray,
+    pairs: np.ndarray,
+    distances_mm: np.ndarray,
+    weights: np.ndarray | None = None,
+    *,
+    within_mm: float = WITHIN_MM,
+) -> np.ndarray:
+    """How far a swarm's estimates lie from the optimum of the same measurements, mm:
+    :func:`compare_with_optimum`'s ``agreement_mm``.
 
     Examples
     --------
@@ -580,26 +752,9 @@ def optimum_agreement_mm(
     >>> np.round(optimum_agreement_mm(folded + 3.0, sq, pairs, d), 6).tolist()
     [0.0, 0.0, 0.0, 0.0, 40.0]
     """
-    est = np.asarray(estimates_mm, dtype=float)
-    opt = np.asarray(optimum_mm, dtype=float)
-    pairs, dist, w = _checked(len(est), pairs, distances_mm, weights)
-    both = np.flatnonzero(np.isfinite(est).all(axis=1) & np.isfinite(opt).all(axis=1))
-    out = np.full(len(est), np.nan)
-    local = np.full(len(est), -1)
-    local[both] = np.arange(len(both))
-    keep = (local[pairs[:, 0]] >= 0) & (local[pairs[:, 1]] >= 0)
-    if not keep.any():
-        return out
-    sub, m = local[pairs[keep]], len(both)
-    polished = _least_squares(m, sub, dist[keep], w[keep], est[both]).x.reshape(m, 2)
-    optimum = _least_squares(m, sub, dist[keep], w[keep], opt[both]).x.reshape(m, 2)
-    labels = _components(m, sub)
-    for label in np.unique(labels):
-        part = np.flatnonzero(labels == label)
-        if len(part) >= MIN_COMPONENT:
-            moved = _aligned_on_agreement(polished[part], optimum[part], within_mm)
-            out[both[part]] = np.hypot(*(moved - optimum[part]).T)
-    return out
+    return compare_with_optimum(
+        estimates_mm, optimum_mm, pairs, distances_mm, weights, within_mm=within_mm
+    ).agreement_mm
 
 
 def _aligned_on_agreement(source: np.ndarray, target: np.ndarray, within_mm: float) -> np.ndarray:

@@ -22,6 +22,13 @@ A localization run (``gcs``, ``localize``) reports, next to its own RMSE:
   the optimum of the same measurements puts them; a folded or bent part lies tens of
   millimetres off), and ``off_optimum_robots``, the frame's robots it does not place there
   (the first :data:`LISTED_ROBOTS` by index);
+* ``in_optimum_basin``, ``basin_excess_over_central``, ``run_cost_excess_over_central``: the
+  same question by cost
+  (:func:`kilonet.scenarios.central.compare_with_optimum`): least squares from the largest
+  frame's estimates ends within :data:`kilonet.scenarios.central.BASIN_EXCESS` noise units of
+  the optimum's cost, that excess, and the estimates' own cost over the optimum's (how far
+  short of the floor the refinement stopped); sound where the optimum's valley is so flat
+  that two of its points lie more than ``WITHIN_MM`` apart at one cost (a long corridor);
 * ``hop_diameter`` of the communication graph: ``hop_diameter × robot.tx_period_s`` is the
   time information needs to cross the swarm.
 
@@ -150,7 +157,7 @@ def reference_metrics(
     link, no measurement, no noise) are left out, except ``crlb_rmse_mm`` (None without a
     link: the bound is infinite)."""
     from kilonet.scenarios.bounds import crlb_rmse_mm
-    from kilonet.scenarios.central import WITHIN_MM, central_reference, optimum_agreement_mm
+    from kilonet.scenarios.central import WITHIN_MM, central_reference, compare_with_optimum
 
     truth = sim.world.positions_mm
     i, j = links
@@ -171,15 +178,23 @@ def reference_metrics(
             out["crlb_received_rmse_mm"] = received
             out["rmse_over_crlb_received"] = rmse_mm / received
     if len(pairs):
-        central = central_reference(truth, pairs, means, samples)
+        # The frame's own estimates are one more start: where the optimum's valley is flat,
+        # least squares stops wherever it starts, and the lower cost is the better optimum.
+        central = central_reference(truth, pairs, means, samples, starts=[frame_mm])
         out["central_rmse_mm"] = central.rmse_mm
         out["central_localized_fraction"] = central.localized_fraction
         located = int(central.localized.sum())
         in_frame = np.isfinite(frame_mm).all(axis=1)
-        agreement = optimum_agreement_mm(frame_mm, central.aligned_mm, pairs, means, samples)
+        compared = compare_with_optimum(frame_mm, central.aligned_mm, pairs, means, samples)
+        agreement = compared.agreement_mm
         off = central.localized & in_frame & ~(agreement <= WITHIN_MM)
         at = central.localized & in_frame & ~off
         out["largest_frame_over_central"] = int(in_frame.sum()) / located if located else 0.0
         out["at_optimum_over_central"] = int(at.sum()) / located if located else 0.0
         out["off_optimum_robots"] = np.flatnonzero(off)[:LISTED_ROBOTS].tolist()
+        out["in_optimum_basin"] = compared.in_basin
+        # Thousandths of a noise unit: a frame in the basin polishes to the optimum's cost within
+        # the solver's last digits, which vary from run to run of the same swarm.
+        out["basin_excess_over_central"] = round(compared.basin_excess, 3)
+        out["run_cost_excess_over_central"] = compared.run_excess
     return out
