@@ -222,15 +222,6 @@ class LocalizeParams:
         doc="a settled robot stays settled until it is this far from where it settled, mm "
         "(0: only while the settle test holds)",
     )
-    still_rounds: int = param(
-        0,
-        lo=0,
-        hi=10_000,
-        doc="0: off; else the settled wave also counts a placed robot whose mean position over "
-        "settle_rounds moved less than settle_mm over its last still_rounds (at least "
-        "2 settle_rounds; a jittering robot "
-        "that makes no progress); faster to done, and a slow bend stops sooner",
-    )
     settle_timeout_s: float = param(
         120.0, lo=1.0, hi=3600.0, doc="a localized robot counts as settled after this anyway"
     )

@@ -10,17 +10,6 @@ takes a position after all if one turns up.
 
 Settledness climbs the tree of parents as a convergecast (:func:`subtree_complete`): a robot
 is *complete* when it is settled and every neighbour that names it parent reports complete.
-With ``localize.still_rounds`` set (off by default), a placed robot also counts for the wave
-when it is *still* (:func:`centre_drift_mm`): the mean of its last ``settle_rounds`` positions
-lies within ``settle_mm`` of the mean of the first ``settle_rounds`` of its last
-``still_rounds`` (at least twice ``settle_rounds``), with the same hysteresis as settledness
-on that mean. A robot with few or badly spread neighbours jitters by millimetres round by
-round as the distances it fits change by tenths: it never passes the settle test for long,
-and the wave waits for its ``settle_timeout_s`` though it makes no progress; its mean does
-not move. It is off by default because the wait is not always wasted: on a disc with a hole
-the frame is still unbending slowly while its robots pass the settle test, and the jittering
-robots' time-outs are what let it get near the optimum (``docs/localize.md``, Limits). Only
-the wave reads stillness; the SETTLED flag the spread's votes read is the settle test's.
 The tree is the frame's (:func:`~kilonet.protocols.localize.base.toward_root`): every parent hears
 its child and is nearer the root, so the root waits for every robot. When the root has been complete
 for ``localize.done_confirm_rounds`` rounds it declares the swarm *done*; DONE floods outward (a
@@ -36,7 +25,6 @@ The flags travel in POS and ROOT messages (:mod:`kilonet.protocols.localize.phas
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -45,7 +33,7 @@ from kilonet.protocols.localize.base import COMPLETE, SETTLED, Neighbour, childr
 if TYPE_CHECKING:
     from kilonet.protocols.localize.program import LocalizeRobot
 
-__all__ = ["Termination", "centre_drift_mm", "gives_up", "settled_at", "subtree_complete"]
+__all__ = ["Termination", "gives_up", "settled_at", "subtree_complete"]
 
 
 def settled_at(
@@ -75,42 +63,6 @@ def settled_at(
     if anchor is not None and math.dist(anchor, position) < unsettle_mm:
         return anchor
     return position if window_settled else None
-
-
-def centre_drift_mm(
-    track: Sequence[tuple[float, float]], rounds: int, span: int
-) -> tuple[float, tuple[float, float] | None]:
-    """How far a robot's mean position moved: the distance between the mean of the last
-    ``rounds`` positions of ``track`` (oldest first) and the mean of the first ``rounds`` of its
-    last ``span``, mm, and the last mean; ``(inf, None)`` until ``track`` holds ``span``.
-
-    Averaging over ``rounds`` removes a jitter about a point (a position that swings by
-    millimetres from round to round); a steady drift of v per round moves the mean by
-    ``v · (span − rounds)``.
-
-    Examples
-    --------
-    A robot that swings 3 mm back and forth has not moved; one that drifts 0.1 mm a round
-    has moved 0.4 mm in four rounds, 0.8 mm in eight:
-
-    >>> swing = [(0.0, 3.0 * (k % 2)) for k in range(8)]
-    >>> centre_drift_mm(swing, 4, 8)
-    (0.0, (0.0, 1.5))
-    >>> drift = [(0.1 * k, 0.0) for k in range(12)]
-    >>> round(centre_drift_mm(drift, 4, 8)[0], 9), round(centre_drift_mm(drift, 4, 12)[0], 9)
-    (0.4, 0.8)
-    >>> centre_drift_mm(drift[:7], 4, 8)
-    (inf, None)
-    """
-    if len(track) < span:
-        return math.inf, None
-    recent = list(track)[-span:]
-    before, last = recent[:rounds], recent[-rounds:]
-    bx = sum(p[0] for p in before) / rounds
-    by = sum(p[1] for p in before) / rounds
-    lx = sum(p[0] for p in last) / rounds
-    ly = sum(p[1] for p in last) / rounds
-    return math.hypot(lx - bx, ly - by), (lx, ly)
 
 
 def subtree_complete(settled: bool, uid: int, neighbours: Sequence[Neighbour]) -> bool:
@@ -178,11 +130,6 @@ class Termination:
         self.child_rounds = math.ceil(p.child_stale_s / p.round_s)
         self.settled = False
         self.settled_at: tuple[float, float] | None = None
-        # With still_rounds: the positions of the last still_rounds full rounds, and where
-        # the robot's mean position counts as still (centre_drift_mm).
-        self.still_span = max(p.still_rounds, 2 * p.settle_rounds)
-        self.track: deque[tuple[float, float]] = deque(maxlen=self.still_span)
-        self.still_at: tuple[float, float] | None = None
         self.complete = False
         self.done = False
         self.confirmed_rounds = 0
@@ -196,26 +143,17 @@ class Termination:
         # for it longer than the spread trusts a silent neighbour's record.
         children = r.neighbours.fresh(r.round_index, self.child_rounds)
         if not full:
-            self.complete = subtree_complete(self._counts(), r.uid, children)
+            self.complete = subtree_complete(self.settled, r.uid, children)
             return
         if r.position is not None:
-            p = r.params
             self.settled_at = settled_at(
-                self.settled_at, r.position, r.refiner.settled, p.unsettle_mm
+                self.settled_at, r.position, r.refiner.settled, r.params.unsettle_mm
             )
             self.settled = self.settled_at is not None or tick - r.located_tick >= self.settle_ticks
-            if p.still_rounds:
-                self.track.append(r.position)
-                drift, centre = centre_drift_mm(self.track, p.settle_rounds, self.still_span)
-                self.still_at = (
-                    None
-                    if centre is None
-                    else settled_at(self.still_at, centre, drift < p.settle_mm, p.unsettle_mm)
-                )
         else:
             quiet = tick - r.spread.news_tick >= self.give_up_ticks
             self.settled = gives_up(fresh, quiet)
-        self.complete = subtree_complete(self._counts(), r.uid, children)
+        self.complete = subtree_complete(self.settled, r.uid, children)
         if r.is_root:
             self.confirmed_rounds = self.confirmed_rounds + 1 if self.complete else 0
             if self.confirmed_rounds >= r.params.done_confirm_rounds:
@@ -226,16 +164,6 @@ class Termination:
             self.finish("silent")
         if tick >= self.run_timeout_tick:
             self.finish("run_timeout")
-
-    def _counts(self) -> bool:
-        """Whether this robot counts for the settled wave: settled, or placed and still
-        (``localize.still_rounds``)."""
-        return self.settled or (self.robot.position is not None and self.still_at is not None)
-
-    def forget(self) -> None:
-        """The position was replaced, not refined: its track and stillness start again."""
-        self.track.clear()
-        self.still_at = None
 
     def finish(self, cause: str) -> None:
         """Declare this robot done (``cause``: complete, heard, silent, run_timeout)."""

@@ -302,14 +302,12 @@ class LocalizeRobot(Kilobot):
         self.position = (x_mm, y_mm)
         self.located_tick = self.kilo_ticks
         self.refiner.reset()
-        self.termination.forget()
 
     def unlocate(self, cause: str) -> None:
         """Give the position up (``cause`` goes to the event log): it was taken from a frame
         start the root has since replaced."""
         self.position = None
         self.refiner.reset()
-        self.termination.forget()
         self.log("unlocated", cause=cause)
 
     def change_parent(self, parent: int) -> None:
