@@ -87,7 +87,7 @@ from kilonet.protocols.gcs.merging_rules import (
     round_end,
     seed_message,
 )
-from kilonet.protocols.gcs.replacement_wave import PlacedNeighbours
+from kilonet.protocols.gcs.replacement_wave import PLACED_TYPES, PlacedNeighbours
 from kilonet.protocols.gcs.split_detection import POS, SplitCheck
 from kilonet.protocols.gcs.transforms import (
     Transform,
@@ -437,7 +437,8 @@ class FrameMerging(Phase):
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
         kind = message.type
-        self.placed.take(message, self.robot.kilo_ticks)
+        if kind in PLACED_TYPES:  # rare: every other reception skips the call and the clock
+            self.placed.take(message, self.robot.kilo_ticks)
         if kind in _TRANSFORM_PARTS:
             self._track_transform(message)
         elif kind == TF_ROOT.type:
