@@ -19,8 +19,6 @@ from typing import TYPE_CHECKING, Any
 
 from kilonet.app.commands import _parse_set
 from kilonet.errors import UsageError
-from kilonet.scenarios.analyze import predict_draws, prediction_figure
-from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS
 
 if TYPE_CHECKING:
     import numpy as np
@@ -32,7 +30,11 @@ DRAWS = 200
 
 
 def _cmd(args: argparse.Namespace) -> int:
+    # Imported here, not with the module: `kilonet --help` registers this command too, and
+    # the prediction (numpy, the gcs protocol) is for `kilonet analyze` alone.
     from kilonet.placement import load_csv
+    from kilonet.scenarios.analyze import predict_draws
+    from kilonet.scenarios.thesis_placements import NAMED_PLACEMENTS
 
     if args.placement in NAMED_PLACEMENTS:
         positions = NAMED_PLACEMENTS[args.placement]()
@@ -100,6 +102,7 @@ def _figure_target(out: str, replace: bool) -> Path:
 def _write_figure(pos: np.ndarray, report: dict[str, Any], path: Path) -> None:
     """Draw into a temporary file beside ``path`` and rename it into place, so a failure
     leaves nothing behind."""
+    from kilonet.scenarios.analyze import prediction_figure
 
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.png")
     try:

@@ -32,14 +32,18 @@ from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
 from dataclasses import fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from kilonet import scenarios
 from kilonet.errors import UsageError, UserError
 from kilonet.params import ParamError, Params, describe
-from kilonet.scenarios.base import Scenario, ScenarioOption, build_params, json_safe
 from kilonet.scenarios.progress import MODES
 from kilonet.watchdog import BUSY_CALL_S, check_watchdog_s
+
+# What registering the commands imports stays light (no numpy, no scenario): `kilonet --help`
+# registers every command. The scenarios' machinery is imported where a command runs.
+if TYPE_CHECKING:
+    from kilonet.scenarios.base import Scenario, ScenarioOption
 
 __all__ = ["register_params", "register_run", "register_scenarios", "run_file_overrides"]
 
@@ -224,6 +228,8 @@ def run_file_overrides(scenario: Scenario, path: str | Path, overrides: dict[str
     ParamError
         If a key is unknown or a value invalid.
     """
+    from kilonet.scenarios.base import build_params
+
     try:
         build_params(scenario, overrides)
     except ParamError as whole:
@@ -357,7 +363,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run_command(args: argparse.Namespace) -> int:
-    from kilonet.scenarios.base import AfterRunError, after_the_run, write_run_files
+    from kilonet.scenarios.base import AfterRunError, after_the_run, json_safe, write_run_files
     from kilonet.scenarios.output_dir import OutputDir
     from kilonet.scenarios.progress import StageProgress
 
@@ -435,6 +441,8 @@ def _run_params(
         If they cannot be built; a fault of the run file names the file and, for one key, its
         line (:func:`run_file_overrides`).
     """
+    from kilonet.scenarios.base import build_params
+
     try:
         return build_params(scenario, overrides, seed=args.seed, placement=args.placement)
     except ParamError:
@@ -577,6 +585,8 @@ def register_params(subparsers: Any) -> None:
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
+    from kilonet.scenarios.base import build_params
+
     name = args.scenario or scenarios.DEFAULT
     section = None
     if args.program is not None:

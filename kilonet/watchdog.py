@@ -13,10 +13,12 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from kilonet.errors import UserError
-from kilonet.robot import Kilobot
+
+if TYPE_CHECKING:
+    from kilonet.robot import Kilobot
 
 __all__ = [
     "BUSY_CALL_S",
@@ -75,7 +77,11 @@ def check_watchdog_s(seconds: float, where: str = "watchdog_s") -> float:
 
 def robot_frame(frame: FrameType | None) -> tuple[Kilobot, FrameType] | None:
     """The outermost frame of ``frame``'s stack that runs a method of a robot program (its
-    ``self`` is a :class:`Kilobot`): the callback the simulation called, and its robot."""
+    ``self`` is a :class:`Kilobot`): the callback the simulation called, and its robot.
+    (The robot module, and numpy with it, is imported here, not with this module: the
+    command line reads :data:`BUSY_CALL_S` for its help.)"""
+    from kilonet.robot import Kilobot
+
     found = None
     while frame is not None:
         robot = frame.f_locals.get("self")

@@ -15,18 +15,12 @@ A researcher's own program file is a scenario too, under the name a sweep stores
 from __future__ import annotations
 
 from importlib.metadata import entry_points
+from typing import TYPE_CHECKING
 
-from kilonet.scenarios.base import (
-    Drawing,
-    Reporting,
-    RunResult,
-    Scenario,
-    ScenarioError,
-    Setup,
-    run,
-    run_with_params,
-    write_outputs,
-)
+from kilonet.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from kilonet.scenarios.base import Scenario
 
 __all__ = [
     "DEFAULT",
@@ -50,6 +44,27 @@ GROUP = "kilonet.scenarios"
 #: What ``kilonet run`` runs when no scenario is named.
 DEFAULT = "gcs"
 
+# The scenarios' machinery (numpy, the kernel) is imported on first use: the command line
+# lists the scenarios' names for its help without it (kilonet.lazy).
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        name: "kilonet.scenarios.base"
+        for name in (
+            "Drawing",
+            "Reporting",
+            "RunResult",
+            "Scenario",
+            "ScenarioError",
+            "Setup",
+            "run",
+            "run_with_params",
+            "write_outputs",
+        )
+    },
+    globals(),
+)
+
 
 def names() -> list[str]:
     """The registered scenarios' names, sorted (nothing is imported)."""
@@ -69,6 +84,7 @@ def get(name: str) -> Scenario:
     TypeError
         If the entry point names something that is not a :class:`Scenario` (a packaging bug).
     """
+    from kilonet.scenarios.base import Scenario, ScenarioError
     from kilonet.scenarios.program import PROGRAM_PREFIX, scenario_of_key
 
     if name.startswith(PROGRAM_PREFIX):

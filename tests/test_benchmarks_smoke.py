@@ -18,6 +18,7 @@ SMOKE = {
         ["--robots", "20", "--sim-s", "10", "--video-s", "1", "--fps", "5"],
         r"ms/frame",
     ),
+    "bench_delivery.py": (["--collided", "0.4", "--repeat", "1"], r"us per transmission"),
     "bench_gcs.py": (["--sizes", "20", "--seed", "1", "--floor"], r'"floor": "table"'),
     "bench_kilombo.py": (["--sizes", "50", "--repeat", "1"], r'"robots": 50'),
     "bench_large.py": (

@@ -130,9 +130,37 @@ class NeighbourTable(Generic[R]):
         self._in_id_order: list[R] = []  # by_id's records sorted by ID, for fresh() and ids()
         #: Receptions recorded, from every neighbour.
         self.samples_total = 0
-        self.duplicate_mm = duplicate_mm
-        self.duplicate_after = duplicate_after
+        self._duplicate_mm = duplicate_mm
+        self._duplicate_after = duplicate_after
+        self._test_from = self._samples_to_test()
         self.stale_rounds = stale_rounds
+
+    @property
+    def duplicate_mm(self) -> float:
+        """A sample farther than this from its ID's mean marks the ID ambiguous, mm (infinite:
+        no test); a program may set it as it learns its noise."""
+        return self._duplicate_mm
+
+    @duplicate_mm.setter
+    def duplicate_mm(self, value: float) -> None:
+        self._duplicate_mm = value
+        self._test_from = self._samples_to_test()
+
+    @property
+    def duplicate_after(self) -> int:
+        """Samples an ID needs before the duplicate test applies to it."""
+        return self._duplicate_after
+
+    @duplicate_after.setter
+    def duplicate_after(self, value: int) -> None:
+        self._duplicate_after = value
+        self._test_from = self._samples_to_test()
+
+    def _samples_to_test(self) -> float:
+        """The samples from which :meth:`heard` tests for a duplicate: ``duplicate_after``, or
+        never (``inf``) when ``duplicate_mm`` is ``inf`` (or NaN), where no sample can fail the
+        test (gcs): then a reception skips its arithmetic."""
+        return self._duplicate_after if self._duplicate_mm < math.inf else math.inf
 
     def heard(self, uid: int, distance_mm: float, stamp: int = 0) -> R:
         """Record a reception from ``uid`` at ``distance_mm`` in round ``stamp``; return its
@@ -141,9 +169,9 @@ class NeighbourTable(Generic[R]):
         if n is None:
             n = self._by_id[uid] = self.record_type(uid)
             insort(self._in_id_order, n, key=_uid_of)
-        elif n.samples >= self.duplicate_after and abs(
-            distance_mm * n.samples - n.distance_sum_mm
-        ) > (self.duplicate_mm * n.samples):
+        elif n.samples >= self._test_from and abs(distance_mm * n.samples - n.distance_sum_mm) > (
+            self._duplicate_mm * n.samples
+        ):
             n.ambiguous = True
         n.distance_sum_mm += distance_mm
         n.distance_sq_sum_mm2 += distance_mm * distance_mm

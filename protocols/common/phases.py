@@ -164,9 +164,13 @@ class PhaseDriver:
     until : float
         The tick at which the running phase's window closes (``inf``: it ends only when it
         reports itself finished).
+    handler : callable
+        ``handler(kind)``: the receive handler for message type ``kind`` now, or ``None`` for
+        a type nobody handles. The table's own ``get``, rebound when a phase begins: a
+        reception looks its handler up without a Python call.
     """
 
-    __slots__ = ("_common", "_entered", "_table", "phase", "until")
+    __slots__ = ("_common", "_entered", "handler", "phase", "until")
 
     def __init__(
         self,
@@ -175,7 +179,7 @@ class PhaseDriver:
         entered: Callable[[Phase], None] | None = None,
     ) -> None:
         self._common: dict[int, Handler] = dict(handlers)
-        self._table = self._common
+        self._set_table(self._common)
         self._entered = entered
         self.phase: Phase | None = None
         self.until = math.inf
@@ -185,10 +189,9 @@ class PhaseDriver:
         """The running phase's stage ("" when no phase runs)."""
         return self.phase.name if self.phase is not None else ""
 
-    def handler(self, kind: int) -> Handler | None:
-        """The receive handler for message type ``kind`` now, or ``None`` for a type nobody
-        handles."""
-        return self._table.get(kind)
+    def _set_table(self, table: dict[int, Handler]) -> None:
+        """Receive by ``table`` from now on (:attr:`handler` is its ``get``)."""
+        self.handler: Callable[[int], Handler | None] = table.get
 
     def enter(self, phase: Phase | None, *, until: float | None = None) -> None:
         """Finish the running phase, if any, and start ``phase`` (``None``: run none), whose
@@ -198,10 +201,10 @@ class PhaseDriver:
         self.phase = phase
         if phase is None:
             self.until = math.inf
-            self._table = self._common
+            self._set_table(self._common)
             return
         self.until = phase.until if until is None else until
-        self._table = {**self._common, **phase.handlers()}
+        self._set_table({**self._common, **phase.handlers()})
         if self._entered is not None:
             self._entered(phase)
         phase.start()

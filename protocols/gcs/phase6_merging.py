@@ -87,7 +87,7 @@ from kilonet.protocols.gcs.merging_rules import (
     round_end,
     seed_message,
 )
-from kilonet.protocols.gcs.replacement_wave import PlacedNeighbours
+from kilonet.protocols.gcs.replacement_wave import PLACED_TYPES, PlacedNeighbours
 from kilonet.protocols.gcs.split_detection import POS, SplitCheck
 from kilonet.protocols.gcs.transforms import (
     Transform,
@@ -147,6 +147,7 @@ HINT = gcs_layout("hint", type=67, fields=[("seed", "H"), *_PARTNER])
 _TRANSFORM_PARTS = {TF_ROT.type: (TF_ROT, "rot"), TF_SHIFT.type: (TF_SHIFT, "shift")}
 _ANSWER_PARTS = {ANS_ROT.type: (ANS_ROT, "rot"), ANS_SHIFT.type: (ANS_SHIFT, "shift")}
 _ERROR_LIMIT_MM = 127.5  # ANS_ERROR's error field saturates here
+_UNHEARD = (None, None)  # (version, halves) of a frame none of whose halves is heard yet
 _IDENTITY = Rotation.identity()
 _OWN_ROUND_S = 1.0  # pause after a round the seed answered itself (about a round's length)
 
@@ -397,7 +398,7 @@ class FrameMerging(Phase):
         if m.sender == r.uid:
             return
         key = r.frame_key(m.sender)
-        version, parts = self.parts.get(key, (None, {}))
+        version, parts = self.parts.get(key, _UNHEARD)
         number = version_number(m.version)
         if version != number:  # a newer version: older halves are void
             version, parts = number, {}
@@ -437,7 +438,8 @@ class FrameMerging(Phase):
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
         kind = message.type
-        self.placed.take(message, self.robot.kilo_ticks)
+        if kind in PLACED_TYPES:  # rare: every other reception skips the call and the clock
+            self.placed.take(message, self.robot.kilo_ticks)
         if kind in _TRANSFORM_PARTS:
             self._track_transform(message)
         elif kind == TF_ROOT.type:
@@ -476,6 +478,7 @@ class SeedRounds:
     """
 
     __slots__ = (
+        "_halves",
         "asking",
         "disagreed",
         "done",
@@ -541,6 +544,10 @@ class SeedRounds:
         self.unanswered: dict[FrameKey, int] = {}  # rounds timed out, per partner never heard
         self.turns = 0  # rounds started without a hint
         self.turn = 0  # transmit opportunities
+        # The last TF_ROT (key True) and TF_SHIFT (False) sent, with what they were packed
+        # from: (sender, version byte, rotation or shift object, message). A seed repeats its
+        # transform many times between steps; a step assigns new rotation and shift objects.
+        self._halves: dict[bool, tuple[int, int, object, Message]] = {}
 
     def start(self) -> None:
         """Publish the initial transform; a seed without partners is isolated, done at once.
@@ -749,12 +756,21 @@ class SeedRounds:
         return self._transform_message(rotation=kind == "rotation")
 
     def _transform_message(self, *, rotation: bool) -> Message:
-        """One half of this seed's transform: TF_ROT or TF_SHIFT."""
+        """One half of this seed's transform: TF_ROT or TF_SHIFT. The message sent last for
+        that half when nothing it was packed from changed (messages are immutable; packing
+        the rotation's quaternion is the costly part)."""
         sender, version = self.robot.uid, self._version_byte()
+        source = self.rotation if rotation else self.shift
+        last = self._halves.get(rotation)
+        if last is not None and last[0] == sender and last[1] == version and last[2] is source:
+            return last[3]
         if rotation:
-            return TF_ROT.pack(sender=sender, version=version, **quaternion_fields(self.rotation))
-        vx, vy, vz = self.shift
-        return TF_SHIFT.pack(sender=sender, version=version, vx_mm=vx, vy_mm=vy, vz_mm=vz)
+            message = TF_ROT.pack(sender=sender, version=version, **quaternion_fields(source))
+        else:
+            vx, vy, vz = source
+            message = TF_SHIFT.pack(sender=sender, version=version, vx_mm=vx, vy_mm=vy, vz_mm=vz)
+        self._halves[rotation] = (sender, version, source, message)
+        return message
 
     def message_rx(self, message: Message) -> None:
         """Hints, and the parts of the running round's answer."""

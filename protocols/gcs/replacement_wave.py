@@ -22,7 +22,14 @@ from kilonet.protocols.gcs.frame_keys import Root
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
-__all__ = ["GPOS", "GPOS_PLACED", "GPOS_SETTLED", "PlacedNeighbours", "wave_reached"]
+__all__ = [
+    "GPOS",
+    "GPOS_PLACED",
+    "GPOS_SETTLED",
+    "PLACED_TYPES",
+    "PlacedNeighbours",
+    "wave_reached",
+]
 
 _GPOS_FIELDS = [("x_mm", "h", 0.1), ("y_mm", "h", 0.1), ("root", "H"), ("salt", "B")]
 #: A refining robot's global position and root, before the wave has placed it; GPOS_SETTLED:
@@ -35,6 +42,8 @@ GPOS_PLACED = gcs_layout("gpos_placed", type=75, fields=_GPOS_FIELDS)
 STALE_S = 3.0
 #: The placed positions, by message type.
 _PLACED_LAYOUTS = {layout.type: layout for layout in (GPOS_PLACED, GPOS_SETTLED)}
+#: Their type bytes: a receiver reads its clock for :meth:`PlacedNeighbours.take` only for these.
+PLACED_TYPES = frozenset(_PLACED_LAYOUTS)
 
 
 def wave_reached(own: Root | None, roots: Iterable[Root]) -> bool:
