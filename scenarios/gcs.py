@@ -123,14 +123,17 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
 
 
 def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
-    """Nothing more will happen: every seed is done, every robot merges in the same epoch, and
-    no recovery is announced or about to be (the robots then get :data:`_CHECK_S` to check
-    their neighbours, :mod:`kilonet.protocols.gcs.split_detection`)."""
+    """Nothing more will happen: every seed is done, every robot merges in the same epoch, no
+    recovery is announced or about to be, and the fold rule is about to act on no robot (the
+    robots then get :data:`_CHECK_S` to check their neighbours,
+    :mod:`kilonet.protocols.gcs.split_detection`)."""
     if not seeds or not all(r.merge_done for r in seeds):
         return False
     if len({r.epoch for r in robots}) > 1:
         return False
-    return not any(r.phase_name != GcsStage.MERGE or r.awaiting_recovery() for r in robots)
+    return not any(
+        r.phase_name != GcsStage.MERGE or r.awaiting_recovery() or r.awaiting_fold() for r in robots
+    )
 
 
 def _expected_end_s(params: Params) -> float | None:
@@ -409,6 +412,12 @@ def _merge_metrics(run: _Run, out: dict[str, Any]) -> None:
     out["fold_outliers"] = fold_outliers(
         est, run.truth, run.i, run.j, sim.params.scenario.check_tolerance_mm
     )
+    # What the swarm did about folds (gcs.fold) that stands at the end: robots holding a repair,
+    # robots split off into a frame of their own (the events fold_repaired and fold_split log
+    # every action, those a recovery epoch voided too).
+    folds = [o.fold for o in robots]
+    out["fold_repaired"] = folds.count("repaired")
+    out["fold_split"] = folds.count("split")
 
 
 def fold_outliers(
