@@ -151,7 +151,7 @@ class GcsParams:
     # neighbour's flag lapses, so a disagreement seen while merging still moves the frame is
     # not acted on.
     fold: bool = param(
-        True, doc="a settled robot its neighbours disagree with is re-placed or leaves the frame"
+        True, doc="a robot its same-frame neighbours disagree with is re-placed or leaves the frame"
     )
     fold_confirm_s: float = param(
         10.0, lo=0.5, hi=3600.0, doc="the fold rule acts on a disagreement that lasts this long"
