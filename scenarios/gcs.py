@@ -77,6 +77,12 @@ def _program(params: Any, positions: np.ndarray):
 #: After the last seed is done, the time robots get to exchange positions (a settled robot
 #: sends one at every fourth transmit opportunity, about one a second) and flag a boundary.
 _CHECK_S = 5.0
+#: After the last seed is done, the longest the run waits for robots the fold rule is about to
+#: act on (kilonet.protocols.gcs.split_detection): a settled one acts within
+#: gcs.fold_confirm_s; one not settled (it holds a transform without its done mark, from a seed
+#: at the edge of its range) acts, or agrees with its neighbours, once it hears the mark again.
+#: One that has not within this is reported as it stands.
+_FOLD_WAIT_S = 60.0
 
 
 def _stop_when(sim: Simulation) -> bool:
@@ -95,7 +101,12 @@ def _stop_when(sim: Simulation) -> bool:
     if name == GcsStage.REFINE:
         return _refinement_over(robots)
     seeds = [r for r in robots if r.is_seed]
-    return _merging_over(robots, seeds) and now - max(r.merge_done_at_s for r in seeds) >= _CHECK_S
+    if not _merging_over(robots, seeds):
+        return False
+    quiet = now - max(r.merge_done_at_s for r in seeds)
+    return quiet >= _CHECK_S and (
+        quiet >= _FOLD_WAIT_S or not any(r.awaiting_fold() for r in robots)
+    )
 
 
 def _refinement_over(robots: list[GcsRobot]) -> bool:
@@ -123,17 +134,15 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
 
 
 def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
-    """Nothing more will happen: every seed is done, every robot merges in the same epoch, no
-    recovery is announced or about to be, and the fold rule is about to act on no robot (the
-    robots then get :data:`_CHECK_S` to check their neighbours,
-    :mod:`kilonet.protocols.gcs.split_detection`)."""
+    """Nothing more will happen: every seed is done, every robot merges in the same epoch, and
+    no recovery is announced or about to be (the robots then get :data:`_CHECK_S` to check
+    their neighbours, :mod:`kilonet.protocols.gcs.split_detection`, and up to
+    :data:`_FOLD_WAIT_S` for the fold rule)."""
     if not seeds or not all(r.merge_done for r in seeds):
         return False
     if len({r.epoch for r in robots}) > 1:
         return False
-    return not any(
-        r.phase_name != GcsStage.MERGE or r.awaiting_recovery() or r.awaiting_fold() for r in robots
-    )
+    return not any(r.phase_name != GcsStage.MERGE or r.awaiting_recovery() for r in robots)
 
 
 def _expected_end_s(params: Params) -> float | None:

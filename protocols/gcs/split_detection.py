@@ -28,10 +28,13 @@ The check also runs the fold rule (:mod:`kilonet.protocols.gcs.fold_rule`, ``gcs
 it keeps every same-frame comparison, consistent or not, with the neighbour's position and the
 measured distance, and how long the robot has been inconsistent with a majority of them (the
 *outlier*). A robot compares its estimate with settled neighbours of its own root even before it
-is settled itself: a robot that missed the done mark of one transform (a seed at the edge of
-its range) never settles, yet ends in the frame, and its estimate may be the bad fix. A split
-boundary is still judged by settled robots only. Once the outlier has lasted
-``gcs.fold_confirm_s``, :meth:`SplitCheck.fold_step` acts on
+is settled itself, so that the run can wait for it (:meth:`SplitCheck.awaiting_fold`): one that
+holds a transform without its done mark (from a seed at the edge of its range) is not settled,
+and its estimate may disagree with its neighbours' until it hears the mark. It acts only once
+settled: an estimate not settled is still moved by merging, and a robot that re-placed itself
+against its neighbours then could be left behind when their frame moved. A split boundary is
+still judged by settled robots only. Once the outlier has lasted ``gcs.fold_confirm_s`` (its
+merged estimate not moving meanwhile), :meth:`SplitCheck.fold_step` acts on
 :func:`~kilonet.protocols.gcs.fold_rule.fold_decision`: a **repair** replaces the robot's global
 position by the refit one, a **split** takes the robot out of the frame into a frame of its own
 (:func:`split_root`), and either is logged (``fold_repaired``, ``fold_split``). What the robot
@@ -39,8 +42,12 @@ holds then (:meth:`SplitCheck.held`) is what it broadcasts and compares here and
 reads as its estimate. A split robot sends no POS and compares nothing: it left the frame on
 purpose, and a POS naming its own frame would put its neighbours on a split boundary and ask for
 a recovery. The action holds while the merged estimate keeps its root and stays within
-``gcs.check_tolerance_mm`` of where it was (merging moving it on voids it); the robot acts at
-most once per root, so a fold the rule cannot mend does not keep the run waiting. A recovery
+``gcs.check_tolerance_mm`` of where it was, and while the neighbours it was judged against
+report positions within that of the ones it used: a settled frame may still be moved by
+merging (a done seed resumes when a better root reaches it), and a robot re-placed against
+neighbours that then move is left behind. A void action is logged (``fold_void``). Otherwise
+the robot acts at most once per root, so a fold the rule cannot mend does not keep the run
+waiting. A recovery
 epoch starts a new check, and with it the rule.
 
 The comparison uses only what the robot heard: its neighbours' messages and its own ranging.
@@ -87,13 +94,15 @@ def distance_mismatch_mm(
 
 class Fold(NamedTuple):
     """What the fold rule did on a robot: ``action`` (``"repaired"`` or ``"split"``), the
-    ``position`` (mm) and ``root`` it holds since, and the merged estimate it acted on
-    (``merged``: position, mm, and root)."""
+    ``position`` (mm) and ``root`` it holds since, the merged estimate it acted on (``merged``:
+    position, mm, and root), and the neighbours it was judged against (``anchors``: ID →
+    broadcast position and measured distance, mm)."""
 
     action: Literal["repaired", "split"]
     position: tuple[float, float]
     root: Root
     merged: tuple[tuple[float, float], Root]
+    anchors: dict[int, tuple[float, float, float]]
 
 
 def split_root(robot: GcsRobot) -> Root:
@@ -184,10 +193,10 @@ class SplitCheck:
         )
 
     def fold_step(self) -> None:
-        """Act on the fold rule (``gcs.fold``): called while merging, cheap unless the robot is
-        the outlier. A repair or split is logged and held (:meth:`held`)."""
+        """Act on the fold rule (``gcs.fold``) once settled: called while merging, cheap unless
+        the robot is the outlier. A repair or split is logged and held (:meth:`held`)."""
         r = self.robot
-        if self.outlier_since is None or not self.params.fold:
+        if self.outlier_since is None or not self.params.fold or not r.estimate.settled():
             return
         root = r.estimate.root()
         if root in self.fold_roots:
@@ -198,16 +207,32 @@ class SplitCheck:
         self.fold_roots.add(root)
         self.outlier_since = None
         merged = (r.estimate.position(), root)
-        neighbours = sorted(self.compared)
+        anchors = dict(self.compared)
+        neighbours = sorted(anchors)
         self.compared.clear()  # judged against the position it held: compare afresh
         if decision.action == "repair":
             position = decision.position
-            self.fold = Fold("repaired", position, root, merged)
+            self.fold = Fold("repaired", position, root, merged, anchors)
             r.log("fold_repaired", x_mm=position[0], y_mm=position[1], neighbours=neighbours)
         else:
             own = split_root(r)
-            self.fold = Fold("split", merged[0], own, merged)
+            self.fold = Fold("split", merged[0], own, merged, anchors)
             r.log("fold_split", root=own.label, neighbours=neighbours)
+
+    def _anchor_moved(self, uid: int, xy_mm: tuple[float, float], root: Root) -> None:
+        """Neighbour ``uid`` now reports ``xy_mm`` in ``root``: if it was one the rule acted
+        against and has moved by more than the tolerance, or left the frame, merging moved
+        the frame after all; the action is void and the robot is judged anew (it may act again
+        in this root)."""
+        fold = self.fold
+        anchor = fold.anchors.get(uid)
+        if anchor is None:
+            return
+        moved = math.hypot(xy_mm[0] - anchor[0], xy_mm[1] - anchor[1])
+        if root != fold.merged[1] or moved > self.params.check_tolerance_mm:
+            self.fold = None
+            self.fold_roots.discard(fold.merged[1])
+            self.robot.log("fold_void", action=fold.action, neighbour=uid)
 
     def wants_recovery(self) -> bool:
         """On a split boundary for ``gcs.split_confirm_s`` and recoveries are left."""
@@ -299,9 +324,13 @@ class SplitCheck:
         r = self.robot
         m = POS.unpack(message)
         estimate = r.estimate
-        if m.sender not in r.table or estimate.root() is None or self._left_frame():
+        if m.sender not in r.table or estimate.root() is None:
             return
         root = Root.from_wire(m.root, m.root_salt)
+        if self.fold is not None:
+            self._anchor_moved(m.sender, (m.x_mm, m.y_mm), root)
+        if self._left_frame():
+            return
         xy, own_root = self.held()
         settled = estimate.settled()
         if settled:  # a boundary, and the flags the run reports, are judged by settled robots
