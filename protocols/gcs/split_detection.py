@@ -39,16 +39,16 @@ merged estimate not moving meanwhile), :meth:`SplitCheck.fold_step` acts on
 position by the refit one, a **split** takes the robot out of the frame into a frame of its own
 (:func:`split_root`), and either is logged (``fold_repaired``, ``fold_split``). What the robot
 holds then (:meth:`SplitCheck.held`) is what it broadcasts and compares here and what the run
-reads as its estimate. A split robot sends no POS and compares nothing: it left the frame on
-purpose, and a POS naming its own frame would put its neighbours on a split boundary and ask for
-a recovery. The action holds while the merged estimate keeps its root and stays within
-``gcs.check_tolerance_mm`` of where it was, and while the neighbours it was judged against
-report positions within that of the ones it used: a settled frame may still be moved by
-merging (a done seed resumes when a better root reaches it), and a robot re-placed against
-neighbours that then move is left behind. A void action is logged (``fold_void``). Otherwise
-the robot acts at most once per root, so a fold the rule cannot mend does not keep the run
-waiting. A recovery
-epoch starts a new check, and with it the rule.
+reads as its estimate. A split robot sends no POS and compares nothing (it only watches the
+neighbours it was judged against): it left the frame on purpose, and a POS naming its own frame
+would put its neighbours on a split boundary and ask for a recovery. The action holds while the
+merged estimate keeps its root and stays within ``gcs.check_tolerance_mm`` of where it was, and
+while the neighbours it was judged against report positions within that of the ones it used: a
+settled frame may still be moved by merging (a done seed resumes when a better root reaches
+it), and a robot re-placed against neighbours that then move is left behind. A void action is
+logged (``fold_void``). Otherwise the robot acts at most once per root, so a fold the rule
+cannot mend does not keep the run waiting. A recovery epoch starts a new check, and with it
+the rule.
 
 The comparison uses only what the robot heard: its neighbours' messages and its own ranging.
 """
