@@ -44,8 +44,8 @@ neighbours it was judged against): it left the frame on purpose, and a POS namin
 would put its neighbours on a split boundary and ask for a recovery. The action holds while the
 merged estimate keeps its root and stays within ``gcs.check_tolerance_mm`` of where it was, and
 while the neighbours it was judged against report positions within that of the ones it used: a
-settled frame may still be moved by merging (a done seed resumes when a better root reaches
-it), and a robot re-placed against neighbours that then move is left behind. A void action is
+settled frame may still be moved by merging (a seed done merging may resume, and move its
+frame), and a robot re-placed against neighbours that then move is left behind. A void action is
 logged (``fold_void``). Otherwise the robot acts at most once per root, so a fold the rule
 cannot mend does not keep the run waiting. A recovery epoch starts a new check, and with it
 the rule.
