@@ -77,6 +77,12 @@ def _program(params: Any, positions: np.ndarray):
 #: After the last seed is done, the time robots get to exchange positions (a settled robot
 #: sends one at every fourth transmit opportunity, about one a second) and flag a boundary.
 _CHECK_S = 5.0
+#: After the last seed is done, the longest the run waits for robots the fold rule is about to
+#: act on (kilonet.protocols.gcs.split_detection): a settled one acts within
+#: gcs.fold_confirm_s; one not settled (it holds a transform without its done mark, from a seed
+#: at the edge of its range) acts, or agrees with its neighbours, once it hears the mark again.
+#: One that has not within this is reported as it stands.
+_FOLD_WAIT_S = 60.0
 
 
 def _stop_when(sim: Simulation) -> bool:
@@ -95,7 +101,12 @@ def _stop_when(sim: Simulation) -> bool:
     if name == GcsStage.REFINE:
         return _refinement_over(robots)
     seeds = [r for r in robots if r.is_seed]
-    return _merging_over(robots, seeds) and now - max(r.merge_done_at_s for r in seeds) >= _CHECK_S
+    if not _merging_over(robots, seeds):
+        return False
+    quiet = now - max(r.merge_done_at_s for r in seeds)
+    return quiet >= _CHECK_S and (
+        quiet >= _FOLD_WAIT_S or not any(r.awaiting_fold() for r in robots)
+    )
 
 
 def _refinement_over(robots: list[GcsRobot]) -> bool:
@@ -125,7 +136,8 @@ def _refinement_over(robots: list[GcsRobot]) -> bool:
 def _merging_over(robots: list[GcsRobot], seeds: list[GcsRobot]) -> bool:
     """Nothing more will happen: every seed is done, every robot merges in the same epoch, and
     no recovery is announced or about to be (the robots then get :data:`_CHECK_S` to check
-    their neighbours, :mod:`kilonet.protocols.gcs.split_detection`)."""
+    their neighbours, :mod:`kilonet.protocols.gcs.split_detection`, and up to
+    :data:`_FOLD_WAIT_S` for the fold rule)."""
     if not seeds or not all(r.merge_done for r in seeds):
         return False
     if len({r.epoch for r in robots}) > 1:
@@ -409,6 +421,12 @@ def _merge_metrics(run: _Run, out: dict[str, Any]) -> None:
     out["fold_outliers"] = fold_outliers(
         est, run.truth, run.i, run.j, sim.params.scenario.check_tolerance_mm
     )
+    # What the swarm did about folds (gcs.fold) that stands at the end: robots holding a repair,
+    # robots split off into a frame of their own (the events fold_repaired and fold_split log
+    # every action, those a recovery epoch voided too).
+    folds = [o.fold for o in robots]
+    out["fold_repaired"] = folds.count("repaired")
+    out["fold_split"] = folds.count("split")
 
 
 def fold_outliers(

@@ -95,3 +95,13 @@ def test_fewer_than_three_neighbours_cannot_refit():
     _, anchors, _ = _patch((117.0, 0.0))
     two = dict(list(anchors.items())[:2])
     assert refit(two, tolerance_mm=TOLERANCE_MM, sigma_mm=SIGMA_MM) is None
+
+
+def test_two_neighbours_disagreeing_are_no_ground_to_act():
+    """Two circles meet in two points: a position fitting both exists, ambiguous, so the robot
+    neither refits nor leaves; it keeps its position however long it disagrees."""
+    _, anchors, mismatches = _patch((117.0, 0.0))
+    two = dict(list(anchors.items())[:2])
+    assert is_outlier({k: mismatches[k] for k in two}, TOLERANCE_MM)
+    decision = fold_decision(two, {k: mismatches[k] for k in two}, outlier_for_s=99.0, **RULE)
+    assert decision == FoldDecision("keep")

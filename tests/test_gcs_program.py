@@ -154,8 +154,10 @@ def test_outcomes_are_read_once_and_agree_with_the_robots():
     for robot, o in zip(sim.robots, outcomes.robots, strict=True):
         assert isinstance(robot, GcsRobot)
         assert (o.uid, o.is_seed, o.own_key) == (robot.uid, robot.is_seed, robot.own_key)
-        assert o.position == robot.estimate.position()
-        assert o.root == robot.estimate.root()
+        # The merged estimate, or what the fold rule made of it (gcs.fold).
+        assert (o.position, o.root) == robot.check.held()
+        if robot.check.fold is None:
+            assert (o.position, o.root) == (robot.estimate.position(), robot.estimate.root())
         assert dict(o.local_positions) == dict(robot.estimate.frames)
         assert o.merge_rounds == (robot.phase.seed.rounds if robot.is_seed else 0)
     seeds = [o for o in outcomes.robots if o.is_seed]

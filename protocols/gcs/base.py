@@ -145,6 +145,17 @@ class GcsParams:
     split_confirm_s: float = param(
         40.0, lo=0.5, hi=3600.0, doc="a split boundary must persist this long to act on it"
     )
+    # The fold rule (kilonet.protocols.gcs.fold_rule): on, so that no final frame holds a robot
+    # its neighbours disagree with beyond the ranging error. The confirm time: several POS from
+    # each neighbour (about one a second each), longer than the 5 s after which a silent
+    # neighbour's flag lapses, so a disagreement seen while merging still moves the frame is
+    # not acted on.
+    fold: bool = param(
+        True, doc="a robot its same-frame neighbours disagree with is re-placed or leaves the frame"
+    )
+    fold_confirm_s: float = param(
+        10.0, lo=0.5, hi=3600.0, doc="the fold rule acts on a disagreement that lasts this long"
+    )
     recoveries: int = param(2, lo=0, hi=20, doc="recovery epochs (edge seeds, phases 3-6) at most")
     recover_flood_s: float = param(
         20.0, lo=1.0, hi=600.0, doc="a recovery epoch starts this long after it is requested"

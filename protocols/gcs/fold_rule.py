@@ -14,8 +14,10 @@ neighbours' positions and its own measured distances
 (:func:`kilonet.protocols.common.geometry.multilaterate`, with its collinearity, residual and
 mirror checks). A refit whose residual exceeds the check's tolerance would still disagree with
 them: then the robot cannot be placed in the frame consistently and leaves it (a split).
-:func:`fold_decision` puts the two together, with the confirm time: a disagreement must last
-before the robot acts, as the check's flags clear when merging moves the frame.
+With fewer than three neighbours compared the robot does neither: two circles meet in two
+points, so a position that fits them exists but is ambiguous, and "no point fits" cannot be
+said. :func:`fold_decision` puts the two together, with the confirm time: a disagreement must
+last before the robot acts, as the check's flags clear when merging moves the frame.
 """
 
 from __future__ import annotations
@@ -28,7 +30,10 @@ import numpy as np
 
 from kilonet.protocols.common.geometry import multilaterate
 
-__all__ = ["FoldDecision", "fold_decision", "is_outlier", "refit"]
+__all__ = ["MIN_ANCHORS", "FoldDecision", "fold_decision", "is_outlier", "refit"]
+
+#: Neighbours a refit needs, and the rule needs before it acts (see the module docstring).
+MIN_ANCHORS = 3
 
 
 def is_outlier(mismatches_mm: Mapping[int, float], tolerance_mm: float) -> bool:
@@ -75,7 +80,7 @@ def refit(
     >>> refit(dict(list(square.items())[:2]), tolerance_mm=8.0, sigma_mm=2.5) is None
     True
     """
-    if len(anchors) < 3:
+    if len(anchors) < MIN_ANCHORS:
         return None
     uids = sorted(anchors)
     xy = np.array([anchors[u][:2] for u in uids], dtype=float)
@@ -91,7 +96,8 @@ class FoldDecision:
     Attributes
     ----------
     action : str
-        ``"keep"`` (not the outlier), ``"wait"`` (the outlier, not yet for the confirm time),
+        ``"keep"`` (not the outlier, or too few neighbours to act on), ``"wait"`` (the
+        outlier, not yet for the confirm time),
         ``"repair"`` (take ``position``) or ``"split"`` (leave the frame).
     position : tuple[float, float] or None
         The refit position, mm (``"repair"`` only).
@@ -136,7 +142,7 @@ def fold_decision(
     ...               sigma_mm=2.5).action  # 50, 50 and 40 mm fit no point: it leaves
     'split'
     """
-    if not is_outlier(mismatches_mm, tolerance_mm):
+    if len(anchors) < MIN_ANCHORS or not is_outlier(mismatches_mm, tolerance_mm):
         return FoldDecision("keep")
     if outlier_for_s is None or outlier_for_s < confirm_s:
         return FoldDecision("wait")

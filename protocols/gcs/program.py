@@ -206,7 +206,8 @@ class RobotOutcome:
         Its global estimate, mm: the refined one once it has refined (phase 7), else the
         merged one.
     merged_position : tuple[float, float] or None
-        Its global estimate as merging left it, mm.
+        Its global estimate as merging left it, mm, with the fold rule's repair or split
+        (:mod:`kilonet.protocols.gcs.split_detection`).
     refined : bool
         It refined its estimate (phase 7).
     root : Root or None
@@ -215,6 +216,9 @@ class RobotOutcome:
         The root of the frame ``merged_position`` is in (the refinement may join another).
     split_boundary, inconsistent : bool
         What its split check flagged at the end (:mod:`kilonet.protocols.gcs.split_detection`).
+    fold : str or None
+        What the fold rule made of its merged estimate, where that still holds: ``"repaired"``
+        or ``"split"`` (``None``: nothing, or the refinement's estimate replaced it).
     merge_done : bool
         A seed done merging.
     merge_rounds : int
@@ -239,6 +243,7 @@ class RobotOutcome:
     merged_root: Root | None
     split_boundary: bool
     inconsistent: bool
+    fold: str | None
     merge_done: bool
     merge_rounds: int
     epoch: int
@@ -448,6 +453,21 @@ class GcsRobot(Kilobot):
         )
         return self.recovery.pending or (boundary and self.epoch < self.params.recoveries)
 
+    def awaiting_fold(self) -> bool:
+        """This robot is merging and the fold rule is about to act on it
+        (:meth:`~kilonet.protocols.gcs.split_detection.SplitCheck.awaiting_fold`)."""
+        check = self.check
+        return check is not None and self.phase_name == GcsStage.MERGE and check.awaiting_fold()
+
+    def _merged(self) -> tuple[tuple[float, float], Root] | None:
+        """The global position, mm, and root merging leaves this robot with: its merged
+        estimate, or what the fold rule made of it
+        (:meth:`~kilonet.protocols.gcs.split_detection.SplitCheck.held`)."""
+        if self.check is not None:
+            return self.check.held()
+        position = self.estimate.position()
+        return None if position is None else (position, self.estimate.root())
+
     @property
     def merge_done_at_s(self) -> float | None:
         """When this seed was done merging, s on its clock (``None`` unless it is done)."""
@@ -461,14 +481,13 @@ class GcsRobot(Kilobot):
         run's estimates table; ``None`` before the robot has one."""
         if self.refined is not None:
             return (*self.refined, self.refined_root.label)
-        position = self.estimate.position()
-        return None if position is None else (*position, self.estimate.root().label)
+        merged = self._merged()
+        return None if merged is None else (*merged[0], merged[1].label)
 
     def outcome(self) -> RobotOutcome:
         """What this robot holds now, as one value (see :class:`RobotOutcome`)."""
         estimate, check = self.estimate, self.check
-        merged = estimate.position()
-        merged_root = estimate.root() if merged is not None else None
+        merged, merged_root = self._merged() or (None, None)
         position, root = (
             (merged, merged_root) if self.refined is None else (self.refined, self.refined_root)
         )
@@ -490,6 +509,7 @@ class GcsRobot(Kilobot):
             merged_root=merged_root,
             split_boundary=check is not None and check.on_split_boundary,
             inconsistent=check is not None and bool(check.inconsistent),
+            fold=check.fold.action if check and check.fold and self.refined is None else None,
             merge_done=self.merge_done,
             merge_rounds=seed.rounds if seed is not None else 0,
             epoch=self.epoch,
@@ -509,6 +529,8 @@ class GcsRobot(Kilobot):
             merging = phase.name == GcsStage.MERGE
             if merging and check and not self.recovery.pending and check.wants_recovery():
                 self.recovery.request()
+            if merging and check and check.outlier_since is not None:
+                check.fold_step()
             self._loops += 1
             if self._loops % 16 == 0:  # refresh the LED now and then, not every loop
                 self._show()

@@ -24,22 +24,49 @@ outlive the moment both robots have joined that root. A robot that has been on a
 for ``gcs.split_confirm_s`` without interruption asks for a recovery
 (:mod:`kilonet.protocols.gcs.recovery`) — unless ``gcs.recoveries`` have been run already.
 
+The check also runs the fold rule (:mod:`kilonet.protocols.gcs.fold_rule`, ``gcs.fold = true``):
+it keeps every same-frame comparison, consistent or not, with the neighbour's position and the
+measured distance, and how long the robot has been inconsistent with a majority of them (the
+*outlier*). A robot compares its estimate with settled neighbours of its own root even before it
+is settled itself, so that the run can wait for it (:meth:`SplitCheck.awaiting_fold`): one that
+holds a transform without its done mark (from a seed at the edge of its range) is not settled,
+and its estimate may disagree with its neighbours' until it hears the mark. It acts only once
+settled: an estimate not settled is still moved by merging, and a robot that re-placed itself
+against its neighbours then could be left behind when their frame moved. A split boundary is
+still judged by settled robots only. Once the outlier has lasted ``gcs.fold_confirm_s`` (its
+merged estimate not moving meanwhile), :meth:`SplitCheck.fold_step` acts on
+:func:`~kilonet.protocols.gcs.fold_rule.fold_decision`: a **repair** replaces the robot's global
+position by the refit one, a **split** takes the robot out of the frame into a frame of its own
+(:func:`split_root`), and either is logged (``fold_repaired``, ``fold_split``). What the robot
+holds then (:meth:`SplitCheck.held`) is what it broadcasts and compares here and what the run
+reads as its estimate. A split robot sends no POS and compares nothing (it only watches the
+neighbours it was judged against): it left the frame on purpose, and a POS naming its own frame
+would put its neighbours on a split boundary and ask for a recovery. The action holds while the
+merged estimate keeps its root and stays within ``gcs.check_tolerance_mm`` of where it was, and
+while the neighbours it was judged against report positions within that of the ones it used: a
+settled frame may still be moved by merging (a seed done merging may resume, and move its
+frame), and a robot re-placed against neighbours that then move is left behind. A void action is
+logged (``fold_void``). Otherwise the robot acts at most once per root, so a fold the rule
+cannot mend does not keep the run waiting. A recovery epoch starts a new check, and with it
+the rule.
+
 The comparison uses only what the robot heard: its neighbours' messages and its own ranging.
 """
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal, NamedTuple
 
 from kilonet.message import Message
 from kilonet.protocols.gcs.base import gcs_layout
+from kilonet.protocols.gcs.fold_rule import FoldDecision, fold_decision, is_outlier
 from kilonet.protocols.gcs.frame_keys import Root
 
 if TYPE_CHECKING:
     from kilonet.protocols.gcs.program import GcsRobot
 
-__all__ = ["POS", "SplitCheck", "distance_mismatch_mm"]
+__all__ = ["POS", "Fold", "SplitCheck", "distance_mismatch_mm", "split_root"]
 
 POS = gcs_layout(
     "pos",
@@ -65,6 +92,26 @@ def distance_mismatch_mm(
     return abs(computed - measured_mm)
 
 
+class Fold(NamedTuple):
+    """What the fold rule did on a robot: ``action`` (``"repaired"`` or ``"split"``), the
+    ``position`` (mm) and ``root`` it holds since, the merged estimate it acted on (``merged``:
+    position, mm, and root), and the neighbours it was judged against (``anchors``: ID →
+    broadcast position and measured distance, mm)."""
+
+    action: Literal["repaired", "split"]
+    position: tuple[float, float]
+    root: Root
+    merged: tuple[tuple[float, float], Root]
+    anchors: dict[int, tuple[float, float, float]]
+
+
+def split_root(robot: GcsRobot) -> Root:
+    """The frame of one a robot leaves its merged frame into (the fold rule's split): its own
+    frame key, ranked as an edge seed's, after every elected seed's root, so that it wins no
+    robot over from a merged frame. The run counts it as a frame of its own."""
+    return Root(True, robot.own_key)
+
+
 class SplitCheck:
     """The check on one robot, run alongside merging (phase 6).
 
@@ -73,9 +120,18 @@ class SplitCheck:
     other_frame : dict[int, Root]
         Neighbour ID → root of the other merged frame it reported.
     inconsistent : dict[int, float]
-        Neighbour ID → |computed − measured| distance, mm, where above the tolerance.
+        Neighbour ID → |computed − measured| distance, mm, where above the tolerance (compared
+        while this robot is settled: the flags the run reports).
+    compared : dict[int, tuple[float, float, float]]
+        Neighbour ID → ``(x_mm, y_mm, measured_mm)`` for each settled same-frame neighbour
+        heard, whether this robot is settled or not: its latest broadcast position and the
+        distance measured to it (the fold rule's input, :meth:`mismatches`).
     boundary_since : int or None
         Tick since which the robot has been on a split boundary without interruption.
+    outlier_since : int or None
+        Tick since which the robot has been the fold rule's outlier without interruption.
+    fold : Fold or None
+        The fold rule's action on this robot, while it holds (:meth:`held`).
     """
 
     def __init__(self, robot: GcsRobot) -> None:
@@ -83,7 +139,12 @@ class SplitCheck:
         self.params = robot.params
         self.other_frame: dict[int, Root] = {}
         self.inconsistent: dict[int, float] = {}
+        self.compared: dict[int, tuple[float, float, float]] = {}
         self.boundary_since: int | None = None
+        self.outlier_since: int | None = None
+        self._outlier_from = (0.0, 0.0)  # the merged estimate when outlier_since was set, mm
+        self.fold: Fold | None = None
+        self.fold_roots: set[Root] = set()  # merged roots the rule has acted in
         self.pos_heard_at: dict[int, int] = {}  # neighbour ID -> tick of its latest POS
         self.turn = 0
 
@@ -92,6 +153,86 @@ class SplitCheck:
     def on_split_boundary(self) -> bool:
         """A neighbour's estimate is in another merged frame."""
         return bool(self.other_frame)
+
+    def held(self) -> tuple[tuple[float, float], Root] | None:
+        """The global position, mm, and root this robot holds while merging: the fold rule's
+        repair or split while it stands (see the module docstring), else the merged estimate;
+        ``None`` without one."""
+        estimate = self.robot.estimate
+        position = estimate.position()
+        if position is None:
+            return None
+        root = estimate.root()
+        fold = self.fold
+        if fold is not None:
+            (x, y), merged_root = fold.merged
+            moved = math.hypot(position[0] - x, position[1] - y)
+            if merged_root == root and moved <= self.params.check_tolerance_mm:
+                return fold.position, fold.root
+            self.fold = None  # merging moved the estimate on: the rule judges it anew
+        return position, root
+
+    def awaiting_fold(self) -> bool:
+        """The fold rule will act on this robot once its disagreement is confirmed."""
+        return (
+            self.params.fold
+            and self.outlier_since is not None
+            and self.robot.estimate.root() not in self.fold_roots
+            and self._decision(0.0).action == "wait"
+        )
+
+    def _decision(self, outlier_for_s: float) -> FoldDecision:
+        """The fold rule on what this robot compared, the outlier for ``outlier_for_s``."""
+        return fold_decision(
+            self.compared,
+            self.mismatches(),
+            outlier_for_s=outlier_for_s,
+            confirm_s=self.params.fold_confirm_s,
+            tolerance_mm=self.params.check_tolerance_mm,
+            sigma_mm=self.params.sigma_mm,
+        )
+
+    def fold_step(self) -> None:
+        """Act on the fold rule (``gcs.fold``) once settled: called while merging, cheap unless
+        the robot is the outlier. A repair or split is logged and held (:meth:`held`)."""
+        r = self.robot
+        if self.outlier_since is None or not self.params.fold or not r.estimate.settled():
+            return
+        root = r.estimate.root()
+        if root in self.fold_roots:
+            return
+        decision = self._decision((r.kilo_ticks - self.outlier_since) / r.ticks_per_s)
+        if decision.action in ("keep", "wait"):
+            return
+        self.fold_roots.add(root)
+        self.outlier_since = None
+        merged = (r.estimate.position(), root)
+        anchors = dict(self.compared)
+        neighbours = sorted(anchors)
+        self.compared.clear()  # judged against the position it held: compare afresh
+        if decision.action == "repair":
+            position = decision.position
+            self.fold = Fold("repaired", position, root, merged, anchors)
+            r.log("fold_repaired", x_mm=position[0], y_mm=position[1], neighbours=neighbours)
+        else:
+            own = split_root(r)
+            self.fold = Fold("split", merged[0], own, merged, anchors)
+            r.log("fold_split", root=own.label, neighbours=neighbours)
+
+    def _anchor_moved(self, uid: int, xy_mm: tuple[float, float], root: Root) -> None:
+        """Neighbour ``uid`` now reports ``xy_mm`` in ``root``: if it was one the rule acted
+        against and has moved by more than the tolerance, or left the frame, merging moved
+        the frame after all; the action is void and the robot is judged anew (it may act again
+        in this root)."""
+        fold = self.fold
+        anchor = fold.anchors.get(uid)
+        if anchor is None:
+            return
+        moved = math.hypot(xy_mm[0] - anchor[0], xy_mm[1] - anchor[1])
+        if root != fold.merged[1] or moved > self.params.check_tolerance_mm:
+            self.fold = None
+            self.fold_roots.discard(fold.merged[1])
+            self.robot.log("fold_void", action=fold.action, neighbour=uid)
 
     def wants_recovery(self) -> bool:
         """On a split boundary for ``gcs.split_confirm_s`` and recoveries are left."""
@@ -110,6 +251,7 @@ class SplitCheck:
         if not r.estimate.settled():
             self.other_frame.clear()
             self.inconsistent.clear()
+            self.compared.clear()
             self.pos_heard_at.clear()
         else:
             fresh_after = r.kilo_ticks - _FRESH_S * r.ticks_per_s
@@ -117,7 +259,39 @@ class SplitCheck:
                 del self.pos_heard_at[uid]
                 self.other_frame.pop(uid, None)
                 self.inconsistent.pop(uid, None)
+                self.compared.pop(uid, None)
         self._update_boundary()
+        self._update_outlier()
+
+    def _left_frame(self) -> bool:
+        """The fold rule split this robot off (while the split holds, :meth:`held`)."""
+        self.held()  # lapses a fold that no longer holds
+        return self.fold is not None and self.fold.action == "split"
+
+    def mismatches(self) -> dict[int, float]:
+        """Neighbour ID → |computed − measured| distance, mm, for each neighbour of
+        :attr:`compared`, computed from the position this robot holds now (:meth:`held`)."""
+        held = self.held()
+        if held is None:
+            return {}
+        xy = held[0]
+        return {u: distance_mismatch_mm(xy, (x, y), d) for u, (x, y, d) in self.compared.items()}
+
+    def _update_outlier(self) -> None:
+        """Start, go on timing, or stop the outlier's disagreement. The time starts again when
+        the merged estimate moves by more than ``gcs.merge_tolerance_mm``: a robot still
+        merging (not settled) is judged only once its estimate has stopped moving."""
+        if not is_outlier(self.mismatches(), self.params.check_tolerance_mm):
+            self.outlier_since = None
+            return
+        merged = self.robot.estimate.position()
+        start = self._outlier_from
+        if (
+            self.outlier_since is None
+            or math.hypot(merged[0] - start[0], merged[1] - start[1])
+            > self.params.merge_tolerance_mm
+        ):
+            self.outlier_since, self._outlier_from = self.robot.kilo_ticks, merged
 
     def _update_boundary(self) -> None:
         r = self.robot
@@ -132,13 +306,13 @@ class SplitCheck:
     def message_tx(self) -> Message | None:
         """A POS now and then, once settled."""
         self.turn += 1
-        estimate = self.robot.estimate
-        if self.turn % _POS_EVERY or not estimate.settled():
+        if self.turn % _POS_EVERY or not self.robot.estimate.settled():
             return None
-        x, y = estimate.position()
+        (x, y), root = self.held()
         if abs(x) > _LIMIT_MM or abs(y) > _LIMIT_MM:
             return None  # a frame still far off its partners' (it will not stay settled)
-        root = estimate.root()
+        if self._left_frame():
+            return None  # the fold rule split it off its frame (see the module docstring)
         return POS.pack(
             sender=self.robot.uid, x_mm=x, y_mm=y, root=root.wire_id, root_salt=root.key.salt
         )
@@ -150,17 +324,28 @@ class SplitCheck:
         r = self.robot
         m = POS.unpack(message)
         estimate = r.estimate
-        if m.sender not in r.table or not estimate.settled():
+        if m.sender not in r.table or estimate.root() is None:
             return
         root = Root.from_wire(m.root, m.root_salt)
-        self.pos_heard_at[m.sender] = r.kilo_ticks
-        self.other_frame.pop(m.sender, None)
-        self.inconsistent.pop(m.sender, None)
-        if root != estimate.root():
-            self.other_frame[m.sender] = root
+        if self.fold is not None:
+            self._anchor_moved(m.sender, (m.x_mm, m.y_mm), root)
+        if self._left_frame():
+            return
+        xy, own_root = self.held()
+        settled = estimate.settled()
+        if settled:  # a boundary, and the flags the run reports, are judged by settled robots
+            self.pos_heard_at[m.sender] = r.kilo_ticks
+            self.other_frame.pop(m.sender, None)
+            self.inconsistent.pop(m.sender, None)
+            if root != own_root:
+                self.other_frame[m.sender] = root
+            self._update_boundary()
+        if root != own_root:
+            self.compared.pop(m.sender, None)
         else:
-            xy = estimate.position()
-            mismatch = distance_mismatch_mm(xy, (m.x_mm, m.y_mm), r.table.distance(m.sender))
-            if mismatch > self.params.check_tolerance_mm:
+            measured = r.table.distance(m.sender)
+            self.compared[m.sender] = (m.x_mm, m.y_mm, measured)
+            mismatch = distance_mismatch_mm(xy, (m.x_mm, m.y_mm), measured)
+            if settled and mismatch > self.params.check_tolerance_mm:
                 self.inconsistent[m.sender] = mismatch
-        self._update_boundary()
+        self._update_outlier()
