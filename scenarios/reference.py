@@ -195,6 +195,6 @@ def reference_metrics(
         out["in_optimum_basin"] = compared.in_basin
         # Thousandths of a noise unit: a frame in the basin polishes to the optimum's cost within
         # the solver's last digits, which vary from run to run of the same swarm.
-        out["basin_excess_over_central"] = round(compared.basin_excess, 3)
+        out["basin_excess_over_central"] = round(compared.basin_excess, 3) + 0.0  # no "-0.0"
         out["run_cost_excess_over_central"] = compared.run_excess
     return out
