@@ -280,7 +280,7 @@ class SelfAssembly(Kilobot):
             self._drive(edge_turn(nearest[1].distance_mm))
 
     def _stops(self, nearest: tuple[int, Neighbour] | None) -> bool:
-        """Apply the stop rules to a fresh estimate; whether the robot joined the shape."""
+        """Apply the stop rules to a fresh estimate; whether the robot stopped in the shape."""
         if self.stage is AssemblyStage.MOVE_OUTSIDE:
             if self.shape.contains(*self.estimate):
                 self._set_stage(AssemblyStage.MOVE_INSIDE)
