@@ -146,22 +146,28 @@ figure of the paper is quoted here).
 | communication | about three body diameters | links to about 148 mm, ranging to 80 mm |
 | shape accuracy | warped, error growing outward | IoU, error per robot, frame turn |
 
-The gaps, explained:
+The gaps, explained (read them against the table above):
 
-* **Scale.** A warp that turns the shared frame by a given angle moves a robot in proportion
-  to its distance from the seeds, so the same turn costs the paper's 1,024-robot shapes about
-  five times the error (in mm) it costs a 48-robot square. The study measures the turn, which
-  does not depend on the size.
-* **Ranging.** kilolib's tables err per link (the sender's emitter strength is not in the
-  receiver's calibration), so a robot's error against the same anchors does not average away
-  while it stands; independent noise does. The paper's robots range the first way.
-* **Loss.** A lost message delays a reading: a moving robot ranges with fewer fresh readings,
-  and a robot standing still waits longer to settle, but no reading is wrong; loss slows the
-  assembly more than it warps it.
+* **Scale.** A turn of the robots' shared frame moves a robot in proportion to its distance
+  from the seeds, and errors that add up ring by ring grow with the number of rings: a shape
+  of 1,024 robots at the same spacing reaches about four and a half times as far from its
+  seeds as one of 48. The frame's turn, which does not depend on the size, is what to set beside
+  the paper's warped outlines; the localization error in mm is not.
+* **Ranging.** On kilolib's tables a robot's estimate of a neighbour is off by an amount fixed
+  by the pair (the sender's emitter strength is not in the receiver's calibration), so standing
+  still and refining does not average it away, and each robot hands it on to the robots that
+  localize against it. Independent noise per reception does average away. The paper's robots
+  range the first way, so the `tables` rows are the ones to set beside them; where the two
+  models part, the tables' errors are the larger and grow with the swarm.
+* **Loss.** A lost message is a reading late, never a wrong one. At 24 robots 20 % loss moves
+  no figure beyond the seeds' spread; at 48 it lowers the IoU under both ranging models, on
+  the tables also the joined share, and the study's largest error and largest turn of the
+  frame are there: a moving robot ranges with fewer fresh readings (at most 0.6 s old), so
+  the per-link biases of the few it has average out less.
 * **Jams and the bodies' cover.** Bodies at the packing's spacing cover at most about 0.6 of a
-  shape, so an IoU near 0.6 is a full shape; robots jammed round the start, and the run's end
-  600 s after the last join (`STALLED_S`), keep the joined share of some runs below 1 where the
-  paper's operators could nudge a stuck robot.
+  shape, so an IoU near 0.6 would be a full shape. Robots that jam round the start, and the
+  run's end 600 s after the last join (`STALLED_S`), keep the joined share of some runs below
+  1; the design note names the jams as not done.
 """
 
 
