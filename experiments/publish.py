@@ -495,9 +495,9 @@ def _self_assembly_block(context: Context) -> str:
     from kilonet import scenarios
 
     lines = [
-        "| robots | shape | joined | IoU | localization error median / max mm | assembled s "
-        "| ended s | moving at once max / mean | jammed | lost | CPU s |",
-        "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| robots | shape | joined | IoU | localization error median / max mm | frame turned deg "
+        "| assembled s | ended s | moving at once max / mean | jammed | lost | CPU s |",
+        "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     with tempfile.TemporaryDirectory() as folder:
         for robots, shape, cell_mm, duration_s in SELF_ASSEMBLY_RUNS:
@@ -521,7 +521,8 @@ def _self_assembly_block(context: Context) -> str:
                 f"| {robots} | {name}, {cell_mm} mm cells "
                 f"| {s['joined']} ({s['joined_fraction']:.2f}) | {s['iou']:.3f} "
                 f"| {s['localization_error_median_mm']:.1f} / "
-                f"{s['localization_error_max_mm']:.1f} | {s['assembled_s']:.0f} "
+                f"{s['localization_error_max_mm']:.1f} | {s['frame_rotation_deg']:.1f} "
+                f"| {s['assembled_s']:.0f} "
                 f"| {s['sim_time_s']:.0f} | {s['moving_at_once_max']} / "
                 f"{s['moving_at_once_mean']:.2f} | {s['jammed_robots']} | {s['lost']} "
                 f"| {cpu_s:.0f} |"
