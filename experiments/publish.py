@@ -229,6 +229,18 @@ def _localization(context: Context) -> None:
     _blocks(context, pages_wanted={_LOCALIZE})
 
 
+def _self_assembly_study(context: Context) -> None:
+    from kilonet.experiments.studies.self_assembly_study import run_study, write_report
+
+    out = context.runs / "self_assembly_study"
+    run_study(out, workers=context.workers)
+    write_report(
+        out,
+        REPORTS / "self_assembly_study.md",
+        stamp=stamp("python -m kilonet.experiments.publish self_assembly_study"),
+    )
+
+
 def _validation(context: Context) -> None:
     from kilonet.experiments.studies.validation import write_page
 
@@ -758,6 +770,13 @@ PUBLICATIONS: dict[str, Publication] = {
             _LOCALIZE,
         ),
         _localization,
+    ),
+    "self_assembly_study": Publication(
+        "self_assembly_study",
+        "self-assembly against ranging, loss and swarm size, its sweep and report "
+        "(python -m kilonet.experiments.studies.self_assembly_study)",
+        ("experiments/reports/self_assembly_study.md",),
+        _self_assembly_study,
     ),
     "docs": Publication(
         "docs",
