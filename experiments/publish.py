@@ -262,6 +262,18 @@ def _localization(context: Context) -> None:
     _blocks(context, pages_wanted={_LOCALIZE})
 
 
+def _self_assembly_study(context: Context) -> None:
+    from kilonet.experiments.studies.self_assembly_study import run_study, write_report
+
+    out = context.runs / "self_assembly_study"
+    run_study(out, workers=context.workers)
+    write_report(
+        out,
+        REPORTS / "self_assembly_study.md",
+        stamp=stamp("python -m kilonet.experiments.publish self_assembly_study"),
+    )
+
+
 def _validation(context: Context) -> None:
     from kilonet.experiments.studies.validation import write_page
 
@@ -528,9 +540,9 @@ def _self_assembly_block(context: Context) -> str:
     from kilonet import scenarios
 
     lines = [
-        "| robots | shape | joined | IoU | localization error median / max mm | assembled s "
-        "| ended s | moving at once max / mean | jammed | lost | CPU s |",
-        "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| robots | shape | joined | IoU | localization error median / max mm | frame turned deg "
+        "| assembled s | ended s | moving at once max / mean | jammed | lost | CPU s |",
+        "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     with tempfile.TemporaryDirectory() as folder:
         for robots, shape, cell_mm, duration_s in SELF_ASSEMBLY_RUNS:
@@ -554,7 +566,8 @@ def _self_assembly_block(context: Context) -> str:
                 f"| {robots} | {name}, {cell_mm} mm cells "
                 f"| {s['joined']} ({s['joined_fraction']:.2f}) | {s['iou']:.3f} "
                 f"| {s['localization_error_median_mm']:.1f} / "
-                f"{s['localization_error_max_mm']:.1f} | {s['assembled_s']:.0f} "
+                f"{s['localization_error_max_mm']:.1f} | {s['frame_rotation_deg']:.1f} "
+                f"| {s['assembled_s']:.0f} "
                 f"| {s['sim_time_s']:.0f} | {s['moving_at_once_max']} / "
                 f"{s['moving_at_once_mean']:.2f} | {s['jammed_robots']} | {s['lost']} "
                 f"| {cpu_s:.0f} |"
@@ -790,6 +803,13 @@ PUBLICATIONS: dict[str, Publication] = {
             _LOCALIZE,
         ),
         _localization,
+    ),
+    "self_assembly_study": Publication(
+        "self_assembly_study",
+        "self-assembly against ranging, loss and swarm size, its sweep and report "
+        "(python -m kilonet.experiments.studies.self_assembly_study)",
+        ("experiments/reports/self_assembly_study.md",),
+        _self_assembly_study,
     ),
     "docs": Publication(
         "docs",

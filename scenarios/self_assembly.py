@@ -47,6 +47,7 @@ __all__ = [
     "SEEDS",
     "SelfAssemblyParams",
     "ShapeError",
+    "frame_rotation_deg",
     "iou",
     "load_shape",
     "read_bitmap",
@@ -256,6 +257,27 @@ def iou(
     return float((target & bodies).sum() / union) if union else 0.0
 
 
+def frame_rotation_deg(true_mm: np.ndarray, estimates_mm: np.ndarray) -> float | None:
+    """How far the robots' shared frame is turned about the origin seed, degrees
+    (counter-clockwise positive): the angle of the least-squares similarity through the origin
+    that carries the robots' true positions onto their estimates (both ``(n, 2)``, mm, in the
+    seeds' frame). A shape whose estimates are each a few mm off but turned together by this
+    angle comes out warped, every robot's error growing with its distance from the seeds.
+    ``None`` without robots.
+
+    >>> true = np.array([[100.0, 0.0], [0.0, 200.0]])
+    >>> turn = np.deg2rad(10.0)
+    >>> est = true @ np.array([[np.cos(turn), np.sin(turn)], [-np.sin(turn), np.cos(turn)]])
+    >>> round(frame_rotation_deg(true, est), 6), frame_rotation_deg(true[:0], est[:0])
+    (10.0, None)
+    """
+    t = true_mm[:, 0] + 1j * true_mm[:, 1]
+    e = estimates_mm[:, 0] + 1j * estimates_mm[:, 1]
+    if not len(t) or not np.any(t):
+        return None
+    return float(np.degrees(np.angle(np.vdot(t, e))))
+
+
 def _stages(sim: Simulation) -> list[AssemblyStage]:
     return [r.stage for r in sim.robots]
 
@@ -281,7 +303,7 @@ def _progress(sim: Simulation) -> str:
 def _moving_at_once(events: pd.DataFrame) -> tuple[int, float]:
     """The most robots moving at once, and the mean over the time from the first start to
     the last stop (0 for a run in which none moved)."""
-    changes = events[events["event"].isin(["start", "joined", "lost"])]
+    changes = events[events["event"].isin(["start", "stopped", "lost"])]
     if changes.empty:
         return 0, 0.0
     steps = np.where(changes["event"] == "start", 1, -1)
@@ -297,7 +319,7 @@ def _jammed(sim: Simulation, events: pd.DataFrame) -> int:
     their start and their stop (or the run's end), sampled every second."""
     poses = sim.trace.poses_frame()
     starts = events[events["event"] == "start"].set_index("robot")["t_s"]
-    ends = events[events["event"].isin(["joined", "lost"])].groupby("robot")["t_s"].first()
+    ends = events[events["event"].isin(["stopped", "lost"])].groupby("robot")["t_s"].first()
     jammed = 0
     for robot, t0 in starts.items():
         t1 = float(ends.get(robot, sim.env.now))
@@ -343,9 +365,12 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
     shape = load_shape(s.shape, s.cell_mm)
     stages = _stages(sim)
     joined = [i for i, st in enumerate(stages) if st is AssemblyStage.JOINED]
-    placed = [i for i, st in enumerate(stages) if st in (AssemblyStage.SEED, AssemblyStage.JOINED)]
+    standing = (AssemblyStage.SEED, AssemblyStage.SETTLE, AssemblyStage.JOINED)
+    placed = [i for i, st in enumerate(stages) if st in standing]
     columns = _robot_columns(sim)
     errors = columns.loc[joined, "localization_error_mm"].to_numpy()
+    true = sim.world.positions_mm[joined] - sim.initial_positions_mm[0]
+    estimates = columns.loc[joined, ["est_x_mm", "est_y_mm"]].to_numpy(dtype=float)
     events = sim.trace.events_frame()
     joins = events[events["event"] == "joined"]
     most, mean = _moving_at_once(events)
@@ -357,6 +382,7 @@ def _metrics(sim: Simulation) -> dict[str, Any]:
         "iou": iou(shape, centres, sim.world.diameter_mm),
         "localization_error_median_mm": float(np.median(errors)) if len(errors) else None,
         "localization_error_max_mm": float(np.max(errors)) if len(errors) else None,
+        "frame_rotation_deg": frame_rotation_deg(true, estimates),
         "assembled_s": float(joins["t_s"].max()) if len(joins) else None,
         "moving_at_once_max": most,
         "moving_at_once_mean": mean,

@@ -11,6 +11,8 @@
   ``docs/results/gcs.md``, ``docs/results/follower.md`` and ``examples/labs/README.md``.
 - :mod:`kilonet.experiments.studies.validation`: kilonet against real-Kilobot data
   (``docs/results/validation.md``).
+- :mod:`kilonet.experiments.studies.self_assembly_study`: self-assembly against the ranging
+  model, message loss and swarm size (issue 47), its sweep and its report.
 
 :mod:`kilonet.experiments.publish` runs them; the sweep files stay in ``experiments/``.
 """

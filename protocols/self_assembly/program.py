@@ -14,9 +14,11 @@ Message (kilolib v2, type 20, :data:`ASSEMBLY`)::
 A robot knows only what it hears, its distance estimates and its own motion; the rules it
 applies are the pure functions of :mod:`kilonet.protocols.self_assembly.rules`. Events logged:
 ``start`` (it begins to move), ``fix`` (a first position estimate, and again after
-:data:`REFIX_S` without an update), ``entered`` (its estimate enters the shape), ``joined`` (it
-stops in the shape, with the rule that stopped it and its estimate) and ``lost`` (a moving
-robot that heard no stationary robot for :data:`LOST_AFTER_S` stops where it is).
+:data:`REFIX_S` without an update), ``entered`` (its estimate enters the shape), ``stopped``
+(it stops in the shape, with the rule that stopped it and its estimate), ``joined`` (its
+estimate settled standing still, :func:`~kilonet.protocols.self_assembly.rules.settled`: from
+now on it is a localization anchor) and ``lost`` (a moving robot that heard no stationary robot for
+:data:`LOST_AFTER_S` stops where it is).
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from kilonet.protocols.self_assembly.rules import (
     meets_own_gradient,
     must_yield,
     on_edge,
+    settled,
 )
 from kilonet.robot import Kilobot
 
@@ -93,18 +96,23 @@ class AssemblyStage(Stage):
     WAIT = "wait"
     MOVE_OUTSIDE = "move_outside"
     MOVE_INSIDE = "move_inside"
+    SETTLE = "settle"
     JOINED = "joined"
     LOST = "lost"
 
 
 _NUMBER = {stage: stage.number for stage in AssemblyStage}
 _MOVING = frozenset({AssemblyStage.MOVE_OUTSIDE.number, AssemblyStage.MOVE_INSIDE.number})
+#: The localization anchors: seeds, and robots whose estimate settled in the shape.
 _LOCALIZED = frozenset({AssemblyStage.SEED.number, AssemblyStage.JOINED.number})
+#: The robots that stand in the shape (anchors, and robots still settling).
+_PLACED = _LOCALIZED | {AssemblyStage.SETTLE.number}
 _COLORS = {
     AssemblyStage.SEED: (3, 3, 3),
     AssemblyStage.WAIT: (0, 0, 1),
     AssemblyStage.MOVE_OUTSIDE: (3, 0, 0),
     AssemblyStage.MOVE_INSIDE: (3, 3, 0),
+    AssemblyStage.SETTLE: (0, 3, 3),
     AssemblyStage.JOINED: (0, 3, 0),
     AssemblyStage.LOST: (3, 0, 3),
 }
@@ -165,7 +173,10 @@ class SelfAssembly(Kilobot):
         self.next_check_s = STARTUP_S
         self.track: list[tuple[float, float, float]] = []  # (t, x, y) of recent estimates
         self.located_s = 0.0  # when the estimate was last updated
-        self.joined_s: float | None = None  # when it joined the shape
+        self.last_step_mm: float | None = None  # how far the last update moved it
+        self.stopped_s = 0.0  # when it stopped in the shape
+        self.stop_rule = ""  # the stop rule that stopped it
+        self.joined_s: float | None = None  # when it joined the shape (its estimate settled)
         self._message: Message | None = None
         self.set_color(*_COLORS[self.stage])
 
@@ -201,7 +212,7 @@ class SelfAssembly(Kilobot):
             return
         now = self._now_s()
         moving = self.stage_no in _MOVING
-        if not moving and now < self.next_check_s:
+        if not moving and stage is not AssemblyStage.SETTLE and now < self.next_check_s:
             return
         self.next_check_s = now + CHECK_S
         fresh = self._fresh(now)
@@ -218,6 +229,8 @@ class SelfAssembly(Kilobot):
             self._wait(fresh, stationary)
         elif moving:
             self._move(now, fresh, stationary)
+        elif stage is AssemblyStage.SETTLE:
+            self._settle(now, stationary)
         else:  # joined: it keeps refining its estimate against the shape's other robots
             self._localize(now, stationary)
 
@@ -237,7 +250,7 @@ class SelfAssembly(Kilobot):
         heard = [
             Heard(uid, n.said.gradient, n.said.stage in _MOVING, n.distance_mm)
             for uid, n in fresh.items()
-            if n.said.stage not in _LOCALIZED
+            if n.said.stage not in _PLACED
         ]
         edge = on_edge(n.distance_mm for _, n in stationary)
         if may_start(edge, self.gradient, self.kilo_uid, heard):
@@ -267,19 +280,19 @@ class SelfAssembly(Kilobot):
             self._drive(edge_turn(nearest[1].distance_mm))
 
     def _stops(self, nearest: tuple[int, Neighbour] | None) -> bool:
-        """Apply the stop rules to a fresh estimate; whether the robot joined the shape."""
+        """Apply the stop rules to a fresh estimate; whether the robot stopped in the shape."""
         if self.stage is AssemblyStage.MOVE_OUTSIDE:
             if self.shape.contains(*self.estimate):
                 self._set_stage(AssemblyStage.MOVE_INSIDE)
                 self.log("entered", x=self.estimate[0], y=self.estimate[1])
             return False
-        if nearest is not None and nearest[1].said.stage in _LOCALIZED:
+        if nearest is not None and nearest[1].said.stage in _PLACED:
             uid, n = nearest
             if meets_own_gradient(self.gradient, Heard(uid, n.said.gradient, False, n.distance_mm)):
-                self._join("own_gradient")
+                self._stop("own_gradient")
                 return True
         if about_to_leave(self.shape, self.estimate, self._ahead()):
-            self._join("shape_edge")
+            self._stop("shape_edge")
             return True
         return False
 
@@ -306,9 +319,14 @@ class SelfAssembly(Kilobot):
             if fix is None:
                 return False
             self.estimate = fix
+            self.last_step_mm = None
             self.log("fix", x=fix[0], y=fix[1], anchors=len(refs))
         else:
-            self.estimate = localize_step(self.estimate, anchors, ranges, LOCALIZE_STEPS)
+            (x0, y0), self.estimate = (
+                self.estimate,
+                localize_step(self.estimate, anchors, ranges, LOCALIZE_STEPS),
+            )
+            self.last_step_mm = float(np.hypot(self.estimate[0] - x0, self.estimate[1] - y0))
         self.located_s = now
         self.track.append((now, *self.estimate))
         while self.track and self.track[0][0] < now - HEADING_S:
@@ -323,12 +341,31 @@ class SelfAssembly(Kilobot):
         _, x0, y0 = self.track[0]
         return 2 * x - x0, 2 * y - y0
 
-    def _join(self, rule: str) -> None:
+    def _stop(self, rule: str) -> None:
+        """Stop in the shape; it joins once its estimate settled (:meth:`_settle`)."""
         self._halt()
-        self._set_stage(AssemblyStage.JOINED)
-        self.joined_s = self._now_s()
+        self._set_stage(AssemblyStage.SETTLE)
+        self.stopped_s = self._now_s()
+        self.stop_rule = rule
+        self.last_step_mm = None
         x, y = self.estimate
-        self.log("joined", rule=rule, gradient=self.gradient, x=x, y=y)
+        self.log("stopped", rule=rule, gradient=self.gradient, x=x, y=y)
+
+    def _settle(self, now: float, stationary: list[tuple[int, Neighbour]]) -> None:
+        """Localize standing still until the estimate settled, then join the shape."""
+        self._localize(now, stationary)
+        if settled(now - self.stopped_s, self.last_step_mm):
+            self._set_stage(AssemblyStage.JOINED)
+            self.joined_s = now
+            x, y = self.estimate
+            self.log(
+                "joined",
+                rule=self.stop_rule,
+                gradient=self.gradient,
+                x=x,
+                y=y,
+                settle_s=now - self.stopped_s,
+            )
 
     # -- motors and state --------------------------------------------------------------------
     def _drive(self, turn: str) -> None:

@@ -23,6 +23,9 @@ __all__ = [
     "EDGE_MM",
     "GRADIENT_MM",
     "MIN_CONDITIONING",
+    "SETTLE_MAX_S",
+    "SETTLE_MM",
+    "SETTLE_S",
     "YIELD_MM",
     "Heard",
     "Shape",
@@ -35,6 +38,7 @@ __all__ = [
     "meets_own_gradient",
     "must_yield",
     "on_edge",
+    "settled",
 ]
 
 #: Edge-following keeps the nearest stationary robot this far, centre to centre (2.3 body
@@ -56,6 +60,13 @@ EDGE_MAX_NEIGHBOURS = 4
 #: (:func:`kilonet.protocols.common.geometry.linear_position`); fewer or nearly collinear
 #: anchors wait.
 MIN_CONDITIONING = 0.15
+#: A robot that stopped in the shape serves as a localization anchor only after standing this
+#: long (its estimate then rests on readings taken where it stands, s) ...
+SETTLE_S = 1.5
+#: ... and once a localization update moved its estimate less than this, mm;
+SETTLE_MM = 0.5
+#: or, if it never gets there (too few anchors in range), after this long, s.
+SETTLE_MAX_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -249,3 +260,27 @@ def meets_own_gradient(gradient: int, nearest: Heard | None) -> bool:
         and nearest.distance_mm <= DESIRED_MM + 5.0
         and nearest.gradient == gradient
     )
+
+
+def settled(stood_s: float, last_step_mm: float | None) -> bool:
+    """Whether a robot that stopped in the shape ``stood_s`` seconds ago may serve the robots
+    still to come as a localization anchor: it has stood :data:`SETTLE_S` and its last
+    localization update moved its estimate less than :data:`SETTLE_MM` (``None``: no update
+    since it stopped), or it has stood :data:`SETTLE_MAX_S`.
+
+    A moving robot's estimate lags behind it along its path (its readings are up to
+    0.6 s old, and the descent follows the motion a step behind). Edge-following runs
+    clockwise, so every robot that stopped with such an estimate believes itself a little
+    counter-clockwise of where it stands; the robots that localize against it inherit that
+    turn and add their own, and the whole shape comes out rotated about the seeds by an angle
+    that grows ring by ring. Standing still first, a robot's estimate settles on its anchors
+    before anyone ranges with it.
+
+    >>> settled(0.5, 0.1), settled(2.0, 3.0), settled(2.0, 0.2), settled(2.0, None)
+    (False, False, True, False)
+    >>> settled(10.0, None)
+    True
+    """
+    if stood_s >= SETTLE_MAX_S:
+        return True
+    return stood_s >= SETTLE_S and last_step_mm is not None and last_step_mm < SETTLE_MM
