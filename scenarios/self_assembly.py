@@ -60,9 +60,10 @@ SHAPES_DIR = Path(__file__).with_name("shapes")
 SEEDS = np.array([[0.0, 0.0], [36.0, 0.0], [18.0, 31.18], [54.0, 31.18]])
 #: Spacing of the packed start, mm (bodies 1 mm apart).
 PACKED_MM = 34.0
-#: Largest jitter of a packed robot along each axis, mm: neighbours stay more than the 33 mm
-#: body diameter apart (34 - 2 * sqrt(2) * 0.35 = 33.01).
-JITTER_MM = 0.35
+#: Largest jitter of a packed robot along each axis, mm.
+JITTER_MM = 0.4
+#: The body diameter, mm: no two packed robots start closer.
+BODY_MM = 33.0
 #: A moving robot whose body advances less than this in ``JAM_S`` seconds is jammed, mm.
 JAM_MM = 10.0
 #: The shape's bitmap starts this far left of and below the origin seed, mm: a seed's body
@@ -190,9 +191,12 @@ def load_shape(name: str, cell_mm: float) -> Shape:
 def _generate(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
     """The four seeds, then ``n - 4`` robots packed on a hex lattice :data:`PACKED_MM` apart to
     the left of and below them, its top-right robot beside the origin seed, each jittered by
-    up to :data:`JITTER_MM` along each axis, so that two neighbours close in by at most
-    ``2 * sqrt(2) * JITTER_MM`` and their bodies stay apart. The start touches the shape only at
-    the seeds: robots edge-follow clockwise along its top into the shape."""
+    up to :data:`JITTER_MM` along each axis. Two neighbours jittered towards each other can
+    close in by ``2 * sqrt(2) * JITTER_MM``, to less than a body: both then stay on their
+    lattice spots (a robot on its spot and a jittered one stay ``sqrt(2) * JITTER_MM`` short of
+    the spacing at most, bodies apart), and every start without such a pair is as drawn. The
+    start touches the shape only at the seeds: robots edge-follow clockwise along its top into
+    the shape."""
     if n < 5:
         raise ValueError(f"self-assembly needs the 4 seeds and at least one robot to move, not {n}")
     movers = n - len(SEEDS)
@@ -202,7 +206,14 @@ def _generate(params: Params, n: int, rng: np.random.Generator) -> np.ndarray:
     for k in range(movers):
         row, col = divmod(k, cols)
         spots.append((-PACKED_MM * (col + 1) - (row % 2) * PACKED_MM / 2, -row * row_mm))
-    packed = np.array(spots) + rng.uniform(-JITTER_MM, JITTER_MM, (movers, 2))
+    from scipy.spatial import cKDTree
+
+    lattice = np.array(spots)
+    packed = lattice + rng.uniform(-JITTER_MM, JITTER_MM, (movers, 2))
+    close = cKDTree(packed).query_pairs(BODY_MM, output_type="ndarray")
+    if len(close):
+        unjittered = np.unique(close)
+        packed[unjittered] = lattice[unjittered]
     return np.vstack([SEEDS, packed])
 
 
