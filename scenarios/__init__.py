@@ -22,21 +22,20 @@ from kilonet.lazy import lazy_exports
 if TYPE_CHECKING:
     from kilonet.scenarios.base import Scenario
 
-__all__ = [
-    "DEFAULT",
-    "GROUP",
+#: What :mod:`kilonet.scenarios.base` lends this package, imported on first use.
+_FROM_BASE = (
     "Drawing",
     "Reporting",
     "RunResult",
     "Scenario",
     "ScenarioError",
     "Setup",
-    "get",
-    "names",
     "run",
     "run_with_params",
     "write_outputs",
-]
+)
+
+__all__ = ["DEFAULT", "GROUP", *_FROM_BASE, "get", "names"]
 
 #: Entry-point group of the scenarios.
 GROUP = "kilonet.scenarios"
@@ -48,20 +47,7 @@ DEFAULT = "gcs"
 # lists the scenarios' names for its help without it (kilonet.lazy).
 __getattr__, __dir__ = lazy_exports(
     __name__,
-    {
-        name: "kilonet.scenarios.base"
-        for name in (
-            "Drawing",
-            "Reporting",
-            "RunResult",
-            "Scenario",
-            "ScenarioError",
-            "Setup",
-            "run",
-            "run_with_params",
-            "write_outputs",
-        )
-    },
+    {name: "kilonet.scenarios.base" for name in _FROM_BASE},
     globals(),
 )
 
