@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from kilonet.app.commands import _parse_set
+from kilonet.app.commands import parse_set
 from kilonet.errors import UsageError
 
 if TYPE_CHECKING:
@@ -47,7 +47,7 @@ def _cmd(args: argparse.Namespace) -> int:
         )
     if args.draws < 1:
         raise UsageError(f"--draws {args.draws}: give at least 1 draw")
-    overrides = _parse_set(args.set)  # the keys and values are checked by the run
+    overrides = parse_set(args.set)  # the keys and values are checked by the run
     figure = None if args.out is None else _figure_target(args.out, args.replace)
     named = args.placement in NAMED_PLACEMENTS  # a name brings the thesis's premise along
     drawn = predict_draws(

@@ -208,7 +208,15 @@ def _scenario_options(args: argparse.Namespace, scenario: Scenario) -> dict[str,
     return out
 
 
-def _parse_set(items: list[str]) -> dict[str, str]:
+def parse_set(items: list[str]) -> dict[str, str]:
+    """Turn ``--set KEY=VALUE`` arguments into a mapping of key to the value's text; the
+    values are checked later, against the scenario's parameters.
+
+    Raises
+    ------
+    UsageError
+        If an item has no ``=`` or an empty key.
+    """
     out: dict[str, str] = {}
     for item in items:
         key, sep, value = item.partition("=")
@@ -295,7 +303,7 @@ def _resolve(args: argparse.Namespace) -> tuple[Scenario, dict[str, Any], Path |
             k[len("program.") :]: v for k, v in overrides.items() if k.startswith("program.")
         }
         overrides = {k: v for k, v in overrides.items() if not k.startswith("program.")}
-        given = _parse_set(args.set)
+        given = parse_set(args.set)
         settings |= {k[len("program.") :]: v for k, v in given.items() if k.startswith("program.")}
         text = Path(target).read_text() if target is not None else ""
 
@@ -368,7 +376,7 @@ def _run_command(args: argparse.Namespace) -> int:
     from kilonet.scenarios.progress import StageProgress
 
     scenario, file_overrides, run_file = _resolve(args)
-    given = _parse_set(args.set)
+    given = parse_set(args.set)
     if args.program is not None:  # program.* keys are the program's own settings (_resolve)
         given = {k: v for k, v in given.items() if not k.startswith("program.")}
     overrides = {**file_overrides, **given, **_scenario_options(args, scenario)}
