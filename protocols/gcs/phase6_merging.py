@@ -33,7 +33,7 @@ A member that hears partner K rank better than seed I could know sends ``HINT(I,
 once per pair and ``gcs.merge_round_s``), and I asks K through it in its next round. A seed is
 done when ``gcs.merge_stable_rounds`` answers in a row agree and every partner has answered
 (or timed out ``gcs.merge_silent_rounds`` rounds without ever answering); it keeps running
-rounds and resumes on a new rank, a far-off parent or repeated disagreement. A seed with no
+rounds and resumes on a new rank or a parent that moved away (``gcs.merge_resume``). A seed with no
 partner is isolated and done at once, its root ranked last; after ``gcs.merge_max_rounds``
 rounds it gives up, or stops its rounds if done. ``docs/gcs.md`` says why each rule is there.
 
@@ -76,6 +76,7 @@ from kilonet.protocols.gcs.frame_keys import FrameKey, Rank
 from kilonet.protocols.gcs.merging_rules import (
     all_partners_heard,
     answer_agrees,
+    beyond_resume,
     cuts_round,
     half_steps,
     hint_due,
@@ -528,7 +529,7 @@ class SeedRounds:
         self.done_since: int | None = None
         self.rounds = 0
         self.stable = 0  # agreeing answers in a row
-        self.disagreed = 0  # parent answers in a row beyond the tolerance
+        self.disagreed = 0  # parent answers in a row toward resuming (beyond_resume)
         self.asking: tuple[int, FrameKey] | None = None  # (member, partner) of the round
         self.hint: tuple[int, FrameKey] | None = None  # (member, partner) from a HINT
         self.members: dict[FrameKey, int] = {}  # partner -> the member kept ("fixed")
@@ -671,7 +672,13 @@ class SeedRounds:
         agreed = answer_agrees(follows, error_mm, p.merge_tolerance_mm)
         new_rank = False
         if follows:
-            self.disagreed = 0 if agreed else self.disagreed + 1
+            beyond = beyond_resume(
+                error_mm,
+                rule=p.merge_resume,
+                tolerance_mm=p.merge_tolerance_mm,
+                whole_step_mm=p.merge_whole_step_mm,
+            )
+            self.disagreed = self.disagreed + 1 if beyond else 0
             new_rank = self._step(rotation, shift, error_mm, rank)
         self.rounds += 1
         self.stable = self.stable + 1 if agreed else 0
@@ -684,6 +691,7 @@ class SeedRounds:
             error_mm=error_mm,
             whole_step_mm=p.merge_whole_step_mm,
             disagreed_in_row=self.disagreed,
+            rule=p.merge_resume,
         ):
             self._resume()
         end = round_end(
