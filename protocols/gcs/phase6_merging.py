@@ -71,7 +71,7 @@ from kilonet.protocols.common.alignment import (
 )
 from kilonet.protocols.common.geometry import GeometryError
 from kilonet.protocols.common.phases import Handler
-from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
+from kilonet.protocols.gcs.base import SENDER, GcsParams, GcsStage, Phase, gcs_layout
 from kilonet.protocols.gcs.frame_keys import FrameKey, Rank
 from kilonet.protocols.gcs.merging_rules import (
     all_partners_heard,
@@ -149,6 +149,7 @@ _TRANSFORM_PARTS = {TF_ROT.type: (TF_ROT, "rot"), TF_SHIFT.type: (TF_SHIFT, "shi
 _ANSWER_PARTS = {ANS_ROT.type: (ANS_ROT, "rot"), ANS_SHIFT.type: (ANS_SHIFT, "shift")}
 _ERROR_LIMIT_MM = 127.5  # ANS_ERROR's error field saturates here
 _UNHEARD = (None, None)  # (version, halves) of a frame none of whose halves is heard yet
+_read_sender = SENDER.unpack_from  # the sender's ID of any message, without a Python call
 _IDENTITY = Rotation.identity()
 _OWN_ROUND_S = 1.0  # pause after a round the seed answered itself (about a round's length)
 
@@ -184,6 +185,7 @@ class FrameMerging(Phase):
         "parts",
         "pending_query",
         "placed",
+        "repeated",
         "round_ticks",
         "seed",
         "settled_since",
@@ -202,8 +204,12 @@ class FrameMerging(Phase):
         self.round_ticks = round(self.params.merge_round_s * tps)
         # Merging (again, after a recovery) starts afresh: transforms, ranks and the check.
         r.estimate.forget_merging()
-        # Halves of the transform being heard, by frame: (version, {"rot"/"shift": message}).
-        self.parts: dict[FrameKey, tuple[int | None, dict[str, object]]] = {}
+        # Halves of the transform being heard, by frame: (version, {"rot"/"shift": (unpacked,
+        # message)}).
+        self.parts: dict[FrameKey, tuple[int | None, dict[str, tuple[object, Message]]]] = {}
+        # By sender ID: the two messages of the transform last completed, of one version byte,
+        # and its frame key (see _track_transform).
+        self.repeated: dict[int, tuple[Message, Message, FrameKey]] = {}
         # When each transform was completed (ticks): versions are 7 bits and wrap after 128
         # updates, so only a recently heard transform may be matched by its version.
         self.heard_at: dict[FrameKey, int] = {}
@@ -393,21 +399,45 @@ class FrameMerging(Phase):
         r.estimate.hear_rank(r.frame_key(m.sender), Rank.from_wire(m.root, m.root_salt, m.hops))
 
     def _track_transform(self, message: Message) -> None:
+        """A TF_ROT or TF_SHIFT heard: the sender's transform is complete once both halves of
+        one version are, and is held (and answers waiting for it go) from then on.
+
+        A seed sends the very message objects of its current transform again and again
+        (:meth:`SeedRounds._transform_message`): one of the pair last completed, both of one
+        version byte, changes nothing held, so it only marks the transform heard now."""
+        repeated = self.repeated.get(_read_sender(message.data)[0])
+        if repeated is not None and (message is repeated[0] or message is repeated[1]):
+            key = repeated[2]
+        else:
+            key = self._take_half(message)
+            if key is None:
+                return
+        r = self.robot
+        self.heard_at[key] = r.kilo_ticks
+        pending = self.pending_query
+        answerable = pending is not None and key in pending[:2] and not self.outbox
+        if answerable and self._answer(*pending):
+            self.pending_query = None
+
+    def _take_half(self, message: Message) -> FrameKey | None:
+        """Keep a transform half; the sender's frame key once the transform is complete
+        (``None`` while it is not, or for this robot's own)."""
         r = self.robot
         layout, part = _TRANSFORM_PARTS[message.type]
         m = layout.unpack(message)
         if m.sender == r.uid:
-            return
+            return None
+        self.repeated.pop(m.sender, None)
         key = r.frame_key(m.sender)
         version, parts = self.parts.get(key, _UNHEARD)
         number = version_number(m.version)
         if version != number:  # a newer version: older halves are void
             version, parts = number, {}
             self.parts[key] = (version, parts)
-        parts[part] = m
+        parts[part] = (m, message)
         if len(parts) < 2:
-            return
-        rot, shift = parts["rot"], parts["shift"]
+            return None
+        (rot, rot_message), (shift, shift_message) = parts["rot"], parts["shift"]
         words = (rot.q0, rot.q1, rot.q2)
         shift_mm = [shift.vx_mm, shift.vy_mm, shift.vz_mm]
         held = r.estimate.transforms.get(key)
@@ -420,11 +450,9 @@ class FrameMerging(Phase):
             or held.shift.tolist() != shift_mm
         ):
             r.estimate.hear_transform(key, Transform(np.array(shift_mm), m.version, words=words))
-        self.heard_at[key] = r.kilo_ticks
-        pending = self.pending_query
-        answerable = pending is not None and key in pending[:2] and not self.outbox
-        if answerable and self._answer(*pending):
-            self.pending_query = None
+        if rot.version == shift.version:  # either half again: the held transform as it is
+            self.repeated[m.sender] = (rot_message, shift_message, key)
+        return key
 
     # -- phase interface -----------------------------------------------------------------------
     def message_tx(self) -> Message | None:
