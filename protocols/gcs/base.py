@@ -137,6 +137,14 @@ class GcsParams:
         hi=1000.0,
         doc="a seed steps the whole way toward a parent that disagrees by more (128+: never)",
     )
+    # A done seed keeps stepping toward its parent either way; the rule decides only when it
+    # drops its done mark (docs/gcs.md, "Done, resumed, given up").
+    merge_resume: Literal["far", "drift"] = param(
+        "far",
+        doc="a done seed resumes on a better rank or two parent answers in a row beyond "
+        "merge_whole_step_mm (far), or also on one beyond it or two beyond "
+        "merge_tolerance_mm (drift)",
+    )
     check_tolerance_mm: float = param(
         8.0, lo=0.1, hi=1000.0, doc="measured and computed neighbour distances agree within this"
     )

@@ -9,9 +9,10 @@ A seed's round, in the order the rules apply: pick a partner (:func:`next_partne
 hinted one if :func:`hint_is_news`); when the answer comes, step only toward the parent
 (:func:`parent`), a whole step when far off (:func:`half_steps`), taking the parent's rank one
 hop further (:func:`rank_toward`); judge the answer (:func:`answer_agrees`); resume if done and
-the parent moved away (:func:`resumes`); end the round as done, given up, stopped or running
-(:func:`round_end`, counting silent partners with :func:`all_partners_heard`). A member hints a
-seed when its partner ranks better than the seed could know (:func:`hint_due`).
+the parent moved away (:func:`resumes`, counting answers with :func:`beyond_resume`); end the
+round as done, given up, stopped or running (:func:`round_end`, counting silent partners with
+:func:`all_partners_heard`). A member hints a seed when its partner ranks better than the seed
+could know (:func:`hint_due`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from kilonet.protocols.gcs.frame_keys import MAX_HOPS, FrameKey, Rank
 __all__ = [
     "all_partners_heard",
     "answer_agrees",
+    "beyond_resume",
     "cuts_round",
     "half_steps",
     "hint_due",
@@ -108,6 +110,24 @@ def rank_toward(own: Rank, parent_rank: Rank) -> Rank | None:
     return further if further < own else None
 
 
+def beyond_resume(
+    error_mm: float, *, rule: Literal["far", "drift"], tolerance_mm: float, whole_step_mm: float
+) -> bool:
+    """Whether a parent's answer counts toward resuming a done seed (:func:`resumes` counts
+    them in a row): beyond ``whole_step_mm`` under rule ``"far"``, beyond ``tolerance_mm``
+    (it does not agree) under ``"drift"``.
+
+    Examples
+    --------
+    >>> kw = dict(tolerance_mm=4.0, whole_step_mm=16.0)
+    >>> [beyond_resume(e, rule="drift", **kw) for e in (4.0, 6.0, 17.0)]
+    [False, True, True]
+    >>> [beyond_resume(e, rule="far", **kw) for e in (4.0, 6.0, 17.0)]
+    [False, False, True]
+    """
+    return error_mm > (whole_step_mm if rule == "far" else tolerance_mm)
+
+
 def resumes(
     *,
     done: bool,
@@ -116,12 +136,21 @@ def resumes(
     error_mm: float,
     whole_step_mm: float,
     disagreed_in_row: int,
+    rule: Literal["far", "drift"] = "drift",
 ) -> bool:
-    """Whether a seed that was done goes back to merging after an answer: the answer did not
-    agree, and it brought a better rank (``new_rank``) or a parent more than ``whole_step_mm``
-    off, or the parent has now disagreed :data:`RESUME_AFTER_DISAGREEMENTS` times in a row.
-    One stray answer does not: answers about one parent differ by a few mm with the member
-    asked, and resuming on each would send waves of resumes down the tree of frames.
+    """Whether a seed that was done goes back to merging after an answer that did not agree.
+
+    Either rule resumes on a better rank (``new_rank``: a root is flooding the swarm) and on
+    :data:`RESUME_AFTER_DISAGREEMENTS` parent answers in a row that :func:`beyond_resume`
+    counts (``disagreed_in_row``). Rule ``"drift"`` counts every answer beyond the tolerance
+    and also resumes on a single parent more than ``whole_step_mm`` off; rule ``"far"``
+    counts only answers beyond ``whole_step_mm`` and never resumes on one. One stray answer
+    does not resume a seed: answers about one parent differ by a few mm with the member asked,
+    and resuming on each would send waves of resumes down the tree of frames. Under
+    ``"drift"``, a seed whose members disagree by about the tolerance still resumes every few
+    rounds (the run waits for every seed to be done at once); under ``"far"`` it keeps its done
+    mark while it goes on stepping toward its parent, and resumes only when the parent has
+    moved by more than a whole step.
 
     Examples
     --------
@@ -130,10 +159,15 @@ def resumes(
     [False, True]
     >>> resumes(**kw, error_mm=17.0, disagreed_in_row=1)
     True
+    >>> [resumes(**kw, error_mm=17.0, disagreed_in_row=n, rule="far") for n in (1, 2)]
+    [False, True]
     """
-    far = error_mm > whole_step_mm
+    if not done or agreed:
+        return False
     again = disagreed_in_row >= RESUME_AFTER_DISAGREEMENTS
-    return done and not agreed and (new_rank or far or again)
+    if rule == "far":
+        return new_rank or again
+    return new_rank or error_mm > whole_step_mm or again
 
 
 def all_partners_heard(

@@ -33,7 +33,7 @@ A member that hears partner K rank better than seed I could know sends ``HINT(I,
 once per pair and ``gcs.merge_round_s``), and I asks K through it in its next round. A seed is
 done when ``gcs.merge_stable_rounds`` answers in a row agree and every partner has answered
 (or timed out ``gcs.merge_silent_rounds`` rounds without ever answering); it keeps running
-rounds and resumes on a new rank, a far-off parent or repeated disagreement. A seed with no
+rounds and resumes on a new rank or a parent that moved away (``gcs.merge_resume``). A seed with no
 partner is isolated and done at once, its root ranked last; after ``gcs.merge_max_rounds``
 rounds it gives up, or stops its rounds if done. ``docs/gcs.md`` says why each rule is there.
 
@@ -71,11 +71,12 @@ from kilonet.protocols.common.alignment import (
 )
 from kilonet.protocols.common.geometry import GeometryError
 from kilonet.protocols.common.phases import Handler
-from kilonet.protocols.gcs.base import GcsParams, GcsStage, Phase, gcs_layout
+from kilonet.protocols.gcs.base import SENDER, GcsParams, GcsStage, Phase, gcs_layout
 from kilonet.protocols.gcs.frame_keys import FrameKey, Rank
 from kilonet.protocols.gcs.merging_rules import (
     all_partners_heard,
     answer_agrees,
+    beyond_resume,
     cuts_round,
     half_steps,
     hint_due,
@@ -148,6 +149,7 @@ _TRANSFORM_PARTS = {TF_ROT.type: (TF_ROT, "rot"), TF_SHIFT.type: (TF_SHIFT, "shi
 _ANSWER_PARTS = {ANS_ROT.type: (ANS_ROT, "rot"), ANS_SHIFT.type: (ANS_SHIFT, "shift")}
 _ERROR_LIMIT_MM = 127.5  # ANS_ERROR's error field saturates here
 _UNHEARD = (None, None)  # (version, halves) of a frame none of whose halves is heard yet
+_read_sender = SENDER.unpack_from  # the sender's ID of any message, without a Python call
 _IDENTITY = Rotation.identity()
 _OWN_ROUND_S = 1.0  # pause after a round the seed answered itself (about a round's length)
 
@@ -183,6 +185,7 @@ class FrameMerging(Phase):
         "parts",
         "pending_query",
         "placed",
+        "repeated",
         "round_ticks",
         "seed",
         "settled_since",
@@ -201,8 +204,12 @@ class FrameMerging(Phase):
         self.round_ticks = round(self.params.merge_round_s * tps)
         # Merging (again, after a recovery) starts afresh: transforms, ranks and the check.
         r.estimate.forget_merging()
-        # Halves of the transform being heard, by frame: (version, {"rot"/"shift": message}).
-        self.parts: dict[FrameKey, tuple[int | None, dict[str, object]]] = {}
+        # Halves of the transform being heard, by frame: (version, {"rot"/"shift": (unpacked,
+        # message)}).
+        self.parts: dict[FrameKey, tuple[int | None, dict[str, tuple[object, Message]]]] = {}
+        # By sender ID: the two messages of the transform last completed, of one version byte,
+        # and its frame key (see _track_transform).
+        self.repeated: dict[int, tuple[Message, Message, FrameKey]] = {}
         # When each transform was completed (ticks): versions are 7 bits and wrap after 128
         # updates, so only a recently heard transform may be matched by its version.
         self.heard_at: dict[FrameKey, int] = {}
@@ -392,21 +399,45 @@ class FrameMerging(Phase):
         r.estimate.hear_rank(r.frame_key(m.sender), Rank.from_wire(m.root, m.root_salt, m.hops))
 
     def _track_transform(self, message: Message) -> None:
+        """A TF_ROT or TF_SHIFT heard: the sender's transform is complete once both halves of
+        one version are, and is held (and answers waiting for it go) from then on.
+
+        A seed sends the very message objects of its current transform again and again
+        (:meth:`SeedRounds._transform_message`): one of the pair last completed, both of one
+        version byte, changes nothing held, so it only marks the transform heard now."""
+        repeated = self.repeated.get(_read_sender(message.data)[0])
+        if repeated is not None and (message is repeated[0] or message is repeated[1]):
+            key = repeated[2]
+        else:
+            key = self._take_half(message)
+            if key is None:
+                return
+        r = self.robot
+        self.heard_at[key] = r.kilo_ticks
+        pending = self.pending_query
+        answerable = pending is not None and key in pending[:2] and not self.outbox
+        if answerable and self._answer(*pending):
+            self.pending_query = None
+
+    def _take_half(self, message: Message) -> FrameKey | None:
+        """Keep a transform half; the sender's frame key once the transform is complete
+        (``None`` while it is not, or for this robot's own)."""
         r = self.robot
         layout, part = _TRANSFORM_PARTS[message.type]
         m = layout.unpack(message)
         if m.sender == r.uid:
-            return
+            return None
+        self.repeated.pop(m.sender, None)
         key = r.frame_key(m.sender)
         version, parts = self.parts.get(key, _UNHEARD)
         number = version_number(m.version)
         if version != number:  # a newer version: older halves are void
             version, parts = number, {}
             self.parts[key] = (version, parts)
-        parts[part] = m
+        parts[part] = (m, message)
         if len(parts) < 2:
-            return
-        rot, shift = parts["rot"], parts["shift"]
+            return None
+        (rot, rot_message), (shift, shift_message) = parts["rot"], parts["shift"]
         words = (rot.q0, rot.q1, rot.q2)
         shift_mm = [shift.vx_mm, shift.vy_mm, shift.vz_mm]
         held = r.estimate.transforms.get(key)
@@ -419,11 +450,9 @@ class FrameMerging(Phase):
             or held.shift.tolist() != shift_mm
         ):
             r.estimate.hear_transform(key, Transform(np.array(shift_mm), m.version, words=words))
-        self.heard_at[key] = r.kilo_ticks
-        pending = self.pending_query
-        answerable = pending is not None and key in pending[:2] and not self.outbox
-        if answerable and self._answer(*pending):
-            self.pending_query = None
+        if rot.version == shift.version:  # either half again: the held transform as it is
+            self.repeated[m.sender] = (rot_message, shift_message, key)
+        return key
 
     # -- phase interface -----------------------------------------------------------------------
     def message_tx(self) -> Message | None:
@@ -528,7 +557,7 @@ class SeedRounds:
         self.done_since: int | None = None
         self.rounds = 0
         self.stable = 0  # agreeing answers in a row
-        self.disagreed = 0  # parent answers in a row beyond the tolerance
+        self.disagreed = 0  # parent answers in a row toward resuming (beyond_resume)
         self.asking: tuple[int, FrameKey] | None = None  # (member, partner) of the round
         self.hint: tuple[int, FrameKey] | None = None  # (member, partner) from a HINT
         self.members: dict[FrameKey, int] = {}  # partner -> the member kept ("fixed")
@@ -671,7 +700,13 @@ class SeedRounds:
         agreed = answer_agrees(follows, error_mm, p.merge_tolerance_mm)
         new_rank = False
         if follows:
-            self.disagreed = 0 if agreed else self.disagreed + 1
+            beyond = beyond_resume(
+                error_mm,
+                rule=p.merge_resume,
+                tolerance_mm=p.merge_tolerance_mm,
+                whole_step_mm=p.merge_whole_step_mm,
+            )
+            self.disagreed = self.disagreed + 1 if beyond else 0
             new_rank = self._step(rotation, shift, error_mm, rank)
         self.rounds += 1
         self.stable = self.stable + 1 if agreed else 0
@@ -684,6 +719,7 @@ class SeedRounds:
             error_mm=error_mm,
             whole_step_mm=p.merge_whole_step_mm,
             disagreed_in_row=self.disagreed,
+            rule=p.merge_resume,
         ):
             self._resume()
         end = round_end(

@@ -527,7 +527,9 @@ class GcsRobot(Kilobot):
                 self._show()
             check = self.check
             merging = phase.name == GcsStage.MERGE
-            if merging and check and not self.recovery.pending and check.wants_recovery():
+            # Without a boundary wants_recovery() is False: most loops ask nothing more.
+            boundary = merging and check and check.boundary_since is not None
+            if boundary and not self.recovery.pending and check.wants_recovery():
                 self.recovery.request()
             if merging and check and check.outlier_since is not None:
                 check.fold_step()
