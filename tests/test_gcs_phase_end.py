@@ -1,14 +1,10 @@
-"""When a gcs phase is over (issue 44): the rules that let merging, and the run, end once their
-work is done.
+"""When a gcs phase is over (issue 44): the rules that let merging end once its work is done.
 
 A done seed keeps stepping toward its parent; ``gcs.merge_resume`` decides only when it drops
 its done mark. Under ``"drift"`` two parent answers in a row beyond the tolerance do it, so a
 seed whose members disagree by about the tolerance resumes every few rounds and the run, which
 waits for every seed to be done at once, waits for hundreds of rounds; under ``"far"`` (the
-default) only a better rank or two answers in a row beyond a whole step do. After the last
-seed is done, the run waits for a robot the fold rule is about to act on only for its first
-action in its root: one whose action was void (its frame moved under it) acts again, but the
-run does not wait for it.
+default) only a better rank or two answers in a row beyond a whole step do.
 """
 
 from __future__ import annotations
@@ -20,7 +16,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from kilonet import scenarios
-from kilonet.protocols.gcs.fold_rule import run_waits_for_fold
 from kilonet.protocols.gcs.merging_rules import (
     RESUME_AFTER_DISAGREEMENTS,
     beyond_resume,
@@ -100,41 +95,3 @@ def test_a_done_seed_drops_its_mark_as_its_rule_says(done_seeds, which, rule, er
         after.append(seed.done)
         assert seed.robot.merge_done is seed.done
     assert after == done_after
-
-
-# -- the run's wait for the fold rule ----------------------------------------------------------
-@pytest.mark.parametrize(
-    ("action", "acted", "waits"),
-    [("wait", False, True), ("wait", True, False), ("keep", False, False),
-     ("repair", False, False), ("split", False, False)],
-)  # fmt: skip
-def test_a_run_waits_only_for_a_first_fold_in_a_root(action, acted, waits):
-    assert run_waits_for_fold(action=action, acted_in_root=acted) is waits
-
-
-def _disagree(check, xy) -> None:
-    """Three neighbours 50 mm off that this robot measures 20 mm away: it is their outlier."""
-    x, y = xy
-    check.compared = {901: (x + 50, y, 20.0), 902: (x, y + 50, 20.0), 903: (x - 50, y, 20.0)}
-    check._update_outlier()
-
-
-def test_a_robot_whose_fold_was_void_no_longer_holds_up_the_run(done_seeds):
-    robot = next(
-        s.robot
-        for s in done_seeds
-        if s.robot.check is not None and s.robot.estimate.settled() and s.robot.check.fold is None
-    )
-    check = robot.check
-    xy, root = check.held()
-    _disagree(check, xy)
-    assert check.awaiting_fold()
-    check.outlier_since -= round((robot.params.fold_confirm_s + 1) * robot.ticks_per_s)
-    check.fold_step()
-    assert check.fold is not None and check.fold.action == "split"  # no point fits them
-    assert not check.awaiting_fold()
-    check._anchor_moved(901, (xy[0] + 80, xy[1]), root)  # the frame moved under it: void
-    assert check.fold is None and root not in check.fold_roots
-    _disagree(check, xy)
-    assert check.outlier_since is not None  # the rule judges it anew, and will act again
-    assert not check.awaiting_fold()  # but the run does not wait for that

@@ -30,14 +30,7 @@ import numpy as np
 
 from kilonet.protocols.common.geometry import multilaterate
 
-__all__ = [
-    "MIN_ANCHORS",
-    "FoldDecision",
-    "fold_decision",
-    "is_outlier",
-    "refit",
-    "run_waits_for_fold",
-]
+__all__ = ["MIN_ANCHORS", "FoldDecision", "fold_decision", "is_outlier", "refit"]
 
 #: Neighbours a refit needs, and the rule needs before it acts (see the module docstring).
 MIN_ANCHORS = 3
@@ -155,25 +148,3 @@ def fold_decision(
         return FoldDecision("wait")
     position = refit(anchors, tolerance_mm=tolerance_mm, sigma_mm=sigma_mm)
     return FoldDecision("split") if position is None else FoldDecision("repair", position)
-
-
-def run_waits_for_fold(*, action: str, acted_in_root: bool) -> bool:
-    """Whether a run that is otherwise over waits for a robot's fold: the rule's ``action`` on
-    it is ``"wait"`` (the outlier, its disagreement not yet confirmed) and it has not acted in
-    its merged root before (``acted_in_root``).
-
-    A robot that acted there and saw its action void (a neighbour it was judged against moved:
-    merging still moves the frame under it) acts again once confirmed, but the run does not wait
-    for that: the frame that voided its action once may void it again, and a run kept going for
-    it would end on whichever of the two it held at the limit.
-
-    Examples
-    --------
-    >>> run_waits_for_fold(action="wait", acted_in_root=False)
-    True
-    >>> run_waits_for_fold(action="wait", acted_in_root=True)
-    False
-    >>> run_waits_for_fold(action="keep", acted_in_root=False)
-    False
-    """
-    return action == "wait" and not acted_in_root

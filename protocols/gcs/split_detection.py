@@ -47,10 +47,8 @@ while the neighbours it was judged against report positions within that of the o
 settled frame may still be moved by merging (a seed done merging may resume, and move its
 frame), and a robot re-placed against neighbours that then move is left behind. A void action is
 logged (``fold_void``). Otherwise the robot acts at most once per root, so a fold the rule
-cannot mend does not keep the run waiting; nor does a robot whose action in its root was void
-(it acts again, but the run waits only for a first action in a root,
-:func:`~kilonet.protocols.gcs.fold_rule.run_waits_for_fold`). A recovery epoch starts a new
-check, and with it the rule.
+cannot mend does not keep the run waiting. A recovery epoch starts a new check, and with it
+the rule.
 
 The comparison uses only what the robot heard: its neighbours' messages and its own ranging.
 """
@@ -62,12 +60,7 @@ from typing import TYPE_CHECKING, Literal, NamedTuple
 
 from kilonet.message import Message
 from kilonet.protocols.gcs.base import gcs_layout
-from kilonet.protocols.gcs.fold_rule import (
-    FoldDecision,
-    fold_decision,
-    is_outlier,
-    run_waits_for_fold,
-)
+from kilonet.protocols.gcs.fold_rule import FoldDecision, fold_decision, is_outlier
 from kilonet.protocols.gcs.frame_keys import Root
 
 if TYPE_CHECKING:
@@ -151,8 +144,7 @@ class SplitCheck:
         self.outlier_since: int | None = None
         self._outlier_from = (0.0, 0.0)  # the merged estimate when outlier_since was set, mm
         self.fold: Fold | None = None
-        self.fold_roots: set[Root] = set()  # merged roots the rule's action holds in
-        self.acted_roots: set[Root] = set()  # merged roots it acted in, void actions too
+        self.fold_roots: set[Root] = set()  # merged roots the rule has acted in
         self.pos_heard_at: dict[int, int] = {}  # neighbour ID -> tick of its latest POS
         self.turn = 0
 
@@ -181,12 +173,13 @@ class SplitCheck:
         return position, root
 
     def awaiting_fold(self) -> bool:
-        """The fold rule will act on this robot once its disagreement is confirmed, for the
-        first time in its root (:func:`~kilonet.protocols.gcs.fold_rule.run_waits_for_fold`)."""
-        if not self.params.fold or self.outlier_since is None:
-            return False
-        acted = self.robot.estimate.root() in self.acted_roots
-        return run_waits_for_fold(action=self._decision(0.0).action, acted_in_root=acted)
+        """The fold rule will act on this robot once its disagreement is confirmed."""
+        return (
+            self.params.fold
+            and self.outlier_since is not None
+            and self.robot.estimate.root() not in self.fold_roots
+            and self._decision(0.0).action == "wait"
+        )
 
     def _decision(self, outlier_for_s: float) -> FoldDecision:
         """The fold rule on what this robot compared, the outlier for ``outlier_for_s``."""
@@ -212,7 +205,6 @@ class SplitCheck:
         if decision.action in ("keep", "wait"):
             return
         self.fold_roots.add(root)
-        self.acted_roots.add(root)
         self.outlier_since = None
         merged = (r.estimate.position(), root)
         anchors = dict(self.compared)
