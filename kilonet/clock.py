@@ -381,8 +381,17 @@ class KernelEnvironment(simpy.Environment):
 
     def _run_to(self, at: float) -> None:
         """The step loop of :meth:`step` inline, up to (not including) time ``at``: the window
-        of recurring calls and the queue merged by key."""
-        queue, eids = self._kqueue, self._keids
+        of recurring calls and the queue merged by key.
+
+        An event is processed in place (its time becomes now, its callbacks run). Recurring
+        calls run back to back from the window's position while they fall strictly before the
+        queue's next event and ``at`` (the first of them has won against the queue's head by
+        key, ties included); a call that raises is cancelled, then the exception goes on. Both
+        are inline rather than methods because this loop runs once per tick of every robot:
+        a method call and its set-up per run of calls cost as much as the calls' own
+        bookkeeping."""
+        queue, eids, ids = self._kqueue, self._keids, self._kids
+        calls, alive = self._kcalls, self._kalive  # appended to, never replaced
         while True:
             pos, win_k = self._kpos, self._kwin_k
             if pos == len(win_k) or self._kdirty:
@@ -392,17 +401,51 @@ class KernelEnvironment(simpy.Environment):
                     continue  # an event added a recurring call: build its window
                 self._window()
                 continue
-            t = self._kwin_t[pos]
+            win_t = self._kwin_t
+            t = win_t[pos]
             if queue:
                 head = queue[0]
                 if head[0] < t or (head[0] == t and head < (t, NORMAL, eids[win_k[pos]])):
                     if head[0] >= at:
                         return
-                    self._fire(heappop(queue))
+                    self._kt, _, _, event = heappop(queue)
+                    callbacks, event.callbacks = event.callbacks, None
+                    for callback in callbacks:
+                        callback(event)
+                    if not event.ok and not event.defused:
+                        _raise_failed(event)
                     continue
+                limit = head[0] if head[0] < at else at
+            else:
+                limit = at
             if t >= at:
                 return
-            self._run_recurring(at)
+            n_win = len(win_k)
+            k = -1
+            try:
+                while True:
+                    k = win_k[pos]
+                    pos += 1
+                    if alive[k]:
+                        self._kt = t
+                        calls[k]()
+                        if alive[k]:
+                            eids[k] = next(ids)
+                        if self._kdirty:
+                            break
+                        if queue and queue[0][0] < limit:
+                            limit = queue[0][0]
+                    if pos == n_win:
+                        break
+                    t = win_t[pos]
+                    if t >= limit:
+                        break
+            except BaseException:
+                self.cancel(k)
+                raise
+            finally:
+                if self._kwin_k is win_k:  # a call may have rebuilt the window (peek)
+                    self._kpos = pos
 
     def _run_queue_alone(self, at: float) -> bool:
         """Process queued events before ``at`` while no recurring call is pending: True when
@@ -423,48 +466,6 @@ class KernelEnvironment(simpy.Environment):
             callback(event)
         if not event.ok and not event.defused:
             _raise_failed(event)
-
-    def _run_recurring(self, at: float) -> None:
-        """Run the window's recurring calls from its position on, back to back, while they fall
-        strictly before the queue's next event and ``at`` (the first of them has already won
-        against the queue's head by key, ties included). A call that raises is cancelled,
-        then the exception goes on."""
-        queue, calls, alive, eids, ids = (
-            self._kqueue,
-            self._kcalls,
-            self._kalive,
-            self._keids,
-            self._kids,
-        )
-        win_t, win_k, pos = self._kwin_t, self._kwin_k, self._kpos
-        n_win = len(win_k)
-        limit = queue[0][0] if queue and queue[0][0] < at else at
-        t = win_t[pos]
-        k = -1
-        try:
-            while True:
-                k = win_k[pos]
-                pos += 1
-                if alive[k]:
-                    self._kt = t
-                    calls[k]()
-                    if alive[k]:
-                        eids[k] = next(ids)
-                    if self._kdirty:
-                        return
-                    if queue and queue[0][0] < limit:
-                        limit = queue[0][0]
-                if pos == n_win:
-                    return
-                t = win_t[pos]
-                if t >= limit:
-                    return
-        except BaseException:
-            self.cancel(k)
-            raise
-        finally:
-            if self._kwin_k is win_k:  # a call may have rebuilt the window (peek)
-                self._kpos = pos
 
 
 def _raise_failed(event: Any) -> None:

@@ -40,8 +40,8 @@ from __future__ import annotations
 
 import operator
 from collections import deque
-from collections.abc import Callable, Sequence
-from itertools import compress, repeat
+from collections.abc import Callable, Iterator, Sequence
+from itertools import chain, compress, repeat
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -114,24 +114,32 @@ class RandomBlock:
 
     Drawing one float at a time from NumPy costs about a microsecond; serving it from a
     pre-drawn Python list costs a few tens of nanoseconds. The sequence is the generator's own,
-    so runs stay reproducible.
+    and a block is drawn only when the previous one is used up (the generator may serve other
+    draws in between), so runs stay reproducible. Iterating it gives the same draws through
+    one C-level ``next()`` each, without a Python call: the medium's hot path reads it so.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(5)
+    >>> block = RandomBlock(np.random.default_rng(5).random)
+    >>> [block.next(), next(iter(block))] == rng.random(2).tolist()
+    True
     """
 
-    __slots__ = ("_draw", "_pos", "_values")
+    __slots__ = ("_draws",)
 
     def __init__(self, draw: Callable[[int], np.ndarray]) -> None:
-        self._draw = draw
-        self._values: list[float] = []
-        self._pos = 0
+        # iter(f, None) calls f for each block (never None); chain takes the next block only
+        # when a draw is asked for after the last one was served.
+        self._draws = chain.from_iterable(iter(lambda: draw(_BLOCK).tolist(), None))
 
     def next(self) -> float:
         """The next draw."""
-        if self._pos >= len(self._values):
-            self._values = self._draw(_BLOCK).tolist()
-            self._pos = 0
-        value = self._values[self._pos]
-        self._pos += 1
-        return value
+        return next(self._draws)
+
+    def __iter__(self) -> Iterator[float]:
+        """The draws from the next on, shared with :meth:`next` (one stream)."""
+        return self._draws
 
 
 class _Transmission:
@@ -280,7 +288,7 @@ class InfraredMedium:
         self._tick = [1.0 / (rp.ticks_per_s * f) for f in factor]
         self._retry_tick = rp.tx_retry == "tick"
         self._csma = p.csma
-        self._uniform = RandomBlock(rng.random)
+        self._uniform = iter(RandomBlock(rng.random))  # next(self._uniform): a draw in [0, 1)
         self._ids = list(range(n))  # one int object per robot, shared by every list
 
         # Receiver-side loss shares (battery, fault), per robot.
@@ -551,7 +559,7 @@ class InfraredMedium:
     def start(self, robot: int) -> None:
         """Schedule the first transmit opportunity of ``robot`` at ``U(0, period)`` (the phase
         of its transmit counter at the start is random)."""
-        self._offer_timers[robot].schedule(self._uniform.next() * self._period[robot])
+        self._offer_timers[robot].schedule(next(self._uniform) * self._period[robot])
 
     # -- reception outcomes, drawn ahead in blocks ---------------------------------------------
     def _refill(self, s: int) -> None:
@@ -605,14 +613,14 @@ class InfraredMedium:
         now = self.env._kt  # the kernel's clock (KernelEnvironment.now without the call)
         if self._csma and self._busy_until[s] > now >= self._sensed_from[s]:
             self.counts.backoffs[s] += 1
-            delay = self._uniform.next() * self._backoff[s]
+            delay = next(self._uniform) * self._backoff[s]
         else:
             message = self._message_tx[s]()
             if message is None:
                 delay = (
                     self._tick[s]
                     if self._retry_tick
-                    else self._period[s] + (2 * self._uniform.next() - 1) * self._jitter[s]
+                    else self._period[s] + (2 * next(self._uniform) - 1) * self._jitter[s]
                 )
             else:
                 if message is not self._last_checked[s]:
@@ -621,7 +629,7 @@ class InfraredMedium:
                     self._message_bytes[s] = message.size_bytes
                     self._crc_ok[s] = message.crc_ok
                 self._transmit(s, message, now)
-                delay = self._period[s] + (2 * self._uniform.next() - 1) * self._jitter[s]
+                delay = self._period[s] + (2 * next(self._uniform) - 1) * self._jitter[s]
         self._offer_timers[s].schedule(delay)
 
     def _transmit(self, s: int, message: Message, now: float) -> None:
@@ -677,8 +685,9 @@ class InfraredMedium:
             return
         # Some receptions fail (collided or lost): deliver the others, in receiver order, by
         # one C-level map over the receivers a mask keeps, count the transmission as clean and
-        # take the failed receptions back out of `received`. A collided reception costs its
-        # mask byte and its counts: no sort, no slice, no call.
+        # take the failed receptions back out of `received` (the collided ones a batch of
+        # messages at a time, see MediumCounters.collided). A collided reception costs its
+        # mask byte: no sort, no slice, no call, no count of its own.
         receivers, handlers = tx.receivers, tx.handlers
         keep = bytearray(b"\x01" * len(receivers))  # 1: deliver
         if lost_at is not None:
@@ -697,13 +706,15 @@ class InfraredMedium:
             )
         )
         counters.clean_delivery(tx.sender)
-        received = counters.received
         if corrupted is not None:
-            lost_collision = counters.lost("collision")
-            for r in corrupted:  # a collision counts before any other cause
-                received[r] -= 1
-                lost_collision[r] += 1
+            # A collision counts before any other cause. The set goes to the counters as it
+            # is, so the message lets go of it: a robot's own transmission keeps its channel
+            # busy past the last reception there, and the channel may mark that reception,
+            # long over, again (into a new set, counted by no one).
+            tx.corrupted = None
+            counters.collided(corrupted)
         if lost_at is not None:
+            received = counters.received
             lost_by_code, losses, corrupted = self._lost_by_code, tx.losses, corrupted or ()
             for at in lost_at:
                 r = receivers[at]

@@ -35,6 +35,7 @@ import numpy as np
 __all__ = [
     "CalibrationTables",
     "DistanceMeasurement",
+    "ReadingLookup",
     "TableLookup",
     "calibration_tables",
     "estimate_distance",
@@ -308,6 +309,84 @@ class TableLookup:
         low = np.asarray(low, dtype=np.intp)
         row = receivers * 1024  # where each receiver's row starts in the flat tables
         return _blend(high, self._high_flat.take(high + row), self._low_flat.take(low + row))
+
+
+class ReadingLookup:
+    """Clipped estimates (uint8, mm) of reading pairs that come from one intensity
+    (:func:`readings`), by one look-up each: the medium's reception model asks this for every
+    block of receptions it draws, where :meth:`TableLookup.estimates`, the blend and the clip
+    cost a few dozen NumPy calls on small arrays. The result is :meth:`TableLookup.estimates`
+    clipped to ``[min_mm, max_mm]``, bit for bit: every entry is computed by it.
+
+    kilolib's estimate of a pair depends on the high-gain reading alone up to 700 (the low-gain
+    table is not used) and on the low-gain reading alone from 900 (the high-gain one is
+    saturated); in between it blends both. There, the two readings of one intensity are tied:
+    a high reading ``h`` spans an intensity band in which the low reading, 450/1400 as steep,
+    takes at most two neighbouring values. So each robot's table holds one estimate per high
+    reading up to 700, :data:`_BAND` per high reading in between (the low readings from
+    ``_band_low[h]``, with a margin of one on either side) and one per low reading from 900.
+
+    Parameters
+    ----------
+    lookup : TableLookup
+        The swarm's tables.
+    min_mm, max_mm : int
+        The clip (``ranging.min_mm``, ``ranging.max_mm``).
+
+    Examples
+    --------
+    >>> t = calibration_tables(3, np.random.default_rng(1))
+    >>> lookup = TableLookup(np.array([x.irhigh for x in t]), np.array([x.irlow for x in t]))
+    >>> high, low = readings(np.array([[0.02, 0.5, 0.9], [0.3, 0.47, 0.61]]))
+    >>> high, low = np.rint(high), np.rint(low)
+    >>> receivers = np.array([2, 0, 1])
+    >>> bool((ReadingLookup(lookup, 0, 255).estimates(high, low, receivers) ==
+    ...       lookup.estimates(high, low, receivers)).all())
+    True
+    """
+
+    #: Low readings kept per high reading in the blend band (two possible, one margin each side).
+    _BAND = 4
+    _CHUNK = 128
+
+    def __init__(self, lookup: TableLookup, min_mm: int, max_mm: int) -> None:
+        every = np.arange(1024)
+        middle = every[701:900]
+        # the low reading of the intensity at the lower edge of high reading h, less the margin
+        band_low = np.rint(40.0 + 450.0 * (middle - 40.5) / 1400.0).astype(np.intp) - 1
+        band = self._BAND
+        slot_high = np.concatenate([every[:701], np.repeat(middle, band), np.full(1024, 900)])
+        slot_low = np.concatenate(
+            [np.zeros(701, dtype=np.intp), (band_low[:, None] + np.arange(band)).ravel(), every]
+        )
+        width = len(slot_high)
+        # slot of (h, l) = offset[h] + l * uses_low[h]
+        offset = np.concatenate(
+            [every[:701], 701 + band * np.arange(len(middle)) - band_low, np.full(124, 0)]
+        )
+        offset[900:] = 701 + band * len(middle)
+        self._offset = offset.astype(np.intp)
+        self._uses_low = (every > 700).astype(np.intp)
+        self._width = width
+        n = lookup.high_mm.shape[0]
+        rows = []
+        for k in range(0, n, self._CHUNK):
+            robots = np.arange(k, min(n, k + self._CHUNK))
+            est = lookup.estimates(slot_high[None, :], slot_low[None, :], robots[:, None])
+            rows.append(np.clip(est, min_mm, max_mm).astype(np.uint8))
+        #: (N * width,) uint8: robot k's estimates from k * width on.
+        self.table = np.concatenate(rows).ravel() if rows else np.empty(0, dtype=np.uint8)
+
+    def estimates(self, high: np.ndarray, low: np.ndarray, receivers: np.ndarray) -> np.ndarray:
+        """Estimates (uint8, mm, clipped) of integer readings ``high`` and ``low`` (..., R,
+        each 0-1023, both from one intensity through :func:`readings` and rounding), column
+        ``k`` on the tables of robot ``receivers[k]``."""
+        high = np.asarray(high, dtype=np.intp)
+        low = np.array(low, dtype=np.intp)  # a copy: it becomes the slot
+        low *= self._uses_low.take(high)
+        low += self._offset.take(high)
+        low += receivers * self._width
+        return self.table.take(low)
 
 
 def _blend(high: np.ndarray, dist_high: np.ndarray, table_low: np.ndarray) -> np.ndarray:

@@ -45,7 +45,7 @@ import numpy as np
 if TYPE_CHECKING:
     from kilonet.params import Params
     from kilonet.radio import Transceivers
-    from kilonet.ranging import CalibrationTables, TableLookup
+    from kilonet.ranging import CalibrationTables, ReadingLookup, TableLookup
 
 __all__ = [
     "CAUSES",
@@ -296,6 +296,8 @@ class TableRanging(GaussianRanging):
         self._irhigh = np.array([t.irhigh for t in tables], dtype=np.int64)
         self._irlow = np.array([t.irlow for t in tables], dtype=np.int64)
         self._lookup: TableLookup | None = None  # built at the first draw
+        # the clipped estimate of each robot's reading pairs, built at the first draw
+        self._readings: ReadingLookup | None = None
         # sender -> (receivers, distances, mean intensity per link) as last computed
         self._mean_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._gain = np.array([t.gain for t in tables])
@@ -331,8 +333,11 @@ class TableRanging(GaussianRanging):
         noise *= rg.intensity_noise
         noise += 1.0
         high, low = readings(np.maximum(noise * mean, 0.0))
-        est = self._table_lookup().estimates(np.rint(high), np.rint(low), receivers)
-        return np.clip(est, rg.min_mm, rg.max_mm).astype(np.uint8)
+        if self._readings is None:
+            from kilonet.ranging import ReadingLookup
+
+            self._readings = ReadingLookup(self._table_lookup(), rg.min_mm, rg.max_mm)
+        return self._readings.estimates(np.rint(high), np.rint(low), receivers)
 
     def _table_lookup(self) -> TableLookup:
         """The swarm's tables as a look-up (:class:`kilonet.ranging.TableLookup`), built at the
