@@ -168,6 +168,9 @@ class SelfAssembly(Kilobot):
         self.estimate: tuple[float, float] | None = self.seed_at_mm
         self.neighbours: dict[int, Neighbour] = {}
         self.turn = ""
+        self.edge_action = ""  # what the last reading of the nearest robot decided
+        self.edge_reading: tuple[int, float] | None = None  # (uid, when heard) of that reading
+        self.edge_previous_mm: float | None = None  # its distance, mm
         self.moved_since_s = 0.0
         self.last_stationary_s = 0.0
         self.next_check_s = STARTUP_S
@@ -277,7 +280,18 @@ class SelfAssembly(Kilobot):
         if nearest is None or must_yield(age, self.kilo_uid, ahead):
             self._drive("")
         else:
-            self._drive(edge_turn(nearest[1].distance_mm))
+            self._drive(self._edge_action(*nearest))
+
+    def _edge_action(self, uid: int, nearest: Neighbour) -> str:
+        """The edge-following action for the nearest stationary robot's reading: decided
+        afresh only on a new reading (the trend compares it with the reading before); between
+        readings the robot keeps the action the last one decided."""
+        reading = (uid, nearest.heard_s)
+        if reading != self.edge_reading:
+            self.edge_action = edge_turn(nearest.distance_mm, self.edge_previous_mm)
+            self.edge_reading = reading
+            self.edge_previous_mm = float(nearest.distance_mm)
+        return self.edge_action
 
     def _stops(self, nearest: tuple[int, Neighbour] | None) -> bool:
         """Apply the stop rules to a fresh estimate; whether the robot stopped in the shape."""
@@ -378,8 +392,10 @@ class SelfAssembly(Kilobot):
         self.spinup_motors()
         if turn == "left":
             self.set_motors(self.kilo_turn_left, 0)
-        else:
+        elif turn == "right":
             self.set_motors(0, self.kilo_turn_right)
+        else:
+            self.set_motors(self.kilo_straight_left, self.kilo_straight_right)
 
     def _halt(self) -> None:
         self.turn = ""

@@ -172,16 +172,25 @@ def must_yield(age: int, uid: int, moving: Iterable[tuple[int, int, float]]) -> 
     return any(d <= YIELD_MM and (a > age or (a == age and u > uid)) for a, u, d in moving)
 
 
-def edge_turn(nearest_mm: float) -> str:
-    """Edge-following, clockwise round the group (the group on the robot's right): turn
-    ``"left"``, away from the group, while the nearest stationary robot is closer than
-    :data:`DESIRED_MM`, else ``"right"``, towards it. A Kilobot pivots on one motor about a
-    rear leg, so the alternating turns carry it forward.
+def edge_turn(nearest_mm: float, previous_mm: float | None = None) -> str:
+    """Edge-following, clockwise round the group (the group on the robot's right), as the
+    paper's supplement gives it: while the nearest stationary robot is closer than
+    :data:`DESIRED_MM`, go ``"straight"`` if it is getting farther (``previous_mm``, the
+    nearest distance of the reading before, was smaller), else turn ``"left"``, away from the
+    group; while it is at or beyond :data:`DESIRED_MM`, go ``"straight"`` if it is getting
+    closer, else turn ``"right"``, towards it. Without a previous reading the trend is unknown
+    and the robot turns. A Kilobot pivots on one motor about a rear leg, so the alternating
+    turns carry it forward; the straight cases let it close a gap to the group, which pivoting
+    towards the group on the spot does not.
 
     >>> edge_turn(30.0), edge_turn(45.0)
     ('left', 'right')
+    >>> edge_turn(30.0, 28.0), edge_turn(30.0, 32.0), edge_turn(45.0, 47.0), edge_turn(45.0, 43.0)
+    ('straight', 'left', 'straight', 'right')
     """
-    return "left" if nearest_mm < DESIRED_MM else "right"
+    if nearest_mm < DESIRED_MM:
+        return "straight" if previous_mm is not None and previous_mm < nearest_mm else "left"
+    return "straight" if previous_mm is not None and previous_mm > nearest_mm else "right"
 
 
 def first_fix(anchors_mm: np.ndarray, ranges_mm: np.ndarray) -> tuple[float, float] | None:
