@@ -1,11 +1,12 @@
 """Issue 47, the jams: edge-following as the paper's supplement gives it, with its two
-go-straight cases (too close but getting farther, too far but getting closer), and a moving
-robot that decides afresh only on a new reading of its nearest stationary robot."""
+go-straight cases (too close but getting farther, too far but getting closer), a trend only
+beyond the readings' noise (``TREND_MM``), and a moving robot that decides afresh only on a new
+reading of its nearest stationary robot."""
 
 from __future__ import annotations
 
 from kilonet.protocols.self_assembly.program import ASSEMBLY, AssemblyStage, SelfAssembly
-from kilonet.protocols.self_assembly.rules import DESIRED_MM, edge_turn
+from kilonet.protocols.self_assembly.rules import DESIRED_MM, TREND_MM, edge_turn
 from kilonet.scenarios.self_assembly import load_shape
 from kilonet.testing import ScriptedWorld
 
@@ -22,7 +23,15 @@ def test_too_far_turns_towards_unless_already_getting_closer():
     assert edge_turn(DESIRED_MM + 10.0, DESIRED_MM + 8.0) == "right"
     assert edge_turn(DESIRED_MM + 10.0, DESIRED_MM + 10.0) == "right"
     assert edge_turn(DESIRED_MM) == "right"  # at the desired distance counts as far
-    assert edge_turn(DESIRED_MM, DESIRED_MM + 1.0) == "straight"
+    assert edge_turn(DESIRED_MM, DESIRED_MM + TREND_MM) == "straight"
+
+
+def test_a_change_within_the_noise_is_no_trend():
+    close, far = DESIRED_MM - 4.0, DESIRED_MM + 10.0
+    assert edge_turn(close, close - TREND_MM) == "straight"
+    assert edge_turn(close, close - TREND_MM + 1.0) == "left"  # pressed into a pocket: noise
+    assert edge_turn(far, far + TREND_MM) == "straight"
+    assert edge_turn(far, far + TREND_MM - 1.0) == "right"
 
 
 def _moving_robot(distances_mm: list[float]) -> ScriptedWorld:
