@@ -70,8 +70,8 @@ JAM_MM = 10.0
 #: radius and a little, so that the packed start just below the seeds lies outside it.
 SEED_MARGIN_MM = 18.0
 JAM_S = 30.0
-#: The run ends when no robot joined for this long, seconds: the assembly has stalled (at a
-#: hundred robots, seed 1, joins come at most 270 s apart until the last few robots jam).
+#: The run ends when no robot joined for this long, seconds: the assembly has stalled (the last
+#: robots jam round the start, where the robots still waiting hear them and never start).
 STALLED_S = 600.0
 #: Characters of a text bitmap: inside, and outside.
 INSIDE, OUTSIDE = "#1", ".0 "

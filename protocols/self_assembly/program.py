@@ -61,6 +61,7 @@ ASSEMBLY = Layout(
     ],
 )
 _TYPE = ASSEMBLY.type
+_UNPACK = ASSEMBLY.unpack
 UNKNOWN = 255
 #: A neighbour not heard for this long (three transmit periods) is forgotten, seconds.
 FORGET_S = 1.6
@@ -131,6 +132,9 @@ class Neighbour(NamedTuple):
     said: Any
 
 
+_NEIGHBOUR = tuple.__new__
+
+
 class SelfAssembly(Kilobot):
     """A robot of the self-assembly.
 
@@ -168,6 +172,9 @@ class SelfAssembly(Kilobot):
         self.estimate: tuple[float, float] | None = self.seed_at_mm
         self.neighbours: dict[int, Neighbour] = {}
         self.turn = ""
+        self.edge_action = ""  # what the last reading of the nearest robot decided
+        self.edge_reading: tuple[int, float] | None = None  # (uid, when heard) of that reading
+        self.edge_previous_mm: float | None = None  # its distance, mm
         self.moved_since_s = 0.0
         self.last_stationary_s = 0.0
         self.next_check_s = STARTUP_S
@@ -201,10 +208,16 @@ class SelfAssembly(Kilobot):
             self._message = None  # a moving robot's age and estimate change
 
     def message_rx(self, message: Message, distance_mm: int) -> None:
+        # Every robot hears every neighbour about twice a second (some 60 receptions per
+        # simulated second per robot in a packed start): the clock is read inline, the record
+        # is the one decoded once for all receivers, and the Neighbour is built without the
+        # named tuple's Python-level __new__.
         if message.type != _TYPE:
             return
-        said = ASSEMBLY.unpack(message)
-        self.neighbours[said.uid] = Neighbour(self._now_s(), distance_mm, said)
+        said = _UNPACK(message)
+        self.neighbours[said.uid] = _NEIGHBOUR(
+            Neighbour, (self.kilo_ticks * self.tick_s, distance_mm, said)
+        )
 
     def loop(self) -> None:
         stage = self.stage
@@ -245,15 +258,16 @@ class SelfAssembly(Kilobot):
 
     # -- the stages --------------------------------------------------------------------------
     def _wait(self, fresh: dict[int, Neighbour], stationary: list[tuple[int, Neighbour]]) -> None:
-        if self.gradient == UNKNOWN:
+        # A robot inside the packed start (most of them) is not on the edge: it need not
+        # weigh its neighbours.
+        if self.gradient == UNKNOWN or not on_edge(n.distance_mm for _, n in stationary):
             return
         heard = [
             Heard(uid, n.said.gradient, n.said.stage in _MOVING, n.distance_mm)
             for uid, n in fresh.items()
             if n.said.stage not in _PLACED
         ]
-        edge = on_edge(n.distance_mm for _, n in stationary)
-        if may_start(edge, self.gradient, self.kilo_uid, heard):
+        if may_start(True, self.gradient, self.kilo_uid, heard):
             self.moved_since_s = self._now_s()
             self._set_stage(AssemblyStage.MOVE_OUTSIDE)
             self.log("start", gradient=self.gradient)
@@ -277,7 +291,18 @@ class SelfAssembly(Kilobot):
         if nearest is None or must_yield(age, self.kilo_uid, ahead):
             self._drive("")
         else:
-            self._drive(edge_turn(nearest[1].distance_mm))
+            self._drive(self._edge_action(*nearest))
+
+    def _edge_action(self, uid: int, nearest: Neighbour) -> str:
+        """The edge-following action for the nearest stationary robot's reading: decided
+        afresh only on a new reading (the trend compares it with the reading before); between
+        readings the robot keeps the action the last one decided."""
+        reading = (uid, nearest.heard_s)
+        if reading != self.edge_reading:
+            self.edge_action = edge_turn(nearest.distance_mm, self.edge_previous_mm)
+            self.edge_reading = reading
+            self.edge_previous_mm = float(nearest.distance_mm)
+        return self.edge_action
 
     def _stops(self, nearest: tuple[int, Neighbour] | None) -> bool:
         """Apply the stop rules to a fresh estimate; whether the robot stopped in the shape."""
@@ -378,8 +403,10 @@ class SelfAssembly(Kilobot):
         self.spinup_motors()
         if turn == "left":
             self.set_motors(self.kilo_turn_left, 0)
-        else:
+        elif turn == "right":
             self.set_motors(0, self.kilo_turn_right)
+        else:
+            self.set_motors(self.kilo_straight_left, self.kilo_straight_right)
 
     def _halt(self) -> None:
         self.turn = ""

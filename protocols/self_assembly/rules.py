@@ -26,6 +26,7 @@ __all__ = [
     "SETTLE_MAX_S",
     "SETTLE_MM",
     "SETTLE_S",
+    "TREND_MM",
     "YIELD_MM",
     "Heard",
     "Shape",
@@ -50,6 +51,10 @@ GRADIENT_MM = 49.5
 #: A moving robot waits while a moving robot ahead of it is within this distance (3.5 body
 #: radii, YIELD_DISTANCE).
 YIELD_MM = 58.0
+#: Edge-following counts the nearest robot as getting closer or farther only when its distance
+#: changed by at least this much since the reading before, mm: a robot pressed against the group
+#: reads distances that move by their noise alone, and would go straight into it half the time.
+TREND_MM = 2.0
 #: Neighbours within this distance are a robot's ring of touching robots (between the first
 #: and second ring of a packing 34 mm apart: 34 and 59 mm).
 EDGE_MM = 47.0
@@ -172,16 +177,28 @@ def must_yield(age: int, uid: int, moving: Iterable[tuple[int, int, float]]) -> 
     return any(d <= YIELD_MM and (a > age or (a == age and u > uid)) for a, u, d in moving)
 
 
-def edge_turn(nearest_mm: float) -> str:
-    """Edge-following, clockwise round the group (the group on the robot's right): turn
-    ``"left"``, away from the group, while the nearest stationary robot is closer than
-    :data:`DESIRED_MM`, else ``"right"``, towards it. A Kilobot pivots on one motor about a
-    rear leg, so the alternating turns carry it forward.
+def edge_turn(nearest_mm: float, previous_mm: float | None = None) -> str:
+    """Edge-following, clockwise round the group (the group on the robot's right), as the
+    paper's supplement gives it: while the nearest stationary robot is closer than
+    :data:`DESIRED_MM`, go ``"straight"`` if it is getting farther (``previous_mm``, the
+    nearest distance of the reading before, was smaller by at least :data:`TREND_MM`), else turn
+    ``"left"``, away from the group; while it is at or beyond :data:`DESIRED_MM`, go
+    ``"straight"`` if it is getting closer (by at least :data:`TREND_MM`), else turn
+    ``"right"``, towards it. Without a previous reading the trend is unknown and the robot
+    turns. A Kilobot pivots on one motor about a rear leg, so the alternating
+    turns carry it forward; the straight cases let it close a gap to the group, which pivoting
+    towards the group on the spot does not.
 
     >>> edge_turn(30.0), edge_turn(45.0)
     ('left', 'right')
+    >>> edge_turn(30.0, 28.0), edge_turn(30.0, 29.0), edge_turn(45.0, 47.0), edge_turn(45.0, 46.0)
+    ('straight', 'left', 'straight', 'right')
     """
-    return "left" if nearest_mm < DESIRED_MM else "right"
+    if previous_mm is None:
+        return "left" if nearest_mm < DESIRED_MM else "right"
+    if nearest_mm < DESIRED_MM:
+        return "straight" if nearest_mm - previous_mm >= TREND_MM else "left"
+    return "straight" if previous_mm - nearest_mm >= TREND_MM else "right"
 
 
 def first_fix(anchors_mm: np.ndarray, ranges_mm: np.ndarray) -> tuple[float, float] | None:
