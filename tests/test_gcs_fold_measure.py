@@ -57,11 +57,17 @@ def test_the_double_ring_waits_for_its_fold_and_ends_without_one(capsys):
 
 
 @pytest.mark.parametrize(
-    ("robots", "seed", "outliers"),
-    [(40, 2, [1, 13, 31]), pytest.param(100, 3, [6], marks=pytest.mark.slow)],
+    ("robots", "seed", "extra", "outliers"),
+    [
+        (40, 2, [], [1, 13, 31]),
+        # Under merging's default resume rule (far) this swarm merges without a fold; the
+        # old rule (drift) leaves robot 6 folded, which is what this case checks.
+        pytest.param(100, 3, ["--set", "gcs.merge_resume=drift"], [6], marks=pytest.mark.slow),
+    ],
 )
 @pytest.mark.parametrize("fold", [False, True])
-def test_the_swarm_repairs_or_splits_its_folds(capsys, robots, seed, outliers, fold):
-    summary = _summary(capsys, ["--robots", str(robots), "--seed", str(seed)], fold=fold)
+def test_the_swarm_repairs_or_splits_its_folds(capsys, robots, seed, extra, outliers, fold):
+    args = ["--robots", str(robots), "--seed", str(seed), *extra]
+    summary = _summary(capsys, args, fold=fold)
     assert summary["fold_outliers"] == ([] if fold else outliers)
     assert (summary["fold_repaired"] + summary["fold_split"] > 0) == fold
